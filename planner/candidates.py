@@ -1,0 +1,263 @@
+"""Scanner positions to choose from: given explicitly, or generated on a grid.
+
+The grid lies in the XY plane at multiples of ``grid_spacing_m`` (so a model moved by a
+whole number of cells gets the same points), inside the optional ``area_of_interest``
+polygon. Each point is put ``scanner_height_m`` above the floor under it, found by casting a
+ray up from below the model (the lowest surface is the floor; multi-storey IFC models use
+their rooms instead, see :mod:`planner.ifc`). A point is dropped, and counted under its
+reason, when
+
+- ``outside_area_of_interest``: not covered by the polygon (boundary counts as inside);
+- ``no_floor``: nothing under it, or the surface under it is steeper than 30 degrees;
+- ``blocked_above_floor``: something lies between the floor and ``clearance_m`` above the
+  scanner (a table, a low machine, a shelf);
+- ``inside_geometry``: inside a closed object (generalised winding number of an object's
+  faces above one half; objects are the model's groups, normals pointing outward);
+- ``too_close``: closer than ``clearance_m`` to any face (exact point-triangle distance).
+
+Array letters: C candidates, N grid points.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+from shapely import Polygon, intersects_xy
+
+from planner.errors import NoCandidatesError, ParameterError
+from planner.parameters import PlanSpec
+from planner.scene import Scene
+
+DROP_REASONS = (
+    "outside_area_of_interest",
+    "no_floor",
+    "blocked_above_floor",
+    "inside_geometry",
+    "too_close",
+)
+_MAX_FLOOR_SLOPE_DEG = 30.0
+
+
+@dataclass(frozen=True, eq=False)
+class CandidateSet:
+    """The positions considered, and why the other grid points were left out.
+
+    Attributes
+    ----------
+    positions : (C, 3) float64, metres, model coordinates
+    source : "explicit", "grid" or "rooms"
+    considered : grid points before any was dropped (C for explicit candidates)
+    dropped : count per reason in ``DROP_REASONS``
+    labels : per candidate, e.g. the room and storey it stands in (empty when unknown)
+    """
+
+    positions: NDArray[np.float64]
+    source: str
+    considered: int
+    dropped: dict[str, int] = field(default_factory=dict)
+    labels: tuple[dict[str, str], ...] = ()
+
+    def __len__(self) -> int:
+        return int(len(self.positions))
+
+    def summary(self) -> dict[str, object]:
+        return {
+            "source": self.source,
+            "count": len(self),
+            "considered": self.considered,
+            "dropped": dict(self.dropped),
+        }
+
+
+def explicit_candidates(points: NDArray[np.float64] | tuple[tuple[float, float, float], ...]
+                        ) -> CandidateSet:
+    """Candidates given by the user, kept as they are and in their order."""
+    positions = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(positions) == 0:
+        raise NoCandidatesError("the candidate list is empty; give at least one x, y, z")
+    if not np.isfinite(positions).all():
+        bad = int(np.flatnonzero(~np.isfinite(positions).all(axis=1))[0])
+        raise ParameterError("candidates", f"point {bad} has a non-finite coordinate")
+    return CandidateSet(positions=positions, source="explicit", considered=len(positions))
+
+
+def read_candidates_csv(path: str | Path) -> NDArray[np.float64]:
+    """(C, 3) float64 from a CSV with a header row ``x,y,z``."""
+    path = Path(path)
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = list(csv.reader(handle))
+    except OSError as exc:
+        raise ParameterError("candidates", f"cannot read {path}: {exc.strerror}") from exc
+    if not rows or [h.strip().lower() for h in rows[0][:3]] != ["x", "y", "z"]:
+        raise ParameterError("candidates", f"{path.name} needs a header row 'x,y,z'")
+    points = []
+    for line_no, row in enumerate(rows[1:], start=2):
+        if not row or not "".join(row).strip():
+            continue
+        try:
+            points.append([float(v) for v in row[:3]])
+        except ValueError as exc:
+            raise ParameterError(
+                "candidates", f"{path.name} line {line_no}: {row!r} is not three numbers"
+            ) from exc
+        if len(points[-1]) != 3:
+            raise ParameterError("candidates", f"{path.name} line {line_no}: needs x,y,z")
+    return np.asarray(points, np.float64).reshape(-1, 3)
+
+
+def grid_points_xy(
+    bounds_xy: NDArray[np.float64], spacing_m: float, polygon: Polygon | None = None
+) -> NDArray[np.float64]:
+    """(N, 2) grid points at multiples of ``spacing_m`` inside (2, 2) bounds, row by row."""
+    lo, hi = bounds_xy
+    if polygon is not None:
+        px0, py0, px1, py1 = polygon.bounds
+        lo = np.maximum(lo, [px0, py0])
+        hi = np.minimum(hi, [px1, py1])
+    start = np.ceil(lo / spacing_m - 1e-9).astype(np.int64)
+    stop = np.floor(hi / spacing_m + 1e-9).astype(np.int64)
+    xs = np.arange(start[0], stop[0] + 1) * spacing_m
+    ys = np.arange(start[1], stop[1] + 1) * spacing_m
+    gx, gy = np.meshgrid(xs, ys)  # rows of constant y, x fastest
+    return np.column_stack([gx.ravel(), gy.ravel()])
+
+
+def generate_grid(scene: Scene, spec: PlanSpec, caster: object) -> CandidateSet:
+    """Grid candidates over the model's footprint (see the module docstring)."""
+    polygon = None
+    if spec.area_of_interest is not None:
+        polygon = Polygon(spec.area_of_interest)
+        if not polygon.is_valid or polygon.area <= 0:
+            raise ParameterError(
+                "area_of_interest", "is not a valid polygon (self-intersecting or flat)"
+            )
+    bounds = scene.bounds
+    xy = grid_points_xy(bounds[:, :2], spec.grid_spacing_m, polygon)
+    considered = len(xy)
+    dropped = dict.fromkeys(DROP_REASONS, 0)
+    if polygon is not None and len(xy):
+        inside = intersects_xy(polygon, xy[:, 0], xy[:, 1])
+        dropped["outside_area_of_interest"] = int((~inside).sum())
+        xy = xy[inside]
+    positions = place_on_floor(scene, xy, spec, caster, dropped)
+    positions = drop_unclear(scene, positions, spec.clearance_m, dropped)
+    if len(positions) == 0:
+        raise NoCandidatesError(
+            f"no grid point is left out of {considered} "
+            f"({', '.join(f'{k}: {v}' for k, v in dropped.items() if v)}); lower clearance_m "
+            f"({spec.clearance_m}) or grid_spacing_m ({spec.grid_spacing_m}), check "
+            "area_of_interest, or give candidates explicitly"
+        )
+    return CandidateSet(positions=positions, source="grid", considered=considered,
+                        dropped=dropped)
+
+
+def place_on_floor(
+    scene: Scene, xy: NDArray[np.float64], spec: PlanSpec, caster: object,
+    dropped: dict[str, int],
+) -> NDArray[np.float64]:
+    """(C, 3) positions ``scanner_height_m`` above the lowest surface under each (N, 2) point."""
+    from planner._embree import EmbreeOcclusion
+
+    assert isinstance(caster, EmbreeOcclusion)
+    if len(xy) == 0:
+        return np.zeros((0, 3))
+    below = scene.bounds[0, 2] - 1.0
+    origins = np.column_stack([xy, np.full(len(xy), below)])
+    up = np.tile([0.0, 0.0, 1.0], (len(xy), 1))
+    face, distance = caster.first_hit(origins, up)
+    steep = math.cos(math.radians(_MAX_FLOOR_SLOPE_DEG))
+    has_floor = face >= 0
+    has_floor[has_floor] = np.abs(scene.normals[face[has_floor], 2]) >= steep
+    dropped["no_floor"] += int((~has_floor).sum())
+    floor_z = below + distance[has_floor]
+    xy = xy[has_floor]
+    # from just above the floor to clearance above the scanner, nothing may stand
+    lift = 0.01
+    start = np.column_stack([xy, floor_z + lift])
+    reach = spec.scanner_height_m + spec.clearance_m - lift
+    face_above, dist_above = caster.first_hit(start, up[: len(xy)])
+    clear = dist_above > reach
+    dropped["blocked_above_floor"] += int((~clear).sum())
+    return np.column_stack([xy[clear], floor_z[clear] + spec.scanner_height_m])
+
+
+def drop_unclear(
+    scene: Scene, positions: NDArray[np.float64], clearance_m: float, dropped: dict[str, int]
+) -> NDArray[np.float64]:
+    """Drop (C, 3) positions inside closed objects or closer than ``clearance_m`` to a face."""
+    if len(positions) == 0:
+        return positions
+    inside = inside_closed_groups(scene, positions)
+    dropped["inside_geometry"] += int(inside.sum())
+    positions = positions[~inside]
+    near = closer_than(scene, positions, clearance_m)
+    dropped["too_close"] += int(near.sum())
+    return positions[~near]
+
+
+def closer_than(scene: Scene, points: NDArray[np.float64], radius_m: float) -> NDArray[np.bool_]:
+    """(N,) bool: the exact distance from each (N, 3) point to the mesh is below ``radius_m``."""
+    if radius_m <= 0 or len(points) == 0:
+        return np.zeros(len(points), bool)
+    triangles = scene.triangles
+    spread = float(np.linalg.norm(triangles - scene.centroids[:, None, :], axis=2).max())
+    tree = cKDTree(scene.centroids)
+    lists = tree.query_ball_point(points, radius_m + spread)
+    counts = np.array([len(x) for x in lists])
+    result = np.zeros(len(points), bool)
+    if counts.sum() == 0:
+        return result
+    point_of_pair = np.repeat(np.arange(len(points)), counts)
+    face_of_pair = np.concatenate([np.asarray(x, np.int64) for x in lists if x])
+    step = 500_000
+    for s in range(0, len(face_of_pair), step):
+        p, f = point_of_pair[s:s + step], face_of_pair[s:s + step]
+        closest = trimesh.triangles.closest_point(triangles[f], points[p])
+        gap = np.linalg.norm(closest - points[p], axis=1)
+        np.logical_or.at(result, p, gap < radius_m)
+    return result
+
+
+def inside_closed_groups(scene: Scene, points: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """(N,) bool: the generalised winding number of some group's faces exceeds one half.
+
+    Only points inside a group's bounding box are evaluated against that group.
+    """
+    result = np.zeros(len(points), bool)
+    triangles = scene.triangles
+    for g in range(len(scene.groups)):
+        faces = np.flatnonzero(scene.face_group == g)
+        if len(faces) == 0:
+            continue
+        tri = triangles[faces]
+        lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
+        boxed = np.flatnonzero(((points > lo) & (points < hi)).all(axis=1) & ~result)
+        for s in range(0, len(boxed), 64):
+            chunk = boxed[s:s + 64]
+            result[chunk] = winding_number(tri, points[chunk]) > 0.5
+    return result
+
+
+def winding_number(triangles: NDArray[np.float64], points: NDArray[np.float64]
+                   ) -> NDArray[np.float64]:
+    """(N,) winding numbers of (N, 3) points w.r.t. (T, 3, 3) triangles (Van Oosterom)."""
+    a = triangles[None, :, 0, :] - points[:, None, :]
+    b = triangles[None, :, 1, :] - points[:, None, :]
+    c = triangles[None, :, 2, :] - points[:, None, :]
+    la, lb, lc = (np.linalg.norm(v, axis=2) for v in (a, b, c))
+    det = np.einsum("ntk,ntk->nt", a, np.cross(b, c))
+    dot_ab = np.einsum("ntk,ntk->nt", a, b)
+    dot_bc = np.einsum("ntk,ntk->nt", b, c)
+    dot_ca = np.einsum("ntk,ntk->nt", c, a)
+    denom = la * lb * lc + dot_ab * lc + dot_ca * lb + dot_bc * la
+    solid = 2.0 * np.arctan2(det, denom)
+    return np.asarray(solid.sum(axis=1) / (4.0 * math.pi))

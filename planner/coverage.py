@@ -1,0 +1,83 @@
+"""The coverage table: which candidate qualifies for which face, and at what density.
+
+A sparse candidates x faces matrix (C x F) whose stored values are the LPD (pts/m^2) of
+every qualified pair: passes the analytic limits and the occlusion ray.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from planner.pairs import Pairs
+
+
+@dataclass(frozen=True, eq=False)
+class CoverageTable:
+    """Qualified pairs, both ways round.
+
+    Attributes
+    ----------
+    by_candidate : (C, F) CSR, LPD of each qualified pair, rows = candidates
+    by_face : (C, F) CSC, the same matrix for column access
+    face_area_m2 : (F,) float64
+    """
+
+    by_candidate: sp.csr_matrix
+    by_face: sp.csc_matrix
+    face_area_m2: NDArray[np.float64]
+
+    @classmethod
+    def from_pairs(
+        cls, qualified: Pairs, n_candidates: int, face_area_m2: NDArray[np.float64]
+    ) -> CoverageTable:
+        """Build from pairs sorted by (candidate, face) (the order the pipeline makes)."""
+        shape = (n_candidates, len(face_area_m2))
+        counts = np.bincount(qualified.candidate, minlength=n_candidates)
+        indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        csr = sp.csr_matrix(
+            (qualified.lpd_pts_m2.astype(np.float64), qualified.face.astype(np.int64), indptr),
+            shape=shape,
+        )
+        csr.has_sorted_indices = True
+        return cls(by_candidate=csr, by_face=csr.tocsc(), face_area_m2=face_area_m2)
+
+    @property
+    def n_candidates(self) -> int:
+        return int(self.by_candidate.shape[0])
+
+    @property
+    def n_faces(self) -> int:
+        return int(self.by_candidate.shape[1])
+
+    @property
+    def n_pairs(self) -> int:
+        return int(self.by_candidate.nnz)
+
+    @property
+    def candidates_per_face(self) -> NDArray[np.int64]:
+        """(F,) int64: how many candidates qualify for each face (k_f)."""
+        return np.diff(self.by_face.indptr).astype(np.int64)
+
+    @property
+    def achievable(self) -> NDArray[np.bool_]:
+        """(F,) bool: qualified from at least one candidate."""
+        return self.candidates_per_face > 0
+
+    @property
+    def max_achievable_area_m2(self) -> float:
+        return float(self.face_area_m2[self.achievable].sum())
+
+    def faces_of(self, candidate: int) -> NDArray[np.int32]:
+        """Faces that ``candidate`` qualifies for, ascending."""
+        start, stop = self.by_candidate.indptr[candidate], self.by_candidate.indptr[candidate + 1]
+        return self.by_candidate.indices[start:stop]
+
+    def area_per_candidate(self) -> NDArray[np.float64]:
+        """(C,) float64: qualified area of every candidate alone."""
+        return np.asarray(
+            (self.by_candidate != 0).astype(np.float64) @ self.face_area_m2
+        ).reshape(-1)

@@ -1,0 +1,181 @@
+"""``plan()``: scene -> candidates -> pairs -> visibility -> coverage -> selection -> report.
+
+Candidates are processed in blocks by a small thread pool: the analytic limits are numpy
+work and Embree releases the GIL, so both cores stay busy. Blocks are merged in candidate
+order, which keeps the result independent of the number of threads.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planner.candidates import CandidateSet, explicit_candidates, generate_grid
+from planner.coverage import CoverageTable
+from planner.errors import CancelledError, NothingVisibleError
+from planner.optimal import OptimalResult, solve_optimal
+from planner.pairs import FaceLimits, PairFinder, Pairs
+from planner.parameters import PlanSpec
+from planner.scene import Scene
+from planner.selection import Selection, coverage_state, greedy
+from planner.visibility import Backend, make_occlusion
+
+# progress(stage, fraction 0..1) -> True to cancel
+ProgressCallback = Callable[[str, float], bool | None]
+
+STAGES = ("candidates", "visibility", "selection", "report")
+_BLOCK_CANDIDATES = 16
+
+
+@dataclass
+class Stats:
+    """What the run did, for benchmarks and the job record (never in the result bytes)."""
+
+    seconds: dict[str, float] = field(default_factory=dict)
+    pairs_tested: int = 0
+    rays_cast: int = 0
+    qualified_pairs: int = 0
+
+
+@dataclass(frozen=True, eq=False)
+class PlanResult:
+    """Everything a plan produced, before it is written out (see :mod:`planner.report`)."""
+
+    scene: Scene
+    spec: PlanSpec
+    candidates: CandidateSet
+    table: CoverageTable
+    limits: FaceLimits
+    selections: dict[str, Selection]  # full orders, per method
+    chosen: Selection  # the plan: the chosen method up to the goal
+    optimal: OptimalResult | None
+    faces: dict[str, np.ndarray]
+    stats: Stats
+
+
+def _notify(progress: ProgressCallback | None, stage: str, fraction: float) -> None:
+    if progress is not None and progress(stage, min(max(fraction, 0.0), 1.0)):
+        raise CancelledError(f"the plan was cancelled during {stage}")
+
+
+def plan(
+    scene: Scene,
+    spec: PlanSpec,
+    *,
+    progress: ProgressCallback | None = None,
+    backend: Backend = "embree",
+    threads: int | None = None,
+) -> PlanResult:
+    """Plan the stations for ``scene`` under ``spec``.
+
+    Parameters
+    ----------
+    progress : called with (stage, fraction) between blocks of work; returning True
+        cancels the plan with :class:`CancelledError`
+    backend : "embree" (default) or "bruteforce" (the slow reference)
+    threads : worker threads for visibility (default: the machine's cores)
+    """
+    stats = Stats()
+    t0 = time.perf_counter()
+    limits = FaceLimits.from_spec(spec, scene)
+    occlusion = make_occlusion(scene, limits.occludes, backend)
+    _notify(progress, "candidates", 0.0)
+    if spec.candidates is not None:
+        candidates = explicit_candidates(spec.candidates)
+    elif scene.metadata.get("spaces"):
+        from planner import ifc
+
+        candidates = ifc.room_candidates(scene, spec, _caster(scene, limits, backend, occlusion))
+    else:
+        candidates = generate_grid(scene, spec, _caster(scene, limits, backend, occlusion))
+    stats.seconds["candidates"] = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    qualified = qualify_pairs(scene, candidates.positions, limits, occlusion, stats,
+                              progress=progress, threads=threads)
+    table = CoverageTable.from_pairs(qualified, len(candidates), scene.areas)
+    stats.qualified_pairs = table.n_pairs
+    stats.seconds["visibility"] = time.perf_counter() - t1
+    if table.n_pairs == 0:
+        raise NothingVisibleError(
+            f"no face qualifies from any of the {len(candidates)} candidates: check that "
+            "the model is in metres (unit_scale), that candidates stand inside it, and the "
+            f"limits (dof_min_m {spec.dof_min_m}, min_density_pts_m2 "
+            f"{spec.min_density_pts_m2}, min_incidence_deg {spec.min_incidence_deg})"
+        )
+
+    t2 = time.perf_counter()
+    _notify(progress, "selection", 0.0)
+    selections = {
+        "greedy": greedy(table),
+        "weighted_greedy": greedy(table, weighted=True),
+    }
+    optimal = None
+    if spec.method == "optimal":
+        _notify(progress, "selection", 0.5)
+        optimal = solve_optimal(table, spec.coverage_goal, spec.optimal_time_limit_s,
+                                upper_bound=selections["greedy"].count_for_goal(
+                                    spec.coverage_goal))
+        chosen = optimal.selection
+    else:
+        chosen = selections[spec.method].truncated(spec.coverage_goal)
+    stats.seconds["selection"] = time.perf_counter() - t2
+    _notify(progress, "report", 0.0)
+    faces = coverage_state(table, chosen.stations)
+    return PlanResult(scene=scene, spec=spec, candidates=candidates, table=table,
+                      limits=limits, selections=selections, chosen=chosen, optimal=optimal,
+                      faces=faces, stats=stats)
+
+
+def _caster(scene: Scene, limits: FaceLimits, backend: Backend, occlusion: object) -> object:
+    """An Embree first-hit caster for candidate generation (always Embree: it is geometry)."""
+    if backend == "embree":
+        return occlusion
+    return make_occlusion(scene, limits.occludes, "embree")
+
+
+def qualify_pairs(
+    scene: Scene,
+    positions: np.ndarray,
+    limits: FaceLimits,
+    occlusion: object,
+    stats: Stats,
+    *,
+    progress: ProgressCallback | None = None,
+    threads: int | None = None,
+) -> Pairs:
+    """The qualified pairs of (C, 3) candidate positions, sorted by (candidate, face)."""
+    finder = PairFinder(scene, limits)
+    starts = list(range(0, len(positions), _BLOCK_CANDIDATES))
+
+    def block(start: int) -> tuple[Pairs, int, int]:
+        chunk = positions[start:start + _BLOCK_CANDIDATES]
+        pairs, tested = finder.find(chunk, start)
+        visible = occlusion.visible(  # type: ignore[attr-defined]
+            positions[pairs.candidate], pairs.direction, pairs.distance_m, pairs.face
+        )
+        return pairs.subset(visible), tested, len(pairs)
+
+    results: list[Pairs] = []
+    workers = threads or os.cpu_count() or 1
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for i, (pairs, tested, rays) in enumerate(pool.map(block, starts)):
+            results.append(pairs)
+            stats.pairs_tested += tested
+            stats.rays_cast += rays
+            _notify(progress, "visibility", (i + 1) / max(1, len(starts)))
+    if not results:
+        empty = np.zeros(0, np.int64)
+        return Pairs(empty, empty, np.zeros(0), np.zeros((0, 3)), np.zeros(0))
+    return Pairs(
+        candidate=np.concatenate([p.candidate for p in results]),
+        face=np.concatenate([p.face for p in results]),
+        distance_m=np.concatenate([p.distance_m for p in results]),
+        direction=np.concatenate([p.direction for p in results]),
+        lpd_pts_m2=np.concatenate([p.lpd_pts_m2 for p in results]),
+    )

@@ -1,0 +1,234 @@
+"""Read a model file into a :class:`~planner.scene.Scene`.
+
+Formats are recognised from the bytes, not the file name: OBJ, PLY, STL, OFF, GLB/glTF
+through trimesh, IFC through IfcOpenShell (imported only when an IFC file comes). Faces keep
+the file's order (``process=False``, ``maintain_order=True``) so that per-face results line
+up with the user's model.
+
+Group labels per face: OBJ ``g`` (or ``o``) names, glTF node names, the PLY face property
+``class_id`` (named from a ``<stem>.elements.json`` beside the file when there is one).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from planner.errors import SceneError, UnsupportedFormatError
+from planner.scene import Element, Scene, build_scene, remesh
+
+FORMATS = ("obj", "ply", "stl", "off", "glb", "gltf", "ifc")
+_SNIFF_BYTES = 65536
+
+
+def sniff_format(head: bytes, total_size: int | None = None) -> str | None:
+    """Recognise a model format from the first bytes of a file.
+
+    Parameters
+    ----------
+    head : the first few kilobytes of the file
+    total_size : the file's size in bytes, to recognise binary STL by its triangle count
+
+    Returns
+    -------
+    one of ``FORMATS``, or None when the bytes are no model this planner reads
+    """
+    stripped = head.lstrip()
+    if stripped.startswith(b"ISO-10303-21"):
+        return "ifc"
+    if head.startswith(b"ply"):
+        return "ply"
+    if head.startswith(b"glTF"):
+        return "glb"
+    if stripped.startswith(b"{") and b'"asset"' in head:
+        return "gltf"
+    if re.match(rb"[CN4ST]*OFF\b", stripped):
+        return "off"
+    if total_size is not None and len(head) >= 84:
+        count = int.from_bytes(head[80:84], "little")
+        if 84 + 50 * count == total_size:
+            return "stl"
+    if stripped.startswith(b"solid") and b"facet" in head:
+        return "stl"
+    if b"\x00" in head:
+        return None
+    text = head.decode("utf-8", errors="ignore")
+    if re.search(r"^\s*v\s", text, flags=re.MULTILINE):
+        return "obj"
+    return None
+
+
+def file_format(path: Path) -> str:
+    """The format of the file at ``path``; :class:`UnsupportedFormatError` when unknown."""
+    with path.open("rb") as handle:
+        head = handle.read(_SNIFF_BYTES)
+    if not head:
+        raise SceneError(f"{path.name} is empty; upload the model's bytes")
+    fmt = sniff_format(head, path.stat().st_size)
+    if fmt is None:
+        raise UnsupportedFormatError(
+            f"{path.name} is not a model format the planner reads; "
+            f"use one of {', '.join(FORMATS)}"
+        )
+    return fmt
+
+
+def read_scene(
+    path: str | Path, *, max_edge_m: float | None = 0.2, unit_scale: float = 1.0
+) -> Scene:
+    """Read a model and prepare it for planning.
+
+    Parameters
+    ----------
+    path : the model file (format sniffed from its bytes)
+    max_edge_m : split faces until no edge is longer; None uses the mesh as given
+    unit_scale : multiply coordinates by this (0.001 for a model in millimetres)
+
+    Raises
+    ------
+    SceneError, UnsupportedFormatError
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"{path} does not exist or is not a file")
+    if max_edge_m is not None and max_edge_m <= 0:
+        raise SceneError(f"max_edge_m is {max_edge_m}; use a positive length or null")
+    fmt = file_format(path)
+    if fmt == "ifc":
+        from planner import ifc  # IfcOpenShell is heavy: import it only for IFC files
+
+        scene = ifc.read_ifc(path)
+    else:
+        scene = _read_mesh(path, fmt)
+    if unit_scale != 1.0:
+        scene = _scaled(scene, unit_scale)
+    scene.metadata.setdefault("format", fmt)
+    if max_edge_m is not None:
+        scene = remesh(scene, max_edge_m)
+    return scene
+
+
+def _scaled(scene: Scene, unit_scale: float) -> Scene:
+    return Scene(
+        vertices=scene.vertices * unit_scale,
+        faces=scene.faces,
+        face_group=scene.face_group,
+        groups=scene.groups,
+        source_face=scene.source_face,
+        face_element=scene.face_element,
+        elements=scene.elements,
+        metadata=scene.metadata,
+    )
+
+
+def _read_mesh(path: Path, fmt: str) -> Scene:
+    try:
+        loaded = trimesh.load(
+            str(path), file_type=fmt, process=False, maintain_order=True,
+            group_material=True, skip_materials=True,
+        )
+    except Exception as exc:  # trimesh raises many kinds for a broken file
+        raise SceneError(f"{path.name} could not be read as {fmt.upper()}: {exc}") from exc
+    if fmt in ("glb", "gltf") or isinstance(loaded, trimesh.Scene):
+        return _from_trimesh_scene(path, loaded)
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise SceneError(f"{path.name} contains no triangles; export the model with its faces")
+    vertices = np.asarray(loaded.vertices, np.float64)
+    faces = np.asarray(loaded.faces, np.int64)
+    if fmt == "obj":
+        face_group, groups = _obj_groups(path, len(faces))
+        return build_scene(vertices, faces, face_group, groups)
+    if fmt == "ply":
+        return _ply_scene(path, loaded, vertices, faces)
+    return build_scene(vertices, faces)
+
+
+def _from_trimesh_scene(path: Path, loaded: Any) -> Scene:
+    if isinstance(loaded, trimesh.Trimesh):
+        return build_scene(loaded.vertices, loaded.faces)
+    vertices: list[np.ndarray] = []
+    faces: list[np.ndarray] = []
+    labels: list[str] = []
+    offset = 0
+    for node in loaded.graph.nodes_geometry:
+        transform, geometry_name = loaded.graph[node]
+        geometry = loaded.geometry[geometry_name]
+        if not isinstance(geometry, trimesh.Trimesh) or len(geometry.faces) == 0:
+            continue
+        moved = trimesh.transform_points(np.asarray(geometry.vertices, np.float64), transform)
+        vertices.append(moved)
+        faces.append(np.asarray(geometry.faces, np.int64) + offset)
+        labels.extend([str(node)] * len(geometry.faces))
+        offset += len(moved)
+    if not faces:
+        raise SceneError(f"{path.name} contains no triangle meshes")
+    groups = tuple(dict.fromkeys(labels))
+    lookup = {name: i for i, name in enumerate(groups)}
+    return build_scene(
+        np.concatenate(vertices), np.concatenate(faces),
+        np.array([lookup[label] for label in labels], np.int64), groups,
+    )
+
+
+def _obj_groups(path: Path, n_faces: int) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Group label of every triangle from the ``g``/``o`` lines (polygons as fans)."""
+    groups: dict[str, int] = {}
+    labels: list[int] = []
+    current = ""
+    with path.open("r", encoding="utf-8", errors="replace") as handle:
+        for line in handle:
+            if line.startswith("f ") or line.startswith("f\t"):
+                corners = len(line.split()) - 1
+                index = groups.setdefault(current, len(groups))
+                labels.extend([index] * max(corners - 2, 0))
+            elif line.startswith(("g ", "o ", "g\t", "o\t")):
+                current = line[2:].strip()
+    if len(labels) != n_faces or not groups:
+        # a layout trimesh reads differently (e.g. lines folded with "\"): keep one group
+        return np.zeros(n_faces, np.int64), ("",)
+    return np.asarray(labels, np.int64), tuple(groups)
+
+
+def _ply_scene(path: Path, loaded: Any, vertices: np.ndarray, faces: np.ndarray) -> Scene:
+    raw = loaded.metadata.get("_ply_raw", {}).get("face", {}).get("data")
+    names = raw.dtype.names if raw is not None and raw.dtype.names else ()
+    if "class_id" not in names:
+        return build_scene(vertices, faces)
+    class_id = np.asarray(raw["class_id"], np.int64).reshape(-1)
+    table = _elements_table(path)
+    class_names = list(table.get("classes", []))
+    used = np.unique(class_id)
+    groups = tuple(
+        class_names[c] if 0 <= c < len(class_names) else f"class_{c}" for c in used
+    )
+    face_group = np.searchsorted(used, class_id)
+    if "element_id" in names and table.get("elements"):
+        elements = tuple(
+            Element(
+                global_id=str(e.get("global_id", "")),
+                ifc_class=str(e.get("ifc_class", "")),
+                name=str(e.get("name") or ""),
+                storey=str(e.get("storey") or ""),
+            )
+            for e in table["elements"]
+        )
+        face_element = np.asarray(raw["element_id"], np.int64).reshape(-1)
+        return build_scene(vertices, faces, face_group, groups,
+                           face_element=face_element, elements=elements)
+    return build_scene(vertices, faces, face_group, groups)
+
+
+def _elements_table(path: Path) -> dict[str, Any]:
+    sidecar = path.with_suffix(".elements.json")
+    if not sidecar.is_file():
+        return {}
+    try:
+        data = json.loads(sidecar.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
