@@ -1,0 +1,41 @@
+# Entry points. `make help` lists them.
+PYTHON ?= python3.11
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: help install serve test lint typecheck bench openapi clean
+
+help:  ## list the targets
+	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-10s %s\n", $$1, $$2}'
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[dev]'
+	touch $(STAMP)
+
+install: $(STAMP)  ## create .venv and install the project with its dev tools
+
+serve: $(STAMP)  ## start the API and its workers on the embedded default (SQLite, no Redis)
+	$(BIN)/scanplan serve
+
+test: $(STAMP)  ## run the whole test suite (lint, types, tests)
+	$(BIN)/ruff check planner service tests benchmarks
+	$(BIN)/mypy
+	$(BIN)/python -m pytest
+
+lint: $(STAMP)  ## ruff only
+	$(BIN)/ruff check planner service tests benchmarks
+
+typecheck: $(STAMP)  ## mypy --strict only
+	$(BIN)/mypy
+
+bench: $(STAMP)  ## print the benchmark figures
+	$(BIN)/python benchmarks/plan_hall.py
+
+openapi: $(STAMP)  ## re-export openapi/openapi.json from the app
+	$(BIN)/python -m service.openapi_export openapi/openapi.json
+
+clean:  ## remove the virtual environment and caches
+	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache

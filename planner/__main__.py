@@ -1,0 +1,127 @@
+"""Command line: ``scanplan plan SCENE --out DIR`` and the subcommands other packages add.
+
+Errors print one line naming the parameter and the fix, and exit with status 2. On a
+terminal a progress line shows the stage and percent; piped, the command stays quiet.
+Packages add subcommands (the service adds ``serve`` and ``worker``) through the entry point
+group ``scanplan.commands``: a callable that takes the argparse subparsers object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from importlib.metadata import entry_points
+from pathlib import Path
+from typing import Any, TextIO
+
+from planner.candidates import read_candidates_csv
+from planner.errors import PlannerError
+from planner.parameters import PlanSpec
+
+
+class ProgressLine:
+    """``stage  42 %`` rewritten in place on a terminal; silent when not a terminal."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self.stream = stream
+        self.enabled = stream.isatty()
+        self._last = ""
+
+    def __call__(self, stage: str, fraction: float) -> bool:
+        if self.enabled:
+            width = 30
+            filled = int(round(fraction * width))
+            text = f"\r{stage:<11} [{'#' * filled}{'.' * (width - filled)}] {fraction * 100:5.1f} %"
+            if text != self._last:
+                self.stream.write(text)
+                self.stream.flush()
+                self._last = text
+        return False
+
+    def done(self) -> None:
+        if self.enabled and self._last:
+            self.stream.write("\r" + " " * len(self._last) + "\r")
+            self.stream.flush()
+
+
+def load_params(path: str | None) -> dict[str, Any]:
+    if path is None:
+        return {}
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise PlannerError(f"--params: cannot read {path}: {exc.strerror}") from exc
+    except json.JSONDecodeError as exc:
+        raise PlannerError(f"--params: {path} is not valid JSON ({exc.msg} at line "
+                           f"{exc.lineno}); fix the file") from exc
+    if not isinstance(data, dict):
+        raise PlannerError(f"--params: {path} must hold a JSON object of parameters")
+    return data
+
+
+def run_plan(args: argparse.Namespace) -> int:
+    from planner.pipeline import plan
+    from planner.readers import read_scene
+    from planner.report import write_outputs
+
+    values = load_params(args.params)
+    if args.candidates:
+        values["candidates"] = read_candidates_csv(args.candidates).tolist()
+    spec = PlanSpec.from_mapping(values)
+    progress = ProgressLine(sys.stderr)
+    started = time.perf_counter()
+    progress("reading", 0.0)
+    scene = read_scene(args.scene, max_edge_m=spec.max_edge_m, unit_scale=spec.unit_scale)
+    try:
+        result = plan(scene, spec, progress=progress)
+        progress("writing", 1.0)
+        written = write_outputs(result, args.out)
+    finally:
+        progress.done()
+    if not args.quiet:
+        totals = json.loads(written[0].read_text())["totals"]
+        print(
+            f"{totals['stations']} stations cover {totals['covered_area_m2']:.2f} m² "
+            f"of {totals['max_achievable_area_m2']:.2f} m² achievable "
+            f"({totals['coverage_fraction'] * 100:.1f} %) from {totals['candidates']} "
+            f"candidates in {time.perf_counter() - started:.1f} s; wrote "
+            f"{', '.join(p.name for p in written)} to {args.out}"
+        )
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="scanplan", description="Plan terrestrial laser scanner stations on a 3D model."
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("plan", help="plan stations for a model and write the results")
+    p.add_argument("scene", help="model file: OBJ, PLY, STL, OFF, GLB/glTF or IFC")
+    p.add_argument("--candidates", help="CSV of scanner positions with header x,y,z")
+    p.add_argument("--params", help="JSON object of parameters (names as in the API)")
+    p.add_argument("--out", required=True, help="directory for plan.json, faces.npz, ...")
+    p.add_argument("--quiet", action="store_true", help="print nothing on success")
+    p.set_defaults(handler=run_plan)
+    for entry in entry_points(group="scanplan.commands"):
+        entry.load()(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        code: int = args.handler(args)
+    except PlannerError as exc:
+        print(f"scanplan: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("scanplan: interrupted", file=sys.stderr)
+        return 130
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,186 @@
+"""The plan as files: canonical JSON, per-face arrays, a station list.
+
+Same input, same bytes: JSON keys are sorted, floats rounded to fixed decimals, arrays
+written without timestamps. Timings never enter these files (they live in
+``PlanResult.stats`` and the service's job record).
+
+Outputs of :func:`write_outputs` (the names the service serves too):
+
+- ``plan.json``: totals, stations, coverage curve, parameters, candidates (+ optimal);
+- ``faces.npz``: per face ``covered``, ``best_lpd_pts_m2``, ``n_stations``,
+  ``first_station``, ``n_candidates``, ``source_face``;
+- ``stations.csv``: ``id,x,y,z,order`` in model coordinates;
+- ``candidates.csv``: every candidate considered, ``x,y,z``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+import zipfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planner.curve import coverage_curve
+from planner.pipeline import PlanResult
+
+FORMAT_VERSION = 1
+_AREA_DECIMALS = 6
+_POSITION_DECIMALS = 6
+
+FACE_ARRAYS = ("covered", "best_lpd_pts_m2", "n_stations", "first_station", "n_candidates",
+               "source_face")
+
+
+def _r(value: float, decimals: int = _AREA_DECIMALS) -> float:
+    rounded = round(float(value), decimals)
+    return 0.0 if rounded == 0 else rounded  # no "-0.0"
+
+
+def plan_document(result: PlanResult) -> dict[str, Any]:
+    """The content of ``plan.json`` as plain data."""
+    table, chosen = result.table, result.chosen
+    max_area = table.max_achievable_area_m2
+    covered = chosen.covered_area_m2[-1] if chosen.stations else 0.0
+    positions = result.candidates.positions
+    labels = result.candidates.labels
+    stations = []
+    for order, (candidate, new, cumulative) in enumerate(
+        zip(chosen.stations, chosen.new_area_m2, chosen.covered_area_m2, strict=True)
+    ):
+        station: dict[str, Any] = {
+            "id": order + 1,
+            "candidate_index": int(candidate),
+            "position": [_r(v, _POSITION_DECIMALS) for v in positions[candidate]],
+            "new_area_m2": _r(new),
+            "covered_area_m2": _r(cumulative),
+            "coverage_fraction": _r(cumulative / max_area if max_area else 0.0),
+        }
+        if labels:
+            station["label"] = dict(labels[candidate])
+        stations.append(station)
+    document: dict[str, Any] = {
+        "format_version": FORMAT_VERSION,
+        "method": chosen.method,
+        "coverage_goal": result.spec.coverage_goal,
+        "goal_reached": bool(covered >= result.spec.coverage_goal * max_area - 1e-9),
+        "totals": {
+            "faces": result.scene.n_faces,
+            "target_faces": int(result.limits.target.sum()),
+            "candidates": len(result.candidates),
+            "qualified_pairs": table.n_pairs,
+            "total_area_m2": _r(result.scene.areas.sum()),
+            "target_area_m2": _r(result.scene.areas[result.limits.target].sum()),
+            "max_achievable_area_m2": _r(max_area),
+            "covered_area_m2": _r(covered),
+            "coverage_fraction": _r(covered / max_area if max_area else 0.0),
+            "stations": len(chosen.stations),
+        },
+        "stations": stations,
+        "curve": coverage_curve(result.selections, result.optimal),
+        "parameters": result.spec.to_dict(),
+        "candidates": result.candidates.summary(),
+        "scene": {
+            "format": result.scene.metadata.get("format", ""),
+            "groups": list(result.scene.groups),
+            "bounds": [[_r(v) for v in row] for row in result.scene.bounds],
+        },
+    }
+    if result.optimal is not None:
+        document["optimal"] = result.optimal.to_dict()
+        document["optimal"]["greedy_stations"] = result.selections["greedy"].count_for_goal(
+            result.spec.coverage_goal)
+    return document
+
+
+def canonical_json(data: Any) -> bytes:
+    """Deterministic JSON bytes: sorted keys, two-space indent, UTF-8, final newline."""
+    return (json.dumps(data, sort_keys=True, indent=2, ensure_ascii=False,
+                       allow_nan=False) + "\n").encode("utf-8")
+
+
+def plan_json(result: PlanResult) -> bytes:
+    return canonical_json(plan_document(result))
+
+
+def face_arrays(result: PlanResult) -> dict[str, np.ndarray]:
+    """Per-face arrays of ``faces.npz``, each of length F."""
+    arrays = dict(result.faces)
+    arrays["source_face"] = result.scene.source_face.astype(np.int64)
+    return {name: np.ascontiguousarray(arrays[name]) for name in FACE_ARRAYS}
+
+
+def faces_npz(result: PlanResult) -> bytes:
+    """``faces.npz`` bytes with fixed zip timestamps (numpy's savez stamps the clock)."""
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        for name, array in face_arrays(result).items():
+            member = io.BytesIO()
+            np.lib.format.write_array(member, array, allow_pickle=False)
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            archive.writestr(info, member.getvalue())
+    return buffer.getvalue()
+
+
+def stations_csv(result: PlanResult) -> bytes:
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(["id", "x", "y", "z", "order", "candidate_index"])
+    positions = result.candidates.positions
+    for order, candidate in enumerate(result.chosen.stations):
+        x, y, z = (f"{v:.6f}" for v in positions[candidate])
+        writer.writerow([order + 1, x, y, z, order + 1, int(candidate)])
+    return out.getvalue().encode("utf-8")
+
+
+def candidates_csv(result: PlanResult) -> bytes:
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(["x", "y", "z"])
+    for x, y, z in result.candidates.positions:
+        writer.writerow([f"{x:.6f}", f"{y:.6f}", f"{z:.6f}"])
+    return out.getvalue().encode("utf-8")
+
+
+# name -> renderer; other modules (pictures, IFC tables) register theirs here
+OUTPUTS: dict[str, Callable[[PlanResult], bytes]] = {
+    "plan.json": plan_json,
+    "faces.npz": faces_npz,
+    "stations.csv": stations_csv,
+    "candidates.csv": candidates_csv,
+}
+
+
+def write_outputs(result: PlanResult, out_dir: str | Path,
+                  names: tuple[str, ...] | None = None) -> list[Path]:
+    """Write every output into ``out_dir`` (created), each file atomically."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, render in OUTPUTS.items():
+        if names is not None and name not in names:
+            continue
+        data = render(result)
+        written.append(atomic_write(out / name, data))
+    return written
+
+
+def atomic_write(path: Path, data: bytes) -> Path:
+    """Write to a temporary file beside ``path`` and rename it into place."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+        os.chmod(tmp, 0o644)  # mkstemp makes 0600; results are meant to be shared
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
