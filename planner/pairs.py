@@ -89,7 +89,10 @@ def _requirement_masks(spec: PlanSpec, scene: Scene) -> list[tuple[NDArray[np.bo
     Later entries win, so a GlobalId override beats its class's.
     """
     masks: list[tuple[NDArray[np.bool_], object]] = []
-    reqs = spec.group_requirements
+    # a reader's defaults (IFC: glass neither targets nor occludes) come first, the user's win
+    defaults = scene.metadata.get("default_group_requirements", {})
+    reqs = {**PlanSpec.from_mapping({"group_requirements": defaults}).group_requirements,
+            **spec.group_requirements}
     group_index = {name: i for i, name in enumerate(scene.groups)}
     for key, req in reqs.items():
         if key in group_index:
