@@ -1,0 +1,41 @@
+"""FastAPI dependencies: the services of the running app and the caller's owner id."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Annotated
+
+from fastapi import Depends, Header, Request
+
+from service.auth import KeyRing
+from service.config import Settings
+from service.job_store import JobStore
+from service.mesh_store import MeshStore
+from service.queue import JobQueue
+
+
+@dataclass
+class Services:
+    """What the handlers use; built in the app's lifespan."""
+
+    settings: Settings
+    jobs: JobStore
+    meshes: MeshStore
+    queue: JobQueue
+    keys: KeyRing
+
+
+def get_services(request: Request) -> Services:
+    services: Services = request.app.state.services
+    return services
+
+
+def get_owner(
+    services: Annotated[Services, Depends(get_services)],
+    authorization: Annotated[str | None, Header(include_in_schema=False)] = None,
+) -> str:
+    return services.keys.owner(authorization)
+
+
+ServicesDep = Annotated[Services, Depends(get_services)]
+OwnerDep = Annotated[str, Depends(get_owner)]

@@ -1,0 +1,235 @@
+"""The job table: the source of truth for every job's state.
+
+Every state change is a conditional UPDATE, so that the API, several workers and the reaper
+can race without a lock: a worker claims ``accepted -> running`` with its token, keeps the
+claim alive with heartbeats, and only the holder of the current token may finish the job.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import Engine, Row, delete, func, insert, select, text, update
+from sqlalchemy.exc import IntegrityError
+
+from service.database import jobs
+
+ACCEPTED, RUNNING, SUCCESSFUL, FAILED, DISMISSED = (
+    "accepted", "running", "successful", "failed", "dismissed")
+STATUSES = (ACCEPTED, RUNNING, SUCCESSFUL, FAILED, DISMISSED)
+ACTIVE = (ACCEPTED, RUNNING)
+FINISHED = (SUCCESSFUL, FAILED, DISMISSED)
+
+
+@dataclass(frozen=True)
+class JobRecord:
+    """One row of the job table, JSON columns decoded."""
+
+    id: str
+    owner: str
+    mesh_id: str
+    parameters: dict[str, Any]
+    status: str
+    progress: int
+    message: str
+    created: float
+    started: float | None
+    finished: float | None
+    updated: float
+    heartbeat: float | None
+    attempts: int
+    worker_token: str | None
+    worker: str | None
+    idempotency_key: str | None
+    request_hash: str | None
+    problem: dict[str, Any] | None
+    timings: dict[str, float] | None
+    outputs: dict[str, dict[str, Any]] | None
+
+    @classmethod
+    def from_row(cls, row: Row[Any]) -> JobRecord:
+        data = dict(row._mapping)
+        for name in ("parameters", "problem", "timings", "outputs"):
+            data[name] = None if data[name] is None else json.loads(data[name])
+        return cls(**data)
+
+
+def _json(value: Any) -> str | None:
+    return None if value is None else json.dumps(value, sort_keys=True)
+
+
+class JobStore:
+    """Reads and conditional writes of the job table."""
+
+    def __init__(self, engine: Engine) -> None:
+        self.engine = engine
+
+    def ping(self) -> None:
+        """Raise when the database is unreachable."""
+        with self.engine.connect() as conn:
+            conn.execute(text("SELECT 1"))
+
+    def create(self, owner: str, mesh_id: str, parameters: dict[str, Any], *,
+               idempotency_key: str | None = None,
+               request_hash: str | None = None) -> tuple[JobRecord, bool]:
+        """Insert an accepted job; with a known Idempotency-Key, return that job instead.
+
+        Returns the job and whether it was created now.
+        """
+        now = time.time()
+        job_id = uuid.uuid4().hex
+        values = {
+            "id": job_id, "owner": owner, "mesh_id": mesh_id,
+            "parameters": _json(parameters), "status": ACCEPTED, "progress": 0,
+            "message": "queued", "created": now, "updated": now, "attempts": 0,
+            "idempotency_key": idempotency_key, "request_hash": request_hash,
+        }
+        try:
+            with self.engine.begin() as conn:
+                conn.execute(insert(jobs).values(**values))
+        except IntegrityError:
+            existing = self.by_idempotency_key(owner, idempotency_key)
+            if existing is None:
+                raise
+            return existing, False
+        record = self.get(job_id)
+        assert record is not None
+        return record, True
+
+    def by_idempotency_key(self, owner: str, key: str | None) -> JobRecord | None:
+        """The job created with ``key`` by ``owner``, if any."""
+        if key is None:
+            return None
+        query = select(jobs).where(jobs.c.owner == owner, jobs.c.idempotency_key == key)
+        with self.engine.connect() as conn:
+            row = conn.execute(query).first()
+        return None if row is None else JobRecord.from_row(row)
+
+    def get(self, job_id: str, owner: str | None = None) -> JobRecord | None:
+        """The job, or None when it does not exist or ``owner`` does not own it."""
+        query = select(jobs).where(jobs.c.id == job_id)
+        if owner is not None:
+            query = query.where(jobs.c.owner == owner)
+        with self.engine.connect() as conn:
+            row = conn.execute(query).first()
+        return None if row is None else JobRecord.from_row(row)
+
+    def page(self, owner: str | None, statuses: Sequence[str], *, limit: int,
+             offset: int) -> tuple[list[JobRecord], int]:
+        """A page of jobs, newest first, and the number of jobs matching."""
+        where = []
+        if owner is not None:
+            where.append(jobs.c.owner == owner)
+        if statuses:
+            where.append(jobs.c.status.in_(list(statuses)))
+        query = (select(jobs).where(*where).order_by(jobs.c.created.desc(), jobs.c.id)
+                 .limit(limit).offset(offset))
+        count = select(func.count()).select_from(jobs).where(*where)
+        with self.engine.connect() as conn:
+            rows = conn.execute(query).all()
+            total = int(conn.execute(count).scalar_one())
+        return [JobRecord.from_row(r) for r in rows], total
+
+    def ids_with_status(self, status: str) -> list[str]:
+        """Ids of every job in ``status``, oldest first."""
+        query = select(jobs.c.id).where(jobs.c.status == status).order_by(jobs.c.created)
+        with self.engine.connect() as conn:
+            return [r[0] for r in conn.execute(query)]
+
+    def active_jobs_using(self, mesh_id: str) -> int:
+        """How many unfinished jobs (any owner) plan on ``mesh_id``."""
+        query = select(func.count()).select_from(jobs).where(
+            jobs.c.mesh_id == mesh_id, jobs.c.status.in_(ACTIVE))
+        with self.engine.connect() as conn:
+            return int(conn.execute(query).scalar_one())
+
+    def _update(self, job_id: str, where: Sequence[Any], **values: Any) -> bool:
+        values.setdefault("updated", time.time())
+        statement = update(jobs).where(jobs.c.id == job_id, *where).values(**values)
+        with self.engine.begin() as conn:
+            return bool(conn.execute(statement).rowcount == 1)
+
+    def claim(self, job_id: str, token: str, worker: str) -> bool:
+        """``accepted -> running`` for the worker holding ``token``; False if not accepted."""
+        now = time.time()
+        return self._update(
+            job_id, [jobs.c.status == ACCEPTED], status=RUNNING, worker_token=token,
+            worker=worker, started=now, heartbeat=now, progress=0, message="starting",
+            attempts=jobs.c.attempts + 1,
+        )
+
+    def heartbeat(self, job_id: str, token: str, *, progress: int | None = None,
+                  message: str | None = None) -> bool:
+        """Refresh the claim (and progress); False when the job was dismissed or taken."""
+        values: dict[str, Any] = {"heartbeat": time.time()}
+        if progress is not None:
+            values["progress"] = progress
+        if message is not None:
+            values["message"] = message
+        return self._update(job_id, [jobs.c.status == RUNNING, jobs.c.worker_token == token],
+                            **values)
+
+    def finish(self, job_id: str, token: str, status: str, *, message: str,
+               problem: dict[str, Any] | None = None, timings: dict[str, float] | None = None,
+               outputs: dict[str, dict[str, Any]] | None = None) -> bool:
+        """``running -> successful|failed`` by the claim holder."""
+        values: dict[str, Any] = {
+            "status": status, "message": message, "finished": time.time(),
+            "problem": _json(problem), "timings": _json(timings), "outputs": _json(outputs),
+            "worker_token": None,
+        }
+        if status == SUCCESSFUL:
+            values["progress"] = 100
+        return self._update(job_id, [jobs.c.status == RUNNING, jobs.c.worker_token == token],
+                            **values)
+
+    def release(self, job_id: str, token: str) -> bool:
+        """``running -> accepted`` when a worker is stopped: the run does not count."""
+        return self._update(
+            job_id, [jobs.c.status == RUNNING, jobs.c.worker_token == token],
+            status=ACCEPTED, worker_token=None, progress=0, message="queued again (worker stopped)",
+            attempts=jobs.c.attempts - 1,
+        )
+
+    def dismiss(self, job_id: str) -> bool:
+        """``accepted|running -> dismissed``; a running worker sees it and stops."""
+        return self._update(
+            job_id, [jobs.c.status.in_(ACTIVE)], status=DISMISSED, finished=time.time(),
+            message="dismissed", worker_token=None,
+        )
+
+    def delete(self, job_id: str) -> bool:
+        """Remove a finished job's row."""
+        statement = delete(jobs).where(jobs.c.id == job_id, jobs.c.status.in_(FINISHED))
+        with self.engine.begin() as conn:
+            return bool(conn.execute(statement).rowcount == 1)
+
+    def stale_running(self, heartbeat_before: float) -> list[JobRecord]:
+        """Running jobs whose last heartbeat is older than ``heartbeat_before``."""
+        query = select(jobs).where(jobs.c.status == RUNNING,
+                                   jobs.c.heartbeat < heartbeat_before)
+        with self.engine.connect() as conn:
+            return [JobRecord.from_row(r) for r in conn.execute(query)]
+
+    def requeue_lost(self, job: JobRecord) -> bool:
+        """A stale claim back to accepted, unless its worker woke up meanwhile."""
+        return self._update(
+            job.id, [jobs.c.status == RUNNING, jobs.c.worker_token == job.worker_token,
+                     jobs.c.heartbeat == job.heartbeat],
+            status=ACCEPTED, worker_token=None, progress=0,
+            message=f"queued again: the worker was lost (attempt {job.attempts})",
+        )
+
+    def fail_lost(self, job: JobRecord, problem: dict[str, Any]) -> bool:
+        """A stale claim after its last attempt: failed, "worker lost"."""
+        return self._update(
+            job.id, [jobs.c.status == RUNNING, jobs.c.worker_token == job.worker_token,
+                     jobs.c.heartbeat == job.heartbeat],
+            status=FAILED, worker_token=None, finished=time.time(),
+            message=problem["detail"], problem=_json(problem),
+        )

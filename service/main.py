@@ -1,0 +1,171 @@
+"""``create_app(settings)``: routers, problem handlers and the lifespan that opens the stores.
+
+Nothing is created at import time: the database, the queue and the reaper start in the
+lifespan of the app that :func:`create_app` returns.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import logging
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from fastapi.staticfiles import StaticFiles
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from planner.errors import PlannerError
+from service.auth import KeyRing
+from service.config import Settings
+from service.database import make_engine
+from service.deps import Services
+from service.job_store import JobStore
+from service.mesh_store import MeshStore
+from service.problems import (
+    MEDIA_TYPE,
+    ServiceError,
+    UnauthorizedError,
+    http_problem,
+    problem_for,
+)
+from service.queue import HueyQueue, JobQueue, make_huey
+from service.routes import health, jobs, meshes, processes
+from service.worker import Reaper
+
+log = logging.getLogger("scanplan.service")
+VERSION = "0.1.0"
+DESCRIPTION = """Plan terrestrial laser scanner stations on a 3D model.
+
+Upload a model with `POST /meshes`, start a plan with `POST /processes/scan-plan/execution`,
+poll `GET /jobs/{id}` and fetch `GET /jobs/{id}/results`. Errors are RFC 9457
+`application/problem+json`. With API keys configured, send `Authorization: Bearer <key>`.
+"""
+
+
+def create_app(settings: Settings | None = None, *, queue: JobQueue | None = None,
+               reaper: bool = True) -> FastAPI:
+    """The service for ``settings`` (default: from the environment).
+
+    Parameters
+    ----------
+    queue : where jobs go (default: huey as the settings say); tests pass an inline runner
+    reaper : run the reaper (stale jobs re-queued) and re-enqueue accepted jobs at startup
+    """
+    settings = settings or Settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        services = open_services(settings, queue)
+        app.state.services = services
+        keeper = Reaper(services.jobs, services.queue, settings) if reaper else None
+        if keeper is not None:
+            requeued = keeper.requeue_accepted()
+            if requeued:
+                log.info("re-enqueued %d accepted job(s) from before the start", requeued)
+            keeper.start()
+        try:
+            yield
+        finally:
+            if keeper is not None:
+                keeper.stop()
+            services.jobs.engine.dispose()
+
+    app = FastAPI(title="scanplan", version=VERSION, description=DESCRIPTION,
+                  lifespan=lifespan)
+    _add_problem_handlers(app)
+    for module in (meshes, processes, jobs, health):
+        app.include_router(module.router)
+    _add_pages(app)
+    return app
+
+
+def open_services(settings: Settings, queue: JobQueue | None = None) -> Services:
+    """Open the database, the stores and the queue of ``settings``."""
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    engine = make_engine(settings.job_db_url)
+    return Services(
+        settings=settings,
+        jobs=JobStore(engine),
+        meshes=MeshStore(settings.data_dir / "meshes", engine, settings.max_upload_bytes),
+        queue=queue or HueyQueue(make_huey(settings)),
+        keys=KeyRing.from_settings(settings.api_keys),
+    )
+
+
+def _problem_response(document: dict[str, Any], headers: dict[str, str] | None = None
+                      ) -> JSONResponse:
+    return JSONResponse(document, status_code=document["status"], media_type=MEDIA_TYPE,
+                        headers=headers)
+
+
+def _add_problem_handlers(app: FastAPI) -> None:
+    async def domain_error(request: Request, exc: Exception) -> JSONResponse:
+        headers = {"WWW-Authenticate": "Bearer"} if isinstance(exc, UnauthorizedError) else None
+        return _problem_response(problem_for(exc, instance=request.url.path), headers)
+
+    async def validation_error(request: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, RequestValidationError)
+        errors = exc.errors()
+        details = [_describe_validation(e) for e in errors]
+        document = http_problem(422, "Invalid request", "; ".join(details),
+                                instance=request.url.path)
+        document["type"] = "urn:scanplan:problem:invalid-request"
+        if errors:
+            parameter = _parameter_of(errors[0])
+            if parameter:
+                document["parameter"] = parameter
+        return _problem_response(document)
+
+    async def http_error(request: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, StarletteHTTPException)
+        title = {404: "Not Found", 405: "Method Not Allowed"}.get(exc.status_code, "Error")
+        detail = str(exc.detail)
+        if exc.status_code == 404:
+            detail = f"no resource at {request.url.path}; see /docs for the API"
+        return _problem_response(http_problem(exc.status_code, title, detail,
+                                              instance=request.url.path),
+                                 dict(exc.headers or {}))
+
+    async def unexpected(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("unexpected error on %s", request.url.path, exc_info=exc)
+        return _problem_response(problem_for(exc, instance=request.url.path))
+
+    app.add_exception_handler(ServiceError, domain_error)
+    app.add_exception_handler(PlannerError, domain_error)
+    app.add_exception_handler(RequestValidationError, validation_error)
+    app.add_exception_handler(StarletteHTTPException, http_error)
+    app.add_exception_handler(Exception, unexpected)
+
+
+def _describe_validation(error: Any) -> str:
+    where = ".".join(str(p) for p in error.get("loc", ()) if p != "body")
+    message = error.get("msg", "invalid")
+    if "input" in error and error.get("type") != "missing":
+        value = repr(error["input"])
+        message += f" (got {value[:60]})"
+    return f"{where}: {message}" if where else message
+
+
+def _parameter_of(error: Any) -> str | None:
+    loc = [str(p) for p in error.get("loc", ())]
+    if "parameters" in loc:
+        rest = loc[loc.index("parameters") + 1:]
+        return ".".join(rest) or None
+    return None
+
+
+def _add_pages(app: FastAPI) -> None:
+    """The HTML pages (viewer, job list) when their module is installed."""
+    if importlib.util.find_spec("service.routes.pages") is None:
+        return
+    pages = importlib.import_module("service.routes.pages")
+    app.include_router(pages.router)
+    static = Path(__file__).parent / "static"
+    if static.is_dir() and not any(getattr(r, "path", "") == "/static" for r in app.routes):
+        app.mount("/static", StaticFiles(directory=static), name="static")

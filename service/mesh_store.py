@@ -1,0 +1,185 @@
+"""Meshes as content-addressed files: ``meshes/<sha256>/mesh.<format>`` in the data dir.
+
+An upload is streamed to a staging file while its sha256 is computed and its size capped
+(the body never lands in the store when it is too large), its format is sniffed from the
+bytes, and it is parsed once so that a broken model fails at upload, not in a job. Rows in
+the database record the summary and which keys uploaded it (a key sees only its meshes).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import shutil
+import time
+import uuid
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import Engine, delete, func, insert, select
+from sqlalchemy.exc import IntegrityError
+
+from planner.readers import file_format, read_scene
+from service.database import mesh_owners, meshes
+from service.problems import PayloadTooLargeError
+
+_CHUNK_BYTES = 1 << 20
+_SAFE_NAME = re.compile(r"[^A-Za-z0-9._-]+")
+
+
+@dataclass(frozen=True)
+class StagedUpload:
+    """An upload written to a staging directory, not yet in the store."""
+
+    path: Path
+    sha256: str
+    size_bytes: int
+
+    def renamed(self, filename: str | None) -> StagedUpload:
+        """The same upload under the user's (sanitised) file name, for messages."""
+        target = self.path.with_name(safe_filename(filename))
+        self.path.rename(target)
+        return StagedUpload(target, self.sha256, self.size_bytes)
+
+    def discard(self) -> None:
+        shutil.rmtree(self.path.parent, ignore_errors=True)
+
+
+@dataclass(frozen=True)
+class MeshRecord:
+    """A stored mesh as one owner sees it."""
+
+    id: str
+    format: str
+    size_bytes: int
+    summary: dict[str, Any]
+    created: float
+    filename: str | None
+
+
+def safe_filename(name: str | None) -> str:
+    """A plain file name (no directories) for messages and downloads."""
+    base = Path(name or "").name
+    cleaned = _SAFE_NAME.sub("_", base).strip("._")
+    return cleaned[:120] or "upload"
+
+
+class MeshStore:
+    """Mesh files under ``root`` and their rows in the database."""
+
+    def __init__(self, root: Path, engine: Engine, max_upload_bytes: int) -> None:
+        self.root = root
+        self.engine = engine
+        self.max_upload_bytes = max_upload_bytes
+        self.staging = root.parent / "tmp"
+
+    def path(self, mesh_id: str) -> Path | None:
+        """The stored file of ``mesh_id`` (None when absent)."""
+        folder = self.root / mesh_id
+        found = sorted(folder.glob("mesh.*")) if folder.is_dir() else []
+        return found[0] if found else None
+
+    async def stage(self, chunks: AsyncIterator[bytes]) -> StagedUpload:
+        """Stream ``chunks`` into a staging file, hashing; 413 past ``max_upload_bytes``."""
+        folder = self.staging / f"upload-{uuid.uuid4().hex}"
+        folder.mkdir(parents=True)
+        path = folder / "upload"
+        digest = hashlib.sha256()
+        size = 0
+        try:
+            with path.open("wb") as handle:
+                async for chunk in chunks:
+                    size += len(chunk)
+                    if size > self.max_upload_bytes:
+                        raise PayloadTooLargeError(self.too_large_message())
+                    digest.update(chunk)
+                    handle.write(chunk)
+        except BaseException:
+            shutil.rmtree(folder, ignore_errors=True)
+            raise
+        return StagedUpload(path, digest.hexdigest(), size)
+
+    def too_large_message(self) -> str:
+        return (f"the upload is larger than the limit of {self.max_upload_bytes} bytes; "
+                "simplify the model or raise SCANPLAN_MAX_UPLOAD_BYTES")
+
+    def ingest(self, staged: StagedUpload, owner: str) -> tuple[MeshRecord, bool]:
+        """Sniff, parse once and store ``staged`` (blocking: call it in a thread).
+
+        Returns the record and whether it is new to ``owner``.
+        Raises SceneError (422) or UnsupportedFormatError (415) for a bad model.
+        """
+        try:
+            fmt = file_format(staged.path)
+            if self._row(staged.sha256) is None:
+                summary = read_scene(staged.path, max_edge_m=None).summary()
+                self._store(staged, fmt, summary)
+        finally:
+            staged.discard()
+        created = self._add_owner(staged.sha256, owner, staged.path.name)
+        record = self.get(staged.sha256, owner)
+        assert record is not None
+        return record, created
+
+    def _store(self, staged: StagedUpload, fmt: str, summary: dict[str, Any]) -> None:
+        folder = self.root / staged.sha256
+        folder.mkdir(parents=True, exist_ok=True)
+        target = folder / f"mesh.{fmt}"
+        staged.path.chmod(0o644)
+        staged.path.replace(target)  # same bytes as any concurrent upload: harmless race
+        try:
+            with self.engine.begin() as conn:
+                conn.execute(insert(meshes).values(
+                    id=staged.sha256, format=fmt, size_bytes=staged.size_bytes,
+                    summary=json.dumps(summary, sort_keys=True), created=time.time()))
+        except IntegrityError:
+            pass  # a concurrent upload of the same bytes stored it first
+
+    def _add_owner(self, mesh_id: str, owner: str, filename: str) -> bool:
+        try:
+            with self.engine.begin() as conn:
+                conn.execute(insert(mesh_owners).values(
+                    mesh_id=mesh_id, owner=owner, filename=filename, created=time.time()))
+        except IntegrityError:
+            return False
+        return True
+
+    def _row(self, mesh_id: str) -> Any:
+        with self.engine.connect() as conn:
+            return conn.execute(select(meshes).where(meshes.c.id == mesh_id)).first()
+
+    def get(self, mesh_id: str, owner: str) -> MeshRecord | None:
+        """The mesh if ``owner`` uploaded it."""
+        query = (select(meshes, mesh_owners.c.filename)
+                 .join(mesh_owners, mesh_owners.c.mesh_id == meshes.c.id)
+                 .where(meshes.c.id == mesh_id, mesh_owners.c.owner == owner))
+        with self.engine.connect() as conn:
+            row = conn.execute(query).first()
+        if row is None:
+            return None
+        data = row._mapping
+        return MeshRecord(id=data["id"], format=data["format"], size_bytes=data["size_bytes"],
+                          summary=json.loads(data["summary"]), created=data["created"],
+                          filename=data["filename"])
+
+    def remove(self, mesh_id: str, owner: str, *, files_in_use: bool) -> None:
+        """Forget ``owner``'s copy; delete the files once nobody holds or uses them."""
+        with self.engine.begin() as conn:
+            conn.execute(delete(mesh_owners).where(mesh_owners.c.mesh_id == mesh_id,
+                                                   mesh_owners.c.owner == owner))
+            holders = conn.execute(select(func.count()).select_from(mesh_owners)
+                                   .where(mesh_owners.c.mesh_id == mesh_id)).scalar_one()
+            if holders or files_in_use:
+                return
+            conn.execute(delete(meshes).where(meshes.c.id == mesh_id))
+        shutil.rmtree(self.root / mesh_id, ignore_errors=True)
+
+    def ping(self) -> None:
+        """Raise when the data directory is not writable."""
+        self.staging.mkdir(parents=True, exist_ok=True)
+        probe = self.staging / f".probe-{uuid.uuid4().hex}"
+        probe.write_bytes(b"")
+        probe.unlink()

@@ -1,0 +1,142 @@
+"""RFC 9457 problem details: the one table from exception class to HTTP status.
+
+Planner errors pass their message on unchanged as ``detail`` (it names the parameter, the
+value and the fix). Service errors are the few exceptions below. A failed job stores the
+problem document of its error, and its results endpoint returns it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from planner.errors import (
+    CancelledError,
+    NoCandidatesError,
+    NothingVisibleError,
+    ParameterError,
+    PlannerError,
+    SceneError,
+    UnsupportedFormatError,
+)
+
+MEDIA_TYPE = "application/problem+json"
+_OGC = "http://www.opengis.net/def/exceptions/ogcapi-processes-1/1.0/"
+
+
+class ServiceError(Exception):
+    """Root of the service's own errors; the message becomes the problem ``detail``."""
+
+
+class NotFoundError(ServiceError):
+    """The resource does not exist, or belongs to another key."""
+
+
+class NoSuchJobError(NotFoundError):
+    """No job with this id (OGC ``no-such-job``)."""
+
+
+class NoSuchProcessError(NotFoundError):
+    """No process with this id (OGC ``no-such-process``)."""
+
+
+class ResultNotReadyError(NotFoundError):
+    """The job has not finished successfully yet (OGC ``result-not-ready``)."""
+
+
+class ConflictError(ServiceError):
+    """The request conflicts with the resource's state (a mesh still in use)."""
+
+
+class IdempotencyKeyReusedError(ServiceError):
+    """The Idempotency-Key was used before with a different request body."""
+
+
+class PayloadTooLargeError(ServiceError):
+    """The upload is larger than ``max_upload_bytes``."""
+
+
+class BadRequestError(ServiceError):
+    """The request itself is malformed (not JSON, no file part, ...)."""
+
+
+class UnauthorizedError(ServiceError):
+    """No or an unknown bearer key."""
+
+
+class NotReadyError(ServiceError):
+    """A dependency (database, queue, data directory) is unreachable."""
+
+
+@dataclass(frozen=True)
+class ProblemKind:
+    """How one exception class looks on the wire."""
+
+    status: int
+    type: str
+    title: str
+
+
+# The one table. Order does not matter: the most specific class in the MRO wins.
+PROBLEMS: dict[type[BaseException], ProblemKind] = {
+    UnsupportedFormatError: ProblemKind(415, "urn:scanplan:problem:unsupported-format",
+                                        "Unsupported model format"),
+    SceneError: ProblemKind(422, "urn:scanplan:problem:invalid-scene",
+                            "The model cannot be used"),
+    ParameterError: ProblemKind(422, "urn:scanplan:problem:invalid-parameter",
+                                "Invalid parameter"),
+    NoCandidatesError: ProblemKind(422, "urn:scanplan:problem:no-candidates",
+                                   "No scanner position to consider"),
+    NothingVisibleError: ProblemKind(422, "urn:scanplan:problem:nothing-visible",
+                                     "No face qualifies from any candidate"),
+    CancelledError: ProblemKind(409, "urn:scanplan:problem:cancelled", "The job was dismissed"),
+    PlannerError: ProblemKind(422, "urn:scanplan:problem:planning-failed", "Planning failed"),
+    NoSuchJobError: ProblemKind(404, _OGC + "no-such-job", "No such job"),
+    NoSuchProcessError: ProblemKind(404, _OGC + "no-such-process", "No such process"),
+    ResultNotReadyError: ProblemKind(404, _OGC + "result-not-ready", "Result not ready"),
+    NotFoundError: ProblemKind(404, "urn:scanplan:problem:not-found", "Not found"),
+    ConflictError: ProblemKind(409, "urn:scanplan:problem:conflict", "Conflict"),
+    IdempotencyKeyReusedError: ProblemKind(422, "urn:scanplan:problem:idempotency-key-reused",
+                                           "Idempotency-Key reused with another request"),
+    PayloadTooLargeError: ProblemKind(413, "urn:scanplan:problem:too-large",
+                                      "Upload too large"),
+    BadRequestError: ProblemKind(400, "urn:scanplan:problem:bad-request", "Bad request"),
+    UnauthorizedError: ProblemKind(401, "urn:scanplan:problem:unauthorized",
+                                   "Missing or unknown API key"),
+    NotReadyError: ProblemKind(503, "urn:scanplan:problem:not-ready", "Not ready"),
+}
+INTERNAL = ProblemKind(500, "urn:scanplan:problem:internal", "Internal error")
+
+
+def kind_of(exc: BaseException) -> ProblemKind:
+    """The table entry of the most specific class of ``exc`` (500 for the unexpected)."""
+    for cls in type(exc).__mro__:
+        if cls in PROBLEMS:
+            return PROBLEMS[cls]
+    return INTERNAL
+
+
+def problem_for(exc: BaseException, *, instance: str | None = None) -> dict[str, Any]:
+    """The problem document of ``exc``; a ParameterError adds ``parameter``."""
+    kind = kind_of(exc)
+    detail = str(exc) if kind is not INTERNAL else "an unexpected error; see the server log"
+    document: dict[str, Any] = {
+        "type": kind.type, "title": kind.title, "status": kind.status, "detail": detail,
+    }
+    if isinstance(exc, ParameterError):
+        document["parameter"] = exc.parameter
+    if instance is not None:
+        document["instance"] = instance
+    return document
+
+
+def http_problem(status: int, title: str, detail: str, **extra: Any) -> dict[str, Any]:
+    """A problem for a plain HTTP error (unknown route, wrong method, ...)."""
+    return {"type": "about:blank", "title": title, "status": status, "detail": detail, **extra}
+
+
+class WorkerLostError(ServiceError):
+    """The job's worker stopped heartbeating on its last allowed attempt."""
+
+
+PROBLEMS[WorkerLostError] = ProblemKind(500, "urn:scanplan:problem:worker-lost", "Worker lost")

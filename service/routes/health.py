@@ -1,0 +1,37 @@
+"""``/healthz`` (the process answers) and ``/readyz`` (database, queue, data dir reachable)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter
+
+from service.deps import ServicesDep
+from service.problems import NotReadyError
+
+router = APIRouter(tags=["health"])
+
+
+@router.get("/healthz")
+def healthz() -> dict[str, str]:
+    """Liveness: the API process answers."""
+    return {"status": "ok"}
+
+
+@router.get("/readyz", responses={503: {"description": "a dependency is unreachable"}})
+def readyz(services: ServicesDep) -> dict[str, Any]:
+    """Readiness: the job table, the queue and the data directory all answer."""
+    checks = {
+        "database": services.jobs.ping,
+        "queue": services.queue.ping,
+        "data_dir": services.meshes.ping,
+    }
+    failed = []
+    for name, check in checks.items():
+        try:
+            check()
+        except Exception as exc:
+            failed.append(f"{name}: {type(exc).__name__}: {exc}")
+    if failed:
+        raise NotReadyError("; ".join(failed))
+    return {"status": "ready", "checks": {name: "ok" for name in checks}}

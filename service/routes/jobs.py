@@ -1,0 +1,150 @@
+"""``/jobs``: list, status, dismiss/delete, results (OGC API - Processes Part 1)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Request, Response, status
+from fastapi.responses import FileResponse, JSONResponse
+
+from service.deps import OwnerDep, ServicesDep
+from service.job_store import ACTIVE, FAILED, STATUSES, SUCCESSFUL, JobRecord
+from service.problems import MEDIA_TYPE, NoSuchJobError, ResultNotReadyError
+from service.schemas import JobList, JobResults, Link, OutputRef, StatusInfo
+from service.timefmt import iso
+from service.worker import results_dir
+
+router = APIRouter(prefix="/jobs", tags=["jobs"])
+
+RESULTS_REL = "http://www.opengis.net/def/rel/ogc/1.0/results"
+MEDIA_TYPES = {
+    ".json": "application/json", ".csv": "text/csv; charset=utf-8", ".png": "image/png",
+    ".glb": "model/gltf-binary", ".npz": "application/octet-stream",
+    ".npy": "application/octet-stream", ".parquet": "application/vnd.apache.parquet",
+}
+
+
+def media_type(name: str) -> str:
+    """The media type served for an output file name."""
+    suffix = name[name.rfind("."):].lower() if "." in name else ""
+    return MEDIA_TYPES.get(suffix, "application/octet-stream")
+
+
+def status_info(job: JobRecord) -> StatusInfo:
+    """The status document of ``job``."""
+    href = f"/jobs/{job.id}"
+    links = [Link(href=href, rel="self", type="application/json", title="status"),
+             Link(href=f"{href}/viewer", rel="alternate", type="text/html", title="viewer"),
+             Link(href=f"/meshes/{job.mesh_id}", rel="related", type="application/json",
+                  title="mesh")]
+    if job.status in (SUCCESSFUL, FAILED):
+        links.append(Link(href=f"{href}/results", rel=RESULTS_REL, type="application/json",
+                          title="results"))
+    return StatusInfo(
+        jobID=job.id, status=job.status,  # type: ignore[arg-type]
+        message=job.message, progress=job.progress, created=iso(job.created) or "",
+        started=iso(job.started), finished=iso(job.finished), updated=iso(job.updated) or "",
+        mesh=job.mesh_id, attempts=job.attempts, timings_s=job.timings, problem=job.problem,
+        links=links,
+    )
+
+
+def _job(services: ServicesDep, owner: str, job_id: str) -> JobRecord:
+    job = services.jobs.get(job_id, owner)
+    if job is None:
+        raise NoSuchJobError(f"no job {job_id}; GET /jobs lists yours")
+    return job
+
+
+@router.get("", response_model=JobList)
+def list_jobs(
+    request: Request, services: ServicesDep, owner: OwnerDep,
+    status_: Annotated[list[str] | None, Query(alias="status",
+                                               description=f"any of {', '.join(STATUSES)}")]
+    = None,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 50,
+    offset: Annotated[int, Query(ge=0)] = 0,
+) -> JobList:
+    """Your jobs, newest first, ``limit`` at a time."""
+    wanted = [s for s in status_ or [] if s]
+    unknown = sorted(set(wanted) - set(STATUSES))
+    if unknown:
+        from service.problems import BadRequestError
+
+        raise BadRequestError(f"status {unknown[0]!r} is not one of {', '.join(STATUSES)}")
+    records, total = services.jobs.page(owner, wanted, limit=limit, offset=offset)
+    links = [Link(href=str(request.url), rel="self", type="application/json")]
+    if offset + limit < total:
+        links.append(Link(href=str(request.url.include_query_params(offset=offset + limit)),
+                          rel="next", type="application/json"))
+    if offset > 0:
+        links.append(Link(href=str(request.url.include_query_params(
+            offset=max(0, offset - limit))), rel="prev", type="application/json"))
+    return JobList(jobs=[status_info(r) for r in records], numberMatched=total, links=links)
+
+
+@router.get("/{job_id}", response_model=StatusInfo)
+def get_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInfo:
+    """Status, progress 0-100, the stage in ``message``, timestamps and links."""
+    return status_info(_job(services, owner, job_id))
+
+
+@router.delete("/{job_id}", response_model=StatusInfo)
+def delete_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInfo:
+    """Dismiss a queued or running job (it stops at its next chunk); delete a finished one."""
+    job = _job(services, owner, job_id)
+    if job.status in ACTIVE and services.jobs.dismiss(job_id):
+        return status_info(_job(services, owner, job_id))
+    job = _job(services, owner, job_id)  # it may have finished meanwhile
+    if services.jobs.delete(job_id):
+        shutil.rmtree(results_dir(services.settings, job_id), ignore_errors=True)
+    document = status_info(job)
+    document.status = "dismissed"
+    document.message = "deleted with its results"
+    return document
+
+
+@router.get("/{job_id}/results", response_model=JobResults,
+            responses={404: {"description": "no such job, or not finished"},
+                       422: {"description": "the job failed: its problem"}})
+def get_results(job_id: str, services: ServicesDep, owner: OwnerDep) -> JobResults | Response:
+    """The plan inline and every output by href; a failed job's problem."""
+    job = _job(services, owner, job_id)
+    if job.status == FAILED and job.problem is not None:
+        return JSONResponse(job.problem, status_code=int(job.problem.get("status", 500)),
+                            media_type=MEDIA_TYPE)
+    if job.status != SUCCESSFUL or job.outputs is None:
+        raise ResultNotReadyError(f"job {job_id} is {job.status}; results come once it is "
+                                  "successful")
+    folder = results_dir(services.settings, job_id)
+    plan = json.loads((folder / "plan.json").read_text(encoding="utf-8"))
+    outputs = {
+        name: OutputRef(href=f"/jobs/{job_id}/results/{name}", type=media_type(name),
+                        bytes=meta["bytes"], sha256=meta["sha256"])
+        for name, meta in sorted(job.outputs.items())
+    }
+    return JobResults(plan=plan, outputs=outputs, links=[
+        Link(href=f"/jobs/{job_id}", rel="up", type="application/json", title="status")])
+
+
+@router.get("/{job_id}/results/{output}", response_class=FileResponse,
+            responses={200: {"content": {"application/octet-stream": {}}}, 304: {}})
+def get_output(job_id: str, output: str, request: Request, services: ServicesDep,
+               owner: OwnerDep) -> Response:
+    """One output file, with ETag (its sha256) and Range support."""
+    job = _job(services, owner, job_id)
+    if job.status != SUCCESSFUL or job.outputs is None:
+        raise ResultNotReadyError(f"job {job_id} is {job.status}; results come once it is "
+                                  "successful")
+    meta = job.outputs.get(output)
+    path = results_dir(services.settings, job_id) / output
+    if meta is None or not path.is_file():
+        raise ResultNotReadyError(
+            f"job {job_id} has no output {output!r}; it has {', '.join(sorted(job.outputs))}")
+    etag = f'"{meta["sha256"]}"'
+    if etag in [t.strip() for t in request.headers.get("if-none-match", "").split(",")]:
+        return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers={"ETag": etag})
+    return FileResponse(path, media_type=media_type(output), headers={"ETag": etag},
+                        content_disposition_type="inline", filename=output)

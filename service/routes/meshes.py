@@ -1,0 +1,117 @@
+"""``/meshes``: upload (raw or multipart), describe, download, delete."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Query, Request, Response, status
+from fastapi.responses import FileResponse
+from starlette.concurrency import run_in_threadpool
+
+from service.deps import OwnerDep, ServicesDep
+from service.mesh_store import MeshRecord
+from service.problems import ConflictError, NotFoundError, PayloadTooLargeError
+from service.schemas import Link, MeshInfo
+from service.timefmt import iso
+from service.upload import FILE_FIELD, MultipartFile, multipart_boundary
+
+router = APIRouter(prefix="/meshes", tags=["meshes"])
+
+_UPLOAD_BODY: dict[str, Any] = {
+    "requestBody": {
+        "required": True,
+        "description": "the model's bytes (OBJ, PLY, STL, OFF, GLB/glTF, IFC; the format "
+                       "is recognised from the bytes), raw or as the multipart field 'file'",
+        "content": {
+            "application/octet-stream": {"schema": {"type": "string", "format": "binary"}},
+            "multipart/form-data": {"schema": {
+                "type": "object", "required": [FILE_FIELD],
+                "properties": {FILE_FIELD: {"type": "string", "format": "binary"}},
+            }},
+        },
+    }
+}
+
+
+def mesh_info(record: MeshRecord) -> MeshInfo:
+    """The wire form of a stored mesh."""
+    s = record.summary
+    return MeshInfo(
+        id=record.id, format=record.format, bytes=record.size_bytes, filename=record.filename,
+        faces=s["faces"], vertices=s["vertices"], total_area_m2=s["total_area_m2"],
+        bounds=s["bounds"], groups=s["groups"], created=iso(record.created) or "",
+        links=[Link(href=f"/meshes/{record.id}", rel="self", type="application/json"),
+               Link(href=f"/meshes/{record.id}/content", rel="enclosure",
+                    type="application/octet-stream")],
+    )
+
+
+def _not_found(mesh_id: str) -> NotFoundError:
+    return NotFoundError(f"no mesh {mesh_id}; upload the model with POST /meshes")
+
+
+@router.post("", status_code=status.HTTP_201_CREATED, response_model=MeshInfo,
+             openapi_extra=_UPLOAD_BODY,
+             responses={200: {"model": MeshInfo, "description": "already uploaded"}})
+async def upload_mesh(
+    request: Request, response: Response, services: ServicesDep, owner: OwnerDep,
+    filename: Annotated[str | None, Query(description="the model's file name")] = None,
+) -> MeshInfo:
+    """Store a model under its sha256; 201 when new, 200 when these bytes are known."""
+    store = services.meshes
+    declared = request.headers.get("content-length")
+    if declared and declared.isdigit() and int(declared) > store.max_upload_bytes:
+        raise PayloadTooLargeError(store.too_large_message())
+    boundary = multipart_boundary(request.headers.get("content-type", ""))
+    chunks: AsyncIterator[bytes]
+    if boundary is None:
+        chunks = request.stream()
+        staged = await store.stage(chunks)
+    else:
+        form = MultipartFile(request, boundary)
+        staged = await store.stage(form.chunks())
+        filename = filename or form.filename
+    staged = staged.renamed(filename)
+    record, created = await run_in_threadpool(store.ingest, staged, owner)
+    response.status_code = status.HTTP_201_CREATED if created else status.HTTP_200_OK
+    response.headers["Location"] = f"/meshes/{record.id}"
+    response.headers["ETag"] = f'"{record.id}"'
+    return mesh_info(record)
+
+
+@router.get("/{mesh_id}", response_model=MeshInfo)
+def get_mesh(mesh_id: str, response: Response, services: ServicesDep,
+             owner: OwnerDep) -> MeshInfo:
+    """Faces, bounds, groups, format and size of an uploaded mesh."""
+    record = services.meshes.get(mesh_id, owner)
+    if record is None:
+        raise _not_found(mesh_id)
+    response.headers["ETag"] = f'"{record.id}"'
+    return mesh_info(record)
+
+
+@router.get("/{mesh_id}/content", response_class=FileResponse,
+            responses={200: {"content": {"application/octet-stream": {}}}})
+def get_mesh_content(mesh_id: str, services: ServicesDep, owner: OwnerDep) -> FileResponse:
+    """The uploaded bytes, unchanged."""
+    record = services.meshes.get(mesh_id, owner)
+    path = services.meshes.path(mesh_id)
+    if record is None or path is None:
+        raise _not_found(mesh_id)
+    return FileResponse(path, media_type="application/octet-stream",
+                        filename=record.filename or path.name,
+                        headers={"ETag": f'"{record.id}"'})
+
+
+@router.delete("/{mesh_id}", status_code=status.HTTP_204_NO_CONTENT)
+def delete_mesh(mesh_id: str, services: ServicesDep, owner: OwnerDep) -> Response:
+    """Forget the mesh; 409 while an unfinished job plans on it."""
+    if services.meshes.get(mesh_id, owner) is None:
+        raise _not_found(mesh_id)
+    active = services.jobs.active_jobs_using(mesh_id)
+    if active:
+        raise ConflictError(f"{active} unfinished job(s) use mesh {mesh_id}; wait for them "
+                            "or DELETE them first")
+    services.meshes.remove(mesh_id, owner, files_in_use=False)
+    return Response(status_code=status.HTTP_204_NO_CONTENT)

@@ -1,0 +1,118 @@
+"""``/processes``: the one process, ``scan-plan``, and its execution (OGC API - Processes)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from typing import Annotated, Any
+
+from fastapi import APIRouter, Header, Response, status
+from starlette.concurrency import run_in_threadpool
+
+from planner.parameters import PlanSpec
+from service.deps import OwnerDep, ServicesDep
+from service.problems import IdempotencyKeyReusedError, NoSuchProcessError, NotFoundError
+from service.routes.jobs import status_info
+from service.schemas import ExecuteRequest, PlanParameters, StatusInfo
+
+router = APIRouter(prefix="/processes", tags=["processes"])
+
+PROCESS_ID = "scan-plan"
+_SUMMARY: dict[str, Any] = {
+    "id": PROCESS_ID,
+    "title": "Plan laser scanner stations",
+    "description": "Fewest scanner stations on a mesh for the required coverage and point "
+                   "density (greedy, weighted greedy or optimal MILP).",
+    "version": "1.0.0",
+    "jobControlOptions": ["async-execute", "dismiss"],
+    "outputTransmission": ["reference"],
+    "links": [{"href": f"/processes/{PROCESS_ID}", "rel": "self", "type": "application/json"},
+              {"href": f"/processes/{PROCESS_ID}/execution",
+               "rel": "http://www.opengis.net/def/rel/ogc/1.0/execute",
+               "type": "application/json"}],
+}
+
+
+class MeshNotFoundError(NotFoundError):
+    """The execution names a mesh this key did not upload."""
+
+
+def _description() -> dict[str, Any]:
+    return {
+        **_SUMMARY,
+        "inputs": {
+            "mesh": {"title": "mesh id", "description": "the id POST /meshes returned",
+                     "schema": {"type": "string", "pattern": "^[0-9a-f]{64}$"},
+                     "minOccurs": 1, "maxOccurs": 1},
+            "parameters": {"title": "plan parameters",
+                           "description": "names, units and defaults as in the planner",
+                           "schema": PlanParameters.model_json_schema(),
+                           "minOccurs": 0, "maxOccurs": 1},
+        },
+        "outputs": {
+            name: {"title": name, "schema": {"type": "string", "contentMediaType": media}}
+            for name, media in (("plan.json", "application/json"),
+                                ("faces.npz", "application/octet-stream"),
+                                ("stations.csv", "text/csv"),
+                                ("candidates.csv", "text/csv"))
+        },
+    }
+
+
+@router.get("")
+def list_processes() -> dict[str, Any]:
+    """The processes this service offers (one)."""
+    return {"processes": [_SUMMARY],
+            "links": [{"href": "/processes", "rel": "self", "type": "application/json"}]}
+
+
+@router.get("/{process_id}")
+def describe_process(process_id: str) -> dict[str, Any]:
+    """Inputs (JSON Schema with the real defaults) and outputs of the process."""
+    _check_process(process_id)
+    return _description()
+
+
+def _check_process(process_id: str) -> None:
+    if process_id != PROCESS_ID:
+        raise NoSuchProcessError(f"no process {process_id!r}; the one process is {PROCESS_ID}")
+
+
+@router.post("/{process_id}/execution", status_code=status.HTTP_201_CREATED,
+             response_model=StatusInfo,
+             responses={200: {"model": StatusInfo, "description": "Idempotency-Key replay"}})
+async def execute(
+    process_id: str, body: ExecuteRequest, response: Response, services: ServicesDep,
+    owner: OwnerDep,
+    idempotency_key: Annotated[str | None, Header(max_length=255)] = None,
+) -> StatusInfo:
+    """Queue a plan of ``inputs.mesh`` with ``inputs.parameters``; 201 and Location."""
+    _check_process(process_id)
+    parameters = body.inputs.parameters.model_dump(exclude_unset=True)
+    PlanSpec.from_mapping(parameters)  # ranges and consistency: 422 naming the parameter
+    return await run_in_threadpool(_submit, services, owner, body.inputs.mesh, parameters,
+                                   idempotency_key, response)
+
+
+def _submit(services: ServicesDep, owner: str, mesh_id: str, parameters: dict[str, Any],
+            idempotency_key: str | None, response: Response) -> StatusInfo:
+    if services.meshes.get(mesh_id, owner) is None:
+        raise MeshNotFoundError(f"inputs.mesh: no mesh {mesh_id}; upload the model with "
+                                "POST /meshes and use the id it returns")
+    request_hash = hashlib.sha256(json.dumps(
+        {"mesh": mesh_id, "parameters": parameters}, sort_keys=True).encode()).hexdigest()
+    job, created = services.jobs.create(owner, mesh_id, parameters,
+                                        idempotency_key=idempotency_key,
+                                        request_hash=request_hash)
+    if created:
+        services.queue.enqueue(job.id)
+    elif job.request_hash != request_hash:
+        raise IdempotencyKeyReusedError(
+            f"Idempotency-Key {idempotency_key!r} was used for job {job.id} with another "
+            "body; use a new key for a new request")
+    else:
+        response.status_code = status.HTTP_200_OK
+    response.headers["Location"] = f"/jobs/{job.id}"
+    return status_info(job)
+
+

@@ -1,0 +1,327 @@
+"""Running jobs: claim, plan with heartbeats, write outputs atomically, finish; the reaper.
+
+A worker process runs :func:`execute_job` for each id huey hands it. The job table is the
+truth: the claim is a conditional UPDATE, a heartbeat thread keeps it fresh, the progress
+callback writes progress and learns of a DELETE (the UPDATE matches no row any more), and
+only the claim holder may finish the job. The :class:`Reaper` re-enqueues jobs whose
+worker died and fails them as "worker lost" after their last attempt.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import multiprocessing
+import os
+import shutil
+import socket
+import threading
+import time
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from planner.errors import CancelledError, PlannerError, SceneError
+from planner.parameters import PlanSpec
+from planner.pipeline import plan
+from planner.readers import read_scene
+from planner.report import write_outputs
+from service.config import Settings
+from service.database import make_engine
+from service.job_store import FAILED, SUCCESSFUL, JobRecord, JobStore
+from service.mesh_store import MeshStore
+from service.problems import WorkerLostError, problem_for
+from service.queue import HueyQueue, JobQueue, make_huey
+
+log = logging.getLogger("scanplan.worker")
+
+# share of the progress bar per stage, in percent: (start, end)
+STAGE_PERCENT: dict[str, tuple[int, int]] = {
+    "reading": (0, 5), "candidates": (5, 15), "visibility": (15, 85),
+    "selection": (85, 95), "report": (95, 98), "writing": (98, 100),
+}
+
+
+@dataclass
+class WorkerContext:
+    """What a job run needs; built once per process."""
+
+    settings: Settings
+    jobs: JobStore
+    meshes: MeshStore
+    queue: JobQueue
+
+    @property
+    def results_root(self) -> Path:
+        return self.settings.data_dir / "jobs"
+
+
+def build_context(settings: Settings, queue: JobQueue) -> WorkerContext:
+    """Open the database and stores for ``settings`` (call it in the process that uses it)."""
+    settings.data_dir.mkdir(parents=True, exist_ok=True)
+    engine = make_engine(settings.job_db_url)
+    meshes = MeshStore(settings.data_dir / "meshes", engine, settings.max_upload_bytes)
+    return WorkerContext(settings, JobStore(engine), meshes, queue)
+
+
+def results_dir(settings: Settings, job_id: str) -> Path:
+    """Where the outputs of ``job_id`` live once it succeeded."""
+    return settings.data_dir / "jobs" / job_id
+
+
+@dataclass
+class ProgressReporter:
+    """The planner's progress callback: writes progress, returns True once cancelled."""
+
+    ctx: WorkerContext
+    job_id: str
+    token: str
+    cancelled: threading.Event = field(default_factory=threading.Event)
+    _last_stage: str = ""
+    _last_write: float = 0.0
+
+    def __call__(self, stage: str, fraction: float) -> bool:
+        if self.cancelled.is_set():
+            return True
+        now = time.monotonic()
+        if stage == self._last_stage and now - self._last_write < \
+                self.ctx.settings.progress_interval_s:
+            return False
+        start, end = STAGE_PERCENT.get(stage, (0, 100))
+        percent = int(start + (end - start) * fraction)
+        message = f"{stage}: {fraction * 100:.0f} % of this stage"
+        if not self.ctx.jobs.heartbeat(self.job_id, self.token, progress=percent,
+                                       message=message):
+            self.cancelled.set()  # dismissed, or the reaper gave the job to another worker
+            return True
+        self._last_stage, self._last_write = stage, now
+        return False
+
+
+class Heartbeat:
+    """A thread that refreshes the claim while the plan computes between callbacks."""
+
+    def __init__(self, reporter: ProgressReporter, interval_s: float) -> None:
+        self.reporter = reporter
+        self.interval_s = interval_s
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="heartbeat", daemon=True)
+
+    def __enter__(self) -> Heartbeat:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def _run(self) -> None:
+        r = self.reporter
+        while not self._stop.wait(self.interval_s):
+            try:
+                if not r.ctx.jobs.heartbeat(r.job_id, r.token):
+                    r.cancelled.set()
+                    return
+            except Exception:  # a database hiccup: the next beat tries again
+                log.exception("heartbeat of job %s failed", r.job_id)
+
+
+def execute_job(ctx: WorkerContext, job_id: str) -> None:
+    """Run one job to its end state; a no-op when another worker claimed it already."""
+    token = uuid.uuid4().hex
+    if not ctx.jobs.claim(job_id, token, f"{socket.gethostname()}:{os.getpid()}"):
+        log.info("job %s is not accepted any more; skipping", job_id)
+        return
+    job = ctx.jobs.get(job_id)
+    assert job is not None
+    reporter = ProgressReporter(ctx, job_id, token)
+    log.info("job %s: running (attempt %d)", job_id, job.attempts)
+    try:
+        with Heartbeat(reporter, ctx.settings.heartbeat_interval_s):
+            outputs, timings = _run_plan(ctx, job, reporter)
+    except CancelledError:
+        log.info("job %s: stopped (dismissed or reassigned)", job_id)
+    except PlannerError as exc:
+        log.info("job %s: failed: %s", job_id, exc)
+        ctx.jobs.finish(job_id, token, FAILED, message=str(exc),
+                        problem=problem_for(exc, instance=f"/jobs/{job_id}"))
+    except KeyboardInterrupt:  # huey stops the worker: hand the job back, it is not lost
+        if ctx.jobs.release(job_id, token):
+            ctx.queue.enqueue(job_id)
+        raise
+    except Exception as exc:
+        log.exception("job %s: unexpected error", job_id)
+        ctx.jobs.finish(job_id, token, FAILED, message="internal error",
+                        problem=problem_for(exc, instance=f"/jobs/{job_id}"))
+    else:
+        if ctx.jobs.finish(job_id, token, SUCCESSFUL, message="done", timings=timings,
+                           outputs=outputs):
+            log.info("job %s: successful", job_id)
+        else:  # dismissed while the files were written
+            shutil.rmtree(results_dir(ctx.settings, job_id), ignore_errors=True)
+
+
+def _run_plan(ctx: WorkerContext, job: JobRecord,
+              reporter: ProgressReporter) -> tuple[dict[str, dict[str, Any]], dict[str, float]]:
+    spec = PlanSpec.from_mapping(job.parameters)
+    mesh_path = ctx.meshes.path(job.mesh_id)
+    if mesh_path is None:
+        raise SceneError(f"mesh {job.mesh_id} is no longer stored; upload it again")
+    timings: dict[str, float] = {}
+    reporter("reading", 0.0)
+    started = time.perf_counter()
+    scene = read_scene(mesh_path, max_edge_m=spec.max_edge_m, unit_scale=spec.unit_scale)
+    timings["reading"] = time.perf_counter() - started
+    result = plan(scene, spec, progress=reporter, threads=ctx.settings.threads_per_job)
+    timings.update(result.stats.seconds)
+    if reporter("writing", 0.0):
+        raise CancelledError("the plan was cancelled before writing")
+    started = time.perf_counter()
+    outputs = _write_atomically(ctx, job.id, reporter.token, result)
+    timings["writing"] = time.perf_counter() - started
+    return outputs, {name: round(seconds, 4) for name, seconds in timings.items()}
+
+
+def _write_atomically(ctx: WorkerContext, job_id: str, token: str,
+                      result: Any) -> dict[str, dict[str, Any]]:
+    """Write every output into a temporary directory, then rename it into place."""
+    ctx.results_root.mkdir(parents=True, exist_ok=True)
+    temporary = ctx.results_root / f".tmp-{job_id}-{token}"
+    final = results_dir(ctx.settings, job_id)
+    try:
+        written = write_outputs(result, temporary)
+        outputs = {
+            path.name: {"bytes": path.stat().st_size,
+                        "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+            for path in written
+        }
+        if final.exists():  # left by an earlier attempt that could not finish
+            shutil.rmtree(final)
+        temporary.rename(final)
+    except BaseException:
+        shutil.rmtree(temporary, ignore_errors=True)
+        raise
+    return outputs
+
+
+def worker_lost_problem(job: JobRecord) -> dict[str, Any]:
+    """The problem of a job whose worker died on its last attempt."""
+    exc = WorkerLostError(
+        f"worker lost: the worker running this job stopped responding on attempt "
+        f"{job.attempts} of {job.attempts}; submit the job again, and check the workers' "
+        "memory if it keeps happening")
+    return problem_for(exc, instance=f"/jobs/{job.id}")
+
+
+class Reaper:
+    """Re-enqueues running jobs whose heartbeat went stale; fails them after the last try."""
+
+    def __init__(self, jobs: JobStore, queue: JobQueue, settings: Settings) -> None:
+        self.jobs = jobs
+        self.queue = queue
+        self.settings = settings
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def run_once(self) -> int:
+        """One pass; returns how many jobs it touched."""
+        touched = 0
+        for job in self.jobs.stale_running(time.time() - self.settings.stale_after_s):
+            if job.attempts >= self.settings.max_attempts:
+                if self.jobs.fail_lost(job, worker_lost_problem(job)):
+                    log.warning("job %s: worker lost on its last attempt; failed", job.id)
+                    touched += 1
+            elif self.jobs.requeue_lost(job):
+                self.queue.enqueue(job.id)
+                log.warning("job %s: worker lost; queued again", job.id)
+                touched += 1
+        return touched
+
+    def requeue_accepted(self) -> int:
+        """Enqueue every accepted job once more (a repeat is a no-op; a lost id is found)."""
+        ids = self.jobs.ids_with_status("accepted")
+        for job_id in ids:
+            self.queue.enqueue(job_id)
+        return len(ids)
+
+    def start(self) -> None:
+        """Run :meth:`run_once` every ``reaper_interval_s`` in a daemon thread."""
+        self._thread = threading.Thread(target=self._loop, name="reaper", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.settings.reaper_interval_s):
+            try:
+                self.run_once()
+            except Exception:  # the database may be briefly away: try again next time
+                log.exception("reaper pass failed")
+
+
+class _LazyContext:
+    """One :class:`WorkerContext` per process, built on first use (after huey forks)."""
+
+    def __init__(self, settings: Settings, queue: HueyQueue) -> None:
+        self.settings = settings
+        self.queue = queue
+        self._pid = -1
+        self._context: WorkerContext | None = None
+
+    def get(self) -> WorkerContext:
+        if self._context is None or self._pid != os.getpid():
+            self._context = build_context(self.settings, self.queue)
+            self._pid = os.getpid()
+        return self._context
+
+
+def make_worker_queue(settings: Settings) -> HueyQueue:
+    """The huey queue with the task body that runs jobs in this process."""
+    contexts: dict[str, _LazyContext] = {}
+
+    def run_job(job_id: str) -> None:
+        execute_job(contexts["lazy"].get(), job_id)
+
+    queue = HueyQueue(make_huey(settings), run_job)
+    contexts["lazy"] = _LazyContext(settings, queue)
+    return queue
+
+
+def _configure_logging(settings: Settings) -> None:
+    logging.basicConfig(level=settings.log_level.upper(),
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+
+
+def run_reaper(settings: Settings) -> None:
+    """The reaper alone, forever (a process of its own beside a consumer)."""
+    _configure_logging(settings)
+    queue = HueyQueue(make_huey(settings))
+    reaper = Reaper(build_context(settings, queue).jobs, queue, settings)
+    reaper.start()
+    threading.Event().wait()
+
+
+def run_consumer(settings: Settings, *, with_reaper: bool) -> None:
+    """Consume jobs with ``settings.workers`` processes until SIGINT/SIGTERM (blocking).
+
+    huey forks its worker processes (and forks again to replace a dead one), so the
+    consumer process itself keeps no threads and no database connections; the reaper,
+    when wanted, runs in a process of its own.
+    """
+    _configure_logging(settings)
+    if with_reaper:
+        reaper = multiprocessing.get_context("fork").Process(
+            target=run_reaper, args=(settings,), name="reaper", daemon=True)
+        reaper.start()
+    queue = make_worker_queue(settings)
+    consumer = queue.huey.create_consumer(
+        workers=max(1, settings.workers), worker_type="process", periodic=False,
+        check_worker_health=True, health_check_interval=settings.worker_health_interval_s,
+        initial_delay=0.05, max_delay=0.5, backoff=1.5,
+    )
+    log.info("consuming jobs with %d worker processes", max(1, settings.workers))
+    consumer.run()
