@@ -29,7 +29,7 @@ class EmbreeOcclusion:
     """
 
     def __init__(self, scene: Scene, occludes: NDArray[np.bool_]) -> None:
-        self._scene = rtcore_scene.EmbreeScene(robust=True)
+        self._scene = rtcore_scene.EmbreeScene()
         self._faces = np.flatnonzero(occludes)
         self._empty = len(self._faces) == 0
         if not self._empty:

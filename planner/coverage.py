@@ -12,7 +12,30 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from planner.pairs import Pairs
+
+
+@dataclass(frozen=True, eq=False)
+class QualifiedPairs:
+    """Pairs that passed every test, sorted by (candidate, face).
+
+    Attributes
+    ----------
+    candidate : (P,) int32
+    face : (P,) int32
+    lpd_pts_m2 : (P,) float32
+    """
+
+    candidate: NDArray[np.int32]
+    face: NDArray[np.int32]
+    lpd_pts_m2: NDArray[np.float32]
+
+    @classmethod
+    def concatenate(cls, parts: list[QualifiedPairs]) -> QualifiedPairs:
+        if not parts:
+            return cls(np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, np.float32))
+        return cls(np.concatenate([p.candidate for p in parts]),
+                   np.concatenate([p.face for p in parts]),
+                   np.concatenate([p.lpd_pts_m2 for p in parts]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -21,7 +44,7 @@ class CoverageTable:
 
     Attributes
     ----------
-    by_candidate : (C, F) CSR, LPD of each qualified pair, rows = candidates
+    by_candidate : (C, F) CSR float32, LPD of each qualified pair, rows = candidates
     by_face : (C, F) CSC, the same matrix for column access
     face_area_m2 : (F,) float64
     """
@@ -32,14 +55,14 @@ class CoverageTable:
 
     @classmethod
     def from_pairs(
-        cls, qualified: Pairs, n_candidates: int, face_area_m2: NDArray[np.float64]
+        cls, qualified: QualifiedPairs, n_candidates: int, face_area_m2: NDArray[np.float64]
     ) -> CoverageTable:
         """Build from pairs sorted by (candidate, face) (the order the pipeline makes)."""
         shape = (n_candidates, len(face_area_m2))
         counts = np.bincount(qualified.candidate, minlength=n_candidates)
-        indptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        indptr = np.concatenate([[0], np.cumsum(counts)])
         csr = sp.csr_matrix(
-            (qualified.lpd_pts_m2.astype(np.float64), qualified.face.astype(np.int64), indptr),
+            (qualified.lpd_pts_m2, qualified.face, indptr.astype(np.int32)),
             shape=shape,
         )
         csr.has_sorted_indices = True

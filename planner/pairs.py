@@ -9,14 +9,17 @@ and alpha the incidence angle (``sin alpha = |ray . normal|``):
 - ``alpha >= min_incidence_deg`` of the face's group;
 - ``LPD >= min_density_pts_m2`` of the face's group.
 
-Limits are inclusive and compared in degrees, as method.md states them. Only the pairs that
+Limits are inclusive. Angles are compared as their sines (the same order on [-90, 90]
+degrees), so ``sin(90 deg)`` = 1 admits the zenith and no arcsin is taken per pair. Only the pairs that
 pass need an occlusion ray. Array letters: C candidates, F faces, P pairs.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -113,22 +116,22 @@ def _requirement_masks(spec: PlanSpec, scene: Scene) -> list[tuple[NDArray[np.bo
 
 @dataclass(frozen=True, eq=False)
 class Pairs:
-    """Pairs that pass the analytic limits.
+    """Pairs that pass the analytic limits, sorted by (candidate, face).
 
     Attributes
     ----------
-    candidate : (P,) int64, candidate index
-    face : (P,) int64, face index
+    candidate : (P,) int32, candidate index
+    face : (P,) int32, face index
     distance_m : (P,) float64
-    direction : (P, 3) float64, unit vector from candidate to face centroid
-    lpd_pts_m2 : (P,) float64
+    direction : (P, 3) float32, unit vector from candidate to face centroid (ray direction)
+    lpd_pts_m2 : (P,) float32
     """
 
-    candidate: NDArray[np.int64]
-    face: NDArray[np.int64]
+    candidate: NDArray[np.int32]
+    face: NDArray[np.int32]
     distance_m: NDArray[np.float64]
-    direction: NDArray[np.float64]
-    lpd_pts_m2: NDArray[np.float64]
+    direction: NDArray[np.float32]
+    lpd_pts_m2: NDArray[np.float32]
 
     def __len__(self) -> int:
         return int(len(self.face))
@@ -137,19 +140,80 @@ class Pairs:
         return Pairs(self.candidate[keep], self.face[keep], self.distance_m[keep],
                      self.direction[keep], self.lpd_pts_m2[keep])
 
+    @classmethod
+    def concatenate(cls, parts: list[Pairs]) -> Pairs:
+        if not parts:
+            return cls(np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0),
+                       np.zeros((0, 3), np.float32), np.zeros(0, np.float32))
+        return cls(*(np.concatenate([getattr(p, name) for p in parts]) for name in
+                     ("candidate", "face", "distance_m", "direction", "lpd_pts_m2")))
+
+
+@numba.njit(nogil=True, cache=True)  # type: ignore[misc]
+def _pass_limits(  # pragma: no cover - compiled; checked against the numpy reference
+    points: NDArray[np.float64], first_index: int, faces: NDArray[np.int64],
+    centroids: NDArray[np.float64], normals: NDArray[np.float64],
+    min_sin_incidence: NDArray[np.float64], min_density: NDArray[np.float64],
+    dof_min_m: float, dof_max_m: float, min_sin_elevation: float, max_sin_elevation: float,
+    reach_m: float, angular_step_rad: float,
+    out_candidate: NDArray[np.int32], out_face: NDArray[np.int32],
+    out_distance: NDArray[np.float64], out_direction: NDArray[np.float32],
+    out_lpd: NDArray[np.float32],
+) -> int:
+    n = 0
+    reach2 = reach_m * reach_m * (1.0 + 1e-9)
+    for b in range(points.shape[0]):
+        px, py, pz = points[b, 0], points[b, 1], points[b, 2]
+        for i in range(faces.shape[0]):
+            f = faces[i]
+            ox = centroids[f, 0] - px
+            oy = centroids[f, 1] - py
+            oz = centroids[f, 2] - pz
+            d2 = ox * ox + oy * oy + oz * oz
+            if d2 > reach2:
+                continue
+            d = np.sqrt(d2)
+            if d < dof_min_m or d > dof_max_m or d <= 0.0:
+                continue
+            ux, uy, uz = ox / d, oy / d, oz / d
+            if uz < min_sin_elevation or uz > max_sin_elevation:
+                continue
+            s = abs(ux * normals[f, 0] + uy * normals[f, 1] + uz * normals[f, 2])
+            if s < min_sin_incidence[f]:
+                continue
+            spacing = angular_step_rad * d
+            lpd = s / (spacing * spacing)
+            if lpd < min_density[f]:
+                continue
+            out_candidate[n] = first_index + b
+            out_face[n] = f
+            out_distance[n] = d
+            out_direction[n, 0] = ux
+            out_direction[n, 1] = uy
+            out_direction[n, 2] = uz
+            out_lpd[n] = lpd
+            n += 1
+    return n
+
 
 class PairFinder:
-    """Finds the passing pairs of a block of candidates, faces sorted by x for a quick cut."""
+    """Finds the passing pairs of a block of candidates (a compiled loop, GIL released).
+
+    Every test is made in float64 exactly as the module docstring states; the loop only
+    saves the memory traffic of C x F temporary arrays.
+    """
 
     def __init__(self, scene: Scene, limits: FaceLimits) -> None:
         self.limits = limits
-        self.reach_m = limits.reach_m
-        targets = np.flatnonzero(limits.target)
-        order = np.argsort(scene.centroids[targets, 0], kind="stable")
-        self._faces = targets[order]
-        self._x = scene.centroids[self._faces, 0]
-        self._centroids = scene.centroids
-        self._normals = scene.normals
+        self.reach_m = min(limits.reach_m, limits.dof_max_m)
+        self._faces = np.flatnonzero(limits.target).astype(np.int64)
+        self._centroids = np.ascontiguousarray(scene.centroids, np.float64)
+        self._normals = np.ascontiguousarray(scene.normals, np.float64)
+        # angles compare as their sines (monotonic on [-90, 90] degrees): no arcsin per pair
+        self._min_sin_incidence = np.sin(np.radians(limits.min_incidence_deg))
+        self._min_sin_elevation = math.sin(math.radians(limits.elevation_min_deg))
+        self._max_sin_elevation = math.sin(math.radians(limits.elevation_max_deg))
+        self._min_density = np.ascontiguousarray(limits.min_density_pts_m2, np.float64)
 
     def find(self, candidates_xyz: NDArray[np.float64], first_index: int) -> tuple[Pairs, int]:
         """Passing pairs of (B, 3) candidates numbered from ``first_index``.
@@ -157,34 +221,19 @@ class PairFinder:
         Returns the pairs, sorted by (candidate, face), and how many pairs were tested.
         """
         lim = self.limits
-        lo = np.searchsorted(self._x, candidates_xyz[:, 0].min() - self.reach_m, "left")
-        hi = np.searchsorted(self._x, candidates_xyz[:, 0].max() + self.reach_m, "right")
-        faces = np.sort(self._faces[lo:hi])
-        offsets = self._centroids[faces][None, :, :] - candidates_xyz[:, None, :]  # (B, f, 3)
-        dist2 = np.einsum("bfk,bfk->bf", offsets, offsets)
-        tested = int(dist2.size)
-        reach = min(self.reach_m, lim.dof_max_m)
-        near = (dist2 <= reach * reach) & (dist2 >= lim.dof_min_m * lim.dof_min_m)
-        rows, cols = np.nonzero(near)
-        offsets = offsets[rows, cols]
-        distance = np.sqrt(dist2[rows, cols])
-        face = faces[cols]
-        # exact inclusive DOF test on the distance itself (the squares above only cut)
-        keep = (distance >= lim.dof_min_m) & (distance <= lim.dof_max_m) & (distance > 0)
-        rows, face, offsets, distance = rows[keep], face[keep], offsets[keep], distance[keep]
-        direction = offsets / distance[:, None]
-        elevation = np.degrees(np.arcsin(np.clip(direction[:, 2], -1.0, 1.0)))
-        keep = (elevation >= lim.elevation_min_deg) & (elevation <= lim.elevation_max_deg)
-        sin_incidence = np.abs(np.einsum("pk,pk->p", direction, self._normals[face]))
-        incidence = np.degrees(np.arcsin(np.clip(sin_incidence, 0.0, 1.0)))
-        keep &= incidence >= lim.min_incidence_deg[face]
-        lpd = local_point_density(sin_incidence, distance, lim.angular_step_rad)
-        keep &= lpd >= lim.min_density_pts_m2[face]
-        pairs = Pairs(
-            candidate=(rows[keep] + first_index).astype(np.int64),
-            face=face[keep].astype(np.int64),
-            distance_m=distance[keep],
-            direction=direction[keep],
-            lpd_pts_m2=lpd[keep],
+        points = np.ascontiguousarray(candidates_xyz, np.float64)
+        capacity = len(points) * len(self._faces)
+        candidate = np.empty(capacity, np.int32)
+        face = np.empty(capacity, np.int32)
+        distance = np.empty(capacity, np.float64)
+        direction = np.empty((capacity, 3), np.float32)
+        lpd = np.empty(capacity, np.float32)
+        n = _pass_limits(
+            points, first_index, self._faces, self._centroids, self._normals,
+            self._min_sin_incidence, self._min_density, lim.dof_min_m, lim.dof_max_m,
+            self._min_sin_elevation, self._max_sin_elevation, self.reach_m,
+            lim.angular_step_rad, candidate, face, distance, direction, lpd,
         )
-        return pairs, tested
+        pairs = Pairs(candidate[:n].copy(), face[:n].copy(), distance[:n].copy(),
+                      direction[:n].copy(), lpd[:n].copy())
+        return pairs, capacity

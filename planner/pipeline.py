@@ -16,14 +16,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planner.candidates import CandidateSet, explicit_candidates, generate_grid
-from planner.coverage import CoverageTable
+from planner.coverage import CoverageTable, QualifiedPairs
 from planner.errors import CancelledError, NothingVisibleError
 from planner.optimal import OptimalResult, solve_optimal
-from planner.pairs import FaceLimits, PairFinder, Pairs
+from planner.pairs import FaceLimits, PairFinder
 from planner.parameters import PlanSpec
 from planner.scene import Scene
 from planner.selection import Selection, coverage_state, greedy
-from planner.visibility import Backend, make_occlusion
+from planner.visibility import Backend, Occlusion, make_occlusion
 
 # progress(stage, fraction 0..1) -> True to cancel
 ProgressCallback = Callable[[str, float], bool | None]
@@ -143,39 +143,44 @@ def qualify_pairs(
     scene: Scene,
     positions: np.ndarray,
     limits: FaceLimits,
-    occlusion: object,
+    occlusion: Occlusion,
     stats: Stats,
     *,
     progress: ProgressCallback | None = None,
     threads: int | None = None,
-) -> Pairs:
-    """The qualified pairs of (C, 3) candidate positions, sorted by (candidate, face)."""
+) -> QualifiedPairs:
+    """The qualified pairs of (C, 3) candidate positions, sorted by (candidate, face).
+
+    Blocks of candidates run on a thread pool (the compiled limits loop and Embree both
+    release the GIL); results are merged in block order, so they do not depend on timing.
+    """
     finder = PairFinder(scene, limits)
-    starts = list(range(0, len(positions), _BLOCK_CANDIDATES))
+    origins32 = positions.astype(np.float32)
+    starts = range(0, len(positions), _BLOCK_CANDIDATES)
 
-    def block(start: int) -> tuple[Pairs, int, int]:
-        chunk = positions[start:start + _BLOCK_CANDIDATES]
-        pairs, tested = finder.find(chunk, start)
-        visible = occlusion.visible(  # type: ignore[attr-defined]
-            positions[pairs.candidate], pairs.direction, pairs.distance_m, pairs.face
+    def block(start: int) -> tuple[QualifiedPairs, int, int]:
+        pairs, tested = finder.find(positions[start:start + _BLOCK_CANDIDATES], start)
+        visible = occlusion.visible(
+            origins32[pairs.candidate], pairs.direction, pairs.distance_m,
+            pairs.face.astype(np.int64),
         )
-        return pairs.subset(visible), tested, len(pairs)
+        qualified = QualifiedPairs(pairs.candidate[visible], pairs.face[visible],
+                                   pairs.lpd_pts_m2[visible])
+        return qualified, tested, len(pairs)
 
-    results: list[Pairs] = []
+    results: list[QualifiedPairs] = []
     workers = threads or os.cpu_count() or 1
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        for i, (pairs, tested, rays) in enumerate(pool.map(block, starts)):
-            results.append(pairs)
-            stats.pairs_tested += tested
-            stats.rays_cast += rays
-            _notify(progress, "visibility", (i + 1) / max(1, len(starts)))
-    if not results:
-        empty = np.zeros(0, np.int64)
-        return Pairs(empty, empty, np.zeros(0), np.zeros((0, 3)), np.zeros(0))
-    return Pairs(
-        candidate=np.concatenate([p.candidate for p in results]),
-        face=np.concatenate([p.face for p in results]),
-        distance_m=np.concatenate([p.distance_m for p in results]),
-        direction=np.concatenate([p.direction for p in results]),
-        lpd_pts_m2=np.concatenate([p.lpd_pts_m2 for p in results]),
-    )
+        futures = [pool.submit(block, start) for start in starts]
+        try:
+            for i, future in enumerate(futures):
+                qualified, tested, rays = future.result()
+                results.append(qualified)
+                stats.pairs_tested += tested
+                stats.rays_cast += rays
+                _notify(progress, "visibility", (i + 1) / len(futures))
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+    return QualifiedPairs.concatenate(results)

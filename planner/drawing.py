@@ -1,0 +1,506 @@
+"""Pictures of a plan: ``preview.png`` (the floor plan) and ``curve.png`` (the coverage curve).
+
+Both are drawn on a :class:`matplotlib.figure.Figure` with the Agg canvas (no pyplot, no
+global state), at a fixed size and with fixed PNG metadata, so the same plan always gives
+the same bytes.
+
+The preview is a plan view of every storey that holds candidates, printed to a standard
+scale (1:50, 1:100, ...) on A4 landscape:
+
+- the model cut by a horizontal plane at scanner height: each cut face is a thick line
+  coloured by its coverage class over a thin black core (walls read as walls, and show
+  whether they are covered);
+- the up-facing surfaces below the cut (floor, tops of machines), coloured by class and
+  painted from low to high;
+- the candidate grid as faint dots, the chosen stations as numbered discs in their order,
+  each with a dashed circle of the head-on density range;
+- scale bar, north arrow (+Y of the model), legend, totals and the station list.
+
+Storeys come from the candidates' labels (``storey``, set by the IFC room candidates) with
+elevations from ``scene.metadata["storeys"]`` when the reader gives them; otherwise the
+candidates' heights are split into levels wherever they jump by more than
+``LEVEL_GAP_M``.
+
+Face classes (shared with :mod:`planner.glb`): covered by the plan (green, darker the more
+the best LPD exceeds the requirement), coverable but not covered (orange), not coverable
+from any candidate (crimson), and faces with no requirement (grey).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import trimesh
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection, PolyCollection
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Circle, Patch, Rectangle
+from matplotlib.ticker import MaxNLocator
+from numpy.typing import NDArray
+
+from planner.curve import coverage_curve
+from planner.density import density_range_m
+from planner.pipeline import PlanResult
+
+# --- face classes and their colours (sRGB 0-255) -------------------------------------------
+
+COVERED, MISSED, UNREACHABLE, NOT_TARGET = 0, 1, 2, 3
+CLASS_NAMES = ("covered", "coverable_not_covered", "not_coverable", "not_target")
+CLASS_LABELS = (
+    "covered by the plan",
+    "coverable, not covered by the plan",
+    "not coverable from any candidate",
+    "no requirement (not a target)",
+)
+COVERED_LOW_RGB = (161, 217, 155)  # best LPD just meets the requirement
+COVERED_HIGH_RGB = (0, 90, 50)  # best LPD >= COVERED_SATURATION x the requirement
+COVERED_SATURATION = 8.0
+CLASS_RGB = ((49, 163, 84), (240, 150, 20), (190, 30, 60), (200, 200, 200))
+STATION_RGB = (20, 60, 160)
+
+DPI = 150
+PREVIEW_SIZE_IN = (11.69, 8.27)  # A4 landscape
+CURVE_SIZE_IN = (8.0, 5.0)
+LEVEL_GAP_M = 1.0
+_PNG_METADATA: dict[str, str | None] = {"Software": None}
+_SCALES = (10, 20, 25, 50, 75, 100, 125, 150, 200, 250, 300, 400, 500, 750, 1000, 1250, 1500,
+           2000, 2500, 5000, 10000, 20000, 25000, 50000, 100000)
+_UP_NZ = 0.3  # faces whose normal has at least this upward part are drawn from above
+
+
+def face_classes(faces: Mapping[str, NDArray[Any]], target: NDArray[np.bool_]) -> NDArray[np.uint8]:
+    """(F,) uint8 class per face from the per-face arrays of a plan (``faces.npz``).
+
+    ``COVERED`` when ``covered``; else ``MISSED`` when ``n_candidates > 0``; else
+    ``UNREACHABLE`` for a target face and ``NOT_TARGET`` for a face with no requirement.
+    """
+    covered = np.asarray(faces["covered"], bool)
+    coverable = np.asarray(faces["n_candidates"]) > 0
+    classes = np.full(len(covered), UNREACHABLE, np.uint8)
+    classes[~np.asarray(target, bool)] = NOT_TARGET
+    classes[coverable] = MISSED
+    classes[covered] = COVERED
+    return classes
+
+
+def face_rgb(faces: Mapping[str, NDArray[Any]], target: NDArray[np.bool_],
+             min_density_pts_m2: NDArray[np.float64]) -> NDArray[np.uint8]:
+    """(F, 3) uint8 sRGB colour per face: its class colour, covered faces shaded by LPD.
+
+    A covered face goes from ``COVERED_LOW_RGB`` (best LPD at the requirement) to
+    ``COVERED_HIGH_RGB`` (``COVERED_SATURATION`` times the requirement or more) on a log
+    scale.
+    """
+    classes = face_classes(faces, target)
+    rgb = np.asarray(CLASS_RGB, np.float64)[classes]
+    covered = classes == COVERED
+    required = np.asarray(min_density_pts_m2, np.float64)[covered]
+    best = np.asarray(faces["best_lpd_pts_m2"], np.float64)[covered]
+    ratio = np.divide(best, required, out=np.full_like(best, COVERED_SATURATION),
+                      where=required > 0)
+    t = np.clip(np.log(np.maximum(ratio, 1.0)) / math.log(COVERED_SATURATION), 0.0, 1.0)
+    low, high = np.asarray(COVERED_LOW_RGB, float), np.asarray(COVERED_HIGH_RGB, float)
+    rgb[covered] = low + t[:, None] * (high - low)
+    return np.rint(rgb).astype(np.uint8)
+
+
+def _rgb(colour: Sequence[float]) -> tuple[float, float, float]:
+    return (colour[0] / 255.0, colour[1] / 255.0, colour[2] / 255.0)
+
+
+# --- storeys ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Level:
+    """One storey drawn as a panel.
+
+    ``candidates`` are indices into the plan's candidates; faces between ``floor_z - 0.2``
+    and ``section_z`` are painted from above; faces reaching up to ``top_z`` count for the
+    panel's extent.
+    """
+
+    name: str
+    floor_z: float
+    section_z: float
+    top_z: float
+    candidates: NDArray[np.int64]
+
+
+def levels(result: PlanResult) -> list[Level]:
+    """The storeys of the plan, lowest first (see the module docstring)."""
+    positions = result.candidates.positions
+    z = positions[:, 2]
+    height = result.spec.scanner_height_m
+    labels = result.candidates.labels
+    groups: list[tuple[str, NDArray[np.int64]]] = []
+    if labels and all(label.get("storey") for label in labels):
+        names = sorted({label["storey"] for label in labels},
+                       key=lambda n: float(np.median(z[[lab["storey"] == n for lab in labels]])))
+        for name in names:
+            groups.append((name, np.flatnonzero([lab["storey"] == name for lab in labels])))
+    else:
+        order = np.argsort(z, kind="stable")
+        breaks = np.flatnonzero(np.diff(z[order]) > LEVEL_GAP_M) + 1
+        for i, chunk in enumerate(np.split(order, breaks)):
+            groups.append((f"level {i + 1}" if len(breaks) else "", np.sort(chunk)))
+    elevations = _storey_elevations(result.scene.metadata)
+    top = float(result.scene.bounds[1, 2])
+    floors = []
+    for name, members in groups:
+        floor = elevations.get(name, float(z[members].min()) - height)
+        floors.append(floor)
+    out = []
+    for i, (name, members) in enumerate(groups):
+        next_floor = floors[i + 1] if i + 1 < len(groups) else top
+        section = float(np.median(z[members]))
+        out.append(Level(name=name, floor_z=floors[i], section_z=section,
+                         top_z=max(next_floor, section), candidates=members.astype(np.int64)))
+    return out
+
+
+def _storey_elevations(metadata: Mapping[str, Any]) -> dict[str, float]:
+    """Storey name -> elevation from reader metadata, tolerant of its exact shape."""
+    storeys = metadata.get("storeys")
+    out: dict[str, float] = {}
+    if isinstance(storeys, Mapping):
+        items: list[Any] = [{"name": k, "elevation": v} for k, v in storeys.items()]
+    elif isinstance(storeys, list | tuple):
+        items = list(storeys)
+    else:
+        return out
+    for item in items:
+        if isinstance(item, Mapping):
+            name, elevation = item.get("name"), item.get("elevation")
+            if isinstance(name, str) and isinstance(elevation, int | float):
+                out[name] = float(elevation)
+    return out
+
+
+# --- preview.png -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Preview:
+    """The drawn preview: its figure, one axes per level, and the print scale (1:scale)."""
+
+    figure: Figure
+    axes: tuple[Axes, ...]
+    levels: tuple[Level, ...]
+    scale: int
+
+
+def _panel_grid(n: int) -> tuple[int, int]:
+    if n <= 2:
+        return 1, n
+    return 2, math.ceil(n / 2)
+
+
+def draw_preview(result: PlanResult) -> Preview:
+    """Draw the plan view; :func:`preview_png` turns it into bytes."""
+    fig = Figure(figsize=PREVIEW_SIZE_IN, dpi=DPI)
+    FigureCanvasAgg(fig)
+    all_levels = levels(result)
+    chosen = set(result.chosen.stations)
+    shown = [lv for lv in all_levels if chosen.intersection(lv.candidates.tolist())]
+    shown = (shown or all_levels)[:4] if len(all_levels) > 4 else all_levels
+    rows, cols = _panel_grid(len(shown))
+    # map area in figure fractions: left part of the sheet; the right column is the key
+    map_left, map_bottom, map_width, map_height = 0.025, 0.04, 0.70, 0.86
+    gap = 0.02
+    cell_w = (map_width - gap * (cols - 1)) / cols
+    cell_h = (map_height - gap * 1.5 * (rows - 1)) / rows
+    width_in, height_in = PREVIEW_SIZE_IN
+    mesh = trimesh.Trimesh(result.scene.vertices, result.scene.faces, process=False)
+    rgb = face_rgb(result.faces, result.limits.target, result.limits.min_density_pts_m2)
+    classes = face_classes(result.faces, result.limits.target)
+
+    extents = [_level_extent(result, lv) for lv in shown]
+    scale = _print_scale(extents, cell_w * width_in, cell_h * height_in)
+    axes = []
+    for i, (level, extent) in enumerate(zip(shown, extents, strict=True)):
+        r, c = divmod(i, cols)
+        left = map_left + c * (cell_w + gap)
+        bottom = map_bottom + (rows - 1 - r) * (cell_h + gap * 1.5)
+        ax = fig.add_axes((left, bottom, cell_w, cell_h))
+        _limits_at_scale(ax, extent, cell_w * width_in, cell_h * height_in, scale)
+        _draw_level(ax, result, level, mesh, rgb, classes)
+        _scale_bar(ax)
+        title = level.name or "plan"
+        ax.set_title(f"{title}: section at {level.section_z:.2f} m, floor {level.floor_z:.2f} m"
+                     if level.name else
+                     f"section at {level.section_z:.2f} m (scanner height), seen from above",
+                     fontsize=9, loc="left")
+        axes.append(ax)
+    _key(fig, result, scale)
+    return Preview(figure=fig, axes=tuple(axes), levels=tuple(shown), scale=scale)
+
+
+def preview_png(result: PlanResult) -> bytes:
+    """``preview.png``: A4 landscape at 150 dpi (1754 x 1240 px)."""
+    return _png(draw_preview(result).figure)
+
+
+def _png(fig: Figure) -> bytes:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=DPI, metadata=_PNG_METADATA)
+    return buffer.getvalue()
+
+
+def _level_extent(result: PlanResult, level: Level) -> tuple[float, float, float, float]:
+    """(xmin, ymin, xmax, ymax) of the faces of a level and its candidates, with a margin."""
+    scene = result.scene
+    cz = scene.centroids[:, 2]
+    inside = (cz >= level.floor_z - 0.2) & (cz <= level.top_z)
+    points = [result.candidates.positions[level.candidates, :2]]
+    if inside.any():
+        points.append(scene.vertices[scene.faces[inside].ravel(), :2])
+    xy = np.concatenate(points)
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    margin = 0.04 * float(max(hi - lo)) + 0.3
+    return (float(lo[0]) - margin, float(lo[1]) - margin,
+            float(hi[0]) + margin, float(hi[1]) + margin)
+
+
+def _print_scale(extents: Sequence[tuple[float, float, float, float]], width_in: float,
+                 height_in: float) -> int:
+    """The smallest standard scale 1:N at which every level fits its panel."""
+    needed = max(max((x1 - x0) / (width_in * 0.0254), (y1 - y0) / (height_in * 0.0254))
+                 for x0, y0, x1, y1 in extents)
+    for scale in _SCALES:
+        if scale >= needed:
+            return scale
+    return int(math.ceil(needed))
+
+
+def _limits_at_scale(ax: Axes, extent: tuple[float, float, float, float], width_in: float,
+                     height_in: float, scale: int) -> None:
+    x0, y0, x1, y1 = extent
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    half_w = width_in * 0.0254 * scale / 2
+    half_h = height_in * 0.0254 * scale / 2
+    ax.set_xlim(cx - half_w, cx + half_w)
+    ax.set_ylim(cy - half_h, cy + half_h)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    for spine in ax.spines.values():
+        spine.set_linewidth(0.6)
+        spine.set_color("0.4")
+
+
+def _draw_level(ax: Axes, result: PlanResult, level: Level, mesh: Any,
+                rgb: NDArray[np.uint8], classes: NDArray[np.uint8]) -> None:
+    scene = result.scene
+    cz = scene.centroids[:, 2]
+    up = scene.normals[:, 2] >= _UP_NZ
+    below = np.flatnonzero(up & (cz >= level.floor_z - 0.2) & (cz <= level.section_z))
+    below = below[np.argsort(cz[below], kind="stable")]
+    if len(below):
+        polys = scene.vertices[scene.faces[below]][:, :, :2]
+        colours = rgb[below] / 255.0
+        ax.add_collection(PolyCollection(list(polys), facecolors=colours, edgecolors=colours,
+                                         linewidths=0.15, antialiased=True, zorder=1))
+    lines, cut_faces = trimesh.intersections.mesh_plane(
+        mesh, plane_normal=[0.0, 0.0, 1.0], plane_origin=[0.0, 0.0, level.section_z],
+        return_faces=True)
+    if len(lines):
+        segments = np.asarray(lines)[:, :, :2]
+        ax.add_collection(LineCollection(list(segments),
+                                         colors=rgb[np.asarray(cut_faces)] / 255.0,
+                                         linewidths=3.2, capstyle="round", zorder=3))
+        ax.add_collection(LineCollection(list(segments), colors="black", linewidths=0.7,
+                                         zorder=4))
+    candidates = result.candidates.positions[level.candidates]
+    ax.scatter(candidates[:, 0], candidates[:, 1], s=2.5, c=[(0.35, 0.35, 0.35)],
+               linewidths=0, alpha=0.55, zorder=5)
+    reach = density_range_m(result.spec.min_density_pts_m2, result.spec.angular_step_rad)
+    reach = min(reach, result.spec.dof_max_m)
+    members = set(level.candidates.tolist())
+    station_colour = _rgb(STATION_RGB)
+    for order, candidate in enumerate(result.chosen.stations):
+        if candidate not in members:
+            continue
+        x, y = result.candidates.positions[candidate, :2]
+        if math.isfinite(reach):
+            ax.add_patch(Circle((x, y), reach, fill=False, linestyle=(0, (4, 3)),
+                                linewidth=0.8, edgecolor=station_colour, alpha=0.55,
+                                zorder=6))
+        label = str(order + 1)
+        size = 15 if len(label) < 3 else 19
+        ax.plot([x], [y], marker="o", markersize=size, markerfacecolor=station_colour,
+                markeredgecolor="white", markeredgewidth=1.2, linestyle="none", zorder=8)
+        ax.text(x, y, label, ha="center", va="center_baseline", color="white",
+                fontsize=8 if len(label) < 3 else 7, fontweight="bold", zorder=9)
+
+
+def _nice_length(span_m: float) -> float:
+    """A round length about a quarter of ``span_m``."""
+    target = span_m / 4
+    exponent = math.floor(math.log10(target))
+    best = 10.0**exponent
+    for mantissa in (1.0, 2.0, 5.0, 10.0):
+        if mantissa * 10.0**exponent <= target:
+            best = mantissa * 10.0**exponent
+    return best
+
+
+def _scale_bar(ax: Axes) -> None:
+    x0, x1 = ax.get_xlim()
+    y0, y1 = ax.get_ylim()
+    length = _nice_length(x1 - x0)
+    height = (y1 - y0) * 0.012
+    left, base = x0 + (x1 - x0) * 0.03, y0 + (y1 - y0) * 0.035
+    ax.add_patch(Rectangle((left - (x1 - x0) * 0.01, base - height * 1.6),
+                           length + (x1 - x0) * 0.045, height * 5.6, facecolor="white",
+                           edgecolor="none", alpha=0.85, zorder=10))
+    for k in range(4):
+        ax.add_patch(Rectangle((left + k * length / 4, base), length / 4, height,
+                               facecolor="black" if k % 2 == 0 else "white",
+                               edgecolor="black", linewidth=0.6, zorder=11))
+    unit = f"{length:g} m"
+    ax.text(left, base + height * 1.4, "0", ha="center", va="bottom", fontsize=7, zorder=11)
+    ax.text(left + length, base + height * 1.4, unit, ha="center", va="bottom", fontsize=7,
+            zorder=11)
+
+
+def _key(fig: Figure, result: PlanResult, scale: int) -> None:
+    """Title, north arrow, legend, totals and the station list in the right column."""
+    doc_totals = _totals(result)
+    fig.text(0.025, 0.965, "Scan plan: stations and coverage seen from above", fontsize=14,
+             fontweight="bold", va="center")
+    fig.text(0.025, 0.928,
+             f"{doc_totals['stations']} stations ({result.chosen.method.replace('_', ' ')}), "
+             f"{doc_totals['covered']:.1f} m² covered = {doc_totals['fraction'] * 100:.1f} % of "
+             f"the {doc_totals['max']:.1f} m² coverable (goal "
+             f"{result.spec.coverage_goal * 100:.0f} %)",
+             fontsize=10.5, va="center")
+    # north arrow
+    nax = fig.add_axes((0.935, 0.86, 0.05, 0.1))
+    nax.set_xlim(-1, 1)
+    nax.set_ylim(-1, 1.4)
+    nax.axis("off")
+    nax.annotate("", xy=(0, 0.9), xytext=(0, -0.9),
+                 arrowprops={"arrowstyle": "-|>,head_width=0.5,head_length=0.9",
+                             "color": "black", "linewidth": 1.6})
+    nax.text(0, 1.15, "N", ha="center", va="center", fontsize=12, fontweight="bold")
+    nax.text(0, -1.05, "+Y", ha="center", va="top", fontsize=7)
+    fig.text(0.755, 0.91, f"Scale 1:{scale} on A4", fontsize=10, fontweight="bold")
+    fig.text(0.755, 0.885, "north arrow = +Y axis of the model", fontsize=7, color="0.3")
+
+    reach = density_range_m(result.spec.min_density_pts_m2, result.spec.angular_step_rad)
+    handles = [
+        Patch(facecolor=_rgb(COVERED_LOW_RGB), label="covered, density at requirement"),
+        Patch(facecolor=_rgb(COVERED_HIGH_RGB),
+              label=f"covered, density ≥ {COVERED_SATURATION:g}× requirement"),
+        Patch(facecolor=_rgb(CLASS_RGB[MISSED]), label="coverable, not covered by the plan"),
+        Patch(facecolor=_rgb(CLASS_RGB[UNREACHABLE]), label="not coverable from any candidate"),
+        Patch(facecolor=_rgb(CLASS_RGB[NOT_TARGET]), label="no requirement"),
+        Line2D([], [], color="black", linewidth=0.7, label="cut at scanner height"),
+        Line2D([], [], marker="o", color="none", markerfacecolor=(0.35, 0.35, 0.35),
+               markersize=3, markeredgewidth=0, label="candidate position"),
+        Line2D([], [], marker="o", color="none", markerfacecolor=_rgb(STATION_RGB),
+               markeredgecolor="white", markersize=11, label="station, in scan order"),
+    ]
+    if math.isfinite(reach):
+        handles.append(Line2D([], [], color=_rgb(STATION_RGB), linestyle=(0, (4, 3)),
+                              alpha=0.7, label=f"head-on density range {reach:.2f} m"))
+    fig.legend(handles=handles, loc="upper left", bbox_to_anchor=(0.75, 0.865), fontsize=7.5,
+               frameon=False, handlelength=2.2, borderaxespad=0.0, labelspacing=0.55)
+    spec = result.spec
+    lines = [
+        f"Faces {result.scene.n_faces:,}, area {doc_totals['total']:.1f} m²",
+        f"Coverable (max achievable) {doc_totals['max']:.1f} m²",
+        f"Candidates {len(result.candidates):,}",
+        f"Requirement {spec.min_density_pts_m2:,.0f} pts/m², incidence ≥ "
+        f"{spec.min_incidence_deg:g}°",
+        f"Scanner step {spec.point_spacing_m * 1000:g} mm at {spec.reference_distance_m:g} m, "
+        f"range {spec.dof_min_m:g}–{spec.dof_max_m:g} m",
+    ]
+    fig.text(0.755, 0.47, "\n".join(lines), fontsize=7.5, va="top", linespacing=1.5)
+    _station_table(fig, result, top=0.355)
+
+
+def _totals(result: PlanResult) -> dict[str, float]:
+    chosen = result.chosen
+    max_area = chosen.max_achievable_area_m2
+    covered = chosen.covered_area_m2[-1] if chosen.stations else 0.0
+    return {"stations": len(chosen.stations), "covered": covered, "max": max_area,
+            "fraction": covered / max_area if max_area else 0.0,
+            "total": float(result.scene.areas.sum())}
+
+
+def _station_table(fig: Figure, result: PlanResult, top: float) -> None:
+    chosen = result.chosen
+    max_area = chosen.max_achievable_area_m2
+    rows = ["  no.      x       y       z   new m²  cum. %"]
+    limit = 14
+    for order, candidate in enumerate(chosen.stations[:limit]):
+        x, y, z = result.candidates.positions[candidate]
+        fraction = chosen.covered_area_m2[order] / max_area * 100 if max_area else 0.0
+        rows.append(f"{order + 1:5d} {x:7.2f} {y:7.2f} {z:6.2f} {chosen.new_area_m2[order]:8.2f}"
+                    f" {fraction:7.1f}")
+    if len(chosen.stations) > limit:
+        rows.append(f"  ... {len(chosen.stations) - limit} more in stations.csv")
+    fig.text(0.755, top, "Stations (model coordinates, m)", fontsize=8, fontweight="bold",
+             va="bottom")
+    fig.text(0.755, top - 0.006, "\n".join(rows), fontsize=7, family="monospace", va="top",
+             linespacing=1.35)
+
+
+# --- curve.png ------------------------------------------------------------------------
+
+
+def draw_curve(result: PlanResult) -> Figure:
+    """The coverage curve: stations needed against the coverage goal, per method."""
+    curve = coverage_curve(result.selections, result.optimal)
+    goals = np.asarray(curve["goals"]) * 100
+    fig = Figure(figsize=CURVE_SIZE_IN, dpi=DPI)
+    FigureCanvasAgg(fig)
+    ax = fig.add_axes((0.09, 0.12, 0.88, 0.76))
+    styles = {"greedy": ("greedy", "o", (0.12, 0.35, 0.7)),
+              "weighted_greedy": ("weighted greedy", "s", (0.85, 0.4, 0.05))}
+    top = 1
+    for method, (label, marker, colour) in styles.items():
+        if method not in curve:
+            continue
+        counts = np.asarray(curve[method])
+        top = max(top, int(counts.max()))
+        ax.plot(goals, counts, marker=marker, markersize=4.5, color=colour, linewidth=1.6,
+                drawstyle="default", label=label)
+    goal = result.spec.coverage_goal * 100
+    ax.axvline(goal, color="0.3", linestyle="--", linewidth=1.0)
+    n_chosen = len(result.chosen.stations)
+    ax.plot([goal], [n_chosen], marker="o", markersize=11, markerfacecolor="none",
+            markeredgecolor="black", markeredgewidth=1.4, linestyle="none",
+            label=f"the plan: {n_chosen} stations at {goal:.0f} % "
+                  f"({result.chosen.method.replace('_', ' ')})")
+    if result.optimal is not None:
+        n_opt = len(result.optimal.selection.stations)
+        ax.plot([goal], [n_opt], marker="*", markersize=13, color=(0.1, 0.55, 0.2),
+                linestyle="none",
+                label=f"optimal (MILP): {n_opt}, proven ≥ {result.optimal.lower_bound}")
+    ax.set_xlim(0, 102)
+    ax.set_ylim(0, top * 1.08 + 0.5)
+    ax.set_xticks(np.arange(0, 101, 10))
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.grid(True, color="0.88", linewidth=0.7)
+    ax.set_axisbelow(True)
+    ax.set_xlabel("coverage goal (% of the coverable area)")
+    ax.set_ylabel("stations needed")
+    max_area = result.chosen.max_achievable_area_m2
+    ax.set_title(f"Coverage curve: stations against goal (coverable area {max_area:.1f} m², "
+                 f"{len(result.candidates):,} candidates)", fontsize=10, loc="left")
+    ax.legend(loc="upper left", fontsize=8.5, frameon=True)
+    return fig
+
+
+def curve_png(result: PlanResult) -> bytes:
+    """``curve.png``: 1200 x 750 px."""
+    return _png(draw_curve(result))
