@@ -13,7 +13,9 @@ reason, when
   scanner (a table, a low machine, a shelf);
 - ``inside_geometry``: inside a closed object (generalised winding number of an object's
   faces above one half; objects are the model's groups, normals pointing outward);
-- ``too_close``: closer than ``clearance_m`` to any face (exact point-triangle distance).
+- ``too_close``: an obstacle's footprint within ``clearance_m`` of the tripod's vertical axis,
+  counting every face that reaches between the floor and ``clearance_m`` above the scanner
+  (a tripod needs that room at the floor too, not only at the scanner head).
 
 Array letters: C candidates, N grid points.
 """
@@ -26,7 +28,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import trimesh
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 from shapely import Polygon, intersects_xy
@@ -148,7 +149,8 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: object) -> CandidateSet:
         dropped["outside_area_of_interest"] = int((~inside).sum())
         xy = xy[inside]
     positions = place_on_floor(scene, xy, spec, caster, dropped)
-    positions = drop_unclear(scene, positions, spec.clearance_m, dropped)
+    floors = positions[:, 2] - spec.scanner_height_m
+    positions = drop_unclear(scene, positions, spec.clearance_m, dropped, floors)
     if len(positions) == 0:
         raise NoCandidatesError(
             f"no grid point is left out of {considered} "
@@ -191,40 +193,85 @@ def place_on_floor(
 
 
 def drop_unclear(
-    scene: Scene, positions: NDArray[np.float64], clearance_m: float, dropped: dict[str, int]
+    scene: Scene, positions: NDArray[np.float64], clearance_m: float, dropped: dict[str, int],
+    floor_z_m: NDArray[np.float64] | None = None,
 ) -> NDArray[np.float64]:
-    """Drop (C, 3) positions inside closed objects or closer than ``clearance_m`` to a face."""
+    """Drop (C, 3) positions inside closed objects or within ``clearance_m`` of an obstacle.
+
+    ``floor_z_m`` (C,) is the floor under each position; by default the lowest point of the
+    model.
+    """
     if len(positions) == 0:
         return positions
     inside = inside_closed_groups(scene, positions)
     dropped["inside_geometry"] += int(inside.sum())
     positions = positions[~inside]
-    near = closer_than(scene, positions, clearance_m)
+    if floor_z_m is None:
+        floors = np.full(len(positions), scene.bounds[0, 2])
+    else:
+        floors = np.asarray(floor_z_m, np.float64)[~inside]
+    near = closer_than(scene, positions, clearance_m, floors)
     dropped["too_close"] += int(near.sum())
     return positions[~near]
 
 
-def closer_than(scene: Scene, points: NDArray[np.float64], radius_m: float) -> NDArray[np.bool_]:
-    """(N,) bool: the exact distance from each (N, 3) point to the mesh is below ``radius_m``."""
-    if radius_m <= 0 or len(points) == 0:
-        return np.zeros(len(points), bool)
-    triangles = scene.triangles
-    spread = float(np.linalg.norm(triangles - scene.centroids[:, None, :], axis=2).max())
-    tree = cKDTree(scene.centroids)
-    lists = tree.query_ball_point(points, radius_m + spread)
-    counts = np.array([len(x) for x in lists])
+def closer_than(
+    scene: Scene, points: NDArray[np.float64], radius_m: float, floor_z_m: NDArray[np.float64]
+) -> NDArray[np.bool_]:
+    """(N,) bool: some face within ``radius_m`` of the tripod's vertical axis.
+
+    The axis runs from just above the floor (``floor_z_m`` + 1 cm) to ``radius_m`` above the
+    scanner at (N, 3) ``points``; a face counts when its height range reaches into that span
+    and its footprint (XY projection) comes closer than ``radius_m`` to the axis: a tripod
+    needs that much room around it at every height, whatever the obstacle's height. A
+    distance of exactly ``radius_m`` is clear.
+    """
     result = np.zeros(len(points), bool)
+    if radius_m <= 0 or len(points) == 0:
+        return result
+    triangles = scene.triangles
+    tri_xy = triangles[:, :, :2]
+    centre_xy = tri_xy.mean(axis=1)
+    spread = float(np.linalg.norm(tri_xy - centre_xy[:, None, :], axis=2).max())
+    z_low, z_high = triangles[:, :, 2].min(axis=1), triangles[:, :, 2].max(axis=1)
+    lists = cKDTree(centre_xy).query_ball_point(points[:, :2], radius_m + spread + 1e-9)
+    counts = np.array([len(x) for x in lists])
     if counts.sum() == 0:
         return result
     point_of_pair = np.repeat(np.arange(len(points)), counts)
     face_of_pair = np.concatenate([np.asarray(x, np.int64) for x in lists if x])
-    step = 500_000
-    for s in range(0, len(face_of_pair), step):
-        p, f = point_of_pair[s:s + step], face_of_pair[s:s + step]
-        closest = trimesh.triangles.closest_point(triangles[f], points[p])
-        gap = np.linalg.norm(closest - points[p], axis=1)
-        np.logical_or.at(result, p, gap < radius_m)
+    span_low = floor_z_m[point_of_pair] + 0.01
+    span_high = points[point_of_pair, 2] + radius_m
+    in_span = (z_high[face_of_pair] >= span_low) & (z_low[face_of_pair] <= span_high)
+    p, f = point_of_pair[in_span], face_of_pair[in_span]
+    gap = _distance_to_triangles_xy(points[p, :2], tri_xy[f])
+    np.logical_or.at(result, p, gap < radius_m)
     return result
+
+
+def _distance_to_triangles_xy(
+    points: NDArray[np.float64], triangles: NDArray[np.float64]
+) -> NDArray[np.float64]:
+    """(N,) distance in the plane from (N, 2) points to (N, 3, 2) triangles (0 inside)."""
+    a, b, c = triangles[:, 0], triangles[:, 1], triangles[:, 2]
+
+    def cross(u: NDArray[np.float64], v: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.asarray(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+
+    d1, d2, d3 = cross(b - a, points - a), cross(c - b, points - b), cross(a - c, points - c)
+    inside = ((d1 >= 0) & (d2 >= 0) & (d3 >= 0)) | ((d1 <= 0) & (d2 <= 0) & (d3 <= 0))
+    inside &= np.abs(cross(b - a, c - a)) > 1e-15  # a vertical face projects to a segment
+
+    def to_segment(p0: NDArray[np.float64], p1: NDArray[np.float64]) -> NDArray[np.float64]:
+        edge = p1 - p0
+        length2 = np.einsum("nk,nk->n", edge, edge)
+        t = np.divide(np.einsum("nk,nk->n", points - p0, edge), length2,
+                      out=np.zeros_like(length2), where=length2 > 0)
+        closest = p0 + np.clip(t, 0.0, 1.0)[:, None] * edge
+        return np.asarray(np.linalg.norm(points - closest, axis=1))
+
+    gap = np.minimum(np.minimum(to_segment(a, b), to_segment(b, c)), to_segment(c, a))
+    return np.where(inside, 0.0, gap)
 
 
 def inside_closed_groups(scene: Scene, points: NDArray[np.float64]) -> NDArray[np.bool_]:
