@@ -41,8 +41,13 @@ class HueyQueue:
 
     def __init__(self, huey: Huey, run: Callable[[str], None] | None = None) -> None:
         self.huey = huey
-        # the API only enqueues: its task body is never called there
-        self._task: Any = huey.task(name=TASK_NAME)(run or _never_here)
+        body = run or _never_here  # the API only enqueues: its body is never called there
+
+        def run_job(job_id: str) -> None:
+            body(job_id)
+
+        # huey names a task after its function's module: the same here in every process
+        self._task: Any = huey.task(name=TASK_NAME)(run_job)
 
     def enqueue(self, job_id: str) -> None:
         self._task(job_id)

@@ -1,0 +1,226 @@
+"""The HTTP API against ``create_app()``: meshes, jobs, results, errors, auth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+from fastapi.testclient import TestClient
+
+from planner.parameters import PlanSpec
+from planner.pipeline import plan
+from planner.readers import read_scene
+from planner.report import write_outputs
+from tests.service.conftest import InlineQueue, make_client, submit, upload
+
+PROBLEM = "application/problem+json"
+
+
+def assert_problem(response: Any, status: int, *words: str) -> dict[str, Any]:
+    assert response.status_code == status, response.text
+    assert response.headers["content-type"].startswith(PROBLEM)
+    body: dict[str, Any] = response.json()
+    assert body["status"] == status and body["title"] and body["type"]
+    for word in words:
+        assert word in body["detail"], body
+    return body
+
+
+def test_upload_is_content_addressed(client: TestClient, hall_bytes: bytes) -> None:
+    first = upload(client, hall_bytes)
+    assert first.status_code == 201, first.text
+    mesh = first.json()
+    assert mesh["faces"] == 14724 and mesh["format"] == "obj"
+    assert mesh["groups"]["floor"] == 2088 and mesh["filename"] == "hall.obj"
+    assert first.headers["location"] == f"/meshes/{mesh['id']}"
+    again = client.post("/meshes", files={"file": ("other.obj", hall_bytes)})
+    assert again.status_code == 200 and again.json()["id"] == mesh["id"]
+    assert client.get(f"/meshes/{mesh['id']}").json()["bytes"] == len(hall_bytes)
+    content = client.get(f"/meshes/{mesh['id']}/content")
+    assert content.content == hall_bytes and content.headers["etag"] == f'"{mesh["id"]}"'
+    assert client.delete(f"/meshes/{mesh['id']}").status_code == 204
+    assert_problem(client.get(f"/meshes/{mesh['id']}"), 404, "POST /meshes")
+
+
+def test_plan_equals_in_process_plan(client: TestClient, hall: Path, hall_bytes: bytes,
+                                     hall_parameters: dict[str, Any], tmp_path: Path) -> None:
+    mesh_id = upload(client, hall_bytes).json()["id"]
+    created = submit(client, mesh_id, hall_parameters)
+    assert created.status_code == 201, created.text
+    job_id = created.json()["jobID"]
+    assert created.headers["location"] == f"/jobs/{job_id}"
+    status = client.get(f"/jobs/{job_id}").json()
+    assert status["status"] == "successful" and status["progress"] == 100
+    assert set(status["timings_s"]) >= {"reading", "visibility", "selection"}
+    assert any(link["href"].endswith("/viewer") for link in status["links"])
+    results = client.get(f"/jobs/{job_id}/results").json()
+    assert results["plan"]["totals"]["stations"] >= 1
+    assert set(results["outputs"]) >= {"plan.json", "faces.npz", "stations.csv"}
+
+    spec = PlanSpec.from_mapping(hall_parameters)
+    scene = read_scene(hall / "hall.obj", max_edge_m=spec.max_edge_m)
+    expected = tmp_path / "expected"
+    write_outputs(plan(scene, spec), expected)
+    for name in ("plan.json", "faces.npz", "stations.csv"):
+        served = client.get(results["outputs"][name]["href"])
+        assert served.content == (expected / name).read_bytes(), name
+    assert results["plan"] == json.loads((expected / "plan.json").read_text())
+
+
+def test_output_headers_etag_and_range(client: TestClient, hall_bytes: bytes,
+                                       hall_parameters: dict[str, Any]) -> None:
+    mesh_id = upload(client, hall_bytes).json()["id"]
+    job_id = submit(client, mesh_id, hall_parameters).json()["jobID"]
+    base = f"/jobs/{job_id}/results"
+    assert client.get(f"{base}/plan.json").headers["content-type"] == "application/json"
+    assert client.get(f"{base}/faces.npz").headers["content-type"] == \
+        "application/octet-stream"
+    full = client.get(f"{base}/stations.csv")
+    assert full.headers["content-type"].startswith("text/csv")
+    assert full.text.splitlines()[0].startswith("id,x,y,z,order")
+    part = client.get(f"{base}/stations.csv", headers={"range": "bytes=0-9"})
+    assert part.status_code == 206 and part.content == full.content[:10]
+    etag = full.headers["etag"]
+    assert client.get(f"{base}/stations.csv",
+                      headers={"if-none-match": etag}).status_code == 304
+    assert_problem(client.get(f"{base}/nope.txt"), 404, "plan.json")
+
+
+@pytest.mark.parametrize(("body", "status", "word"), [
+    (b"", 422, "empty"),
+    (b"\x00\x01\x02\x03binary" * 50, 415, "not a model format"),
+    (b"v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n", 422, "non-finite"),
+    (b"v 0 0 0\nv 1 0 0\nv 0 1 0\n", 422, "no triangles"),
+], ids=["empty", "binary", "nan-vertex", "truncated"])
+def test_bad_uploads(client: TestClient, body: bytes, status: int, word: str) -> None:
+    assert_problem(upload(client, body), status, word)
+    assert client.get("/healthz").status_code == 200
+
+
+def test_truncated_hall_is_refused(client: TestClient, hall_bytes: bytes) -> None:
+    assert_problem(upload(client, hall_bytes[: len(hall_bytes) // 3]), 422)
+
+
+def test_oversized_upload(tmp_path: Path, hall_bytes: bytes) -> None:
+    with make_client(tmp_path, InlineQueue(), max_upload_bytes=1000) as client:
+        assert_problem(upload(client, hall_bytes), 413, "1000 bytes")
+
+        def chunked() -> Any:  # no Content-Length: the cap is enforced while streaming
+            for start in range(0, len(hall_bytes), 500):
+                yield hall_bytes[start:start + 500]
+
+        streamed = client.post("/meshes", content=chunked())
+        assert_problem(streamed, 413)
+        staging = tmp_path / "data" / "tmp"
+        assert not any(staging.rglob("upload*")), "an oversized body was kept"
+
+
+@pytest.mark.parametrize(("parameters", "parameter", "word"), [
+    ({"dof_min_m": -1}, "dof_min_m", "negative"),
+    ({"dof_min_m": "abc"}, "dof_min_m", "valid number"),
+    ({"dof_min_m": "1.5"}, "dof_min_m", "valid number"),
+    ({"coverage_goal": 2}, "coverage_goal", "outside"),
+    ({"method": "best"}, "method", "greedy"),
+    ({"no_such": 1}, "no_such", "Extra inputs"),
+    ({"candidates": [[0, 0]]}, "candidates.0", "3"),
+])
+def test_bad_parameters(client: TestClient, hall_bytes: bytes, parameters: dict[str, Any],
+                        parameter: str, word: str) -> None:
+    mesh_id = upload(client, hall_bytes).json()["id"]
+    body = assert_problem(submit(client, mesh_id, parameters), 422, word)
+    assert body["parameter"] == parameter
+
+
+def test_unknown_ids(client: TestClient) -> None:
+    assert_problem(client.get("/jobs/0123"), 404, "no job")
+    assert_problem(client.get("/jobs/0123/results"), 404)
+    assert_problem(client.delete("/jobs/0123"), 404)
+    assert_problem(client.get("/meshes/abc"), 404)
+    assert_problem(submit(client, "f" * 64, {}), 404, "POST /meshes")
+    assert_problem(client.get("/processes/other"), 404, "scan-plan")
+    assert_problem(client.get("/no/such/route"), 404)
+    not_json = client.post("/processes/scan-plan/execution", content=b"{oops",
+                           headers={"content-type": "application/json"})
+    assert_problem(not_json, 422)
+
+
+def test_failed_job_carries_its_problem(client: TestClient, hall_bytes: bytes) -> None:
+    mesh_id = upload(client, hall_bytes).json()["id"]
+    job_id = submit(client, mesh_id, {"max_edge_m": None,
+                                      "candidates": [[100.0, 100.0, 100.0]]}).json()["jobID"]
+    status = client.get(f"/jobs/{job_id}").json()
+    assert status["status"] == "failed"
+    assert status["problem"]["type"].endswith("nothing-visible")
+    assert_problem(client.get(f"/jobs/{job_id}/results"), 422, "candidates")
+
+
+def test_idempotency_key(client: TestClient, hall_bytes: bytes,
+                         hall_parameters: dict[str, Any]) -> None:
+    mesh_id = upload(client, hall_bytes).json()["id"]
+    first = submit(client, mesh_id, hall_parameters, **{"Idempotency-Key": "k1"})
+    again = submit(client, mesh_id, hall_parameters, **{"Idempotency-Key": "k1"})
+    assert (first.status_code, again.status_code) == (201, 200)
+    assert first.json()["jobID"] == again.json()["jobID"]
+    other = submit(client, mesh_id, {"max_edge_m": None}, **{"Idempotency-Key": "k1"})
+    assert_problem(other, 422, "another body")
+
+
+def test_dismiss_queued_job_and_mesh_in_use(tmp_path: Path, hall_bytes: bytes) -> None:
+    with make_client(tmp_path, InlineQueue(hold=True), api_keys=[]) as client:
+        mesh_id = upload(client, hall_bytes).json()["id"]
+        job_id = submit(client, mesh_id, {}).json()["jobID"]
+        assert client.get(f"/jobs/{job_id}").json()["status"] == "accepted"
+        assert_problem(client.delete(f"/meshes/{mesh_id}"), 409, "unfinished")
+        assert client.delete(f"/jobs/{job_id}").json()["status"] == "dismissed"
+        assert_problem(client.get(f"/jobs/{job_id}/results"), 404, "dismissed")
+        assert client.delete(f"/jobs/{job_id}").status_code == 200  # now deleted
+        assert_problem(client.get(f"/jobs/{job_id}"), 404)
+        assert client.delete(f"/meshes/{mesh_id}").status_code == 204
+
+
+def test_job_list_filters_and_pages(tmp_path: Path, hall_bytes: bytes) -> None:
+    with make_client(tmp_path, InlineQueue(hold=True), api_keys=[]) as client:
+        mesh_id = upload(client, hall_bytes).json()["id"]
+        ids = [submit(client, mesh_id, {}).json()["jobID"] for _ in range(3)]
+        client.delete(f"/jobs/{ids[0]}")
+        page = client.get("/jobs?limit=2").json()
+        assert page["numberMatched"] == 3 and len(page["jobs"]) == 2
+        assert any(link["rel"] == "next" for link in page["links"])
+        accepted = client.get("/jobs?status=accepted").json()
+        assert {j["jobID"] for j in accepted["jobs"]} == set(ids[1:])
+        assert_problem(client.get("/jobs?status=bogus"), 400, "bogus")
+
+
+def test_api_keys(tmp_path: Path, hall_bytes: bytes) -> None:
+    import hashlib
+
+    hashed = "sha256:" + hashlib.sha256(b"bob-key").hexdigest()
+    with make_client(tmp_path, InlineQueue(hold=True), api_keys=["alice-key", hashed]) as c:
+        alice = {"authorization": "Bearer alice-key"}
+        bob = {"authorization": "Bearer bob-key"}
+        assert_problem(upload(c, hall_bytes), 401)
+        assert_problem(upload(c, hall_bytes, authorization="Bearer wrong"), 401)
+        mesh_id = upload(c, hall_bytes, **alice).json()["id"]
+        job_id = submit(c, mesh_id, {}, **alice).json()["jobID"]
+        assert c.get(f"/jobs/{job_id}", headers=alice).status_code == 200
+        assert_problem(c.get(f"/jobs/{job_id}", headers=bob), 404)
+        assert_problem(c.get(f"/meshes/{mesh_id}", headers=bob), 404)
+        assert c.get("/jobs", headers=bob).json()["numberMatched"] == 0
+        assert upload(c, hall_bytes, **bob).status_code == 201  # new to bob
+        assert c.get("/healthz").status_code == 200
+
+
+def test_processes_describe_real_defaults(client: TestClient) -> None:
+    assert client.get("/processes").json()["processes"][0]["id"] == "scan-plan"
+    schema = client.get("/processes/scan-plan").json()["inputs"]["parameters"]["schema"]
+    defaults = PlanSpec()
+    for name, prop in schema["properties"].items():
+        value = getattr(defaults, name)
+        assert prop["default"] == (dict(value) if name == "group_requirements" else value)
+
+
+def test_readyz(client: TestClient) -> None:
+    ready = client.get("/readyz")
+    assert ready.status_code == 200 and ready.json()["status"] == "ready"

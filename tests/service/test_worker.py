@@ -1,0 +1,54 @@
+"""The job table's state machine and the reaper, on a real SQLite file."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from service.config import Settings
+from service.job_store import JobStore
+from service.worker import Reaper, build_context
+from tests.service.conftest import InlineQueue
+
+
+def _store(tmp_path: Path, **overrides: object) -> tuple[JobStore, InlineQueue, Settings]:
+    settings = Settings(data_dir=tmp_path, workers=1, **overrides)  # type: ignore[arg-type]
+    queue = InlineQueue(hold=True)
+    return build_context(settings, queue).jobs, queue, settings
+
+
+def test_claim_is_exclusive_and_finish_needs_the_claim(tmp_path: Path) -> None:
+    jobs, _, _ = _store(tmp_path)
+    job, created = jobs.create("me", "m" * 64, {})
+    assert created
+    assert jobs.claim(job.id, "a", "host:1")
+    assert not jobs.claim(job.id, "b", "host:2")
+    assert not jobs.finish(job.id, "b", "successful", message="done")
+    assert jobs.heartbeat(job.id, "a", progress=50, message="visibility")
+    assert jobs.dismiss(job.id)
+    assert not jobs.heartbeat(job.id, "a"), "a dismissed job must stop its worker"
+
+
+def test_reaper_requeues_then_fails_as_worker_lost(tmp_path: Path) -> None:
+    jobs, queue, settings = _store(tmp_path, stale_after_s=0.01, max_attempts=2)
+    reaper = Reaper(jobs, queue, settings)
+    job, _ = jobs.create("me", "m" * 64, {})
+    for attempt in (1, 2):
+        assert jobs.claim(job.id, f"t{attempt}", "host:1")
+        time.sleep(0.05)  # no heartbeat: the worker "died"
+        assert reaper.run_once() == 1
+    final = jobs.get(job.id)
+    assert final is not None
+    assert queue.enqueued == [job.id]
+    assert final.status == "failed" and "worker lost" in final.message
+    assert final.problem is not None and final.problem["type"].endswith("worker-lost")
+
+
+def test_release_returns_the_job_without_using_an_attempt(tmp_path: Path) -> None:
+    jobs, queue, settings = _store(tmp_path)
+    job, _ = jobs.create("me", "m" * 64, {})
+    assert jobs.claim(job.id, "t", "host:1")
+    assert jobs.release(job.id, "t")
+    again = jobs.get(job.id)
+    assert again is not None and again.status == "accepted" and again.attempts == 0
+    assert Reaper(jobs, queue, settings).requeue_accepted() == 1
