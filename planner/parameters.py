@@ -64,6 +64,13 @@ class PlanSpec:
     rooms: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
+        # accept plain data too (dicts, lists), as from_mapping does
+        object.__setattr__(self, "group_requirements",
+                           _group_requirements(self.group_requirements))
+        for name, dims in (("candidates", 3), ("area_of_interest", 2)):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, _points(name, value, dims))
         _validate(self)
 
     @property
