@@ -1,0 +1,134 @@
+"""The real thing: ``scanplan serve`` with worker processes, killed, cancelled, restarted."""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+from planner.parameters import PlanSpec
+from planner.pipeline import plan
+from planner.readers import read_scene
+from planner.report import write_outputs
+from tests.e2e.service_process import Service, wait_for
+
+SCENES = Path(__file__).resolve().parents[2].parent / "shared" / "scenes"
+FINISHED = ("successful", "failed", "dismissed")
+
+
+def _scene(name: str) -> Path:
+    folder = SCENES / name
+    if not folder.is_dir():
+        pytest.skip(f"the shared scenes are not beside the checkout ({folder})")
+    return folder
+
+
+def _parameters(folder: Path) -> dict[str, Any]:
+    with (folder / "candidates.csv").open() as handle:
+        candidates = [[float(r["x"]), float(r["y"]), float(r["z"])]
+                      for r in csv.DictReader(handle)]
+    return {"max_edge_m": None, "candidates": candidates}
+
+
+def _submit(client: httpx.Client, folder: Path, **extra: Any) -> str:
+    mesh = client.post("/meshes?filename=hall.obj", content=(folder / "hall.obj").read_bytes(),
+                       headers={"content-type": "application/octet-stream"})
+    assert mesh.status_code in (200, 201), mesh.text
+    body = {"inputs": {"mesh": mesh.json()["id"], "parameters": {**_parameters(folder),
+                                                                 **extra}}}
+    job = client.post("/processes/scan-plan/execution", json=body)
+    assert job.status_code == 201, job.text
+    assert job.headers["location"] == f"/jobs/{job.json()['jobID']}"
+    return str(job.json()["jobID"])
+
+
+@pytest.fixture
+def service(tmp_path: Path) -> Any:
+    running = Service(tmp_path / "data", workers=2).start()
+    yield running
+    running.stop()
+
+
+def test_plan_through_workers_equals_in_process(service: Service, tmp_path: Path) -> None:
+    hall = _scene("hall-small")
+    with service.client() as client:
+        job_id = _submit(client, hall)
+        status = wait_for(client, job_id, FINISHED)
+        assert status["status"] == "successful", status
+        results = client.get(f"/jobs/{job_id}/results").json()
+        served = {name: client.get(ref["href"]).content
+                  for name, ref in results["outputs"].items()}
+    spec = PlanSpec.from_mapping(_parameters(hall))
+    expected = tmp_path / "in-process"
+    write_outputs(plan(read_scene(hall / "hall.obj", max_edge_m=None), spec), expected)
+    assert served["plan.json"] == (expected / "plan.json").read_bytes()
+    assert served["faces.npz"] == (expected / "faces.npz").read_bytes()
+
+
+def _wait_running(service: Service, client: httpx.Client, job_id: str) -> int:
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        pid = service.worker_pid(job_id)
+        if pid is not None and client.get(f"/jobs/{job_id}").json()["progress"] >= 5:
+            return pid
+        time.sleep(0.05)
+    raise AssertionError(f"job {job_id} never ran")
+
+
+def test_sigkilled_worker_job_still_finishes(service: Service) -> None:
+    hall = _scene("hall-full")
+    with service.client() as client:
+        job_id = _submit(client, hall)
+        os.kill(_wait_running(service, client, job_id), signal.SIGKILL)
+        status = wait_for(client, job_id, FINISHED, timeout_s=150)
+    assert status["status"] == "successful" or "worker lost" in status["message"], status
+    assert status["attempts"] >= 2, "the job should have run again after the kill"
+
+
+def test_delete_cancels_a_running_job(service: Service) -> None:
+    hall = _scene("hall-full")
+    with service.client() as client:
+        job_id = _submit(client, hall)
+        pid = _wait_running(service, client, job_id)
+        assert client.delete(f"/jobs/{job_id}").json()["status"] == "dismissed"
+        deadline = time.monotonic() + 15
+        while "stopped (dismissed" not in service.log.read_text():
+            assert time.monotonic() < deadline, "the worker did not stop within 15 s"
+            time.sleep(0.2)
+        os.kill(pid, 0)  # the worker process itself lives on for the next job
+        assert client.get(f"/jobs/{job_id}").json()["status"] == "dismissed"
+        assert not (service.data_dir / "jobs" / job_id).exists()
+
+
+def test_restart_loses_no_job(tmp_path: Path) -> None:
+    hall, small = _scene("hall-full"), _scene("hall-small")
+    first = Service(tmp_path / "data", workers=1).start()
+    with first.client() as client:
+        running = _submit(client, hall)
+        queued = [_submit(client, small) for _ in range(3)]
+        _wait_running(first, client, running)
+    first.stop()  # one job mid-run, three queued
+    second = Service(tmp_path / "data", workers=2, port=first.port).start()
+    try:
+        with second.client() as client:
+            for job_id in [running, *queued]:
+                assert wait_for(client, job_id, FINISHED, 150)["status"] == "successful"
+    finally:
+        second.stop()
+
+
+def test_bad_input_keeps_the_service_serving(service: Service) -> None:
+    with service.client() as client:
+        for body, status in ((b"", 422), (b"\x00garbage" * 100, 415)):
+            answer = client.post("/meshes", content=body,
+                                 headers={"content-type": "application/octet-stream"})
+            assert answer.status_code == status
+            assert answer.headers["content-type"] == "application/problem+json"
+        assert client.get("/jobs/nope").status_code == 404
+        assert client.get("/healthz").json() == {"status": "ok"}
