@@ -48,9 +48,11 @@ For each room (restricted by ``spec.storeys`` / ``spec.rooms``): grid points at 
 ``area_of_interest`` if given, at ``floor_z_m + scanner_height_m``. A point is dropped when
 the first surface straight below the scanner is not within ``FLOOR_TOLERANCE_M`` of the
 room's floor (``no_floor``: a stair hole, a void; ``blocked_above_floor``: a table, a stair
-under the scanner), when it is inside a closed object (``inside_geometry``) or closer than
-``clearance_m`` to any face (``too_close``). A point on the boundary shared by two rooms
-belongs to the first. Order: rooms as in ``metadata["spaces"]``, then grid rows (y, then x).
+under the scanner), when it is inside a closed object (``inside_geometry``), or when the
+tripod lacks ``clearance_m`` of room around its axis from that floor to above the scanner
+(``too_close``, as :func:`planner.candidates.closer_than` measures it). A point on the
+boundary shared by two rooms belongs to the first. Order: rooms as in
+``metadata["spaces"]``, then grid rows (y, then x).
 """
 
 from __future__ import annotations
@@ -212,6 +214,9 @@ def _shapes(model: Any, path: Path, storey_name: dict[str, str]
         except Exception:  # not in this schema (IfcOpeningStandardCase is IFC4 only)
             continue
         exclude.append(name)
+    if not any(p.Representation is not None and not p.is_a("IfcSpace")
+               and not any(p.is_a(c) for c in exclude) for p in model.by_type("IfcProduct")):
+        return [], []  # nothing to triangulate (and the iterator may refuse such a file)
     try:
         iterator = geom.iterator(
             _settings(), model, _GEOMETRY_THREADS, exclude=exclude, geometry_library=library,
@@ -405,8 +410,9 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: object) -> CandidateSe
         inside = intersects_xy(area, positions[:, 0], positions[:, 1])
         dropped["outside_area_of_interest"] = int((~inside).sum())
         keep_mask &= inside
-    keep_mask &= _on_floor(scene, positions, spec, caster, keep_mask, dropped)
-    keep_mask &= _clear(scene, positions, spec.clearance_m, keep_mask, dropped)
+    on_floor, floor_z = _on_floor(scene, positions, spec, caster, keep_mask, dropped)
+    keep_mask &= on_floor
+    keep_mask &= _clear(scene, positions, spec.clearance_m, floor_z, keep_mask, dropped)
     if not keep_mask.any():
         raise NoCandidatesError(
             f"no point is left in the {len(spaces)} room(s) out of {considered} "
@@ -465,12 +471,17 @@ def select_spaces(spaces: list[dict[str, Any]], storeys: list[dict[str, Any]],
 
 
 def _on_floor(scene: Scene, positions: NDArray[np.float64], spec: PlanSpec, caster: Any,
-              alive: NDArray[np.bool_], dropped: dict[str, int]) -> NDArray[np.bool_]:
-    """(C,) bool: straight below the scanner, the first surface is the room's floor."""
+              alive: NDArray[np.bool_], dropped: dict[str, int]
+              ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+    """(C,) bool: straight below the scanner, the first surface is the room's floor.
+
+    Also returns (C,) the height of that surface (the room's floor where nothing was hit).
+    """
     ok = np.ones(len(positions), bool)
+    floor_z = positions[:, 2] - spec.scanner_height_m
     index = np.flatnonzero(alive)
     if len(index) == 0:
-        return ok
+        return ok, floor_z
     down = np.tile([0.0, 0.0, -1.0], (len(index), 1))
     face, distance = caster.first_hit(positions[index], down)
     height = spec.scanner_height_m
@@ -479,12 +490,19 @@ def _on_floor(scene: Scene, positions: NDArray[np.float64], spec: PlanSpec, cast
     dropped["no_floor"] += int(no_floor.sum())
     dropped["blocked_above_floor"] += int(blocked.sum())
     ok[index[no_floor | blocked]] = False
-    return ok
+    hit = ~(no_floor | blocked)
+    floor_z[index[hit]] = positions[index[hit], 2] - distance[hit]
+    return ok, floor_z
 
 
 def _clear(scene: Scene, positions: NDArray[np.float64], clearance_m: float,
-           alive: NDArray[np.bool_], dropped: dict[str, int]) -> NDArray[np.bool_]:
-    """(C,) bool: not inside an element's solid and at least ``clearance_m`` from any face."""
+           floor_z: NDArray[np.float64], alive: NDArray[np.bool_], dropped: dict[str, int]
+           ) -> NDArray[np.bool_]:
+    """(C,) bool: not inside an element's solid, and the tripod has ``clearance_m`` of room.
+
+    The room is measured as :func:`planner.candidates.closer_than` does, from the floor
+    found under the scanner.
+    """
     ok = np.ones(len(positions), bool)
     index = np.flatnonzero(alive)
     if len(index) == 0:
@@ -493,7 +511,7 @@ def _clear(scene: Scene, positions: NDArray[np.float64], clearance_m: float,
     dropped["inside_geometry"] += int(inside.sum())
     ok[index[inside]] = False
     index = index[~inside]
-    near = closer_than(scene, positions[index], clearance_m)
+    near = closer_than(scene, positions[index], clearance_m, floor_z[index])
     dropped["too_close"] += int(near.sum())
     ok[index[near]] = False
     return ok

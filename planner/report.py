@@ -10,7 +10,9 @@ Outputs of :func:`write_outputs` (the names the service serves too):
 - ``faces.npz``: per face ``covered``, ``best_lpd_pts_m2``, ``n_stations``,
   ``first_station``, ``n_candidates``, ``source_face``;
 - ``stations.csv``: ``id,x,y,z,order`` in model coordinates;
-- ``candidates.csv``: every candidate considered, ``x,y,z``.
+- ``candidates.csv``: every candidate considered, ``x,y,z``;
+- ``elements.csv``, ``elements.json``: coverage per BIM element (IFC models only, see
+  :mod:`planner.bim`); a renderer that returns None writes no file.
 """
 
 from __future__ import annotations
@@ -149,12 +151,30 @@ def candidates_csv(result: PlanResult) -> bytes:
     return out.getvalue().encode("utf-8")
 
 
-# name -> renderer; other modules (pictures, IFC tables) register theirs here
-OUTPUTS: dict[str, Callable[[PlanResult], bytes]] = {
+def elements_csv(result: PlanResult) -> bytes | None:
+    if not result.scene.elements:
+        return None
+    from planner import bim  # only IFC scenes have elements
+
+    return bim.elements_csv(result)
+
+
+def elements_json(result: PlanResult) -> bytes | None:
+    if not result.scene.elements:
+        return None
+    from planner import bim
+
+    return bim.elements_json(result)
+
+
+# name -> renderer (None: nothing to write for this plan); other modules register theirs here
+OUTPUTS: dict[str, Callable[[PlanResult], bytes | None]] = {
     "plan.json": plan_json,
     "faces.npz": faces_npz,
     "stations.csv": stations_csv,
     "candidates.csv": candidates_csv,
+    "elements.csv": elements_csv,
+    "elements.json": elements_json,
 }
 
 
@@ -168,6 +188,8 @@ def write_outputs(result: PlanResult, out_dir: str | Path,
         if names is not None and name not in names:
             continue
         data = render(result)
+        if data is None:
+            continue
         written.append(atomic_write(out / name, data))
     return written
 

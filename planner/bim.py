@@ -1,0 +1,250 @@
+"""Results in BIM terms: coverage per IFC element, per storey and per room.
+
+Outputs (registered in :data:`planner.report.OUTPUTS`, written only for scenes with
+elements, i.e. IFC models):
+
+- ``elements.csv``: one row per element, in the scene's order (IFC class, GlobalId);
+- ``elements.json``: the same rows, a summary per storey, the stations per room, and the
+  elements that cannot be covered from any candidate with the reason.
+
+Per element: ``area_m2`` (all its faces), ``target`` (some of its faces need coverage),
+``target_area_m2``, ``coverable_area_m2`` (target faces that qualify from at least one
+candidate), ``covered_area_m2`` (target faces the plan covers) and ``fraction``
+(covered over target area; null for an element that is no target, such as glazing or the
+site).
+
+Why an element cannot be covered
+--------------------------------
+For an element with target area but no coverable face, every target face is tested again
+against every candidate with the analytic limits of :mod:`planner.pairs`. Each pair fails
+some of four checks:
+
+- ``too_close``: nearer than ``dof_min_m``;
+- ``too_far``: beyond ``dof_max_m``, or too far for the density even head-on;
+- ``outside_field_of_view``: the ray's elevation is outside the scanner's vertical field;
+- ``too_grazing``: the incidence angle is below the minimum, or it is the slant (not the
+  distance) that puts the density below the minimum.
+
+A face that passes them all from some candidate is ``occluded`` (the pipeline cast that
+ray and something was in the way). Otherwise its reason is the check most often failed by
+its nearest misses, the candidates that fail the fewest checks (ties in the order of
+``REASONS``). The element's reason is the one that covers the most of its target area;
+``reasons`` gives the area per reason.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from planner.pipeline import PlanResult
+
+REASONS = ("occluded", "too_close", "too_far", "outside_field_of_view", "too_grazing")
+FORMAT_VERSION = 1
+COLUMNS = ("global_id", "ifc_class", "name", "storey", "faces", "area_m2", "target",
+           "target_area_m2", "coverable_area_m2", "covered_area_m2", "fraction",
+           "uncoverable_reason")
+_PAIRS_PER_CHUNK = 2_000_000
+_DECIMALS = 6
+
+
+def _r(value: float) -> float:
+    rounded = round(float(value), _DECIMALS)
+    return 0.0 if rounded == 0 else rounded
+
+
+def element_rows(result: PlanResult) -> list[dict[str, Any]]:
+    """One plain-data row per element of ``result.scene`` (see the module docstring)."""
+    scene, limits = result.scene, result.limits
+    n = len(scene.elements)
+    owner = scene.face_element
+    valid = owner >= 0
+    areas = scene.areas
+
+    def per_element(mask: NDArray[np.bool_]) -> NDArray[np.float64]:
+        keep = valid & mask
+        return np.bincount(owner[keep], weights=areas[keep], minlength=n).astype(np.float64)
+
+    target = limits.target
+    faces = np.bincount(owner[valid], minlength=n)
+    total = per_element(np.ones(scene.n_faces, bool))
+    target_area = per_element(target)
+    coverable = per_element(target & result.table.achievable)
+    covered = per_element(target & np.asarray(result.faces["covered"], bool))
+    reasons = uncoverable_reasons(result, np.flatnonzero((target_area > 0) & (coverable == 0)))
+    rows = []
+    for e, element in enumerate(scene.elements):
+        has_target = bool(target_area[e] > 0)
+        row: dict[str, Any] = {
+            "global_id": element.global_id,
+            "ifc_class": element.ifc_class,
+            "name": element.name,
+            "storey": element.storey,
+            "faces": int(faces[e]),
+            "area_m2": _r(total[e]),
+            "target": has_target,
+            "target_area_m2": _r(target_area[e]),
+            "coverable_area_m2": _r(coverable[e]),
+            "covered_area_m2": _r(covered[e]),
+            "fraction": _r(covered[e] / target_area[e]) if has_target else None,
+            "uncoverable_reason": None,
+        }
+        if e in reasons:
+            by_reason = reasons[e]
+            row["uncoverable_reason"] = max(
+                by_reason, key=lambda r: (by_reason[r], -REASONS.index(r)))
+            row["reasons"] = {r: _r(a) for r, a in sorted(by_reason.items())}
+        rows.append(row)
+    return rows
+
+
+def uncoverable_reasons(result: PlanResult, elements: NDArray[np.int64]
+                        ) -> dict[int, dict[str, float]]:
+    """Area per reason of the target faces of ``elements``, for elements with no coverable face.
+
+    Returns ``{element index: {reason: area_m2}}`` (reasons with zero area left out).
+    """
+    scene, limits = result.scene, result.limits
+    if len(elements) == 0:
+        return {}
+    faces = np.flatnonzero(np.isin(scene.face_element, elements) & limits.target)
+    codes = face_reasons(result, faces)
+    out: dict[int, dict[str, float]] = {}
+    area = np.zeros((len(scene.elements), len(REASONS)))
+    np.add.at(area, (scene.face_element[faces], codes), scene.areas[faces])
+    for e in elements.tolist():
+        out[int(e)] = {REASONS[k]: float(a) for k, a in enumerate(area[e]) if a > 0}
+    return out
+
+
+def face_reasons(result: PlanResult, faces: NDArray[np.int64]) -> NDArray[np.int64]:
+    """(n,) index into ``REASONS`` for each face of ``faces`` (see the module docstring)."""
+    lim = result.limits
+    positions = result.candidates.positions
+    centroids, normals = result.scene.centroids, result.scene.normals
+    codes = np.zeros(len(faces), np.int64)
+    step = max(1, _PAIRS_PER_CHUNK // max(1, len(positions)))
+    sps = lim.angular_step_rad
+    for s in range(0, len(faces), step):
+        chunk = faces[s:s + step]
+        offsets = centroids[chunk][None, :, :] - positions[:, None, :]  # (C, n, 3)
+        distance = np.linalg.norm(offsets, axis=2)
+        safe = np.maximum(distance, 1e-12)
+        elevation = np.degrees(np.arcsin(np.clip(offsets[:, :, 2] / safe, -1.0, 1.0)))
+        sin_incidence = np.abs(np.einsum("cnk,nk->cn", offsets, normals[chunk])) / safe
+        incidence = np.degrees(np.arcsin(np.clip(sin_incidence, 0.0, 1.0)))
+        density = lim.min_density_pts_m2[chunk][None, :]
+        head_on = 1.0 / np.maximum(sps * distance, 1e-12) ** 2
+        lpd = sin_incidence * head_on
+        fails = np.stack([
+            distance < lim.dof_min_m,
+            (distance > lim.dof_max_m) | (head_on < density),
+            (elevation < lim.elevation_min_deg) | (elevation > lim.elevation_max_deg),
+            (incidence < lim.min_incidence_deg[chunk][None, :])
+            | ((lpd < density) & (head_on >= density)),
+        ])  # (4, C, n) in the order of REASONS[1:]
+        count = fails.sum(axis=0)
+        nearest = count == count.min(axis=0)[None, :]
+        tally = (fails & nearest[None]).sum(axis=1)  # (4, n)
+        reason = 1 + np.argmax(tally, axis=0)  # first maximum: ties in REASONS order
+        codes[s:s + step] = np.where(count.min(axis=0) == 0, 0, reason)
+    return codes
+
+
+def storey_rows(result: PlanResult, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Totals per storey (model order), with the stations that stand on it."""
+    storeys = [str(s["name"]) for s in result.scene.metadata.get("storeys", [])]
+    names = list(dict.fromkeys(storeys + [str(r["storey"]) for r in rows]))
+    labels = result.candidates.labels
+    out = []
+    for name in names:
+        mine = [r for r in rows if r["storey"] == name]
+        stations = [i + 1 for i, c in enumerate(result.chosen.stations)
+                    if labels and labels[c].get("storey") == name]
+        target = sum(r["target_area_m2"] for r in mine)
+        covered = sum(r["covered_area_m2"] for r in mine)
+        out.append({
+            "storey": name,
+            "elements": len(mine),
+            "target_area_m2": _r(target),
+            "coverable_area_m2": _r(sum(r["coverable_area_m2"] for r in mine)),
+            "covered_area_m2": _r(covered),
+            "fraction": _r(covered / target) if target > 0 else None,
+            "stations": stations,
+        })
+    return out
+
+
+def room_rows(result: PlanResult) -> list[dict[str, Any]]:
+    """Per room: how many candidates stand in it and which stations were chosen there."""
+    labels = result.candidates.labels
+    if not labels:
+        return []
+    chosen = {int(c): i + 1 for i, c in enumerate(result.chosen.stations)}
+    rooms: dict[str, dict[str, Any]] = {}
+    for c, label in enumerate(labels):
+        key = label.get("room_global_id", "")
+        room = rooms.setdefault(key, {
+            "room": label.get("room", ""), "room_global_id": key,
+            "storey": label.get("storey", ""), "candidates": 0, "stations": [],
+        })
+        room["candidates"] += 1
+        if c in chosen:
+            room["stations"].append(chosen[c])
+    for room in rooms.values():
+        room["stations"].sort()
+    return list(rooms.values())
+
+
+def elements_document(result: PlanResult) -> dict[str, Any]:
+    """The content of ``elements.json`` as plain data."""
+    rows = element_rows(result)
+    uncoverable = [
+        {key: row[key] for key in ("global_id", "ifc_class", "name", "storey",
+                                   "target_area_m2", "uncoverable_reason", "reasons")}
+        for row in rows if row["uncoverable_reason"] is not None
+    ]
+    return {
+        "format_version": FORMAT_VERSION,
+        "elements": rows,
+        "storeys": storey_rows(result, rows),
+        "rooms": room_rows(result),
+        "uncoverable": uncoverable,
+        "reasons": list(REASONS),
+    }
+
+
+def elements_json(result: PlanResult) -> bytes | None:
+    """``elements.json`` bytes, or None for a scene without elements."""
+    if not result.scene.elements:
+        return None
+    from planner.report import canonical_json
+
+    return canonical_json(elements_document(result))
+
+
+def elements_csv(result: PlanResult) -> bytes | None:
+    """``elements.csv`` bytes (``COLUMNS``), or None for a scene without elements."""
+    if not result.scene.elements:
+        return None
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(COLUMNS)
+    for row in element_rows(result):
+        writer.writerow([_cell(row[c]) for c in COLUMNS])
+    return out.getvalue().encode("utf-8")
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return f"{value:.6f}"
+    return str(value)
