@@ -70,8 +70,8 @@ PREVIEW_SIZE_IN = (11.69, 8.27)  # A4 landscape
 CURVE_SIZE_IN = (8.0, 5.0)
 LEVEL_GAP_M = 1.0
 _PNG_METADATA: dict[str, str | None] = {"Software": None}
-_SCALES = (10, 20, 25, 50, 75, 100, 125, 150, 200, 250, 300, 400, 500, 750, 1000, 1250, 1500,
-           2000, 2500, 5000, 10000, 20000, 25000, 50000, 100000)
+_SCALES = (10, 20, 25, 30, 40, 50, 75, 100, 125, 150, 200, 250, 300, 400, 500, 750, 1000,
+           1250, 1500, 2000, 2500, 5000, 10000, 20000, 25000, 50000, 100000)
 _UP_NZ = 0.3  # faces whose normal has at least this upward part are drawn from above
 
 
@@ -213,7 +213,7 @@ def draw_preview(result: PlanResult) -> Preview:
     shown = (shown or all_levels)[:4] if len(all_levels) > 4 else all_levels
     rows, cols = _panel_grid(len(shown))
     # map area in figure fractions: left part of the sheet; the right column is the key
-    map_left, map_bottom, map_width, map_height = 0.025, 0.04, 0.70, 0.86
+    map_left, map_bottom, map_width, map_height = 0.025, 0.035, 0.70, 0.835
     gap = 0.02
     cell_w = (map_width - gap * (cols - 1)) / cols
     cell_h = (map_height - gap * 1.5 * (rows - 1)) / rows
@@ -277,7 +277,7 @@ def _print_scale(extents: Sequence[tuple[float, float, float, float]], width_in:
     for scale in _SCALES:
         if scale >= needed:
             return scale
-    return int(math.ceil(needed))
+    return math.ceil(needed)
 
 
 def _limits_at_scale(ax: Axes, extent: tuple[float, float, float, float], width_in: float,
@@ -306,8 +306,8 @@ def _draw_level(ax: Axes, result: PlanResult, level: Level, mesh: Any,
         polys = scene.vertices[scene.faces[below]][:, :, :2]
         colours = rgb[below] / 255.0
         ax.add_collection(PolyCollection(list(polys), facecolors=colours, edgecolors=colours,
-                                         linewidths=0.15, antialiased=True, zorder=1))
-    lines, cut_faces = trimesh.intersections.mesh_plane(
+                                         linewidths=0.0, antialiased=False, zorder=1))
+    lines, cut_faces = trimesh.intersections.mesh_plane(  # type: ignore[no-untyped-call]
         mesh, plane_normal=[0.0, 0.0, 1.0], plane_origin=[0.0, 0.0, level.section_z],
         return_faces=True)
     if len(lines):
@@ -398,7 +398,7 @@ def _key(fig: Figure, result: PlanResult, scale: int) -> None:
     handles = [
         Patch(facecolor=_rgb(COVERED_LOW_RGB), label="covered, density at requirement"),
         Patch(facecolor=_rgb(COVERED_HIGH_RGB),
-              label=f"covered, density ≥ {COVERED_SATURATION:g}× requirement"),
+              label=f"covered, density ≥ {COVERED_SATURATION:g}x requirement"),
         Patch(facecolor=_rgb(CLASS_RGB[MISSED]), label="coverable, not covered by the plan"),
         Patch(facecolor=_rgb(CLASS_RGB[UNREACHABLE]), label="not coverable from any candidate"),
         Patch(facecolor=_rgb(CLASS_RGB[NOT_TARGET]), label="no requirement"),
@@ -421,7 +421,7 @@ def _key(fig: Figure, result: PlanResult, scale: int) -> None:
         f"Requirement {spec.min_density_pts_m2:,.0f} pts/m², incidence ≥ "
         f"{spec.min_incidence_deg:g}°",
         f"Scanner step {spec.point_spacing_m * 1000:g} mm at {spec.reference_distance_m:g} m, "
-        f"range {spec.dof_min_m:g}–{spec.dof_max_m:g} m",
+        f"range {spec.dof_min_m:g} to {spec.dof_max_m:g} m",
     ]
     fig.text(0.755, 0.47, "\n".join(lines), fontsize=7.5, va="top", linespacing=1.5)
     _station_table(fig, result, top=0.355)
@@ -450,7 +450,7 @@ def _station_table(fig: Figure, result: PlanResult, top: float) -> None:
         rows.append(f"  ... {len(chosen.stations) - limit} more in stations.csv")
     fig.text(0.755, top, "Stations (model coordinates, m)", fontsize=8, fontweight="bold",
              va="bottom")
-    fig.text(0.755, top - 0.006, "\n".join(rows), fontsize=7, family="monospace", va="top",
+    fig.text(0.752, top - 0.006, "\n".join(rows), fontsize=6.8, family="monospace", va="top",
              linespacing=1.35)
 
 

@@ -18,6 +18,7 @@ Outputs of :func:`write_outputs` (the names the service serves too):
 from __future__ import annotations
 
 import csv
+import importlib
 import io
 import json
 import os
@@ -167,6 +168,13 @@ def elements_json(result: PlanResult) -> bytes | None:
     return bim.elements_json(result)
 
 
+def _lazy(module: str, function: str, result: PlanResult) -> bytes:
+    """Render with ``planner.<module>.<function>``, imported on first use (matplotlib)."""
+    render: Callable[[PlanResult], bytes] = getattr(
+        importlib.import_module(f"planner.{module}"), function)
+    return render(result)
+
+
 # name -> renderer (None: nothing to write for this plan); other modules register theirs here
 OUTPUTS: dict[str, Callable[[PlanResult], bytes | None]] = {
     "plan.json": plan_json,
@@ -175,6 +183,9 @@ OUTPUTS: dict[str, Callable[[PlanResult], bytes | None]] = {
     "candidates.csv": candidates_csv,
     "elements.csv": elements_csv,
     "elements.json": elements_json,
+    "preview.png": lambda result: _lazy("drawing", "preview_png", result),
+    "curve.png": lambda result: _lazy("drawing", "curve_png", result),
+    "coverage.glb": lambda result: _lazy("glb", "coverage_glb", result),
 }
 
 

@@ -1,0 +1,105 @@
+"""coverage.glb: a valid glTF binary that trimesh loads, face colours and the property table
+agree with faces.npz, stations where the plan puts them, same bytes twice."""
+
+from __future__ import annotations
+
+import io
+import json
+import struct
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import trimesh
+
+from planner import drawing, glb
+from planner.pipeline import PlanResult
+from planner.report import faces_npz
+from tests.planner.test_drawing import plan_hall_small
+
+
+@pytest.fixture(scope="module")
+def result(scenes_dir: Path) -> PlanResult:
+    return plan_hall_small(scenes_dir)
+
+
+@pytest.fixture(scope="module")
+def data(result: PlanResult) -> bytes:
+    return glb.coverage_glb(result)
+
+
+def chunks(data: bytes) -> tuple[dict[str, Any], bytes]:
+    magic, version, total = struct.unpack_from("<4sII", data, 0)
+    assert (magic, version, total) == (b"glTF", 2, len(data))
+    json_len, json_type = struct.unpack_from("<I4s", data, 12)
+    assert json_type == b"JSON" and json_len % 4 == 0
+    document = json.loads(data[20:20 + json_len])
+    bin_len, bin_type = struct.unpack_from("<I4s", data, 20 + json_len)
+    assert bin_type == b"BIN\x00"
+    blob = data[28 + json_len:28 + json_len + bin_len]
+    assert len(blob) == document["buffers"][0]["byteLength"]
+    return document, blob
+
+
+def test_same_bytes_twice(result: PlanResult, data: bytes) -> None:
+    assert glb.coverage_glb(result) == data
+
+
+def test_face_colours_match_faces_npz(result: PlanResult, data: bytes) -> None:
+    arrays = np.load(io.BytesIO(faces_npz(result)))
+    classes = drawing.face_classes(arrays, result.limits.target)
+    expected = glb.linear_bytes(drawing.face_rgb(arrays, result.limits.target,
+                                                 result.limits.min_density_pts_m2))
+    loaded = trimesh.load(io.BytesIO(data), file_type="glb", process=False)
+    seen = np.zeros(result.scene.n_faces, int)
+    for k, name in enumerate(drawing.CLASS_NAMES):
+        if not (classes == k).any():
+            assert name not in loaded.geometry
+            continue
+        mesh = loaded.geometry[name]
+        face_ids = mesh.vertex_attributes["_FEATURE_ID_0"].reshape(-1, 3)
+        assert (face_ids == face_ids[:, :1]).all()
+        ids = face_ids[:, 0].astype(int)
+        assert (classes[ids] == k).all()
+        colours = np.asarray(mesh.visual.vertex_attributes["color"]).reshape(-1, 3, 4)
+        assert (colours[:, :, :3] == expected[ids][:, None, :]).all()
+        # geometry is the scene's, in model coordinates under the root rotation
+        np.testing.assert_allclose(mesh.vertices.reshape(-1, 3, 3),
+                                   result.scene.triangles[ids], atol=1e-5)
+        seen[ids] += 1
+    assert (seen == 1).all()  # every face once
+
+
+def test_property_table_carries_faces_npz(result: PlanResult, data: bytes) -> None:
+    document, blob = chunks(data)
+    arrays = np.load(io.BytesIO(faces_npz(result)))
+    metadata = document["extensions"]["EXT_structural_metadata"]
+    table = metadata["propertyTables"][0]
+    assert table["count"] == result.scene.n_faces
+    types = {"UINT8": np.uint8, "INT32": np.int32, "FLOAT32": np.float32}
+    schema = metadata["schema"]["classes"]["face"]["properties"]
+    for name in ("covered", "best_lpd_pts_m2", "n_stations", "first_station", "n_candidates",
+                 "source_face"):
+        view = document["bufferViews"][table["properties"][name]["values"]]
+        assert view["byteOffset"] % 8 == 0
+        values = np.frombuffer(blob, types[schema[name]["componentType"]],
+                               count=table["count"], offset=view["byteOffset"])
+        np.testing.assert_array_equal(values, arrays[name].astype(values.dtype))
+
+
+def test_stations_are_numbered_markers(result: PlanResult, data: bytes) -> None:
+    document, _ = chunks(data)
+    nodes = {node["name"]: node for node in document["nodes"]}
+    loaded = trimesh.load(io.BytesIO(data), file_type="glb", process=False)
+    root = np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]], float)  # model Z-up -> glTF Y-up
+    for order, candidate in enumerate(result.chosen.stations):
+        name = f"station {order + 1}"
+        extras = nodes[name]["extras"]
+        assert extras["order"] == order + 1 and extras["candidate_index"] == candidate
+        assert extras["new_area_m2"] == pytest.approx(result.chosen.new_area_m2[order])
+        position = result.candidates.positions[candidate]
+        world = loaded.graph[name][0][:3, 3]
+        np.testing.assert_allclose(world, root @ position, atol=1e-6)
+        assert f"{name} number" in loaded.geometry
+    assert document["scenes"][0]["extras"]["scanplan"]["stations"] == len(result.chosen.stations)
