@@ -51,9 +51,14 @@ class BruteForceOcclusion:
 
 
 def ray_triangle_distance(
-    origin: NDArray[np.float64], direction: NDArray[np.float64], tri: NDArray[np.float64]
+    origin: NDArray[np.float64], direction: NDArray[np.float64], tri: NDArray[np.float64],
+    edge_tolerance: float = 1e-12,
 ) -> NDArray[np.float64]:
-    """Ray parameter of the hit with each triangle (two-sided), inf for a miss."""
+    """Ray parameter of the hit with each triangle (two-sided), inf for a miss.
+
+    ``edge_tolerance`` widens (positive) or narrows (negative) every triangle in barycentric
+    terms, to tell a ray that grazes an edge from one that clearly hits or misses.
+    """
     v0, v1, v2 = tri[..., 0, :], tri[..., 1, :], tri[..., 2, :]
     e1, e2 = v1 - v0, v2 - v0
     p = np.cross(direction, e2)
@@ -65,6 +70,6 @@ def ray_triangle_distance(
     q = np.cross(s, e1)
     v = np.einsum("...k,...k->...", direction, q) * inv
     t = np.einsum("...k,...k->...", e2, q) * inv
-    eps = 1e-12
+    eps = edge_tolerance
     hit = ok & (u >= -eps) & (v >= -eps) & (u + v <= 1 + eps) & (t > 1e-9)
     return np.where(hit, t, np.inf)

@@ -132,6 +132,11 @@ def _read_mesh(path: Path, fmt: str) -> Scene:
             str(path), file_type=fmt, process=False, maintain_order=True,
             group_material=True, skip_materials=True,
         )
+    except IndexError as exc:
+        raise SceneError(
+            f"{path.name}: a face refers to a vertex that does not exist ({exc}); the file is "
+            "probably truncated or broken, export it again"
+        ) from exc
     except Exception as exc:  # trimesh raises many kinds for a broken file
         raise SceneError(f"{path.name} could not be read as {fmt.upper()}: {exc}") from exc
     if fmt in ("glb", "gltf") or isinstance(loaded, trimesh.Scene):

@@ -1,0 +1,93 @@
+"""``scanplan plan``: files written, same bytes twice, one-line errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+
+def scanplan(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "planner", *args], capture_output=True,
+                          text=True, timeout=300, check=False)
+
+
+@pytest.fixture(scope="module")
+def hall_small(scenes_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    params = tmp_path_factory.mktemp("params") / "params.json"
+    params.write_text(json.dumps({"max_edge_m": None, "method": "weighted_greedy"}))
+    outs = {}
+    for run in ("a", "b"):
+        out = tmp_path_factory.mktemp(f"out-{run}")
+        done = scanplan("plan", str(scenes_dir / "hall-small" / "hall.obj"), "--candidates",
+                        str(scenes_dir / "hall-small" / "candidates.csv"), "--params",
+                        str(params), "--out", str(out))
+        assert done.returncode == 0, done.stderr
+        assert "stations cover" in done.stdout
+        assert done.stderr == ""  # piped: no progress bar
+        outs[run] = out
+    return outs
+
+
+def test_plan_json_has_the_contract(hall_small: dict[str, Path], scenes_dir: Path) -> None:
+    plan = json.loads((hall_small["a"] / "plan.json").read_text())
+    expected = json.loads((scenes_dir / "hall-small" / "expected.json").read_text())
+    assert plan["totals"]["faces"] == expected["faces"]
+    assert plan["totals"]["max_achievable_area_m2"] == pytest.approx(
+        expected["max_achievable_area_m2"], rel=1e-3)
+    stations = [s["candidate_index"] for s in plan["stations"]]
+    assert stations == expected["goal_0.8"]["weighted_greedy"]["stations"]
+    assert plan["curve"]["greedy"] == expected["coverage_curve"]["greedy"]
+    assert plan["parameters"]["method"] == "weighted_greedy"
+    assert plan["candidates"]["count"] == expected["candidates"]
+    first = plan["stations"][0]
+    assert set(first) >= {"candidate_index", "position", "new_area_m2", "covered_area_m2",
+                          "coverage_fraction"}
+
+
+def test_faces_npz_agrees_with_plan(hall_small: dict[str, Path]) -> None:
+    plan = json.loads((hall_small["a"] / "plan.json").read_text())
+    with np.load(hall_small["a"] / "faces.npz") as faces:
+        assert faces["covered"].dtype == bool
+        assert faces["best_lpd_pts_m2"].dtype == np.float32
+        assert len(faces["covered"]) == plan["totals"]["faces"]
+        assert faces["first_station"].max() == len(plan["stations"]) - 1
+        assert ((faces["n_candidates"] > 0) | ~faces["covered"]).all()
+
+
+def test_stations_csv(hall_small: dict[str, Path]) -> None:
+    lines = (hall_small["a"] / "stations.csv").read_text().splitlines()
+    assert lines[0] == "id,x,y,z,order,candidate_index"
+    assert len(lines) == 1 + len(json.loads((hall_small["a"] / "plan.json").read_text())[
+        "stations"])
+
+
+def test_same_input_same_bytes(hall_small: dict[str, Path]) -> None:
+    names = sorted(p.name for p in hall_small["a"].iterdir())
+    assert names == sorted(p.name for p in hall_small["b"].iterdir())
+    for name in names:
+        assert (hall_small["a"] / name).read_bytes() == (hall_small["b"] / name).read_bytes(), name
+
+
+def test_errors_are_one_line_naming_the_parameter(tmp_path: Path, scenes_dir: Path) -> None:
+    params = tmp_path / "p.json"
+    params.write_text(json.dumps({"dof_min_m": -1}))
+    done = scanplan("plan", str(scenes_dir / "hall-small" / "hall.obj"), "--params",
+                    str(params), "--out", str(tmp_path / "out"))
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1
+    assert done.stderr.startswith("scanplan: error: dof_min_m: -1.0 is negative")
+    assert not (tmp_path / "out").exists()
+
+
+def test_unreadable_model_is_one_line(tmp_path: Path) -> None:
+    model = tmp_path / "model.obj"
+    model.write_bytes(b"\x00\x01binary junk" * 100)
+    done = scanplan("plan", str(model), "--out", str(tmp_path / "out"))
+    assert done.returncode == 2
+    assert "not a model format" in done.stderr
+    assert done.stderr.count("\n") == 1
