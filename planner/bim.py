@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import csv
 import io
+import weakref
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -51,6 +52,10 @@ COLUMNS = ("global_id", "ifc_class", "name", "storey", "faces", "area_m2", "targ
            "uncoverable_reason")
 _PAIRS_PER_CHUNK = 2_000_000
 _DECIMALS = 6
+# elements.csv and elements.json share the rows; the reasons cost seconds on a big model.
+# Weak keys: a result's rows live as long as the result and no longer.
+_ROWS: weakref.WeakKeyDictionary[PlanResult, list[dict[str, Any]]] = (
+    weakref.WeakKeyDictionary())
 
 
 def _r(value: float) -> float:
@@ -60,6 +65,15 @@ def _r(value: float) -> float:
 
 def element_rows(result: PlanResult) -> list[dict[str, Any]]:
     """One plain-data row per element of ``result.scene`` (see the module docstring)."""
+    cached = _ROWS.get(result)
+    if cached is not None:
+        return [dict(row) for row in cached]
+    rows = _element_rows(result)
+    _ROWS[result] = rows
+    return [dict(row) for row in rows]
+
+
+def _element_rows(result: PlanResult) -> list[dict[str, Any]]:
     scene, limits = result.scene, result.limits
     n = len(scene.elements)
     owner = scene.face_element

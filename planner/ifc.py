@@ -41,18 +41,10 @@ floor_z_m, area_m2, polygon, holes}]``, one per IfcSpace with geometry, ordered 
 then name. The floor polygon is the outline of the space's volume projected on the XY
 plane (union of its projected triangles), its floor the lowest point of the volume.
 
-Candidates from rooms (:func:`room_candidates`)
------------------------------------------------
-For each room (restricted by ``spec.storeys`` / ``spec.rooms``): grid points at multiples of
-``grid_spacing_m`` inside the floor polygon (boundary inclusive) and inside
-``area_of_interest`` if given, at ``floor_z_m + scanner_height_m``. A point is dropped when
-the first surface straight below the scanner is not within ``FLOOR_TOLERANCE_M`` of the
-room's floor (``no_floor``: a stair hole, a void; ``blocked_above_floor``: a table, a stair
-under the scanner), when it is inside a closed object (``inside_geometry``), or when the
-tripod lacks ``clearance_m`` of room around its axis from that floor to above the scanner
-(``too_close``, as :func:`planner.candidates.closer_than` measures it). A point on the
-boundary shared by two rooms belongs to the first. Order: rooms as in
-``metadata["spaces"]``, then grid rows (y, then x).
+Candidates from rooms
+---------------------
+:func:`room_candidates` lives in :mod:`planner.rooms` and is re-exported here, where the
+pipeline looks for it.
 """
 
 from __future__ import annotations
@@ -64,18 +56,13 @@ from typing import Any
 import numpy as np
 import shapely
 from numpy.typing import NDArray
-from shapely import MultiPolygon, Polygon, intersects_xy
+from shapely import MultiPolygon, Polygon
 
-from planner.candidates import (
-    DROP_REASONS,
-    CandidateSet,
-    closer_than,
-    grid_points_xy,
-    inside_closed_groups,
-)
-from planner.errors import NoCandidatesError, ParameterError, SceneError
-from planner.parameters import PlanSpec
+from planner.errors import SceneError
+from planner.rooms import room_candidates, select_spaces
 from planner.scene import Element, Scene, build_scene
+
+__all__ = ["default_requirements", "read_ifc", "room_candidates", "select_spaces"]
 
 SUPPORTED_SCHEMAS = ("IFC2X3", "IFC4", "IFC4X3")
 NON_PHYSICAL = ("IfcSpace", "IfcOpeningElement", "IfcVirtualElement", "IfcAnnotation",
@@ -84,7 +71,6 @@ GLASS_CLASSES = ("IfcPlate",)
 GLASS_SUFFIX = "/glass"
 GLASS_MIN_TRANSPARENCY = 0.3
 NOT_TARGET_CLASSES = ("IfcSite",)
-FLOOR_TOLERANCE_M = 0.3
 # The hybrid CGAL/OpenCASCADE kernel gives the same triangles as plain OpenCASCADE on the
 # shared models (face counts, areas) in about 60 % of the time.
 _GEOMETRY_LIBRARY = "hybrid-cgal-simple-opencascade"
@@ -347,200 +333,3 @@ def _footprint(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> Polyg
     if not parts:
         return None
     return shapely.normalize(max(parts, key=lambda p: p.area))
-
-
-def room_candidates(scene: Scene, spec: PlanSpec, caster: object) -> CandidateSet:
-    """Candidates inside the rooms of an IFC model (see the module docstring).
-
-    Parameters
-    ----------
-    scene : a scene read by :func:`read_ifc` (``metadata["spaces"]`` non-empty)
-    spec : grid spacing, scanner height, clearance, storey and room restrictions
-    caster : a :class:`planner._embree.EmbreeOcclusion` over the occluding faces
-
-    Raises
-    ------
-    ParameterError
-        a storey or room that the model does not have
-    NoCandidatesError
-        no room is left after the restriction, or no point in the rooms is usable
-    """
-    from planner._embree import EmbreeOcclusion
-
-    assert isinstance(caster, EmbreeOcclusion)
-    spaces = select_spaces(scene.metadata.get("spaces", []),
-                           scene.metadata.get("storeys", []), spec)
-    area = None
-    if spec.area_of_interest is not None:
-        area = Polygon(spec.area_of_interest)
-        if not area.is_valid or area.area <= 0:
-            raise ParameterError(
-                "area_of_interest", "is not a valid polygon (self-intersecting or flat)")
-    dropped = dict.fromkeys(DROP_REASONS, 0)
-    points: list[NDArray[np.float64]] = []
-    labels: list[dict[str, str]] = []
-    seen: set[tuple[float, float, float]] = set()
-    for space in spaces:
-        room = Polygon(space["polygon"], space.get("holes") or None)
-        xy = grid_points_xy(np.asarray(room.bounds, np.float64).reshape(2, 2),
-                            spec.grid_spacing_m, room)
-        if len(xy):
-            xy = xy[intersects_xy(room, xy[:, 0], xy[:, 1])]
-        z = float(space["floor_z_m"]) + spec.scanner_height_m
-        keep = []
-        for x, y in xy:
-            key = (round(float(x), 6), round(float(y), 6), round(z, 6))
-            if key not in seen:  # a point on a shared wall line belongs to the first room
-                seen.add(key)
-                keep.append((x, y, z))
-        if not keep:
-            continue
-        points.append(np.asarray(keep, np.float64))
-        label = {
-            "room": str(space["long_name"] or space["name"] or space["global_id"]),
-            "room_name": str(space["name"]),
-            "room_global_id": str(space["global_id"]),
-            "storey": str(space["storey"]),
-        }
-        labels.extend([label] * len(keep))
-    positions = np.concatenate(points) if points else np.zeros((0, 3))
-    considered = len(positions)
-    keep_mask = np.ones(considered, bool)
-    if area is not None and considered:
-        inside = intersects_xy(area, positions[:, 0], positions[:, 1])
-        dropped["outside_area_of_interest"] = int((~inside).sum())
-        keep_mask &= inside
-    on_floor, floor_z = _on_floor(scene, positions, spec, caster, keep_mask, dropped)
-    keep_mask &= on_floor
-    keep_mask &= _clear(scene, positions, spec.clearance_m, floor_z, keep_mask, dropped)
-    if not keep_mask.any():
-        raise NoCandidatesError(
-            f"no point is left in the {len(spaces)} room(s) out of {considered} "
-            f"({', '.join(f'{k}: {v}' for k, v in dropped.items() if v) or 'none in a room'}); "
-            f"lower grid_spacing_m ({spec.grid_spacing_m}) or clearance_m "
-            f"({spec.clearance_m}), choose other rooms or storeys, or give candidates "
-            "explicitly"
-        )
-    index = np.flatnonzero(keep_mask)
-    return CandidateSet(
-        positions=positions[index], source="rooms", considered=considered,
-        dropped=dropped, labels=tuple(labels[i] for i in index),
-    )
-
-
-def select_spaces(spaces: list[dict[str, Any]], storeys: list[dict[str, Any]],
-                  spec: PlanSpec) -> list[dict[str, Any]]:
-    """The rooms the plan is restricted to, in model order.
-
-    ``spec.storeys`` matches a storey's name or GlobalId, ``spec.rooms`` a room's name,
-    long name or GlobalId; both restrict together. An unknown name is a
-    :class:`ParameterError` listing the known ones.
-    """
-    chosen = list(spaces)
-    if spec.storeys is not None:
-        known = {s["name"] for s in storeys} | {s["global_id"] for s in storeys}
-        known |= {s["storey"] for s in spaces} | {s["storey_global_id"] for s in spaces}
-        known.discard("")
-        unknown = [name for name in spec.storeys if name not in known]
-        if unknown:
-            names = ", ".join(repr(s["name"]) for s in storeys) or "none"
-            raise ParameterError(
-                "storeys", f"{unknown[0]!r} is not a storey of the model; known storeys are "
-                f"{names} (or their GlobalIds)")
-        wanted = set(spec.storeys)
-        chosen = [s for s in chosen if s["storey"] in wanted or s["storey_global_id"] in wanted]
-    if spec.rooms is not None:
-        known = {v for s in spaces for v in (s["name"], s["long_name"], s["global_id"]) if v}
-        unknown = [name for name in spec.rooms if name not in known]
-        if unknown:
-            names = ", ".join(
-                repr(s["long_name"] or s["name"]) + (f" ({s['name']})" if s["long_name"] else "")
-                for s in spaces) or "none"
-            raise ParameterError(
-                "rooms", f"{unknown[0]!r} is not a room of the model; known rooms are "
-                f"{names} (by name, long name or GlobalId)")
-        wanted = set(spec.rooms)
-        chosen = [s for s in chosen
-                  if wanted & {s["name"], s["long_name"], s["global_id"]}]
-    if not chosen:
-        raise NoCandidatesError(
-            f"no room is left after restricting to storeys {list(spec.storeys or [])} and "
-            f"rooms {list(spec.rooms or [])}: the rooms asked for are on other storeys; "
-            "change storeys or rooms, or set them to null to use every room")
-    return chosen
-
-
-def _on_floor(scene: Scene, positions: NDArray[np.float64], spec: PlanSpec, caster: Any,
-              alive: NDArray[np.bool_], dropped: dict[str, int]
-              ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
-    """(C,) bool: straight below the scanner, the first surface is the room's floor.
-
-    Also returns (C,) the height of that surface (the room's floor where nothing was hit).
-    """
-    ok = np.ones(len(positions), bool)
-    floor_z = positions[:, 2] - spec.scanner_height_m
-    index = np.flatnonzero(alive)
-    if len(index) == 0:
-        return ok, floor_z
-    down = np.tile([0.0, 0.0, -1.0], (len(index), 1))
-    face, distance = caster.first_hit(positions[index], down)
-    height = spec.scanner_height_m
-    no_floor = (face < 0) | (distance > height + FLOOR_TOLERANCE_M)
-    blocked = ~no_floor & (distance < height - FLOOR_TOLERANCE_M)
-    dropped["no_floor"] += int(no_floor.sum())
-    dropped["blocked_above_floor"] += int(blocked.sum())
-    ok[index[no_floor | blocked]] = False
-    hit = ~(no_floor | blocked)
-    floor_z[index[hit]] = positions[index[hit], 2] - distance[hit]
-    return ok, floor_z
-
-
-def _clear(scene: Scene, positions: NDArray[np.float64], clearance_m: float,
-           floor_z: NDArray[np.float64], alive: NDArray[np.bool_], dropped: dict[str, int]
-           ) -> NDArray[np.bool_]:
-    """(C,) bool: not inside an element's solid, and the tripod has ``clearance_m`` of room.
-
-    The room is measured as :func:`planner.candidates.closer_than` does, from the floor
-    found under the scanner.
-    """
-    ok = np.ones(len(positions), bool)
-    index = np.flatnonzero(alive)
-    if len(index) == 0:
-        return ok
-    inside = inside_elements(scene, positions[index])
-    dropped["inside_geometry"] += int(inside.sum())
-    ok[index[inside]] = False
-    index = index[~inside]
-    near = closer_than(scene, positions[index], clearance_m, floor_z[index])
-    dropped["too_close"] += int(near.sum())
-    ok[index[near]] = False
-    return ok
-
-
-def inside_elements(scene: Scene, points: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """(N,) bool: inside some element's closed solid (winding number above one half).
-
-    Per element rather than per group (:func:`planner.candidates.inside_closed_groups`):
-    an element's box holds few points and its faces are few, which keeps the winding-number
-    arrays small on a remeshed building. Scenes without elements fall back to groups.
-    """
-    if not scene.elements:
-        return inside_closed_groups(scene, points)
-    from planner.candidates import winding_number
-
-    result = np.zeros(len(points), bool)
-    triangles = scene.triangles
-    order = np.argsort(scene.face_element, kind="stable")
-    bounds = np.searchsorted(scene.face_element[order], np.arange(len(scene.elements) + 1))
-    for e in range(len(scene.elements)):
-        faces = order[bounds[e]:bounds[e + 1]]
-        if len(faces) == 0:
-            continue
-        tri = triangles[faces]
-        lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
-        boxed = np.flatnonzero(((points > lo) & (points < hi)).all(axis=1) & ~result)
-        step = max(1, 2_000_000 // max(1, len(faces)))
-        for s in range(0, len(boxed), step):
-            chunk = boxed[s:s + step]
-            result[chunk] = winding_number(tri, points[chunk]) > 0.5
-    return result

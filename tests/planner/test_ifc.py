@@ -19,7 +19,7 @@ import trimesh
 from shapely import Polygon, intersects_xy
 
 from planner import bim
-from planner.candidates import DROP_REASONS
+from planner.candidates import DROP_REASONS, winding_number
 from planner.errors import NoCandidatesError, ParameterError, SceneError
 from planner.ifc import read_ifc, room_candidates
 from planner.pairs import FaceLimits
@@ -27,6 +27,7 @@ from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
 from planner.readers import read_scene
 from planner.report import plan_document, write_outputs
+from planner.rooms import inside_elements, source_triangles
 from planner.scene import Element, Scene, build_scene, remesh
 
 ifcopenshell = pytest.importorskip("ifcopenshell")
@@ -156,6 +157,30 @@ def test_read_scene_sniffs_ifc_and_remeshes_long_cad_triangles(scenes_dir: Path)
     assert scene.n_faces > 1098
     assert scene.metadata["format"] == "ifc"
     assert len(scene.elements) == 35
+
+
+def test_the_files_triangles_are_rebuilt_from_their_pieces(scenes_dir: Path) -> None:
+    raw = read_ifc(scenes_dir / f"{HOUSE}.ifc")
+    pieces = remesh(raw, 0.5)
+    triangles, owner = source_triangles(pieces)
+    assert len(triangles) == raw.n_faces
+    np.testing.assert_array_equal(owner, raw.face_element)
+    # the same corners (perhaps starting at another one) and the same winding
+    np.testing.assert_allclose(np.sort(triangles, axis=1), np.sort(raw.triangles, axis=1))
+
+    def doubled_normal(t: np.ndarray) -> np.ndarray:
+        return np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+
+    np.testing.assert_allclose(doubled_normal(triangles), doubled_normal(raw.triangles),
+                               atol=1e-9)
+    low, high = pieces.bounds
+    points = np.random.default_rng(0).uniform(low, high, size=(200, 3))
+    inside = np.zeros(len(points), bool)
+    for e in range(len(pieces.elements)):
+        own = pieces.face_element == e
+        inside |= winding_number(pieces.triangles[own], points) > 0.5
+    assert inside.any()
+    np.testing.assert_array_equal(inside_elements(pieces, points), inside)
 
 
 # errors ----------------------------------------------------------------------------------
