@@ -32,7 +32,7 @@ class ProgressLine:
     def __call__(self, stage: str, fraction: float) -> bool:
         if self.enabled:
             width = 30
-            filled = int(round(fraction * width))
+            filled = round(fraction * width)
             text = f"\r{stage:<11} [{'#' * filled}{'.' * (width - filled)}] {fraction * 100:5.1f} %"
             if text != self._last:
                 self.stream.write(text)

@@ -5,6 +5,8 @@ Slow (P x F work) and exact in float64; kept to check the Embree backend pair fo
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -22,17 +24,20 @@ class BruteForceOcclusion:
 
     def visible(
         self,
-        origins: NDArray[np.float64],
-        directions: NDArray[np.float64],
+        origins: NDArray[np.floating[Any]],
+        directions: NDArray[np.floating[Any]],
         distances_m: NDArray[np.float64],
         target_faces: NDArray[np.int64],
     ) -> NDArray[np.bool_]:
+        # float64 throughout: this is the reference
+        origins64 = np.asarray(origins, np.float64)
+        directions64 = np.asarray(directions, np.float64)
         result = np.empty(len(origins), bool)
         step = max(1, _CHUNK_WORK // max(1, len(self._occluders)))
         for start in range(0, len(origins), step):
             part = slice(start, start + step)
             result[part] = self._closest_is_target(
-                origins[part], directions[part], target_faces[part]
+                origins64[part], directions64[part], target_faces[part]
             )
         return result
 
@@ -41,7 +46,8 @@ class BruteForceOcclusion:
         targets: NDArray[np.int64],
     ) -> NDArray[np.bool_]:
         tri = self._triangles[self._occluders]  # (O, 3, 3)
-        t_occ = ray_triangle_distance(origins[:, None, :], directions[:, None, :], tri[None])  # (R, O)
+        # (R, O) hit distances of every ray with every occluder
+        t_occ = ray_triangle_distance(origins[:, None, :], directions[:, None, :], tri[None])
         own = ray_triangle_distance(origins, directions, self._triangles[targets])  # (R,)
         own_t = np.where(np.isfinite(own), own, np.inf)
         is_self = self._occluders[None, :] == targets[:, None]

@@ -5,6 +5,8 @@ A missing embreex is a loud error: there is no silent slow path.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -39,8 +41,8 @@ class EmbreeOcclusion:
 
     def visible(
         self,
-        origins: NDArray[np.float64],
-        directions: NDArray[np.float64],
+        origins: NDArray[np.floating[Any]],
+        directions: NDArray[np.floating[Any]],
         distances_m: NDArray[np.float64],
         target_faces: NDArray[np.int64],
     ) -> NDArray[np.bool_]:
@@ -60,10 +62,12 @@ class EmbreeOcclusion:
             query="INTERSECT",
         ), np.int64)
         hit = np.where(prim >= 0, self._faces[np.maximum(prim, 0)], -1)
-        return (hit == target_faces) | ((hit < 0) & ~self._occludes[target_faces])
+        visible: NDArray[np.bool_] = (hit == target_faces) | (
+            (hit < 0) & ~self._occludes[target_faces])
+        return visible
 
     def first_hit(
-        self, origins: NDArray[np.float64], directions: NDArray[np.float64]
+        self, origins: NDArray[np.floating[Any]], directions: NDArray[np.floating[Any]]
     ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
         """The closest face each (R, 3) ray hits and its distance; -1 and inf for a miss."""
         if self._empty or len(origins) == 0:

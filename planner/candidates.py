@@ -66,7 +66,7 @@ class CandidateSet:
     labels: tuple[dict[str, str], ...] = ()
 
     def __len__(self) -> int:
-        return int(len(self.positions))
+        return len(self.positions)
 
     def summary(self) -> dict[str, object]:
         return {
@@ -186,7 +186,7 @@ def place_on_floor(
     lift = 0.01
     start = np.column_stack([xy, floor_z + lift])
     reach = spec.scanner_height_m + spec.clearance_m - lift
-    face_above, dist_above = caster.first_hit(start, up[: len(xy)])
+    _, dist_above = caster.first_hit(start, up[: len(xy)])
     clear = dist_above > reach
     dropped["blocked_above_floor"] += int((~clear).sum())
     return np.column_stack([xy[clear], floor_z[clear] + spec.scanner_height_m])

@@ -13,7 +13,6 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 
-
 @dataclass(frozen=True, eq=False)
 class QualifiedPairs:
     """Pairs that passed every test, sorted by (candidate, face).
@@ -83,7 +82,7 @@ class CoverageTable:
     @property
     def candidates_per_face(self) -> NDArray[np.int64]:
         """(F,) int64: how many candidates qualify for each face (k_f)."""
-        return np.diff(self.by_face.indptr).astype(np.int64)
+        return np.asarray(np.diff(self.by_face.indptr), dtype=np.int64)
 
     @property
     def achievable(self) -> NDArray[np.bool_]:
@@ -97,7 +96,7 @@ class CoverageTable:
     def faces_of(self, candidate: int) -> NDArray[np.int32]:
         """Faces that ``candidate`` qualifies for, ascending."""
         start, stop = self.by_candidate.indptr[candidate], self.by_candidate.indptr[candidate + 1]
-        return self.by_candidate.indices[start:stop]
+        return np.asarray(self.by_candidate.indices[start:stop], dtype=np.int32)
 
     def area_per_candidate(self) -> NDArray[np.float64]:
         """(C,) float64: qualified area of every candidate alone."""

@@ -10,7 +10,8 @@ and alpha the incidence angle (``sin alpha = |ray . normal|``):
 - ``LPD >= min_density_pts_m2`` of the face's group.
 
 Limits are inclusive. Angles are compared as their sines (the same order on [-90, 90]
-degrees), so ``sin(90 deg)`` = 1 admits the zenith and no arcsin is taken per pair. Only the pairs that
+degrees), so ``sin(90 deg)`` = 1 admits the zenith and no arcsin is taken per pair.
+Only the pairs that
 pass need an occlusion ray. Array letters: C candidates, F faces, P pairs.
 """
 
@@ -23,8 +24,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.density import density_range_m, local_point_density
-from planner.parameters import PlanSpec
+from planner.density import density_range_m
+from planner.parameters import GroupRequirement, PlanSpec
 from planner.scene import Scene
 
 
@@ -86,12 +87,14 @@ class FaceLimits:
         return min(self.dof_max_m, density_range_m(float(targets.min()), self.angular_step_rad))
 
 
-def _requirement_masks(spec: PlanSpec, scene: Scene) -> list[tuple[NDArray[np.bool_], object]]:
+def _requirement_masks(
+    spec: PlanSpec, scene: Scene
+) -> list[tuple[NDArray[np.bool_], GroupRequirement]]:
     """(mask, requirement) in the order they apply: groups, then IFC classes, then GlobalIds.
 
     Later entries win, so a GlobalId override beats its class's.
     """
-    masks: list[tuple[NDArray[np.bool_], object]] = []
+    masks: list[tuple[NDArray[np.bool_], GroupRequirement]] = []
     # a reader's defaults (IFC: glass neither targets nor occludes) come first, the user's win
     defaults = scene.metadata.get("default_group_requirements", {})
     reqs = {**PlanSpec.from_mapping({"group_requirements": defaults}).group_requirements,
@@ -134,7 +137,7 @@ class Pairs:
     lpd_pts_m2: NDArray[np.float32]
 
     def __len__(self) -> int:
-        return int(len(self.face))
+        return len(self.face)
 
     def subset(self, keep: NDArray[np.bool_]) -> Pairs:
         return Pairs(self.candidate[keep], self.face[keep], self.distance_m[keep],
@@ -149,7 +152,7 @@ class Pairs:
                      ("candidate", "face", "distance_m", "direction", "lpd_pts_m2")))
 
 
-@numba.njit(nogil=True, cache=True)  # type: ignore[misc]
+@numba.njit(nogil=True, cache=True)
 def _pass_limits(  # pragma: no cover - compiled; checked against the numpy reference
     points: NDArray[np.float64], first_index: int, faces: NDArray[np.int64],
     centroids: NDArray[np.float64], normals: NDArray[np.float64],

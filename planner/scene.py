@@ -88,7 +88,7 @@ class Scene:
 
     @property
     def n_faces(self) -> int:
-        return int(len(self.faces))
+        return len(self.faces)
 
     @property
     def triangles(self) -> FloatArray:
@@ -109,7 +109,7 @@ class Scene:
         counts = np.bincount(self.face_group, minlength=len(self.groups))
         return {
             "faces": self.n_faces,
-            "vertices": int(len(self.vertices)),
+            "vertices": len(self.vertices),
             "total_area_m2": round(float(self.areas.sum()), 6),
             "bounds": [[round(float(v), 6) for v in row] for row in self.bounds],
             "groups": {name: int(n) for name, n in zip(self.groups, counts, strict=True) if n},
@@ -155,7 +155,7 @@ def remesh(scene: Scene, max_edge_m: float) -> Scene:
     if longest <= max_edge_m:
         return scene
     iterations = math.ceil(math.log2(longest / max_edge_m)) + 2
-    vertices, faces, index = trimesh.remesh.subdivide_to_size(
+    vertices, faces, index = trimesh.remesh.subdivide_to_size(  # type: ignore[no-untyped-call]
         scene.vertices, scene.faces, max_edge=max_edge_m, max_iter=iterations,
         return_index=True,
     )

@@ -131,7 +131,9 @@ def replay(table: CoverageTable, stations: list[int] | tuple[int, ...],
                      table.max_achievable_area_m2)
 
 
-def coverage_state(table: CoverageTable, stations: tuple[int, ...]) -> dict[str, NDArray[np.generic]]:
+def coverage_state(
+    table: CoverageTable, stations: tuple[int, ...]
+) -> dict[str, NDArray[np.generic]]:
     """Per-face results of a plan.
 
     Returns

@@ -8,7 +8,7 @@ so no face is missed by chance. Faces are two-sided. Backends share one protocol
 
 from __future__ import annotations
 
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,8 +27,8 @@ class Occlusion(Protocol):
 
     def visible(
         self,
-        origins: NDArray[np.float64],
-        directions: NDArray[np.float64],
+        origins: NDArray[np.floating[Any]],
+        directions: NDArray[np.floating[Any]],
         distances_m: NDArray[np.float64],
         target_faces: NDArray[np.int64],
     ) -> NDArray[np.bool_]:
