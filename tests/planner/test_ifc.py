@@ -313,6 +313,94 @@ def test_a_plan_per_storey_uses_only_its_rooms_and_names_stations_by_room(
     assert written["elements.csv"].read_bytes() == bim.elements_csv(storey_plan)
 
 
+# an unseen building, both schemas, millimetres --------------------------------------------
+
+
+def _one_room_building(schema: str, path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A 6 x 4 m room in millimetres on a storey at 3 m: floor, ceiling, four walls, a space."""
+    import ifcopenshell.api.owner.settings
+    from ifcopenshell.api import aggregate, context, geometry, owner, project, root, spatial, unit
+
+    model = project.create_file(version=schema)  # type: ignore[arg-type]
+    if schema == "IFC2X3":  # every rooted entity needs an owner history there
+        user = owner.add_person_and_organisation(
+            model, person=owner.add_person(model), organisation=owner.add_organisation(model))
+        application = owner.add_application(model)
+        monkeypatch.setattr(ifcopenshell.api.owner.settings, "get_user", lambda _: user)
+        monkeypatch.setattr(ifcopenshell.api.owner.settings, "get_application",
+                            lambda _: application)
+    ifc_project = root.create_entity(model, ifc_class="IfcProject", name="synthetic")
+    unit.assign_unit(model, units=[
+        unit.add_si_unit(model, unit_type="LENGTHUNIT", prefix="MILLI")])
+    body = context.add_context(
+        model, context_type="Model", context_identifier="Body", target_view="MODEL_VIEW",
+        parent=context.add_context(model, context_type="Model"))
+    site = root.create_entity(model, ifc_class="IfcSite", name="Site")
+    building = root.create_entity(model, ifc_class="IfcBuilding", name="Building")
+    storey = root.create_entity(model, ifc_class="IfcBuildingStorey", name="Level 1")
+    storey.Elevation = 3000.0
+    aggregate.assign_object(model, relating_object=ifc_project, products=[site])
+    aggregate.assign_object(model, relating_object=site, products=[building])
+    aggregate.assign_object(model, relating_object=building, products=[storey])
+
+    def placed(ifc_class: str, name: str, representation: Any,
+               xyz: tuple[float, float, float], turn: float = 0.0) -> Any:
+        product = root.create_entity(model, ifc_class=ifc_class, name=name)
+        matrix = np.eye(4)
+        matrix[:2, :2] = [[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]]
+        matrix[:3, 3] = xyz
+        geometry.edit_object_placement(model, product=product, matrix=matrix, is_si=True)
+        geometry.assign_representation(model, product=product, representation=representation)
+        return product
+
+    outline = [(0.0, 0.0), (6.0, 0.0), (6.0, 4.0), (0.0, 4.0)]
+    parts = [
+        placed("IfcSlab", "Floor", geometry.add_slab_representation(
+            model, body, depth=0.2, polyline=outline), (0, 0, 2.8)),
+        placed("IfcSlab", "Ceiling", geometry.add_slab_representation(
+            model, body, depth=0.2, polyline=outline), (0, 0, 5.7)),
+    ]
+    for name, length, x, y, turn in [("South", 6.0, 0, 0, 0.0), ("East", 4.0, 6, 0, 0.5),
+                                     ("North", 6.0, 6, 4, 1.0), ("West", 4.0, 0, 4, 1.5)]:
+        parts.append(placed("IfcWall", name, geometry.add_wall_representation(
+            model, body, length=length, height=2.7, thickness=0.2), (x, y, 3.0), turn * np.pi))
+    spatial.assign_container(model, relating_structure=storey, products=parts)
+    space = placed("IfcSpace", "101", geometry.add_slab_representation(
+        model, body, depth=2.7, polyline=[(0.2, 0.2), (5.8, 0.2), (5.8, 3.8), (0.2, 3.8)]),
+        (0, 0, 3.0))
+    space.LongName = "Office"
+    aggregate.assign_object(model, relating_object=storey, products=[space])
+    model.write(str(path))
+
+
+@pytest.mark.parametrize("schema", ["IFC2X3", "IFC4"])
+def test_an_unseen_building_in_millimetres_plans_from_its_room(
+    schema: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    path = tmp_path / "building.ifc"
+    _one_room_building(schema, path, monkeypatch)
+    scene = read_scene(path, max_edge_m=0.5)
+    assert scene.metadata["schema"] == schema
+    assert scene.metadata["length_unit_scale"] == pytest.approx(0.001)
+    np.testing.assert_allclose(scene.bounds, [[0, 0, 2.8], [6, 4, 5.9]], atol=1e-6)
+    assert scene.metadata["storeys"][0]["elevation_m"] == pytest.approx(3.0)
+    (space,) = scene.metadata["spaces"]
+    assert (space["long_name"], space["storey"]) == ("Office", "Level 1")
+    assert space["floor_z_m"] == pytest.approx(3.0)
+    assert space["area_m2"] == pytest.approx(5.6 * 3.6)
+    assert {e.storey for e in scene.elements} == {"Level 1"}
+    result = plan(scene, PlanSpec(max_edge_m=0.5))
+    assert result.candidates.source == "rooms"
+    inner = (result.candidates.positions[:, :2] > 0.2) & (
+        result.candidates.positions[:, :2] < [5.8, 3.8])
+    assert inner.all()
+    np.testing.assert_allclose(result.candidates.positions[:, 2], 4.5)
+    rows = bim.element_rows(result)
+    assert {r["name"] for r in rows} == {"Floor", "Ceiling", "South", "East", "North", "West"}
+    assert all(0 < r["fraction"] < 1 for r in rows)  # the outer faces are the walls' backs
+    assert {s["label"]["room"] for s in plan_document(result)["stations"]} == {"Office"}
+
+
 # why an element cannot be covered ----------------------------------------------------------
 
 
