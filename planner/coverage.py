@@ -6,6 +6,7 @@ every qualified pair: passes the analytic limits and the occlusion ray.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,6 +67,12 @@ class CoverageTable:
         )
         csr.has_sorted_indices = True
         return cls(by_candidate=csr, by_face=csr.tocsc(), face_area_m2=face_area_m2)
+
+    @functools.cached_property
+    def candidate_of_entry(self) -> NDArray[np.int64]:
+        """(P,) int64: the row (candidate) of every stored pair of ``by_candidate``."""
+        counts = np.diff(self.by_candidate.indptr)
+        return np.repeat(np.arange(self.n_candidates, dtype=np.int64), counts)
 
     @property
     def n_candidates(self) -> int:

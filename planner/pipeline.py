@@ -111,10 +111,10 @@ def plan(
 
     t2 = time.perf_counter()
     _notify(progress, "selection", 0.0)
-    selections = {
-        "greedy": greedy(table),
-        "weighted_greedy": greedy(table, weighted=True),
-    }
+    table.candidate_of_entry  # noqa: B018 - built once here, shared by both threads
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        weighted = pool.submit(greedy, table, weighted=True)
+        selections = {"greedy": greedy(table), "weighted_greedy": weighted.result()}
     optimal = None
     if spec.method == "optimal":
         _notify(progress, "selection", 0.5)

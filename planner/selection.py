@@ -74,9 +74,8 @@ def greedy(table: CoverageTable, *, weighted: bool = False,
     units = np.round(weight / GAIN_QUANTUM_M2)
     if units.sum() >= 2.0**53:
         raise ValueError("the model's area is too large for exact gains; split the model")
-    csr = table.by_candidate
-    row_of_entry = np.repeat(np.arange(table.n_candidates), np.diff(csr.indptr))
-    gains = np.bincount(row_of_entry, weights=units[csr.indices], minlength=table.n_candidates)
+    gains = np.bincount(table.candidate_of_entry, weights=units[table.by_candidate.indices],
+                        minlength=table.n_candidates)
     by_face = table.by_face
     uncovered = np.ones(table.n_faces, bool)
     stations: list[int] = []
