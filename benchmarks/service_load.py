@@ -1,0 +1,100 @@
+"""Load on a real ``scanplan serve`` over loopback: submission latency and poll throughput.
+
+Usage: python benchmarks/service_load.py [--submissions 50] [--poll-seconds 5] [--workers 2]
+
+Starts the service on a free port with a temporary data directory, uploads hall-small,
+fires N concurrent ``POST /processes/scan-plan/execution`` requests (each a real job), and
+prints p50/p95/max submission latency; then polls ``GET /jobs/{id}`` from 8 concurrent
+clients for a few seconds and prints requests per second, while the workers run the jobs.
+Figures only, never pass/fail.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import httpx
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from tests.e2e.service_process import Service  # noqa: E402
+
+HALL = ROOT.parent / "shared" / "scenes" / "hall-small"
+
+
+def percentile(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, round(q * (len(ordered) - 1)))]
+
+
+async def submit_all(url: str, mesh_id: str, count: int) -> tuple[list[float], list[str]]:
+    async with httpx.AsyncClient(base_url=url, timeout=60,
+                                 limits=httpx.Limits(max_connections=count)) as client:
+        async def one(i: int) -> tuple[float, str]:
+            started = time.perf_counter()
+            answer = await client.post("/processes/scan-plan/execution", json={
+                "inputs": {"mesh": mesh_id, "parameters": {"max_edge_m": None}}})
+            assert answer.status_code == 201, answer.text
+            return time.perf_counter() - started, str(answer.json()["jobID"])
+
+        results = await asyncio.gather(*(one(i) for i in range(count)))
+    return [r[0] for r in results], [r[1] for r in results]
+
+
+async def poll(url: str, job_ids: list[str], seconds: float, clients: int) -> int:
+    done = 0
+    deadline = time.perf_counter() + seconds
+    async with httpx.AsyncClient(base_url=url, timeout=30) as client:
+        async def loop(k: int) -> None:
+            nonlocal done
+            i = k
+            while time.perf_counter() < deadline:
+                answer = await client.get(f"/jobs/{job_ids[i % len(job_ids)]}")
+                assert answer.status_code == 200
+                done += 1
+                i += clients
+
+        await asyncio.gather(*(loop(k) for k in range(clients)))
+    return done
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--submissions", type=int, default=50)
+    parser.add_argument("--poll-seconds", type=float, default=5.0)
+    parser.add_argument("--poll-clients", type=int, default=8)
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as tmp:
+        service = Service(Path(tmp) / "data", workers=args.workers).start()
+        try:
+            with service.client() as client:
+                mesh = client.post("/meshes?filename=hall.obj",
+                                   content=(HALL / "hall.obj").read_bytes(),
+                                   headers={"content-type": "application/octet-stream"})
+                mesh_id = mesh.json()["id"]
+            latencies, job_ids = asyncio.run(submit_all(service.url, mesh_id,
+                                                        args.submissions))
+            ms = [v * 1000 for v in latencies]
+            print(f"submissions: {len(ms)} concurrent, latency p50 {percentile(ms, 0.5):.1f} ms"
+                  f", p95 {percentile(ms, 0.95):.1f} ms, max {max(ms):.1f} ms, "
+                  f"mean {statistics.fmean(ms):.1f} ms")
+            count = asyncio.run(poll(service.url, job_ids, args.poll_seconds,
+                                     args.poll_clients))
+            print(f"status polls: {count / args.poll_seconds:.0f} requests/s "
+                  f"({args.poll_clients} concurrent clients, {args.poll_seconds:.0f} s, "
+                  f"{args.workers} workers planning meanwhile)")
+        finally:
+            service.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
