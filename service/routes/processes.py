@@ -10,9 +10,10 @@ from fastapi import APIRouter, Header, Response, status
 from starlette.concurrency import run_in_threadpool
 
 from planner.parameters import PlanSpec
+from planner.report import OUTPUTS
 from service.deps import OwnerDep, ServicesDep
 from service.problems import IdempotencyKeyReusedError, NoSuchProcessError, NotFoundError
-from service.routes.jobs import status_info
+from service.routes.jobs import media_type, status_info
 from service.schemas import ExecuteRequest, PlanParameters, StatusInfo
 
 router = APIRouter(prefix="/processes", tags=["processes"])
@@ -50,11 +51,9 @@ def _description() -> dict[str, Any]:
                            "minOccurs": 0, "maxOccurs": 1},
         },
         "outputs": {
-            name: {"title": name, "schema": {"type": "string", "contentMediaType": media}}
-            for name, media in (("plan.json", "application/json"),
-                                ("faces.npz", "application/octet-stream"),
-                                ("stations.csv", "text/csv"),
-                                ("candidates.csv", "text/csv"))
+            name: {"title": name,
+                   "schema": {"type": "string", "contentMediaType": media_type(name)}}
+            for name in OUTPUTS
         },
     }
 
