@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from planner.errors import SceneError, UnsupportedFormatError
+from planner.errors import ParameterError, SceneError, UnsupportedFormatError
 from planner.scene import Element, Scene, build_scene, remesh
 
 FORMATS = ("obj", "ply", "stl", "off", "glb", "gltf", "ifc")
@@ -87,11 +87,12 @@ def read_scene(
     ----------
     path : the model file (format sniffed from its bytes)
     max_edge_m : split faces until no edge is longer; None uses the mesh as given
-    unit_scale : multiply coordinates by this (0.001 for a model in millimetres)
+    unit_scale : multiply coordinates by this (0.001 for a model in millimetres); must be
+        1 for IFC, which is converted from its own length unit
 
     Raises
     ------
-    SceneError, UnsupportedFormatError
+    SceneError, UnsupportedFormatError, ParameterError (unit_scale with an IFC file)
     """
     path = Path(path)
     if not path.is_file():
@@ -100,6 +101,10 @@ def read_scene(
         raise SceneError(f"max_edge_m is {max_edge_m}; use a positive length or null")
     fmt = file_format(path)
     if fmt == "ifc":
+        if unit_scale != 1.0:  # rooms and storeys are in metres too: scaling would split them
+            raise ParameterError(
+                "unit_scale", f"is {unit_scale}, but an IFC file is converted to metres from "
+                "its own length unit; leave unit_scale at 1")
         from planner import ifc  # IfcOpenShell is heavy: import it only for IFC files
 
         scene = ifc.read_ifc(path)

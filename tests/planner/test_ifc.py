@@ -183,6 +183,12 @@ def test_the_files_triangles_are_rebuilt_from_their_pieces(scenes_dir: Path) -> 
     np.testing.assert_array_equal(inside_elements(pieces, points), inside)
 
 
+def test_unit_scale_is_refused_for_ifc_which_converts_its_own_unit(scenes_dir: Path) -> None:
+    with pytest.raises(ParameterError, match="unit_scale") as info:
+        read_scene(scenes_dir / f"{HOUSE}.ifc", unit_scale=0.001)
+    assert info.value.parameter == "unit_scale"
+
+
 # errors ----------------------------------------------------------------------------------
 
 
