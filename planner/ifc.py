@@ -16,7 +16,10 @@ Reading (:func:`read_ifc`)
 - Elements are sorted by (IFC class, GlobalId), faces keep IfcOpenShell's order inside an
   element: the same file always gives the same scene.
 - Every face is labelled: ``scene.face_element`` points at its element (GlobalId, class,
-  name, storey), and its group is the element's IFC class, except glazing (below).
+  name, storey: the name of the IfcBuildingStorey it is contained in, through spaces and
+  aggregates; "" for the site), and its group is the element's IFC class, except glazing.
+- Triangulation uses IfcOpenShell's hybrid CGAL/OpenCASCADE kernel when it has one, on one
+  thread (see ``_GEOMETRY_LIBRARY``).
 
 Glass
 -----
@@ -25,7 +28,9 @@ elements mix frames and panes in one element, so the decision is made per face, 
 surface style IfcOpenShell reports for it: a face whose style lets at least
 ``GLASS_MIN_TRANSPARENCY`` of the light through is glazing and gets the group
 ``"<IfcClass>/glass"`` (``"IfcWindow/glass"``). Every IfcPlate is treated as glazing too
-(curtain-wall and window panels; the issue's default), transparent style or not. By default
+(curtain-wall and window panels; the issue's default), transparent style or not, so its
+group is always ``"IfcPlate/glass"`` and a user's ``"IfcPlate"`` key (a class, not a group)
+reaches all its faces. By default
 (``metadata["default_group_requirements"]``) glazing neither occludes nor is a target, and
 IfcSite (terrain) occludes but is not a target; everything else is both. A user overrides
 any of these in ``group_requirements``: ``"IfcWindow/glass"`` for the panes,
