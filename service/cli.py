@@ -7,6 +7,7 @@ Registered through the ``scanplan.commands`` entry point. Each option is also a
 from __future__ import annotations
 
 import argparse
+import ctypes
 import logging
 import multiprocessing
 import os
@@ -65,8 +66,6 @@ def run_serve(args: argparse.Namespace) -> int:
 
     from service.database import make_engine
     from service.main import create_app
-    from service.worker import run_consumer
-
     settings = settings_from(args)
     _logging(settings)
     host = settings.effective_host
@@ -80,9 +79,11 @@ def run_serve(args: argparse.Namespace) -> int:
     if settings.workers > 0:
         # fork before the server starts threads; the child runs huey's consumer
         consumer = multiprocessing.get_context("fork").Process(
-            target=run_consumer, args=(settings,), kwargs={"with_reaper": False},
-            name="scanplan-consumer")
+            target=_consumer_main, args=(settings,), name="scanplan-consumer")
         consumer.start()
+    # uvicorn re-raises the SIGTERM it caught once it has shut down; turn it into SystemExit
+    # so that the consumer below is stopped too instead of being orphaned
+    signal.signal(signal.SIGTERM, _exit_on_sigterm)
     log.info("scanplan %s on http://%s:%d with %d worker process(es), data in %s",
              "serve", host, settings.port, settings.workers, settings.data_dir.resolve())
     try:
@@ -92,6 +93,28 @@ def run_serve(args: argparse.Namespace) -> int:
         if consumer is not None:
             _stop(consumer)
     return 0
+
+
+def _exit_on_sigterm(signum: int, frame: object) -> None:
+    raise SystemExit(0)
+
+
+def _consumer_main(settings: Settings) -> None:
+    """The forked consumer: it gets SIGTERM when ``serve`` dies, even by SIGKILL (Linux)."""
+    from service.worker import run_consumer
+
+    _terminate_with_parent()
+    run_consumer(settings, with_reaper=False)
+
+
+def _terminate_with_parent() -> None:
+    """Ask Linux to send SIGTERM to this process when its parent exits (prctl PDEATHSIG)."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        pr_set_pdeathsig = 1
+        libc.prctl(pr_set_pdeathsig, signal.SIGTERM, 0, 0, 0)
+    except (OSError, AttributeError):  # not Linux: the SIGTERM path in run_serve still works
+        log.debug("PR_SET_PDEATHSIG unavailable; the consumer relies on run_serve to stop it")
 
 
 def _stop(process: Any) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -39,6 +40,7 @@ class Service:
         self.log = data_dir.with_suffix(".log")
         self.process: subprocess.Popen[bytes] | None = None
         self.url = f"http://127.0.0.1:{self.port}"
+        self.sid = 0
 
     def start(self) -> Service:
         with self.log.open("ab") as log:
@@ -46,6 +48,7 @@ class Service:
                 [SCANPLAN, "serve", "--port", str(self.port), "--data-dir",
                  str(self.data_dir), "--workers", str(self.workers)],
                 stdout=log, stderr=subprocess.STDOUT, env=self.env, start_new_session=True)
+        self.sid = self.process.pid
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
             try:
@@ -68,6 +71,16 @@ class Service:
                 self.process.wait()
         self.process = None
 
+    def session_pids(self) -> list[int]:
+        """Every live process of the service's session (its own process group leader)."""
+        return session_pids(self.sid) if self.sid else []
+
+    def kill_leftovers(self) -> None:
+        """Last-resort cleanup so a failing test never leaves workers behind."""
+        for pid in self.session_pids():
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+
     def client(self) -> httpx.Client:
         return httpx.Client(base_url=self.url, timeout=30)
 
@@ -79,6 +92,22 @@ class Service:
         if row is None or row[0] is None or row[1] != "running":
             return None
         return int(str(row[0]).rsplit(":", 1)[1])
+
+
+def session_pids(sid: int) -> list[int]:
+    """Live (non-zombie) processes whose session id is ``sid``, from /proc."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        state, session = fields[0], int(fields[3])
+        if session == sid and state != "Z":
+            pids.append(int(entry.name))
+    return sorted(pids)
 
 
 def wait_for(client: httpx.Client, job_id: str, statuses: tuple[str, ...],

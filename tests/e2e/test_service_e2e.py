@@ -53,6 +53,23 @@ def service(tmp_path: Path) -> Any:
     running = Service(tmp_path / "data", workers=2).start()
     yield running
     running.stop()
+    running.kill_leftovers()
+
+
+@pytest.mark.parametrize("stop_signal", [signal.SIGTERM, signal.SIGKILL])
+def test_stopping_serve_stops_its_worker_processes(tmp_path: Path, stop_signal: int) -> None:
+    service = Service(tmp_path / "data", workers=2).start()
+    try:
+        assert len(service.session_pids()) >= 3  # the API, the consumer, its workers
+        assert service.process is not None
+        service.process.send_signal(stop_signal)
+        service.process.wait(30)
+        deadline = time.monotonic() + 20
+        while service.session_pids() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert service.session_pids() == [], "worker processes outlived scanplan serve"
+    finally:
+        service.kill_leftovers()
 
 
 def test_plan_through_workers_equals_in_process(service: Service, tmp_path: Path) -> None:
@@ -121,6 +138,8 @@ def test_restart_loses_no_job(tmp_path: Path) -> None:
                 assert wait_for(client, job_id, FINISHED, 150)["status"] == "successful"
     finally:
         second.stop()
+        first.kill_leftovers()
+        second.kill_leftovers()
 
 
 def test_bad_input_keeps_the_service_serving(service: Service) -> None:
