@@ -26,18 +26,19 @@ class BruteForceOcclusion:
         self,
         origins: NDArray[np.floating[Any]],
         directions: NDArray[np.floating[Any]],
-        distances_m: NDArray[np.float64],
-        target_faces: NDArray[np.int64],
+        distances_m: NDArray[np.floating[Any]],
+        target_faces: NDArray[np.integer[Any]],
     ) -> NDArray[np.bool_]:
         # float64 throughout: this is the reference
         origins64 = np.asarray(origins, np.float64)
         directions64 = np.asarray(directions, np.float64)
+        targets64 = np.asarray(target_faces, np.int64)
         result = np.empty(len(origins), bool)
         step = max(1, _CHUNK_WORK // max(1, len(self._occluders)))
         for start in range(0, len(origins), step):
             part = slice(start, start + step)
             result[part] = self._closest_is_target(
-                origins64[part], directions64[part], target_faces[part]
+                origins64[part], directions64[part], targets64[part]
             )
         return result
 

@@ -38,13 +38,14 @@ class EmbreeOcclusion:
             triangles = scene.triangles[self._faces].astype(np.float32)
             self._mesh = TriangleMesh(self._scene, triangles)
         self._occludes = occludes
+        self._all_occlude = bool(occludes.all())
 
     def visible(
         self,
         origins: NDArray[np.floating[Any]],
         directions: NDArray[np.floating[Any]],
-        distances_m: NDArray[np.float64],
-        target_faces: NDArray[np.int64],
+        distances_m: NDArray[np.floating[Any]],
+        target_faces: NDArray[np.integer[Any]],
     ) -> NDArray[np.bool_]:
         """Closest-hit semantics, as the brute-force reference: the target must be hit first.
 
@@ -58,12 +59,14 @@ class EmbreeOcclusion:
         prim = np.asarray(self._scene.run(
             np.ascontiguousarray(origins, np.float32),
             np.ascontiguousarray(directions, np.float32),
-            dists=np.ascontiguousarray(distances_m * FAR_LIMIT_FACTOR, np.float32),
+            dists=np.multiply(distances_m, FAR_LIMIT_FACTOR, dtype=np.float32),
             query="INTERSECT",
-        ), np.int64)
+        ))
+        if self._all_occlude:  # the BVH's primitive ids are the face ids
+            visible: NDArray[np.bool_] = prim == target_faces
+            return visible
         hit = np.where(prim >= 0, self._faces[np.maximum(prim, 0)], -1)
-        visible: NDArray[np.bool_] = (hit == target_faces) | (
-            (hit < 0) & ~self._occludes[target_faces])
+        visible = (hit == target_faces) | ((hit < 0) & ~self._occludes[target_faces])
         return visible
 
     def first_hit(

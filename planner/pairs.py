@@ -125,43 +125,51 @@ class Pairs:
     ----------
     candidate : (P,) int32, candidate index
     face : (P,) int32, face index
-    distance_m : (P,) float64
+    origin : (P, 3) float32, the candidate's position (ray origin)
     direction : (P, 3) float32, unit vector from candidate to face centroid (ray direction)
+    distance_m : (P,) float32, from candidate to face centroid
     lpd_pts_m2 : (P,) float32
+
+    The float32 columns are the rays as Embree takes them; every limit was decided in
+    float64 before they were written.
     """
 
     candidate: NDArray[np.int32]
     face: NDArray[np.int32]
-    distance_m: NDArray[np.float64]
+    origin: NDArray[np.float32]
     direction: NDArray[np.float32]
+    distance_m: NDArray[np.float32]
     lpd_pts_m2: NDArray[np.float32]
 
     def __len__(self) -> int:
         return len(self.face)
 
-    def subset(self, keep: NDArray[np.bool_]) -> Pairs:
-        return Pairs(self.candidate[keep], self.face[keep], self.distance_m[keep],
-                     self.direction[keep], self.lpd_pts_m2[keep])
+    def subset(self, keep: NDArray[np.bool_] | slice) -> Pairs:
+        return Pairs(*(getattr(self, name)[keep] for name in _PAIR_COLUMNS))
 
     @classmethod
     def concatenate(cls, parts: list[Pairs]) -> Pairs:
         if not parts:
-            return cls(np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0),
-                       np.zeros((0, 3), np.float32), np.zeros(0, np.float32))
-        return cls(*(np.concatenate([getattr(p, name) for p in parts]) for name in
-                     ("candidate", "face", "distance_m", "direction", "lpd_pts_m2")))
+            return cls(np.zeros(0, np.int32), np.zeros(0, np.int32),
+                       np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32),
+                       np.zeros(0, np.float32), np.zeros(0, np.float32))
+        return cls(*(np.concatenate([getattr(p, name) for p in parts])
+                     for name in _PAIR_COLUMNS))
+
+
+_PAIR_COLUMNS = ("candidate", "face", "origin", "direction", "distance_m", "lpd_pts_m2")
 
 
 @numba.njit(nogil=True, cache=True)
-def _pass_limits(  # pragma: no cover - compiled; checked against the numpy reference
+def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     points: NDArray[np.float64], first_index: int, faces: NDArray[np.int64],
     centroids: NDArray[np.float64], normals: NDArray[np.float64],
     min_sin_incidence: NDArray[np.float64], min_density: NDArray[np.float64],
     dof_min_m: float, dof_max_m: float, min_sin_elevation: float, max_sin_elevation: float,
     reach_m: float, angular_step_rad: float,
     out_candidate: NDArray[np.int32], out_face: NDArray[np.int32],
-    out_distance: NDArray[np.float64], out_direction: NDArray[np.float32],
-    out_lpd: NDArray[np.float32],
+    out_origin: NDArray[np.float32], out_direction: NDArray[np.float32],
+    out_distance: NDArray[np.float32], out_lpd: NDArray[np.float32],
 ) -> int:
     n = 0
     reach2 = reach_m * reach_m * (1.0 + 1e-9)
@@ -191,6 +199,9 @@ def _pass_limits(  # pragma: no cover - compiled; checked against the numpy refe
             out_candidate[n] = first_index + b
             out_face[n] = f
             out_distance[n] = d
+            out_origin[n, 0] = px
+            out_origin[n, 1] = py
+            out_origin[n, 2] = pz
             out_direction[n, 0] = ux
             out_direction[n, 1] = uy
             out_direction[n, 2] = uz
@@ -226,17 +237,16 @@ class PairFinder:
         lim = self.limits
         points = np.ascontiguousarray(candidates_xyz, np.float64)
         capacity = len(points) * len(self._faces)
-        candidate = np.empty(capacity, np.int32)
-        face = np.empty(capacity, np.int32)
-        distance = np.empty(capacity, np.float64)
-        direction = np.empty((capacity, 3), np.float32)
-        lpd = np.empty(capacity, np.float32)
+        pairs = Pairs(np.empty(capacity, np.int32), np.empty(capacity, np.int32),
+                      np.empty((capacity, 3), np.float32), np.empty((capacity, 3), np.float32),
+                      np.empty(capacity, np.float32), np.empty(capacity, np.float32))
         n = _pass_limits(
             points, first_index, self._faces, self._centroids, self._normals,
             self._min_sin_incidence, self._min_density, lim.dof_min_m, lim.dof_max_m,
             self._min_sin_elevation, self._max_sin_elevation, self.reach_m,
-            lim.angular_step_rad, candidate, face, distance, direction, lpd,
+            lim.angular_step_rad, pairs.candidate, pairs.face, pairs.origin, pairs.direction,
+            pairs.distance_m, pairs.lpd_pts_m2,
         )
-        pairs = Pairs(candidate[:n].copy(), face[:n].copy(), distance[:n].copy(),
-                      direction[:n].copy(), lpd[:n].copy())
+        # views of the first n rows: the block's arrays are short-lived
+        pairs = pairs.subset(slice(0, n))
         return pairs, capacity

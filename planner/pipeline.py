@@ -29,7 +29,8 @@ from planner.visibility import Backend, Occlusion, make_occlusion
 ProgressCallback = Callable[[str, float], bool | None]
 
 STAGES = ("candidates", "visibility", "selection", "report")
-_BLOCK_CANDIDATES = 16
+# candidate-face pairs per block of work: bounds the block's scratch arrays (~64 MB)
+_PAIRS_PER_BLOCK = 2_000_000
 
 
 @dataclass
@@ -155,14 +156,13 @@ def qualify_pairs(
     release the GIL); results are merged in block order, so they do not depend on timing.
     """
     finder = PairFinder(scene, limits)
-    origins32 = positions.astype(np.float32)
-    starts = range(0, len(positions), _BLOCK_CANDIDATES)
+    block_size = max(1, min(64, _PAIRS_PER_BLOCK // max(1, int(limits.target.sum()))))
+    starts = range(0, len(positions), block_size)
 
     def block(start: int) -> tuple[QualifiedPairs, int, int]:
-        pairs, tested = finder.find(positions[start:start + _BLOCK_CANDIDATES], start)
+        pairs, tested = finder.find(positions[start:start + block_size], start)
         visible = occlusion.visible(
-            origins32[pairs.candidate], pairs.direction, pairs.distance_m,
-            pairs.face.astype(np.int64),
+            pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
         )
         qualified = QualifiedPairs(pairs.candidate[visible], pairs.face[visible],
                                    pairs.lpd_pts_m2[visible])

@@ -29,8 +29,8 @@ class Occlusion(Protocol):
         self,
         origins: NDArray[np.floating[Any]],
         directions: NDArray[np.floating[Any]],
-        distances_m: NDArray[np.float64],
-        target_faces: NDArray[np.int64],
+        distances_m: NDArray[np.floating[Any]],
+        target_faces: NDArray[np.integer[Any]],
     ) -> NDArray[np.bool_]:
         """(P,) bool for (P, 3) origins, (P, 3) unit directions, (P,) distances, (P,) faces."""
         ...
