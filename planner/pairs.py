@@ -163,7 +163,7 @@ _PAIR_COLUMNS = ("candidate", "face", "origin", "direction", "distance_m", "lpd_
 @numba.njit(nogil=True, cache=True)
 def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     points: NDArray[np.float64], first_index: int, faces: NDArray[np.int64],
-    centroids: NDArray[np.float64], normals: NDArray[np.float64],
+    face_xyz: NDArray[np.float64], face_normal: NDArray[np.float64],
     min_sin_incidence: NDArray[np.float64], min_density: NDArray[np.float64],
     dof_min_m: float, dof_max_m: float, min_sin_elevation: float, max_sin_elevation: float,
     reach_m: float, angular_step_rad: float,
@@ -171,33 +171,40 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     out_origin: NDArray[np.float32], out_direction: NDArray[np.float32],
     out_distance: NDArray[np.float32], out_lpd: NDArray[np.float32],
 ) -> int:
+    """Write the pairs of (B, 3) ``points`` x the candidate faces that pass every limit.
+
+    ``face_xyz`` and ``face_normal`` are (3, f) rows (x, y, z) of the f faces in ``faces``,
+    with their thresholds; returns the number of pairs written.
+    """
     n = 0
     reach2 = reach_m * reach_m * (1.0 + 1e-9)
+    cx, cy, cz = face_xyz[0], face_xyz[1], face_xyz[2]
+    nx, ny, nz = face_normal[0], face_normal[1], face_normal[2]
     for b in range(points.shape[0]):
         px, py, pz = points[b, 0], points[b, 1], points[b, 2]
         for i in range(faces.shape[0]):
-            f = faces[i]
-            ox = centroids[f, 0] - px
-            oy = centroids[f, 1] - py
-            oz = centroids[f, 2] - pz
+            ox = cx[i] - px
+            oy = cy[i] - py
+            oz = cz[i] - pz
             d2 = ox * ox + oy * oy + oz * oz
             if d2 > reach2:
                 continue
             d = np.sqrt(d2)
             if d < dof_min_m or d > dof_max_m or d <= 0.0:
                 continue
-            ux, uy, uz = ox / d, oy / d, oz / d
+            uz = oz / d
             if uz < min_sin_elevation or uz > max_sin_elevation:
                 continue
-            s = abs(ux * normals[f, 0] + uy * normals[f, 1] + uz * normals[f, 2])
-            if s < min_sin_incidence[f]:
+            ux, uy = ox / d, oy / d
+            s = abs(ux * nx[i] + uy * ny[i] + uz * nz[i])
+            if s < min_sin_incidence[i]:
                 continue
             spacing = angular_step_rad * d
             lpd = s / (spacing * spacing)
-            if lpd < min_density[f]:
+            if lpd < min_density[i]:
                 continue
             out_candidate[n] = first_index + b
-            out_face[n] = f
+            out_face[n] = faces[i]
             out_distance[n] = d
             out_origin[n, 0] = px
             out_origin[n, 1] = py
@@ -221,13 +228,14 @@ class PairFinder:
         self.limits = limits
         self.reach_m = min(limits.reach_m, limits.dof_max_m)
         self._faces = np.flatnonzero(limits.target).astype(np.int64)
-        self._centroids = np.ascontiguousarray(scene.centroids, np.float64)
-        self._normals = np.ascontiguousarray(scene.normals, np.float64)
+        # (3, f) rows, contiguous per coordinate: the loop streams through them
+        self._face_xyz = np.ascontiguousarray(scene.centroids[self._faces].T)
+        self._face_normal = np.ascontiguousarray(scene.normals[self._faces].T)
         # angles compare as their sines (monotonic on [-90, 90] degrees): no arcsin per pair
-        self._min_sin_incidence = np.sin(np.radians(limits.min_incidence_deg))
+        self._min_sin_incidence = np.sin(np.radians(limits.min_incidence_deg[self._faces]))
         self._min_sin_elevation = math.sin(math.radians(limits.elevation_min_deg))
         self._max_sin_elevation = math.sin(math.radians(limits.elevation_max_deg))
-        self._min_density = np.ascontiguousarray(limits.min_density_pts_m2, np.float64)
+        self._min_density = np.ascontiguousarray(limits.min_density_pts_m2[self._faces])
 
     def find(self, candidates_xyz: NDArray[np.float64], first_index: int) -> tuple[Pairs, int]:
         """Passing pairs of (B, 3) candidates numbered from ``first_index``.
@@ -241,7 +249,7 @@ class PairFinder:
                       np.empty((capacity, 3), np.float32), np.empty((capacity, 3), np.float32),
                       np.empty(capacity, np.float32), np.empty(capacity, np.float32))
         n = _pass_limits(
-            points, first_index, self._faces, self._centroids, self._normals,
+            points, first_index, self._faces, self._face_xyz, self._face_normal,
             self._min_sin_incidence, self._min_density, lim.dof_min_m, lim.dof_max_m,
             self._min_sin_elevation, self._max_sin_elevation, self.reach_m,
             lim.angular_step_rad, pairs.candidate, pairs.face, pairs.origin, pairs.direction,
