@@ -35,6 +35,7 @@ from shapely import Polygon, intersects_xy
 from planner.errors import NoCandidatesError, ParameterError
 from planner.parameters import PlanSpec
 from planner.scene import Scene
+from planner.visibility import RayCaster
 
 DROP_REASONS = (
     "outside_area_of_interest",
@@ -131,7 +132,7 @@ def grid_points_xy(
     return np.column_stack([gx.ravel(), gy.ravel()])
 
 
-def generate_grid(scene: Scene, spec: PlanSpec, caster: object) -> CandidateSet:
+def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateSet:
     """Grid candidates over the model's footprint (see the module docstring)."""
     polygon = None
     if spec.area_of_interest is not None:
@@ -163,13 +164,10 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: object) -> CandidateSet:
 
 
 def place_on_floor(
-    scene: Scene, xy: NDArray[np.float64], spec: PlanSpec, caster: object,
+    scene: Scene, xy: NDArray[np.float64], spec: PlanSpec, caster: RayCaster,
     dropped: dict[str, int],
 ) -> NDArray[np.float64]:
     """(C, 3) positions ``scanner_height_m`` above the lowest surface under each (N, 2) point."""
-    from planner._embree import EmbreeOcclusion
-
-    assert isinstance(caster, EmbreeOcclusion)
     if len(xy) == 0:
         return np.zeros((0, 3))
     below = scene.bounds[0, 2] - 1.0

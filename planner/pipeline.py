@@ -23,7 +23,13 @@ from planner.pairs import FaceLimits, PairFinder
 from planner.parameters import PlanSpec
 from planner.scene import Scene
 from planner.selection import Selection, coverage_state, greedy
-from planner.visibility import Backend, Occlusion, make_occlusion
+from planner.visibility import (
+    Backend,
+    Occlusion,
+    RayCaster,
+    make_occlusion,
+    make_ray_caster,
+)
 
 # progress(stage, fraction 0..1) -> True to cancel
 ProgressCallback = Callable[[str, float], bool | None]
@@ -91,9 +97,9 @@ def plan(
     elif scene.metadata.get("spaces"):
         from planner import ifc
 
-        candidates = ifc.room_candidates(scene, spec, _caster(scene, limits, backend, occlusion))
+        candidates = ifc.room_candidates(scene, spec, _caster(scene, limits, occlusion))
     else:
-        candidates = generate_grid(scene, spec, _caster(scene, limits, backend, occlusion))
+        candidates = generate_grid(scene, spec, _caster(scene, limits, occlusion))
     stats.seconds["candidates"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -133,11 +139,11 @@ def plan(
                       faces=faces, stats=stats)
 
 
-def _caster(scene: Scene, limits: FaceLimits, backend: Backend, occlusion: object) -> object:
-    """An Embree first-hit caster for candidate generation (always Embree: it is geometry)."""
-    if backend == "embree":
+def _caster(scene: Scene, limits: FaceLimits, occlusion: Occlusion) -> RayCaster:
+    """The Embree occlusion object casts the floor rays too; the brute force needs one."""
+    if isinstance(occlusion, RayCaster):
         return occlusion
-    return make_occlusion(scene, limits.occludes, "embree")
+    return make_ray_caster(scene, limits.occludes)
 
 
 def qualify_pairs(

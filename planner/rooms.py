@@ -34,18 +34,19 @@ from planner.candidates import (
 from planner.errors import NoCandidatesError, ParameterError
 from planner.parameters import PlanSpec
 from planner.scene import Scene
+from planner.visibility import RayCaster
 
 FLOOR_TOLERANCE_M = 0.3
 
 
-def room_candidates(scene: Scene, spec: PlanSpec, caster: object) -> CandidateSet:
+def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateSet:
     """Candidates inside the rooms of an IFC model (see the module docstring).
 
     Parameters
     ----------
     scene : a scene read by :func:`read_ifc` (``metadata["spaces"]`` non-empty)
     spec : grid spacing, scanner height, clearance, storey and room restrictions
-    caster : a :class:`planner._embree.EmbreeOcclusion` over the occluding faces
+    caster : first hits over the occluding faces
 
     Raises
     ------
@@ -54,9 +55,6 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: object) -> CandidateSe
     NoCandidatesError
         no room is left after the restriction, or no point in the rooms is usable
     """
-    from planner._embree import EmbreeOcclusion
-
-    assert isinstance(caster, EmbreeOcclusion)
     spaces = select_spaces(scene.metadata.get("spaces", []),
                            scene.metadata.get("storeys", []), spec)
     area = None
@@ -159,7 +157,7 @@ def select_spaces(spaces: list[dict[str, Any]], storeys: list[dict[str, Any]],
     return chosen
 
 
-def _on_floor(scene: Scene, positions: NDArray[np.float64], spec: PlanSpec, caster: Any,
+def _on_floor(scene: Scene, positions: NDArray[np.float64], spec: PlanSpec, caster: RayCaster,
               alive: NDArray[np.bool_], dropped: dict[str, int]
               ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
     """(C,) bool: straight below the scanner, the first surface is the room's floor.

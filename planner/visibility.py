@@ -8,7 +8,7 @@ so no face is missed by chance. Faces are two-sided. Backends share one protocol
 
 from __future__ import annotations
 
-from typing import Any, Literal, Protocol
+from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,6 +34,24 @@ class Occlusion(Protocol):
     ) -> NDArray[np.bool_]:
         """(P,) bool for (P, 3) origins, (P, 3) unit directions, (P,) distances, (P,) faces."""
         ...
+
+
+@runtime_checkable
+class RayCaster(Protocol):
+    """Closest hits of arbitrary rays (candidate generation: floors, obstacles overhead)."""
+
+    def first_hit(
+        self, origins: NDArray[np.floating[Any]], directions: NDArray[np.floating[Any]]
+    ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """The face each (R, 3) ray hits first and its distance; -1 and inf for a miss."""
+        ...
+
+
+def make_ray_caster(scene: Scene, occludes: NDArray[np.bool_]) -> RayCaster:
+    """An Embree first-hit caster over the faces where ``occludes`` (F,) is true."""
+    from planner._embree import EmbreeOcclusion
+
+    return EmbreeOcclusion(scene, occludes)
 
 
 def make_occlusion(scene: Scene, occludes: NDArray[np.bool_], backend: Backend) -> Occlusion:
