@@ -4,9 +4,10 @@ coverage away, the optimal plan is never longer than greedy's, and runs are dete
 from __future__ import annotations
 
 import numpy as np
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from planner.errors import NothingVisibleError
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
 from planner.report import faces_npz, plan_json
@@ -40,8 +41,10 @@ def boxes_scene(boxes: list[tuple[float, float, float, float]]) -> Scene:
     return build_scene(np.concatenate(vertices), np.concatenate(faces))
 
 
-def grazes_an_edge(scene: Scene, candidate: np.ndarray, face: int) -> bool:
-    """The ray to ``face`` hits or misses some occluder depending on a 1e-6 edge tolerance."""
+def first_hit_is_undefined(scene: Scene, candidate: np.ndarray, face: int) -> bool:
+    """The ray to ``face`` has no well-defined first hit: it grazes an occluder's edge (hit
+    or miss depends on a 1e-6 tolerance), or another face lies at the target's distance
+    (a duplicated surface, where either may count as first)."""
     from planner._bruteforce import ray_triangle_distance
 
     offset = scene.centroids[face] - candidate
@@ -52,12 +55,25 @@ def grazes_an_edge(scene: Scene, candidate: np.ndarray, face: int) -> bool:
     narrow = ray_triangle_distance(candidate, direction, others, edge_tolerance=-1e-6)
     blocks_wide = bool((wide < distance * (1 - 1e-9)).any())
     blocks_narrow = bool((narrow < distance * (1 - 1e-9)).any())
-    return blocks_wide != blocks_narrow
+    duplicated = bool((np.abs(wide - distance) <= 1e-6 * distance).any())
+    return blocks_wide != blocks_narrow or duplicated
 
 
 box_st = st.tuples(st.floats(1.0, 5.0), st.floats(1.0, 5.0), st.floats(0.2, 1.2),
                    st.floats(0.3, 2.5))
 candidate_st = st.tuples(st.floats(0.5, 5.5), st.floats(0.5, 5.5), st.floats(1.0, 2.0))
+
+
+def in_free_space(boxes: list[tuple[float, float, float, float]],
+                  candidates: list[tuple[float, float, float]], margin_m: float = 0.05) -> bool:
+    """No candidate inside or on a box: a scanner stands in free space, and a ray that
+    starts on a surface has no defined first hit."""
+    for x, y, z in candidates:
+        for bx, by, size, height in boxes:
+            half = size / 2 + margin_m
+            if abs(x - bx) <= half and abs(y - by) <= half and z <= height + margin_m:
+                return False
+    return True
 
 
 def spec_for(candidates: list[tuple[float, float, float]], **changes: object) -> PlanSpec:
@@ -69,39 +85,41 @@ def spec_for(candidates: list[tuple[float, float, float]], **changes: object) ->
 @given(boxes=st.lists(box_st, min_size=1, max_size=3),
        candidates=st.lists(candidate_st, min_size=1, max_size=3))
 def test_embree_equals_brute_force_pair_for_pair(boxes, candidates) -> None:
+    assume(in_free_space(boxes, candidates))
     scene = boxes_scene(boxes)
     spec = spec_for(candidates)
     try:
         fast = plan(scene, spec)
-    except Exception as exc:  # nothing visible: both backends must agree on that too
-        with np.testing.assert_raises(type(exc)):
+    except NothingVisibleError:  # both backends must agree on that too
+        with np.testing.assert_raises(NothingVisibleError):
             plan(scene, spec, backend="bruteforce")
         return
     slow = plan(scene, spec, backend="bruteforce")
     a, b = fast.table.by_candidate.tocoo(), slow.table.by_candidate.tocoo()
     pairs_a = set(zip(a.row.tolist(), a.col.tolist(), strict=True))
     pairs_b = set(zip(b.row.tolist(), b.col.tolist(), strict=True))
-    # float32 (Embree) and float64 rays may disagree only on rays grazing an edge
+    # float32 (Embree) and float64 rays may disagree only where the first hit is undefined
     positions = np.asarray(candidates, float)
     for c, f in pairs_a ^ pairs_b:
-        assert grazes_an_edge(scene, positions[c], f), (c, f)
+        assert first_hit_is_undefined(scene, positions[c], f), (c, f)
 
 
 @SETTINGS
 @given(boxes=st.lists(box_st, min_size=0, max_size=2), extra=box_st,
        candidates=st.lists(candidate_st, min_size=1, max_size=3))
 def test_an_added_occluder_never_adds_coverage(boxes, extra, candidates) -> None:
+    assume(in_free_space([*boxes, extra], candidates))
     before = boxes_scene(boxes)
     after = boxes_scene([*boxes, extra])
     spec = spec_for(candidates, group_requirements={})
     try:
         table_before = plan(before, spec).table
-    except Exception:
+    except NothingVisibleError:
         return
     n_old = before.n_faces  # the old faces come first in the new scene, in the same order
     try:
         table_after = plan(after, spec).table
-    except Exception:
+    except NothingVisibleError:
         return  # nothing visible any more: coverage only went down
     old_after = table_after.by_candidate[:, :n_old] != 0
     old_before = table_before.by_candidate != 0
@@ -118,7 +136,7 @@ def test_optimal_never_needs_more_stations_than_greedy(boxes, candidates, goal) 
     spec = spec_for(candidates, method="optimal", coverage_goal=goal, optimal_time_limit_s=10)
     try:
         result = plan(scene, spec)
-    except Exception:
+    except NothingVisibleError:
         return
     greedy_count = result.selections["greedy"].count_for_goal(goal)
     assert result.optimal is not None
@@ -136,7 +154,7 @@ def test_same_input_same_bytes(boxes, candidates) -> None:
     spec = spec_for(candidates, method="weighted_greedy")
     try:
         first = plan(scene, spec, threads=1)
-    except Exception:
+    except NothingVisibleError:
         return
     second = plan(scene, spec, threads=2)
     assert plan_json(first) == plan_json(second)
