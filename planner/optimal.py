@@ -1,21 +1,29 @@
-"""The fewest stations that reach the goal: partial set cover as a MILP, solved by HiGHS.
+"""The fewest stations that reach the goal: partial set cover, solved exactly with HiGHS.
 
-Variables: ``x_c`` in {0, 1} per candidate (chosen), ``y_k`` in [0, 1] per face class (the
-class is covered). Faces qualified by exactly the same candidates are merged into one class
-whose weight is their total area, which shrinks the program a lot. Then::
+Faces qualified by exactly the same candidates are merged into one class whose weight is
+their total area (a large reduction). The greedy plan is the first incumbent. Then, for
+k = (stations of the incumbent) - 1, - 2, ..., a *maximum coverage* MILP asks for the k
+stations that cover the most area::
 
-    minimise    sum_c x_c
-    subject to  y_k <= sum_{c covers k} x_c          for every class k
-                sum_k area_k * y_k >= goal * max achievable area
+    maximise    sum_k area_k * y_k
+    subject to  y_k <= sum_{c covers k} x_c      for every class k
+                sum_c x_c = k,   x in {0, 1},   y in [0, 1]
 
-``y`` may stay continuous: with integer ``x`` an optimal ``y_k`` is 0 or 1 whenever it
-matters. The solver stops at ``optimal_time_limit_s``; the result reports the best plan
-found, the proven lower bound on the station count and the gap between them.
+If its best k stations reach the goal they become the incumbent and k goes down; if
+HiGHS proves that no k stations reach it (its bound on the coverage falls short), the
+incumbent is optimal. (Asking directly for the fewest stations reaching the goal leaves
+HiGHS without a feasible start on the halls; maximum coverage always has one.) When the
+time limit (``optimal_time_limit_s``, over all rounds) runs out first, the incumbent is
+reported with the best proven lower bound: k + 1 for the largest k proven short, at least
+the fewest candidates whose single areas add up to the goal. Programs larger than
+MAX_NONZEROS are relaxed by merging faces per voxel (proofs stay valid; plans it finds are
+checked on the exact table). ``y`` may stay continuous:
+with integer ``x`` an optimal ``y_k`` is min(1, sum x) at no loss.
 """
 
 from __future__ import annotations
 
-import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,8 +31,11 @@ import scipy.sparse as sp
 from scipy.optimize import Bounds, LinearConstraint, milp
 
 from planner.coverage import CoverageTable
-from planner.errors import PlannerError
 from planner.selection import GOAL_SLACK_M2, Selection, replay
+
+# Above this many nonzeros HiGHS's presolve alone outlasts any sensible time limit (hall-full:
+# 10.5 M); face classes are then merged per voxel into a relaxation (see relaxed_classes).
+MAX_NONZEROS = 1_500_000
 
 
 @dataclass(frozen=True)
@@ -76,49 +87,107 @@ def face_classes(table: CoverageTable) -> tuple[sp.csc_matrix, np.ndarray]:
     return cover, area
 
 
-def solve_optimal(table: CoverageTable, goal: float, time_limit_s: float,
-                  upper_bound: int | None = None) -> OptimalResult:
-    """The fewest stations reaching ``goal`` of the achievable area (see module docstring)."""
+def relaxed_classes(
+    table: CoverageTable, centroids: np.ndarray, max_nonzeros: int
+) -> tuple[sp.csc_matrix, np.ndarray, bool]:
+    """Face classes small enough for HiGHS: exact when they fit, else merged by voxel.
+
+    Merging the faces of a voxel into one class covered by the union of their candidates
+    over-estimates what any stations cover: the program becomes a relaxation, still good
+    for proofs (no k stations reach the goal) but not for accepting a plan, which is then
+    checked on the exact table. ``centroids`` is (F, 3); returns cover (C, K), area (K,)
+    and whether the classes are exact.
+    """
     cover, area = face_classes(table)
+    if cover.nnz <= max_nonzeros:
+        return cover, area, True
+    achievable = np.flatnonzero(table.achievable)
+    pattern = (table.by_face[:, achievable] != 0).astype(np.float64)
+    cell_m = 0.25
+    while True:
+        cell = np.floor(centroids[achievable] / cell_m).astype(np.int64)
+        voxel = np.unique(cell, axis=0, return_inverse=True)[1].reshape(-1)
+        members = sp.csr_matrix((np.ones(len(voxel)), (np.arange(len(voxel)), voxel)))
+        merged = ((pattern @ members) != 0).astype(np.float64).tocsc()
+        if merged.nnz <= max_nonzeros or merged.shape[1] <= 1:
+            area = np.bincount(voxel, weights=table.face_area_m2[achievable])
+            return merged, area, False
+        cell_m *= 2
+
+
+def solve_optimal(table: CoverageTable, goal: float, time_limit_s: float,
+                  incumbent: Selection, centroids: np.ndarray) -> OptimalResult:
+    """The fewest stations reaching ``goal`` of the achievable area (see module docstring).
+
+    ``incumbent`` is a plan known to reach the goal (greedy's): the answer is never worse.
+    ``centroids`` (F, 3) place the faces, for the relaxation of programs too large to solve.
+    """
+    need = goal * table.max_achievable_area_m2 - GOAL_SLACK_M2
+    cover, area, exact = relaxed_classes(table, centroids, MAX_NONZEROS)
     n_cand, n_class = cover.shape
-    # rows: y_k - sum_c cover[c, k] x_c <= 0
+    best = list(incumbent.stations[:incumbent.count_for_goal(goal)])
+    lower = _counting_bound(table, need)
+    deadline = time.monotonic() + time_limit_s
+    status = "greedy plan proven optimal by the area bound"
+    # rows: y_k - sum_c cover[c, k] x_c <= 0, then sum_c x_c = k
     link = sp.hstack([-cover.T, sp.identity(n_class, format="csr")], format="csr")
-    need = goal * float(area.sum()) - GOAL_SLACK_M2
-    area_row = sp.csr_matrix(np.concatenate([np.zeros(n_cand), area])[None, :])
-    constraints = [
-        LinearConstraint(link, -np.inf, 0.0),
-        LinearConstraint(area_row, need, np.inf),
-    ]
-    if upper_bound is not None:
-        count_row = sp.csr_matrix(
-            np.concatenate([np.ones(n_cand), np.zeros(n_class)])[None, :])
-        constraints.append(LinearConstraint(count_row, 0, upper_bound))
-    cost = np.concatenate([np.ones(n_cand), np.zeros(n_class)])
+    count_row = sp.csr_matrix(np.concatenate([np.ones(n_cand), np.zeros(n_class)])[None, :])
+    cost = np.concatenate([np.zeros(n_cand), -area])
     integrality = np.concatenate([np.ones(n_cand), np.zeros(n_class)])
-    result = milp(
-        cost, constraints=constraints, integrality=integrality, bounds=Bounds(0, 1),
-        options={"time_limit": float(time_limit_s), "disp": False, "presolve": True},
-    )
-    if result.x is None:
-        raise PlannerError(
-            f"the optimal solver found no plan within optimal_time_limit_s={time_limit_s} "
-            f"({result.message}); raise the time limit or use method 'greedy'"
+    k = len(best) - 1
+    while k >= lower:
+        left_s = deadline - time.monotonic()
+        if left_s <= 0:
+            status = f"time limit reached while trying {k} stations"
+            break
+        result = milp(
+            cost, integrality=integrality, bounds=Bounds(0, 1),
+            constraints=[LinearConstraint(link, -np.inf, 0.0),
+                         LinearConstraint(count_row, k, k)],
+            options={"time_limit": left_s, "disp": False, "presolve": True},
         )
-    chosen = np.flatnonzero(result.x[:n_cand] > 0.5)
-    stations = _order_by_gain(table, chosen)
-    found = len(stations)
-    bound_value = getattr(result, "mip_dual_bound", None)
-    bound = found if bound_value is None or not math.isfinite(bound_value) \
-        else min(found, math.ceil(bound_value - 1e-6))
-    gap = 0.0 if found == 0 else (found - bound) / found
+        if result.x is not None and -float(result.fun) >= need:
+            chosen = [int(c) for c in np.flatnonzero(result.x[:n_cand] > 0.5)]
+            if exact or _covered_m2(table, chosen) >= need:
+                best = chosen
+                k = len(best) - 1
+                status = f"{len(best)} stations reach the goal"
+                continue
+            status = (f"the relaxed program ({n_class} voxel classes) allows {k} stations "
+                      "that do not reach the goal on the exact table")
+            break
+        bound = getattr(result, "mip_dual_bound", None)
+        if result.status == 0 or (bound is not None and -float(bound) < need):
+            lower = k + 1  # no k stations reach the goal: proven
+            status = f"proven: no {k} stations reach the goal"
+        else:
+            status = f"time limit reached while trying {k} stations ({result.message})"
+        break
+    found = len(best)
+    lower = min(lower, found)
+    stations = _order_by_gain(table, np.asarray(best))
     return OptimalResult(
         selection=replay(table, stations, "optimal"),
-        lower_bound=int(bound),
-        gap=float(gap),
-        proven_optimal=bound == found,
-        status=str(result.message),
+        lower_bound=int(lower),
+        gap=float((found - lower) / found) if found else 0.0,
+        proven_optimal=lower == found,
+        status=status,
         face_classes=int(n_class),
     )
+
+
+def _covered_m2(table: CoverageTable, stations: list[int]) -> float:
+    covered = np.zeros(table.n_faces, bool)
+    for candidate in stations:
+        covered[table.faces_of(candidate)] = True
+    return float(table.face_area_m2[covered].sum())
+
+
+def _counting_bound(table: CoverageTable, need_m2: float) -> int:
+    """Fewest stations whose single areas could add up to ``need_m2`` (a union is no larger)."""
+    single = np.sort(table.area_per_candidate())[::-1]
+    reach = np.cumsum(single)
+    return min(int(np.searchsorted(reach, need_m2)) + 1, len(single))
 
 
 def _order_by_gain(table: CoverageTable, chosen: np.ndarray) -> list[int]:

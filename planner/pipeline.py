@@ -126,8 +126,7 @@ def plan(
     if spec.method == "optimal":
         _notify(progress, "selection", 0.5)
         optimal = solve_optimal(table, spec.coverage_goal, spec.optimal_time_limit_s,
-                                upper_bound=selections["greedy"].count_for_goal(
-                                    spec.coverage_goal))
+                                incumbent=selections["greedy"], centroids=scene.centroids)
         chosen = optimal.selection
     else:
         chosen = selections[spec.method].truncated(spec.coverage_goal)
