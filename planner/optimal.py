@@ -148,7 +148,7 @@ def solve_optimal(table: CoverageTable, goal: float, time_limit_s: float,
         )
         if result.x is not None and -float(result.fun) >= need:
             chosen = [int(c) for c in np.flatnonzero(result.x[:n_cand] > 0.5)]
-            if exact or _covered_m2(table, chosen) >= need:
+            if exact or replay(table, chosen, "optimal").covered_area_m2[-1] >= need:
                 best = chosen
                 k = len(best) - 1
                 status = f"{len(best)} stations reach the goal"
@@ -174,13 +174,6 @@ def solve_optimal(table: CoverageTable, goal: float, time_limit_s: float,
         status=status,
         face_classes=int(n_class),
     )
-
-
-def _covered_m2(table: CoverageTable, stations: list[int]) -> float:
-    covered = np.zeros(table.n_faces, bool)
-    for candidate in stations:
-        covered[table.faces_of(candidate)] = True
-    return float(table.face_area_m2[covered].sum())
 
 
 def _counting_bound(table: CoverageTable, need_m2: float) -> int:

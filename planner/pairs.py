@@ -147,15 +147,6 @@ class Pairs:
     def subset(self, keep: NDArray[np.bool_] | slice) -> Pairs:
         return Pairs(*(getattr(self, name)[keep] for name in _PAIR_COLUMNS))
 
-    @classmethod
-    def concatenate(cls, parts: list[Pairs]) -> Pairs:
-        if not parts:
-            return cls(np.zeros(0, np.int32), np.zeros(0, np.int32),
-                       np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32),
-                       np.zeros(0, np.float32), np.zeros(0, np.float32))
-        return cls(*(np.concatenate([getattr(p, name) for p in parts])
-                     for name in _PAIR_COLUMNS))
-
 
 _PAIR_COLUMNS = ("candidate", "face", "origin", "direction", "distance_m", "lpd_pts_m2")
 

@@ -34,7 +34,6 @@ from planner.visibility import (
 # progress(stage, fraction 0..1) -> True to cancel
 ProgressCallback = Callable[[str, float], bool | None]
 
-STAGES = ("candidates", "visibility", "selection", "report")
 # candidate-face pairs per block of work: bounds the block's scratch arrays (~64 MB)
 _PAIRS_PER_BLOCK = 2_000_000
 

@@ -100,10 +100,6 @@ class Scene:
         """(2, 3) float64: lowest and highest corner of the axis-aligned box."""
         return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
 
-    def group_of_faces(self) -> list[str]:
-        """The group name of every face, as a list of F strings."""
-        return [self.groups[g] for g in self.face_group]
-
     def summary(self) -> dict[str, Any]:
         """Counts and bounds a user checks after an upload."""
         counts = np.bincount(self.face_group, minlength=len(self.groups))

@@ -12,7 +12,6 @@ gains can be updated incrementally (total work: one pass over the coverage table
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,8 +56,7 @@ class Selection:
                          self.covered_area_m2[:n], self.max_achievable_area_m2)
 
 
-def greedy(table: CoverageTable, *, weighted: bool = False,
-           should_stop: Callable[[], bool] | None = None) -> Selection:
+def greedy(table: CoverageTable, *, weighted: bool = False) -> Selection:
     """Order the candidates greedily until every achievable face is covered.
 
     Gains are kept as exact integers (face weights in units of GAIN_QUANTUM_M2, held in
@@ -100,8 +98,6 @@ def greedy(table: CoverageTable, *, weighted: bool = False,
         entry = np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
         gains -= np.bincount(by_face.indices[entry], weights=np.repeat(units[fresh], counts),
                              minlength=table.n_candidates)
-        if should_stop is not None and should_stop():
-            break
     return Selection(
         method="weighted_greedy" if weighted else "greedy",
         stations=tuple(stations),
