@@ -32,6 +32,7 @@ import numpy as np
 
 from planner.curve import coverage_curve
 from planner.pipeline import PlanResult
+from planner.selection import GOAL_SLACK_M2
 
 FORMAT_VERSION = 1
 _AREA_DECIMALS = 6
@@ -72,7 +73,7 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
         "format_version": FORMAT_VERSION,
         "method": chosen.method,
         "coverage_goal": result.spec.coverage_goal,
-        "goal_reached": bool(covered >= result.spec.coverage_goal * max_area - 1e-9),
+        "goal_reached": bool(covered >= result.spec.coverage_goal * max_area - GOAL_SLACK_M2),
         "totals": {
             "faces": result.scene.n_faces,
             "target_faces": int(result.limits.target.sum()),
