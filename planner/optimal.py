@@ -1,58 +1,103 @@
-"""The fewest stations that reach the goal: partial set cover, solved exactly with HiGHS.
+"""The fewest stations that reach the goal: never worse than a heuristic, exact where tractable.
 
-Faces qualified by exactly the same candidates are merged into one class whose weight is
-their total area (a large reduction). The greedy plan is the first incumbent. Then, for
-k = (stations of the incumbent) - 1, - 2, ..., a *maximum coverage* MILP asks for the k
-stations that cover the most area::
+The selection stage (:func:`choose_stations`) runs both greedy heuristics, and for
+``optimal`` (or the goals of ``curve_goals``) :func:`solve_optimal`:
 
-    maximise    sum_k area_k * y_k
-    subject to  y_k <= sum_{c covers k} x_c      for every class k
-                sum_c x_c = k,   x in {0, 1},   y in [0, 1]
+1. the best heuristic plan (fewest stations; greedy on a tie) is the first incumbent;
+2. a local search improves it: drop a station made redundant by later ones, replace two
+   stations by one, and (partial goals) swap one for another where that covers more, which
+   may let a later drop succeed. So even a plan stopped at the time limit is as good as it
+   cheaply gets;
+3. HiGHS, in a child process killed at the deadline (:mod:`planner.highs_worker`):
 
-If its best k stations reach the goal they become the incumbent and k goes down; if
-HiGHS proves that no k stations reach it (its bound on the coverage falls short), the
-incumbent is optimal. (Asking directly for the fewest stations reaching the goal leaves
-HiGHS without a feasible start on the halls; maximum coverage always has one.) When the
-time limit (``optimal_time_limit_s``, over all rounds) runs out first, the incumbent is
-reported with the best proven lower bound: k + 1 for the largest k proven short, at least
-the fewest candidates whose single areas add up to the goal. Programs larger than
-MAX_NONZEROS are relaxed by merging faces per voxel (proofs stay valid; plans it finds are
-checked on the exact table). ``y`` may stay continuous:
-with integer ``x`` an optimal ``y_k`` is min(1, sum x) at no loss.
+   - goal 100 %: the set cover ``min sum x_c  s.t.  sum_{c covers k} x_c >= 1`` over face
+     classes (faces seen by exactly the same candidates merge into one row). Most rows are
+     implied by others (a class seen by a superset of another's candidates is covered
+     whenever that one is), so rows are generated lazily: start from the classes seen by
+     the fewest candidates, solve, add the rows the answer leaves uncovered, repeat. Every
+     round solves a relaxation (a proven lower bound); a round whose answer covers every
+     class is optimal. Answers that miss a few classes are repaired (greedy completion +
+     local search) into plans. Dominated columns and forced candidates are left to HiGHS's
+     presolve, which does both on these small programs.
+   - partial goals: for k = (stations of the incumbent) - 1 a *maximum coverage* MILP asks
+     for the k stations covering the most area (``y_k <= sum_{c covers k} x_c``,
+     ``sum x <= k``; continuous ``y`` is exact with integer ``x``). Reaching the goal gives
+     a better incumbent and k goes down; a dual bound short of the goal proves that no k
+     stations reach it. Programs over MAX_NONZEROS are relaxed by merging faces per voxel
+     (proofs stay valid; plans it finds are checked, and repaired, on the exact table).
+
+The lower bound is the best of: the fewest candidates whose single areas add up to the goal,
+HiGHS's dual bounds, k + 1 for the largest k proven short. ``proven_optimal`` is true when
+it meets the plan.
+
+Fixed stations (re-scan, ``fixed_stations``) are in every plan: their faces count as
+covered, the programs are solved for what is still missing, and they are never dropped.
+
+A hook for side constraints: ``constraint_hooks`` are called with every program before it
+is solved (:class:`ProgramBuilder`; the first variables are the candidates' ``x``), e.g. a
+single-commodity flow on the registration-overlap graph that keeps the chosen stations
+connected adds its arc variables and flow rows there. The heuristic plans do not know such
+constraints; a hook that needs them must check incumbents too.
 """
 
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import Bounds, LinearConstraint, milp
+from numpy.typing import NDArray
 
 from planner.coverage import CoverageTable
-from planner.selection import GOAL_SLACK_M2, Selection, replay
+from planner.highs_worker import HighsProcess, Program
+from planner.selection import GOAL_SLACK_M2, Selection, greedy, replay
 
 # Above this many nonzeros HiGHS's presolve alone outlasts any sensible time limit (hall-full:
 # 10.5 M); face classes are then merged per voxel into a relaxation (see relaxed_classes).
 MAX_NONZEROS = 1_500_000
+# set cover rows in the first round, and at most this many added per round
+SET_COVER_ROWS_PER_ROUND = 1000
+# a swap must cover this much more area to count as an improvement (m^2; stops cycling)
+SWAP_MIN_GAIN_M2 = 1e-6
+
+
+@dataclass(frozen=True)
+class Move:
+    """One change of the local search: ``removed`` stations replaced by ``added`` ones."""
+
+    kind: str  # "drop", "two_for_one" or "swap"
+    removed: tuple[int, ...]
+    added: tuple[int, ...]
+
+    def to_dict(self) -> dict[str, object]:
+        return {"move": self.kind, "removed": list(self.removed), "added": list(self.added)}
 
 
 @dataclass(frozen=True)
 class OptimalResult:
-    """The MILP's answer.
+    """The answer for one goal.
 
-    ``proven_optimal`` is true when the solver closed the gap within the time limit;
-    ``lower_bound`` is the proven minimum number of stations, ``gap`` = (found - bound) /
-    found.
+    ``proven_optimal`` is true when no plan with fewer stations exists; ``lower_bound`` is
+    the proven minimum number of stations, ``gap`` = (found - bound) / found.
+    ``seconds`` (local search, MILP) is timing: never written into the result files.
     """
 
+    goal: float
     selection: Selection
     lower_bound: int
     gap: float
     proven_optimal: bool
     status: str
     face_classes: int
+    best_heuristic: str
+    heuristic_stations: int
+    local_search: tuple[Move, ...]
+    local_search_stations: int
+    seconds: dict[str, float] = field(default_factory=dict, compare=False)
 
     def to_dict(self) -> dict[str, object]:
         return {
@@ -65,16 +110,82 @@ class OptimalResult:
         }
 
 
-def face_classes(table: CoverageTable) -> tuple[sp.csc_matrix, np.ndarray]:
+# --- programs --------------------------------------------------------------------------
+
+
+class ProgramBuilder:
+    """A MILP under construction. Variables 0..C-1 are the candidates' ``x`` (1: chosen).
+
+    ``add_variables`` returns the index of the first new variable; ``add_rows`` takes rows
+    over the variables that exist so far (fewer columns are padded with zeros).
+    """
+
+    def __init__(self, n_candidates: int) -> None:
+        self.n_candidates = n_candidates
+        self._cost: list[NDArray[np.float64]] = []
+        self._integrality: list[NDArray[np.float64]] = []
+        self._lower: list[NDArray[np.float64]] = []
+        self._upper: list[NDArray[np.float64]] = []
+        self._rows: list[tuple[sp.csr_matrix, NDArray[np.float64], NDArray[np.float64]]] = []
+        self.n_variables = 0
+        self.add_variables(np.zeros(n_candidates), integer=True, lower=0.0, upper=1.0)
+
+    def add_variables(self, cost: NDArray[np.float64], *, integer: bool,
+                      lower: float | NDArray[np.float64],
+                      upper: float | NDArray[np.float64]) -> int:
+        n = len(cost)
+        first = self.n_variables
+        self._cost.append(np.asarray(cost, np.float64))
+        self._integrality.append(np.full(n, 1.0 if integer else 0.0))
+        self._lower.append(np.broadcast_to(np.asarray(lower, np.float64), (n,)).copy())
+        self._upper.append(np.broadcast_to(np.asarray(upper, np.float64), (n,)).copy())
+        self.n_variables += n
+        return first
+
+    def set_cost(self, first: int, cost: NDArray[np.float64]) -> None:
+        """Replace the cost of variables ``first``, ``first + 1``, ..."""
+        full = np.concatenate(self._cost)
+        full[first:first + len(cost)] = cost
+        self._cost = [full]
+
+    def add_rows(self, rows: sp.spmatrix, lower: float | NDArray[np.float64],
+                 upper: float | NDArray[np.float64]) -> None:
+        rows = sp.csr_matrix(rows)
+        n = rows.shape[0]
+        self._rows.append((rows, np.broadcast_to(np.asarray(lower, np.float64), (n,)).copy(),
+                           np.broadcast_to(np.asarray(upper, np.float64), (n,)).copy()))
+
+    def build(self) -> Program:
+        width = self.n_variables
+        blocks = [sp.csr_matrix((r.data, r.indices, r.indptr), shape=(r.shape[0], width))
+                  for r, _, _ in self._rows]
+        rows = sp.vstack(blocks, format="csr") if blocks else sp.csr_matrix((0, width))
+        return Program(
+            cost=np.concatenate(self._cost), integrality=np.concatenate(self._integrality),
+            lower=np.concatenate(self._lower), upper=np.concatenate(self._upper), rows=rows,
+            row_lower=np.concatenate([lo for _, lo, _ in self._rows]) if blocks else np.zeros(0),
+            row_upper=np.concatenate([hi for _, _, hi in self._rows]) if blocks else np.zeros(0),
+        )
+
+
+# builder -> None: adds side constraints (see the module docstring)
+ConstraintHook = Callable[[ProgramBuilder], None]
+
+
+def face_classes(table: CoverageTable, faces: NDArray[np.bool_] | None = None
+                 ) -> tuple[sp.csc_matrix, np.ndarray]:
     """Merge faces with identical candidate sets.
+
+    ``faces`` (F,) bool limits the classes to those faces (default: all achievable ones).
 
     Returns
     -------
-    cover : (C, K) CSC bool, which candidate covers which class
+    cover : (C, K) CSC float64 0/1, which candidate covers which class
     area_m2 : (K,) float64, the area of each class
     """
     csc = table.by_face
-    achievable = np.flatnonzero(np.diff(csc.indptr) > 0)
+    mask = table.achievable if faces is None else faces & table.achievable
+    achievable = np.flatnonzero(mask)
     keys: dict[bytes, int] = {}
     class_of = np.empty(len(achievable), np.int64)
     for i, f in enumerate(achievable):
@@ -88,20 +199,23 @@ def face_classes(table: CoverageTable) -> tuple[sp.csc_matrix, np.ndarray]:
 
 
 def relaxed_classes(
-    table: CoverageTable, centroids: np.ndarray, max_nonzeros: int
+    table: CoverageTable, centroids: np.ndarray, max_nonzeros: int,
+    faces: NDArray[np.bool_] | None = None,
 ) -> tuple[sp.csc_matrix, np.ndarray, bool]:
     """Face classes small enough for HiGHS: exact when they fit, else merged by voxel.
 
     Merging the faces of a voxel into one class covered by the union of their candidates
     over-estimates what any stations cover: the program becomes a relaxation, still good
     for proofs (no k stations reach the goal) but not for accepting a plan, which is then
-    checked on the exact table. ``centroids`` is (F, 3); returns cover (C, K), area (K,)
-    and whether the classes are exact.
+    checked on the exact table. ``centroids`` is (F, 3); ``faces`` (F,) bool limits the
+    classes to those faces; returns cover (C, K), area (K,) and whether the classes are
+    exact.
     """
-    cover, area = face_classes(table)
+    cover, area = face_classes(table, faces)
     if cover.nnz <= max_nonzeros:
         return cover, area, True
-    achievable = np.flatnonzero(table.achievable)
+    mask = table.achievable if faces is None else faces & table.achievable
+    achievable = np.flatnonzero(mask)
     pattern = (table.by_face[:, achievable] != 0).astype(np.float64)
     cell_m = 0.25
     while True:
@@ -115,78 +229,400 @@ def relaxed_classes(
         cell_m *= 2
 
 
-def solve_optimal(table: CoverageTable, goal: float, time_limit_s: float,
-                  incumbent: Selection, centroids: np.ndarray) -> OptimalResult:
+# --- local search ----------------------------------------------------------------------
+
+
+class _CoverState:
+    """How many chosen stations see each face, and the moves that keep the goal.
+
+    Areas compared here are float sums in another order than :func:`replay`'s; a plan is
+    accepted only after replay confirms it (see :func:`local_search`).
+    """
+
+    def __init__(self, table: CoverageTable, stations: list[int], n_fixed: int,
+                 need_m2: float) -> None:
+        self.table = table
+        self.area = table.face_area_m2
+        by_face = table.by_face
+        # (C, F) 0/1 pattern sharing the table's index arrays (the values are LPDs)
+        self.pattern = sp.csc_matrix(
+            (np.ones(len(by_face.indices), np.float32), by_face.indices, by_face.indptr),
+            shape=by_face.shape)
+        self.stations = list(stations)
+        self.n_fixed = n_fixed
+        self.need_m2 = need_m2
+        self.count = np.zeros(table.n_faces, np.int32)
+        for s in self.stations:
+            self.count[table.faces_of(s)] += 1
+
+    @property
+    def covered_m2(self) -> float:
+        return float(self.area[self.count > 0].sum())
+
+    def _gain(self, faces: NDArray[np.int64]) -> NDArray[np.float64]:
+        """(C,) float64: area of ``faces`` each candidate qualifies for."""
+        if len(faces) == 0:
+            return np.zeros(self.table.n_candidates)
+        return np.asarray(self.pattern[:, faces] @ self.area[faces], np.float64).reshape(-1)
+
+    def _apply(self, removed: tuple[int, ...], added: tuple[int, ...]) -> None:
+        for s in removed:
+            self.count[self.table.faces_of(s)] -= 1
+            self.stations.remove(s)
+        for s in added:
+            self.count[self.table.faces_of(s)] += 1
+            self.stations.append(s)
+
+    def unique_faces(self, station: int) -> NDArray[np.int64]:
+        faces = self.table.faces_of(station)
+        return np.asarray(faces[self.count[faces] == 1], np.int64)
+
+    def drop_pass(self) -> list[Move]:
+        """Drop, earliest first, every station the others make redundant."""
+        moves = []
+        for s in list(self.stations[self.n_fixed:]):
+            lost = float(self.area[self.unique_faces(s)].sum())
+            if self.covered_m2 - lost >= self.need_m2:
+                self._apply((s,), ())
+                moves.append(Move("drop", (s,), ()))
+        return moves
+
+    def two_for_one(self) -> Move | None:
+        """The first pair (least area only it covers) that one candidate can replace."""
+        free = self.stations[self.n_fixed:]
+        if len(free) < 2:
+            return None
+        covered = self.covered_m2
+        unique = {s: self.unique_faces(s) for s in free}
+        unique_gain = {s: self._gain(unique[s]) for s in free}
+        unique_area = {s: float(self.area[unique[s]].sum()) for s in free}
+        shared = self._shared_by_two(free)
+        pairs = []
+        for i, a in enumerate(free):
+            for b in free[i + 1:]:
+                key = (min(a, b), max(a, b))
+                lost = unique_area[a] + unique_area[b]
+                if key in shared:
+                    lost += float(self.area[shared[key]].sum())
+                pairs.append((lost, key))
+        pairs.sort()
+        for lost, (a, b) in pairs:
+            gain = unique_gain[a] + unique_gain[b]
+            if (a, b) in shared:
+                gain = gain + self._gain(shared[(a, b)])
+            gain[[a, b]] = -np.inf  # keeping one of them is a drop, found by drop_pass
+            best = int(np.argmax(gain))  # lowest index among equals
+            if covered - lost + gain[best] >= self.need_m2:
+                move = Move("two_for_one", (a, b), (best,))
+                self._apply(move.removed, move.added)
+                return move
+        return None
+
+    def _shared_by_two(self, free: list[int]) -> dict[tuple[int, int], NDArray[np.int64]]:
+        """Faces seen by exactly two chosen stations, both free: (a, b) -> faces."""
+        two = np.flatnonzero(self.count == 2)
+        if len(two) == 0:
+            return {}
+        member = self.pattern[np.asarray(self.stations)][:, two].tocsc()  # (S, F2)
+        station = np.asarray(self.stations)[member.indices]
+        first, second = station[member.indptr[:-1]], station[member.indptr[:-1] + 1]
+        low, high = np.minimum(first, second), np.maximum(first, second)
+        free_set = set(free)
+        result: dict[tuple[int, int], NDArray[np.int64]] = {}
+        order = np.lexsort((high, low))
+        keys = np.stack([low[order], high[order]], axis=1)
+        splits = np.flatnonzero(np.any(np.diff(keys, axis=0) != 0, axis=1)) + 1
+        for group in np.split(order, splits):
+            a, b = int(low[group[0]]), int(high[group[0]])
+            if a in free_set and b in free_set:
+                result[(a, b)] = two[group]
+        return result
+
+    def best_swap(self) -> Move | None:
+        """The swap of one free station that covers the most additional area, if any."""
+        free = self.stations[self.n_fixed:]
+        if not free:
+            return None
+        covered = self.covered_m2
+        fresh = self._gain(np.flatnonzero((self.count == 0) & self.table.achievable))
+        best: tuple[float, int, int] | None = None
+        chosen = np.zeros(self.table.n_candidates, bool)
+        chosen[self.stations] = True
+        for a in free:
+            faces = self.unique_faces(a)
+            after = covered - float(self.area[faces].sum()) + fresh + self._gain(faces)
+            after[chosen] = -np.inf
+            c = int(np.argmax(after))
+            if after[c] > covered + SWAP_MIN_GAIN_M2 and (best is None or after[c] > best[0]):
+                best = (float(after[c]), a, c)
+        if best is None:
+            return None
+        move = Move("swap", (best[1],), (best[2],))
+        self._apply(move.removed, move.added)
+        return move
+
+    def complete(self) -> list[Move]:
+        """Add greedily (most new area, lowest index) until the goal is met."""
+        moves = []
+        while self.covered_m2 < self.need_m2:
+            gain = self._gain(np.flatnonzero((self.count == 0) & self.table.achievable))
+            c = int(np.argmax(gain))
+            if gain[c] <= 0:
+                break
+            self._apply((), (c,))
+            moves.append(Move("add", (), (c,)))
+        return moves
+
+
+def local_search(table: CoverageTable, stations: Sequence[int], need_m2: float,
+                 n_fixed: int, deadline: float, *, swaps: bool) -> tuple[list[int], list[Move]]:
+    """Improve a plan that reaches ``need_m2``: drops, two-for-one, then (``swaps``) swaps.
+
+    The first ``n_fixed`` stations stay. Returns the stations (fixed first) and the moves;
+    the plan is the input again when replay does not confirm the goal (float order).
+    """
+    state = _CoverState(table, list(stations), n_fixed, need_m2)
+    moves = state.drop_pass()
+    swaps_left = 2 * len(stations) if swaps else 0
+    while time.monotonic() < deadline:
+        move = state.two_for_one()
+        if move is None and swaps_left > 0:
+            move = state.best_swap()
+            swaps_left -= 1
+        if move is None:
+            break
+        moves.append(move)
+        moves += state.drop_pass()
+    if not moves:
+        return list(stations), []
+    if replay(table, state.stations, "optimal").covered_area_m2[-1] < need_m2:
+        return list(stations), []
+    return state.stations, moves
+
+
+def _repair(table: CoverageTable, stations: list[int], need_m2: float, n_fixed: int,
+            deadline: float) -> list[int]:
+    """A plan from stations that may miss the goal: greedy completion, then local search."""
+    state = _CoverState(table, stations, n_fixed, need_m2)
+    state.complete()
+    if state.covered_m2 < need_m2:
+        return []
+    return local_search(table, state.stations, need_m2, n_fixed, deadline, swaps=False)[0]
+
+
+# --- the solver ------------------------------------------------------------------------
+
+
+def solve_optimal(
+    table: CoverageTable, goal: float, time_limit_s: float,
+    incumbents: Sequence[Selection], centroids: np.ndarray, *,
+    fixed: tuple[int, ...] = (), deadline: float | None = None,
+    constraint_hooks: Sequence[ConstraintHook] = (),
+) -> OptimalResult:
     """The fewest stations reaching ``goal`` of the achievable area (see module docstring).
 
-    ``incumbent`` is a plan known to reach the goal (greedy's): the answer is never worse.
-    ``centroids`` (F, 3) place the faces, for the relaxation of programs too large to solve.
+    ``incumbents`` are heuristic plans (greedy, weighted greedy; their first stations are
+    ``fixed``): the answer is never worse than the best of them. ``centroids`` (F, 3) place
+    the faces for the relaxation of programs too large to solve. Stops by ``time_limit_s``
+    (or the earlier ``deadline``, ``time.monotonic()`` seconds).
     """
+    start = time.monotonic()
+    stop = start + time_limit_s if deadline is None else min(deadline, start + time_limit_s)
     need = goal * table.max_achievable_area_m2 - GOAL_SLACK_M2
-    cover, area, exact = relaxed_classes(table, centroids, MAX_NONZEROS)
-    n_cand, n_class = cover.shape
-    best = list(incumbent.stations[:incumbent.count_for_goal(goal)])
-    lower = _counting_bound(table, need)
-    deadline = time.monotonic() + time_limit_s
-    status = "greedy plan proven optimal by the area bound"
-    # rows: y_k - sum_c cover[c, k] x_c <= 0, then sum_c x_c = k
-    link = sp.hstack([-cover.T, sp.identity(n_class, format="csr")], format="csr")
-    count_row = sp.csr_matrix(np.concatenate([np.ones(n_cand), np.zeros(n_class)])[None, :])
-    cost = np.concatenate([np.zeros(n_cand), -area])
-    integrality = np.concatenate([np.ones(n_cand), np.zeros(n_class)])
-    k = len(best) - 1
-    while k >= lower:
-        left_s = deadline - time.monotonic()
-        if left_s <= 0:
-            status = f"time limit reached while trying {k} stations"
-            break
-        result = milp(
-            cost, integrality=integrality, bounds=Bounds(0, 1),
-            constraints=[LinearConstraint(link, -np.inf, 0.0),
-                         LinearConstraint(count_row, k, k)],
-            options={"time_limit": left_s, "disp": False, "presolve": True},
-        )
-        if result.x is not None and -float(result.fun) >= need:
-            chosen = [int(c) for c in np.flatnonzero(result.x[:n_cand] > 0.5)]
-            if exact or replay(table, chosen, "optimal").covered_area_m2[-1] >= need:
-                best = chosen
-                k = len(best) - 1
-                status = f"{len(best)} stations reach the goal"
-                continue
-            status = (f"the relaxed program ({n_class} voxel classes) allows {k} stations "
-                      "that do not reach the goal on the exact table")
-            break
-        bound = getattr(result, "mip_dual_bound", None)
-        if result.status == 0 or (bound is not None and -float(bound) < need):
-            lower = k + 1  # no k stations reach the goal: proven
-            status = f"proven: no {k} stations reach the goal"
-        else:
-            status = f"time limit reached while trying {k} stations ({result.message})"
-        break
+    counts = [s.count_for_goal(goal) for s in incumbents]
+    pick = int(np.argmin(counts))  # the first of equals: greedy before weighted greedy
+    heuristic = list(incumbents[pick].stations[:counts[pick]])
+    n_fixed = len(fixed)
+    best, moves = local_search(table, heuristic, need, n_fixed, stop, swaps=goal < 1.0)
+    seconds = {"local_search": time.monotonic() - start}
+    after_search = len(best)
+
+    fixed_faces = np.zeros(table.n_faces, bool)
+    for s in fixed:
+        fixed_faces[table.faces_of(s)] = True
+    rest = table.achievable & ~fixed_faces
+    need_rest = need - float(table.face_area_m2[fixed_faces].sum())
+    lower = n_fixed + _counting_bound(table, need_rest, rest)
+    status = "the best heuristic plan meets the area bound"
+    n_classes = 0
+    t_milp = time.monotonic()
+    if len(best) > lower and need_rest > 0:
+        with HighsProcess() as highs:
+            highs.start()
+            solver = _set_cover if goal >= 1.0 else _max_coverage
+            best, lower, status, n_classes = solver(
+                _Problem(table, centroids, rest, need_rest, fixed, constraint_hooks, stop,
+                         highs), best, lower)
+    seconds["milp"] = time.monotonic() - t_milp
     found = len(best)
     lower = min(lower, found)
-    stations = _order_by_gain(table, np.asarray(best))
+    stations = list(fixed) + _order_by_gain(table, [s for s in best if s not in fixed],
+                                            fixed_faces)
     return OptimalResult(
-        selection=replay(table, stations, "optimal"),
+        goal=goal,
+        selection=replay(table, stations, "optimal", n_fixed),
         lower_bound=int(lower),
         gap=float((found - lower) / found) if found else 0.0,
         proven_optimal=lower == found,
         status=status,
-        face_classes=int(n_class),
+        face_classes=int(n_classes),
+        best_heuristic=incumbents[pick].method,
+        heuristic_stations=len(heuristic),
+        local_search=tuple(moves),
+        local_search_stations=after_search,
+        seconds=seconds,
     )
 
 
-def _counting_bound(table: CoverageTable, need_m2: float) -> int:
-    """Fewest stations whose single areas could add up to ``need_m2`` (a union is no larger)."""
-    single = np.sort(table.area_per_candidate())[::-1]
+@dataclass(frozen=True)
+class _Problem:
+    """What is still missing after the fixed stations, and how to solve it."""
+
+    table: CoverageTable
+    centroids: np.ndarray
+    rest: NDArray[np.bool_]  # (F,) achievable faces the fixed stations do not cover
+    need_m2: float  # area of ``rest`` to cover
+    fixed: tuple[int, ...]
+    hooks: Sequence[ConstraintHook]
+    deadline: float
+    highs: HighsProcess
+
+    def builder(self) -> ProgramBuilder:
+        return ProgramBuilder(self.table.n_candidates)
+
+    def solve(self, builder: ProgramBuilder) -> Any:
+        for hook in self.hooks:
+            hook(builder)
+        return self.highs.solve(builder.build(), self.deadline)
+
+    def plan_of(self, x: NDArray[np.float64]) -> list[int]:
+        chosen = [int(c) for c in np.flatnonzero(x[:self.table.n_candidates] > 0.5)]
+        return list(self.fixed) + [c for c in chosen if c not in self.fixed]
+
+
+def _set_cover(problem: _Problem, best: list[int], lower: int
+               ) -> tuple[list[int], int, str, int]:
+    """Goal 100 %: set cover with lazily generated rows (see the module docstring)."""
+    cover, _ = face_classes(problem.table, problem.rest)
+    rows = cover.T.tocsr()  # (K, C)
+    n_class = rows.shape[0]
+    size = np.diff(rows.indptr)
+    by_size = np.lexsort((np.arange(n_class), size))  # fewest candidates first
+    active = np.zeros(n_class, bool)
+    active[by_size[:SET_COVER_ROWS_PER_ROUND]] = True
+    n_fixed = len(problem.fixed)
+    status = "time limit reached before HiGHS answered"
+    while True:
+        builder = problem.builder()
+        builder.set_cost(0, np.ones(problem.table.n_candidates))
+        builder.add_rows(rows[np.flatnonzero(active)], 1.0, np.inf)
+        answer = problem.solve(builder)
+        if answer is None:
+            status = f"time limit reached solving the set cover on {active.sum()} rows"
+            break
+        if answer.dual_bound is not None:
+            lower = max(lower, n_fixed + math.ceil(answer.dual_bound - 1e-6))
+        if answer.x is None:
+            status = f"HiGHS: {answer.message}"
+            break
+        x = answer.x[:problem.table.n_candidates] > 0.5
+        missed = np.flatnonzero(rows @ x.astype(np.float64) < 0.5)
+        plan = problem.plan_of(answer.x)
+        if len(missed) == 0:
+            if len(plan) < len(best):
+                best = plan
+            status = (f"set cover solved on {active.sum()} of {n_class} face classes"
+                      if answer.status == 0 else
+                      f"time limit reached in the set cover ({answer.message})")
+            break
+        repaired = _repair(problem.table, plan, problem.need_m2 + _fixed_area(problem),
+                           n_fixed, problem.deadline)
+        if repaired and len(repaired) < len(best):
+            best = repaired
+        if len(best) <= lower:
+            status = (f"a repaired set cover on {active.sum()} of {n_class} face classes "
+                      "meets the lower bound")
+            break
+        if answer.status != 0:
+            status = f"time limit reached in the set cover ({answer.message})"
+            break
+        add = missed[np.lexsort((missed, size[missed]))][:SET_COVER_ROWS_PER_ROUND]
+        active[add] = True
+    return best, lower, status, n_class
+
+
+def _fixed_area(problem: _Problem) -> float:
+    """Area the fixed stations cover (``need_m2`` is what is missing beyond it)."""
+    table = problem.table
+    return float(table.face_area_m2[table.achievable & ~problem.rest].sum())
+
+
+def _max_coverage(problem: _Problem, best: list[int], lower: int
+                  ) -> tuple[list[int], int, str, int]:
+    """Partial goals: maximum coverage for ever fewer stations (see the module docstring)."""
+    table = problem.table
+    cover, area, exact = relaxed_classes(table, problem.centroids, MAX_NONZEROS, problem.rest)
+    n_cand, n_class = cover.shape
+    n_fixed = len(problem.fixed)
+    need_total = problem.need_m2 + _fixed_area(problem)
+    status = "time limit reached before HiGHS answered"
+    k = len(best) - n_fixed - 1
+    while k + n_fixed >= lower:
+        builder = problem.builder()
+        y = builder.add_variables(-area, integer=False, lower=0.0, upper=1.0)
+        # y_k - sum_c cover[c, k] x_c <= 0
+        builder.add_rows(sp.hstack([-cover.T, sp.identity(n_class)], format="csr"),
+                         -np.inf, 0.0)
+        builder.add_rows(sp.csr_matrix(np.ones((1, n_cand))), 0.0, float(k))
+        assert y == n_cand
+        answer = problem.solve(builder)
+        if answer is None:
+            status = f"time limit reached while trying {k + n_fixed} stations"
+            break
+        if answer.x is not None and -float(answer.cost) >= problem.need_m2:
+            plan = problem.plan_of(answer.x)
+            if exact or replay(table, plan, "optimal").covered_area_m2[-1] >= need_total:
+                best = plan
+                k = len(best) - n_fixed - 1
+                status = f"{len(best)} stations reach the goal"
+                continue
+            repaired = _repair(table, plan, need_total, n_fixed, problem.deadline)
+            if repaired and len(repaired) < len(best):
+                best = repaired
+                k = len(best) - n_fixed - 1
+                status = f"{len(best)} stations reach the goal (relaxed answer, repaired)"
+                continue
+            status = (f"the relaxed program ({n_class} voxel classes) allows {k + n_fixed} "
+                      "stations that do not reach the goal on the exact table")
+            break
+        bound = answer.dual_bound
+        if answer.status == 0 or (bound is not None and -bound < problem.need_m2):
+            lower = max(lower, k + n_fixed + 1)  # no k more stations reach the goal
+            status = f"proven: no {k + n_fixed} stations reach the goal"
+        else:
+            status = f"time limit reached while trying {k + n_fixed} stations ({answer.message})"
+        break
+    return best, lower, status, n_class
+
+
+def _counting_bound(table: CoverageTable, need_m2: float, faces: NDArray[np.bool_]) -> int:
+    """Fewest stations whose single areas on ``faces`` could add up to ``need_m2``."""
+    if need_m2 <= 0:
+        return 0
+    pattern = (table.by_candidate != 0).astype(np.float64)
+    single = np.sort(np.asarray(pattern @ (table.face_area_m2 * faces)).reshape(-1))[::-1]
     reach = np.cumsum(single)
     return min(int(np.searchsorted(reach, need_m2)) + 1, len(single))
 
 
-def _order_by_gain(table: CoverageTable, chosen: np.ndarray) -> list[int]:
-    """The chosen stations in greedy order among themselves (most new area first)."""
+def _order_by_gain(table: CoverageTable, chosen: Sequence[int],
+                   already: NDArray[np.bool_]) -> list[int]:
+    """The chosen stations in greedy order among themselves (most new area first).
+
+    ``already`` (F,) bool: faces covered before them (by fixed stations).
+    """
     remaining = [int(c) for c in chosen]
-    uncovered = np.ones(table.n_faces, bool)
+    uncovered = ~already
     order: list[int] = []
     while remaining:
         gains = []

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.coverage import CoverageTable
+from planner.errors import ParameterError
 
 GAIN_QUANTUM_M2 = 1e-9
 # covered >= goal * max achievable, with this much slack for summation order (m^2)
@@ -40,24 +41,32 @@ class Selection:
     new_area_m2: tuple[float, ...]
     covered_area_m2: tuple[float, ...]
     max_achievable_area_m2: float
+    fixed: int = 0  # the first ``fixed`` stations were given (re-scan), not chosen
 
     def count_for_goal(self, goal: float) -> int:
-        """Stations needed to reach ``goal`` of the achievable area (its first prefix)."""
+        """Stations needed to reach ``goal`` of the achievable area (its first prefix).
+
+        Fixed stations always count, even when fewer of them already reach the goal.
+        """
         needed = goal * self.max_achievable_area_m2 - GOAL_SLACK_M2
         for i, covered in enumerate(self.covered_area_m2):
             if covered >= needed:
-                return i + 1
+                return max(i + 1, self.fixed)
         return len(self.stations)
 
     def truncated(self, goal: float) -> Selection:
         """The first stations that reach ``goal``."""
         n = self.count_for_goal(goal)
         return Selection(self.method, self.stations[:n], self.new_area_m2[:n],
-                         self.covered_area_m2[:n], self.max_achievable_area_m2)
+                         self.covered_area_m2[:n], self.max_achievable_area_m2, self.fixed)
 
 
-def greedy(table: CoverageTable, *, weighted: bool = False) -> Selection:
+def greedy(table: CoverageTable, *, weighted: bool = False,
+           fixed: tuple[int, ...] = ()) -> Selection:
     """Order the candidates greedily until every achievable face is covered.
+
+    ``fixed`` candidates (stations already scanned) come first, in their order, whatever
+    they add; greedy then chooses only what is still missing.
 
     Gains are kept as exact integers (face weights in units of GAIN_QUANTUM_M2, held in
     float64 below 2**53): the gain of every candidate is updated by subtracting the faces
@@ -80,10 +89,14 @@ def greedy(table: CoverageTable, *, weighted: bool = False) -> Selection:
     new_area: list[float] = []
     covered: list[float] = []
     total = 0.0
+    given = list(fixed)
     while True:
-        candidate = int(np.argmax(gains))  # the first of equal maxima: lowest index
-        if gains[candidate] <= 0:
-            break
+        if given:
+            candidate = given.pop(0)
+        else:
+            candidate = int(np.argmax(gains))  # the first of equal maxima: lowest index
+            if gains[candidate] <= 0:
+                break
         faces = table.faces_of(candidate)
         fresh = faces[uncovered[faces]]
         uncovered[fresh] = False
@@ -104,12 +117,16 @@ def greedy(table: CoverageTable, *, weighted: bool = False) -> Selection:
         new_area_m2=tuple(new_area),
         covered_area_m2=tuple(covered),
         max_achievable_area_m2=table.max_achievable_area_m2,
+        fixed=len(fixed),
     )
 
 
 def replay(table: CoverageTable, stations: list[int] | tuple[int, ...],
-           method: str) -> Selection:
-    """The covered area of a given station order (for an optimal set, say)."""
+           method: str, fixed: int = 0) -> Selection:
+    """The covered area of a given station order (for an optimal set, say).
+
+    ``fixed``: how many of the first stations were given rather than chosen.
+    """
     uncovered = np.ones(table.n_faces, bool)
     new_area: list[float] = []
     covered: list[float] = []
@@ -123,7 +140,7 @@ def replay(table: CoverageTable, stations: list[int] | tuple[int, ...],
         new_area.append(added)
         covered.append(total)
     return Selection(method, tuple(int(s) for s in stations), tuple(new_area), tuple(covered),
-                     table.max_achievable_area_m2)
+                     table.max_achievable_area_m2, fixed)
 
 
 def coverage_state(
@@ -158,3 +175,39 @@ def coverage_state(
         "first_station": first,
         "n_candidates": table.candidates_per_face.astype(np.int32),
     }
+
+
+# a fixed station this close to a candidate (metres, per axis) is that candidate: plan.json
+# rounds positions to 1e-6 m, and no tripod is set up more precisely than a millimetre
+FIXED_MATCH_M = 1e-3
+
+
+def fixed_candidates(
+    positions: NDArray[np.float64], fixed_stations: tuple[tuple[float, float, float], ...]
+) -> tuple[NDArray[np.float64], tuple[int, ...]]:
+    """Candidate indices of the stations already scanned, appending those that are new.
+
+    ``positions`` is (C, 3); returns the (C + new, 3) positions (the given ones first, in
+    their order, then each fixed station that matches none, in the order given) and the
+    candidate index of every fixed station. Deterministic: a station matches the
+    lowest-index candidate within FIXED_MATCH_M on every axis.
+    """
+    extra: list[tuple[float, float, float]] = []
+    indices: list[int] = []
+    for i, point in enumerate(fixed_stations):
+        near = np.flatnonzero(np.all(np.abs(positions - np.asarray(point)) <= FIXED_MATCH_M,
+                                     axis=1))
+        if len(near):
+            index = int(near[0])
+        else:
+            index = len(positions) + len(extra)
+            extra.append(point)
+        if index in indices:
+            raise ParameterError(
+                f"fixed_stations[{i}]",
+                f"{list(point)} is the station of fixed_stations[{indices.index(index)}] "
+                f"again (within {FIXED_MATCH_M} m); list each station once")
+        indices.append(index)
+    if extra:
+        positions = np.concatenate([positions, np.asarray(extra, np.float64)])
+    return positions, tuple(indices)
