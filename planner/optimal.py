@@ -45,6 +45,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -634,3 +635,102 @@ def _order_by_gain(table: CoverageTable, chosen: Sequence[int],
         remaining.remove(best)
         uncovered[table.faces_of(best)] = False
     return order
+
+
+# --- the selection stage ---------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SelectionOutcome:
+    """What the selection stage decided, for :class:`planner.pipeline.PlanResult`.
+
+    ``curve`` holds one :class:`OptimalResult` per goal of ``curve_goals`` (ascending);
+    ``report`` is the ``selection`` object of plan.json (no timings); ``seconds`` the
+    time per step, for the job record only.
+    """
+
+    selections: dict[str, Selection]
+    chosen: Selection
+    optimal: OptimalResult | None
+    curve: tuple[OptimalResult, ...]
+    report: dict[str, Any]
+    seconds: dict[str, float]
+
+
+def choose_stations(table: CoverageTable, *, method: str, goal: float, time_limit_s: float,
+                    centroids: np.ndarray, fixed: tuple[int, ...] = (),
+                    curve_goals: tuple[float, ...] | None = None,
+                    constraint_hooks: Sequence[ConstraintHook] = ()) -> SelectionOutcome:
+    """Both heuristics, then ``optimal`` for the plan's goal and for ``curve_goals``.
+
+    ``curve_goals`` None means the plan's goal when ``method`` is optimal, no goal
+    otherwise. The MILPs share ``time_limit_s``, counted from the start of this stage: the
+    plan's goal first, each goal getting an equal share of what is left.
+    """
+    start = time.monotonic()
+    deadline = start + time_limit_s
+    table.candidate_of_entry  # noqa: B018 - built once here, shared by both threads
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        weighted = pool.submit(greedy, table, weighted=True, fixed=fixed)
+        selections = {"greedy": greedy(table, fixed=fixed),
+                      "weighted_greedy": weighted.result()}
+    seconds = {"heuristics": time.monotonic() - start}
+    goals = sorted(set(curve_goals if curve_goals is not None
+                       else ((goal,) if method == "optimal" else ())))
+    todo = ([goal] if method == "optimal" else []) + [g for g in goals if g != goal or
+                                                        method != "optimal"]
+    solved: dict[float, OptimalResult] = {}
+    for i, g in enumerate(todo):
+        share = (deadline - time.monotonic()) / (len(todo) - i)
+        solved[g] = solve_optimal(
+            table, g, max(share, 0.0), [selections["greedy"], selections["weighted_greedy"]],
+            centroids, fixed=fixed, deadline=deadline, constraint_hooks=constraint_hooks)
+        for step, s in solved[g].seconds.items():
+            seconds[step] = seconds.get(step, 0.0) + s
+    optimal = solved.get(goal) if method == "optimal" else None
+    if optimal is not None:
+        chosen = optimal.selection
+    else:
+        chosen = selections[method].truncated(goal)
+    report = _selection_report(table, selections, chosen, goal, optimal, fixed)
+    return SelectionOutcome(selections=selections, chosen=chosen, optimal=optimal,
+                            curve=tuple(solved[g] for g in goals), report=report,
+                            seconds=seconds)
+
+
+def _selection_report(table: CoverageTable, selections: Mapping[str, Selection],
+                      chosen: Selection, goal: float, optimal: OptimalResult | None,
+                      fixed: tuple[int, ...]) -> dict[str, Any]:
+    """plan.json's ``selection``: why this plan (the heuristics, local search, bound)."""
+    counts = {name: s.count_for_goal(goal) for name, s in sorted(selections.items())}
+    best = min(("greedy", "weighted_greedy"), key=lambda name: counts[name])
+    if optimal is not None:
+        lower, status = optimal.lower_bound, optimal.status
+        search: dict[str, Any] | None = {
+            "stations_before": optimal.heuristic_stations,
+            "stations_after": optimal.local_search_stations,
+            "moves": [m.to_dict() for m in optimal.local_search],
+        }
+    else:
+        need = goal * table.max_achievable_area_m2 - GOAL_SLACK_M2
+        fixed_faces = np.zeros(table.n_faces, bool)
+        for s in fixed:
+            fixed_faces[table.faces_of(s)] = True
+        need_rest = need - float(table.face_area_m2[fixed_faces].sum())
+        lower = min(len(chosen.stations), len(fixed) + _counting_bound(
+            table, need_rest, table.achievable & ~fixed_faces))
+        status = "heuristic plan; the lower bound is the area bound"
+        search = None
+    n = len(chosen.stations)
+    return {
+        "method": chosen.method,
+        "heuristics": counts,
+        "best_heuristic": best,
+        "fixed_stations": len(fixed),
+        "local_search": search,
+        "stations": n,
+        "lower_bound": int(lower),
+        "gap": round(float((n - lower) / n) if n else 0.0, 6),
+        "proven_optimal": lower == n,
+        "status": status,
+    }

@@ -51,6 +51,8 @@ class PlanSpec:
     # selection
     method: Method = "greedy"
     optimal_time_limit_s: float = 60.0
+    curve_goals: tuple[float, ...] | None = None  # goals of the curve's optimal row
+    fixed_stations: tuple[tuple[float, float, float], ...] | None = None  # re-scan
     # scene preparation
     max_edge_m: float | None = 0.2
     unit_scale: float = 1.0
@@ -67,7 +69,7 @@ class PlanSpec:
         # accept plain data too (dicts, lists), as from_mapping does
         object.__setattr__(self, "group_requirements",
                            _group_requirements(self.group_requirements))
-        for name, dims in (("candidates", 3), ("area_of_interest", 2)):
+        for name, dims in (("candidates", 3), ("area_of_interest", 2), ("fixed_stations", 3)):
             value = getattr(self, name)
             if value is not None:
                 object.__setattr__(self, name, _points(name, value, dims))
@@ -108,7 +110,8 @@ class PlanSpec:
         data["group_requirements"] = {
             k: asdict(v) for k, v in sorted(self.group_requirements.items())
         }
-        for key in ("candidates", "area_of_interest", "storeys", "rooms"):
+        for key in ("candidates", "area_of_interest", "storeys", "rooms", "curve_goals",
+                    "fixed_stations"):
             value = getattr(self, key)
             data[key] = None if value is None else [
                 list(p) if isinstance(p, tuple) else p for p in value
@@ -116,7 +119,8 @@ class PlanSpec:
         return data
 
 
-_NULLABLE = {"max_edge_m", "candidates", "area_of_interest", "storeys", "rooms"}
+_NULLABLE = {"max_edge_m", "candidates", "area_of_interest", "storeys", "rooms",
+             "curve_goals", "fixed_stations"}
 _FLOATS = {
     f.name
     for f in fields(PlanSpec)
@@ -140,8 +144,14 @@ def _convert(name: str, value: Any) -> Any:
         if value not in METHODS:
             raise ParameterError(name, f"{value!r} is not one of {', '.join(METHODS)}")
         return value
-    if name == "candidates":
+    if name in ("candidates", "fixed_stations"):
         return None if value is None else _points(name, value, 3)
+    if name == "curve_goals":
+        if value is None:
+            return None
+        if not isinstance(value, list | tuple):
+            raise ParameterError(name, "expected a list of goals in (0, 1], e.g. [0.8, 1.0]")
+        return tuple(_number(f"{name}[{i}]", v) for i, v in enumerate(value))
     if name == "area_of_interest":
         return None if value is None else _points(name, value, 2)
     if name in ("storeys", "rooms"):
@@ -244,6 +254,10 @@ def _validate(spec: PlanSpec) -> None:
     if spec.candidates is not None:
         _check(len(spec.candidates) > 0, "candidates",
                "is an empty list; give at least one [x, y, z] or null to generate a grid")
+    if spec.curve_goals is not None:
+        for i, goal in enumerate(spec.curve_goals):
+            _check(0 < goal <= 1, f"curve_goals[{i}]",
+                   f"{goal} is outside (0, 1]; 0.8 means 80 % of the achievable area")
     if spec.area_of_interest is not None:
         _check(len(spec.area_of_interest) >= 3, "area_of_interest",
                "needs at least 3 [x, y] vertices")

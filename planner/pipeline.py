@@ -7,22 +7,24 @@ order, which keeps the result independent of the number of threads.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from planner.candidates import CandidateSet, explicit_candidates, generate_grid
 from planner.coverage import CoverageTable, QualifiedPairs
 from planner.errors import CancelledError, NothingVisibleError
-from planner.optimal import OptimalResult, solve_optimal
+from planner.optimal import OptimalResult, choose_stations
 from planner.pairs import FaceLimits, PairFinder
 from planner.parameters import PlanSpec
 from planner.scene import Scene
-from planner.selection import Selection, coverage_state, greedy
+from planner.selection import Selection, coverage_state, fixed_candidates
 from planner.visibility import (
     Backend,
     Occlusion,
@@ -62,6 +64,8 @@ class PlanResult:
     optimal: OptimalResult | None
     faces: dict[str, np.ndarray]
     stats: Stats
+    optimal_curve: tuple[OptimalResult, ...] = ()  # per goal of curve_goals
+    selection_report: dict[str, Any] = field(default_factory=dict)  # plan.json "selection"
 
 
 def _notify(progress: ProgressCallback | None, stage: str, fraction: float) -> None:
@@ -99,6 +103,14 @@ def plan(
         candidates = ifc.room_candidates(scene, spec, _caster(scene, limits, occlusion))
     else:
         candidates = generate_grid(scene, spec, _caster(scene, limits, occlusion))
+    fixed: tuple[int, ...] = ()
+    if spec.fixed_stations:  # re-scan: stations already scanned are candidates too
+        positions, fixed = fixed_candidates(candidates.positions, spec.fixed_stations)
+        if len(positions) > len(candidates):
+            candidates = dataclasses.replace(
+                candidates, positions=positions,
+                labels=candidates.labels + ({},) * (len(positions) - len(candidates))
+                if candidates.labels else ())
     stats.seconds["candidates"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -117,24 +129,20 @@ def plan(
 
     t2 = time.perf_counter()
     _notify(progress, "selection", 0.0)
-    table.candidate_of_entry  # noqa: B018 - built once here, shared by both threads
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        weighted = pool.submit(greedy, table, weighted=True)
-        selections = {"greedy": greedy(table), "weighted_greedy": weighted.result()}
-    optimal = None
-    if spec.method == "optimal":
-        _notify(progress, "selection", 0.5)
-        optimal = solve_optimal(table, spec.coverage_goal, spec.optimal_time_limit_s,
-                                incumbent=selections["greedy"], centroids=scene.centroids)
-        chosen = optimal.selection
-    else:
-        chosen = selections[spec.method].truncated(spec.coverage_goal)
+    outcome = choose_stations(
+        table, method=spec.method, goal=spec.coverage_goal,
+        time_limit_s=spec.optimal_time_limit_s, centroids=scene.centroids, fixed=fixed,
+        curve_goals=spec.curve_goals)
+    selections, chosen, optimal = outcome.selections, outcome.chosen, outcome.optimal
     stats.seconds["selection"] = time.perf_counter() - t2
+    for step, seconds in outcome.seconds.items():
+        stats.seconds[f"selection_{step}"] = seconds
     _notify(progress, "report", 0.0)
     faces = coverage_state(table, chosen.stations)
     return PlanResult(scene=scene, spec=spec, candidates=candidates, table=table,
                       limits=limits, selections=selections, chosen=chosen, optimal=optimal,
-                      faces=faces, stats=stats)
+                      faces=faces, stats=stats, optimal_curve=outcome.curve,
+                      selection_report=outcome.report)
 
 
 def _caster(scene: Scene, limits: FaceLimits, occlusion: Occlusion) -> RayCaster:

@@ -68,6 +68,8 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
         }
         if labels:
             station["label"] = dict(labels[candidate])
+        if order < chosen.fixed:
+            station["fixed"] = True  # re-scan: scanned before (fixed_stations)
         stations.append(station)
     document: dict[str, Any] = {
         "format_version": FORMAT_VERSION,
@@ -87,7 +89,8 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
             "stations": len(chosen.stations),
         },
         "stations": stations,
-        "curve": coverage_curve(result.selections, result.optimal),
+        "curve": coverage_curve(result.selections, result.optimal_curve),
+        "selection": result.selection_report,
         "parameters": result.spec.to_dict(),
         "candidates": result.candidates.summary(),
         "scene": {

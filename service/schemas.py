@@ -70,6 +70,11 @@ class PlanParameters(BaseModel):
     method: Literal["greedy", "weighted_greedy", "optimal"] = _d(
         "method", "station selection method")
     optimal_time_limit_s: Number = _d("optimal_time_limit_s", "MILP time limit, seconds")
+    curve_goals: list[Number] | None = _d(
+        "curve_goals", "goals in (0, 1] of the curve's optimal row; null: the plan's goal "
+        "when method is optimal")
+    fixed_stations: list[Point3] | None = _d(
+        "fixed_stations", "stations already scanned [x, y, z]: in every plan, first")
     max_edge_m: Number | None = _d("max_edge_m",
                                    "split faces to this edge length, metres; null: as given")
     unit_scale: Number = _d("unit_scale", "model units to metres (0.001 for millimetres)")
