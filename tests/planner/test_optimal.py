@@ -1,13 +1,23 @@
-"""The optimal method: never worse than greedy, better where greedy is fooled, honest bounds."""
+"""The optimal method: never worse than a heuristic, proven optima on the halls, honest bounds,
+and re-scans that keep the stations already scanned."""
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import planner.optimal as optimal
+from planner.candidates import read_candidates_csv
 from planner.coverage import CoverageTable, QualifiedPairs
-from planner.selection import greedy
+from planner.errors import ParameterError
+from planner.parameters import PlanSpec
+from planner.pipeline import PlanResult, plan
+from planner.readers import read_scene
+from planner.report import plan_document
+from planner.selection import fixed_candidates, greedy, replay
 
 
 def table_of(sets: list[list[int]], n_faces: int) -> CoverageTable:
@@ -25,11 +35,39 @@ def test_optimal_beats_greedy_where_greedy_is_fooled() -> None:
     table = table_of(FOOLS_GREEDY, 6)
     by_greedy = greedy(table)
     assert by_greedy.stations == (0, 1, 2)
-    result = optimal.solve_optimal(table, 1.0, 10, incumbent=by_greedy,
-                                   centroids=np.zeros((6, 3)))
+    result = optimal.solve_optimal(table, 1.0, 10, [by_greedy], np.zeros((6, 3)))
     assert sorted(result.selection.stations) == [1, 2]
     assert result.proven_optimal and result.lower_bound == 2 and result.gap == 0
     assert result.selection.covered_area_m2[-1] == pytest.approx(6.0)
+    # the local search alone finds it: station 0 is redundant once 1 and 2 are in
+    assert [m.kind for m in result.local_search] == ["drop"]
+    assert result.local_search[0].removed == (0,)
+
+
+def test_two_stations_replaced_by_one() -> None:
+    # a plan of stations 0 and 2 (as a surveyor might give it); 3 sees what both see
+    sets = [[0, 1, 2], [5], [3, 4, 5], [0, 1, 2, 3, 4, 5]]
+    table = table_of(sets, 6)
+    stations, moves = optimal.local_search(table, [0, 2], 6 - 1e-9, 0, float("inf"),
+                                           swaps=False)
+    assert stations == [3]
+    assert [m.to_dict() for m in moves] == [
+        {"move": "two_for_one", "removed": [0, 2], "added": [3]}]
+    # a fixed station is never replaced
+    stations, moves = optimal.local_search(table, [0, 2], 6 - 1e-9, 1, float("inf"),
+                                           swaps=False)
+    assert stations == [0, 2] and moves == []
+
+
+def test_fixed_stations_stay_in_every_method() -> None:
+    table = table_of(FOOLS_GREEDY, 6)
+    # station 0 was scanned already: it stays although 1 and 2 alone would do
+    for weighted in (False, True):
+        assert greedy(table, weighted=weighted, fixed=(0,)).stations[0] == 0
+    by_greedy = greedy(table, fixed=(0,))
+    result = optimal.solve_optimal(table, 1.0, 10, [by_greedy], np.zeros((6, 3)), fixed=(0,))
+    assert result.selection.stations[0] == 0 and result.selection.fixed == 1
+    assert len(result.selection.stations) == 3 and result.proven_optimal
 
 
 def test_a_relaxed_program_keeps_its_promises(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -42,11 +80,117 @@ def test_a_relaxed_program_keeps_its_promises(monkeypatch: pytest.MonkeyPatch) -
     monkeypatch.setattr(optimal, "MAX_NONZEROS", 200)  # force the voxel relaxation
     cover, _, exact = optimal.relaxed_classes(table, centroids, optimal.MAX_NONZEROS)
     assert not exact and cover.nnz <= 200
-    by_greedy = greedy(table)
+    heuristics = [greedy(table), greedy(table, weighted=True)]
     for goal in (0.6, 0.9):
-        result = optimal.solve_optimal(table, goal, 10, incumbent=by_greedy,
-                                       centroids=centroids)
+        result = optimal.solve_optimal(table, goal, 10, heuristics, centroids)
         stations = result.selection.stations
-        assert len(stations) <= by_greedy.count_for_goal(goal)
+        assert len(stations) <= min(h.count_for_goal(goal) for h in heuristics)
         assert result.lower_bound <= len(stations)
         assert result.selection.covered_area_m2[-1] >= goal * table.max_achievable_area_m2 - 1e-9
+
+
+def test_fixed_candidates_match_or_append() -> None:
+    positions = np.array([[0.0, 0.0, 1.5], [1.0, 0.0, 1.5]])
+    merged, fixed = fixed_candidates(positions, ((1.0, 0.0004, 1.5), (5.0, 5.0, 1.5)))
+    assert fixed == (1, 2)
+    assert merged.tolist() == [[0.0, 0.0, 1.5], [1.0, 0.0, 1.5], [5.0, 5.0, 1.5]]
+    with pytest.raises(ParameterError, match=r"fixed_stations\[1\]"):
+        fixed_candidates(positions, ((1.0, 0.0, 1.5), (1.0, 0.0, 1.5)))
+
+
+def test_bad_curve_goals_name_the_parameter() -> None:
+    with pytest.raises(ParameterError, match=r"curve_goals\[1\]: 1.5 is outside"):
+        PlanSpec.from_mapping({"curve_goals": [0.8, 1.5]})
+
+
+# --- the halls ---------------------------------------------------------------------------
+
+
+def hall_plan(scenes_dir: Path, name: str, **params: object) -> PlanResult:
+    folder = scenes_dir / name
+    scene = read_scene(folder / "hall.obj", max_edge_m=None)
+    candidates = read_candidates_csv(folder / "candidates.csv").tolist()
+    return plan(scene, PlanSpec.from_mapping({"candidates": candidates, "max_edge_m": None,
+                                              **params}))
+
+
+def check_optimal(result: PlanResult, row: optimal.OptimalResult) -> None:
+    """The guarantees a user checks: no worse than a heuristic, bound below, goal reached."""
+    goal = row.goal
+    stations = row.selection.stations
+    heuristic = min(s.count_for_goal(goal) for s in result.selections.values())
+    assert len(stations) <= heuristic
+    assert row.lower_bound <= len(stations)
+    # the plan's covered area, replayed on the coverage table, reaches the goal
+    covered = replay(result.table, stations, "check").covered_area_m2[-1]
+    assert covered >= goal * result.table.max_achievable_area_m2 - 1e-6
+
+
+def test_hall_small_every_goal(scenes_dir: Path) -> None:
+    goals = [0.8, 0.9, 0.95, 1.0]
+    result = hall_plan(scenes_dir, "hall-small", method="optimal", coverage_goal=1.0,
+                       curve_goals=goals, optimal_time_limit_s=12)
+    assert [row.goal for row in result.optimal_curve] == goals
+    for row in result.optimal_curve:
+        check_optimal(result, row)
+    # goal 100 %: greedy 36, weighted greedy 31, the proven optimum 30
+    assert result.optimal is not None
+    assert len(result.chosen.stations) == 30 and result.optimal.proven_optimal
+    document = plan_document(result)
+    selection = document["selection"]
+    assert selection["heuristics"] == {"greedy": 36, "weighted_greedy": 31}
+    assert selection["best_heuristic"] == "weighted_greedy"
+    assert selection["stations"] == 30 and selection["lower_bound"] == 30
+    assert selection["proven_optimal"] and selection["gap"] == 0
+    row = document["curve"]["optimal"]
+    assert row["goals"] == goals and row["stations"][-1] == 30
+    assert all(b <= s for b, s in zip(row["lower_bound"], row["stations"], strict=True))
+
+
+def test_hall_full_at_100_percent_is_proven(scenes_dir: Path) -> None:
+    result = hall_plan(scenes_dir, "hall-full", method="optimal", coverage_goal=1.0)
+    assert result.optimal is not None
+    check_optimal(result, result.optimal)
+    # greedy 78, weighted greedy 72; the set cover proves 63
+    assert len(result.chosen.stations) == 63
+    assert result.optimal.proven_optimal and result.optimal.lower_bound == 63
+    assert plan_document(result)["goal_reached"]
+
+
+def test_greedy_plans_report_their_selection(scenes_dir: Path) -> None:
+    result = hall_plan(scenes_dir, "hall-small")
+    selection = plan_document(result)["selection"]
+    assert selection["method"] == "greedy" and selection["local_search"] is None
+    assert selection["stations"] == len(result.chosen.stations)
+    assert 1 <= selection["lower_bound"] <= selection["stations"]
+    assert "optimal" not in plan_document(result)["curve"]
+
+
+def test_rescan_keeps_the_first_stations_and_adds_the_same_rest(scenes_dir: Path) -> None:
+    full = hall_plan(scenes_dir, "hall-small", coverage_goal=0.95)
+    first = plan_document(full)["stations"]
+    assert len(first) >= 4
+    scanned = [s["position"] for s in first[:2]]
+    again = hall_plan(scenes_dir, "hall-small", coverage_goal=0.95, fixed_stations=scanned)
+    stations = plan_document(again)["stations"]
+    assert [s["position"] for s in stations] == [s["position"] for s in first]
+    assert [s.get("fixed", False) for s in stations] == [True, True] + [False] * (
+        len(first) - 2)
+    assert len(again.candidates) == len(full.candidates)  # matched, not appended
+
+
+def test_rescan_from_a_new_position_with_optimal(scenes_dir: Path) -> None:
+    # a station scanned off the candidate grid becomes a candidate of its own
+    scanned = [[8.0, 9.0, 1.5]]
+    result = hall_plan(scenes_dir, "hall-small", method="optimal", coverage_goal=1.0,
+                       fixed_stations=scanned, optimal_time_limit_s=20)
+    full = hall_plan(scenes_dir, "hall-small", coverage_goal=1.0)
+    assert len(result.candidates) == len(full.candidates) + 1
+    document = plan_document(result)
+    assert document["stations"][0]["position"] == scanned[0]
+    assert document["stations"][0]["fixed"] is True
+    assert sum("fixed" in s for s in document["stations"]) == 1
+    assert document["goal_reached"] and document["selection"]["fixed_stations"] == 1
+    assert result.optimal is not None
+    check_optimal(result, result.optimal)
+    json.dumps(document)  # plain data
