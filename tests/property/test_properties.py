@@ -1,5 +1,5 @@
 """Properties that hold on any scene: Embree agrees with brute force, occluders only take
-coverage away, the optimal plan is never longer than greedy's, and runs are deterministic."""
+coverage away, the optimal plan is never longer than either greedy's, and runs are deterministic."""
 
 from __future__ import annotations
 
@@ -138,9 +138,9 @@ def test_optimal_never_needs_more_stations_than_greedy(boxes, candidates, goal) 
         result = plan(scene, spec)
     except NothingVisibleError:
         return
-    greedy_count = result.selections["greedy"].count_for_goal(goal)
+    heuristic = min(s.count_for_goal(goal) for s in result.selections.values())
     assert result.optimal is not None
-    assert len(result.chosen.stations) <= greedy_count
+    assert len(result.chosen.stations) <= heuristic
     assert result.optimal.lower_bound <= len(result.chosen.stations)
     covered = result.chosen.covered_area_m2[-1]
     assert covered >= goal * result.table.max_achievable_area_m2 - 1e-6

@@ -1,0 +1,60 @@
+"""Property: on small random coverage tables the optimal method finds the true minimum,
+as enumerating every subset of stations finds it, and proves it."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from planner.coverage import CoverageTable, QualifiedPairs
+from planner.optimal import solve_optimal
+from planner.selection import GOAL_SLACK_M2, greedy
+
+
+def table_of(sets: list[list[int]], areas: list[float]) -> CoverageTable:
+    candidate = np.array([c for c, faces in enumerate(sets) for _ in faces], np.int32)
+    face = np.array([f for faces in sets for f in sorted(faces)], np.int32)
+    pairs = QualifiedPairs(candidate, face, np.full(len(face), 50_000, np.float32))
+    return CoverageTable.from_pairs(pairs, len(sets), np.asarray(areas, np.float64))
+
+
+def fewest_by_enumeration(table: CoverageTable, goal: float, fixed: tuple[int, ...]) -> int:
+    need = goal * table.max_achievable_area_m2 - GOAL_SLACK_M2
+    free = [c for c in range(table.n_candidates) if c not in fixed]
+    for size in range(len(free) + 1):
+        for subset in itertools.combinations(free, size):
+            faces = np.zeros(table.n_faces, bool)
+            for c in (*fixed, *subset):
+                faces[table.faces_of(c)] = True
+            if table.face_area_m2[faces].sum() >= need:
+                return len(fixed) + size
+    raise AssertionError("every candidate together reaches every goal")
+
+
+# small sets over many faces: the area bound is loose and the MILP has to work
+instance = st.integers(min_value=6, max_value=14).flatmap(lambda n_faces: st.tuples(
+    st.lists(st.lists(st.integers(0, n_faces - 1), min_size=1, max_size=max(2, n_faces // 3),
+                      unique=True),
+             min_size=4, max_size=9),
+    st.lists(st.sampled_from([0.5, 1.0, 2.0, 3.0]), min_size=n_faces, max_size=n_faces),
+))
+
+
+@settings(max_examples=12, deadline=None)
+@given(instance=instance, goal=st.sampled_from([0.5, 0.8, 0.95, 1.0]),
+       n_fixed=st.integers(0, 1))
+def test_optimal_equals_enumeration(instance: tuple[list[list[int]], list[float]],
+                                    goal: float, n_fixed: int) -> None:
+    sets, areas = instance
+    table = table_of(sets, areas)
+    fixed = tuple(range(n_fixed))
+    heuristics = [greedy(table, fixed=fixed), greedy(table, weighted=True, fixed=fixed)]
+    result = solve_optimal(table, goal, 20, heuristics, np.zeros((table.n_faces, 3)),
+                           fixed=fixed)
+    fewest = fewest_by_enumeration(table, goal, fixed)
+    assert len(result.selection.stations) == fewest
+    assert result.proven_optimal and result.lower_bound == fewest
+    assert result.selection.stations[:n_fixed] == fixed
