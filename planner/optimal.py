@@ -450,7 +450,7 @@ def solve_optimal(
     if len(best) > lower and need_rest > 0:
         with HighsProcess() as highs:
             highs.start()
-            solver = _set_cover if goal >= 1.0 else _max_coverage
+            solver = _set_cover if goal >= 1.0 else _partial_cover
             best, lower, status, n_classes = solver(
                 _Problem(table, centroids, rest, need_rest, fixed, constraint_hooks, stop,
                          highs), best, lower)
@@ -558,51 +558,62 @@ def _fixed_area(problem: _Problem) -> float:
     return float(table.face_area_m2[table.achievable & ~problem.rest].sum())
 
 
-def _max_coverage(problem: _Problem, best: list[int], lower: int
-                  ) -> tuple[list[int], int, str, int]:
-    """Partial goals: maximum coverage for ever fewer stations (see the module docstring)."""
+def _partial_cover(problem: _Problem, best: list[int], lower: int
+                   ) -> tuple[list[int], int, str, int]:
+    """Partial goals: the fewest stations covering ``need_m2``, cut off below the incumbent.
+
+    ``min sum x  s.t.  y_k <= sum_{c covers k} x_c,  sum_k area_k y_k >= need,
+    sum x <= incumbent - 1``. The cutoff is how the incumbent enters (scipy's HiGHS takes no
+    start solution): every solution HiGHS finds is a better plan, infeasibility proves the
+    incumbent optimal, and the dual bound is a lower bound either way.
+    """
     table = problem.table
     cover, area, exact = relaxed_classes(table, problem.centroids, MAX_NONZEROS, problem.rest)
     n_cand, n_class = cover.shape
     n_fixed = len(problem.fixed)
     need_total = problem.need_m2 + _fixed_area(problem)
     status = "time limit reached before HiGHS answered"
-    k = len(best) - n_fixed - 1
-    while k + n_fixed >= lower:
+    while len(best) > lower:
         builder = problem.builder()
-        y = builder.add_variables(-area, integer=False, lower=0.0, upper=1.0)
+        builder.set_cost(0, np.ones(n_cand))
+        y = builder.add_variables(np.zeros(n_class), integer=False, lower=0.0, upper=1.0)
         # y_k - sum_c cover[c, k] x_c <= 0
         builder.add_rows(sp.hstack([-cover.T, sp.identity(n_class)], format="csr"),
                          -np.inf, 0.0)
-        builder.add_rows(sp.csr_matrix(np.ones((1, n_cand))), 0.0, float(k))
+        builder.add_rows(sp.hstack([sp.csr_matrix((1, n_cand)), sp.csr_matrix(area[None, :])]),
+                         problem.need_m2, np.inf)
+        builder.add_rows(sp.csr_matrix(np.ones((1, n_cand))), 0.0,
+                         float(len(best) - n_fixed - 1))
         assert y == n_cand
         answer = problem.solve(builder)
         if answer is None:
-            status = f"time limit reached while trying {k + n_fixed} stations"
+            status = f"time limit reached before HiGHS answered ({n_class} face classes)"
             break
-        if answer.x is not None and -float(answer.cost) >= problem.need_m2:
-            plan = problem.plan_of(answer.x)
-            if exact or replay(table, plan, "optimal").covered_area_m2[-1] >= need_total:
-                best = plan
-                k = len(best) - n_fixed - 1
-                status = f"{len(best)} stations reach the goal"
-                continue
-            repaired = _repair(table, plan, need_total, n_fixed, problem.deadline)
-            if repaired and len(repaired) < len(best):
-                best = repaired
-                k = len(best) - n_fixed - 1
-                status = f"{len(best)} stations reach the goal (relaxed answer, repaired)"
-                continue
-            status = (f"the relaxed program ({n_class} voxel classes) allows {k + n_fixed} "
-                      "stations that do not reach the goal on the exact table")
+        if answer.status == 2:  # infeasible: nothing below the incumbent
+            lower = len(best)
+            status = f"proven: no {len(best) - 1} stations reach the goal"
             break
-        bound = answer.dual_bound
-        if answer.status == 0 or (bound is not None and -bound < problem.need_m2):
-            lower = max(lower, k + n_fixed + 1)  # no k more stations reach the goal
-            status = f"proven: no {k + n_fixed} stations reach the goal"
-        else:
-            status = f"time limit reached while trying {k + n_fixed} stations ({answer.message})"
-        break
+        if answer.dual_bound is not None:
+            lower = max(lower, n_fixed + math.ceil(answer.dual_bound - 1e-6))
+        if answer.x is None:
+            status = f"time limit reached, no plan below {len(best)} found ({answer.message})"
+            break
+        plan = problem.plan_of(answer.x)
+        if not exact and replay(table, plan, "optimal").covered_area_m2[-1] < need_total:
+            plan = _repair(table, plan, need_total, n_fixed, problem.deadline)
+            if not plan or len(plan) >= len(best):
+                status = (f"the relaxed program ({n_class} voxel classes) allows plans that "
+                          "do not reach the goal on the exact table")
+                break
+        best = plan
+        if answer.status == 0 and exact:
+            lower = max(lower, len(best))
+        status = (f"{len(best)} stations reach the goal" if answer.status in (0, 1) else
+                  f"{len(best)} stations reach the goal ({answer.message})")
+        if answer.status != 0:
+            break
+    if len(best) <= lower:
+        status += "; proven optimal"
     return best, lower, status, n_class
 
 
