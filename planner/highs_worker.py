@@ -19,7 +19,7 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass
-from typing import Any, BinaryIO
+from typing import IO, Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -130,13 +130,13 @@ class HighsProcess:
         self.close()
 
 
-def _send(stream: BinaryIO, message: Any) -> None:
+def _send(stream: IO[bytes], message: Any) -> None:
     data = pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL)
     stream.write(_HEADER.pack(len(data)) + data)
     stream.flush()
 
 
-def _read_exactly(stream: BinaryIO, size: int, deadline: float | None) -> bytes:
+def _read_exactly(stream: IO[bytes], size: int, deadline: float | None) -> bytes:
     chunks: list[bytes] = []
     fd = stream.fileno()
     while size:
@@ -152,9 +152,9 @@ def _read_exactly(stream: BinaryIO, size: int, deadline: float | None) -> bytes:
     return b"".join(chunks)
 
 
-def _receive(stream: BinaryIO, deadline: float | None) -> Any:
+def _receive(stream: IO[bytes], deadline: float | None) -> Any:
     (size,) = _HEADER.unpack(_read_exactly(stream, _HEADER.size, deadline))
-    return pickle.loads(_read_exactly(stream, size, deadline))  # noqa: S301 - our own child
+    return pickle.loads(_read_exactly(stream, size, deadline))  # our own child's bytes
 
 
 def main() -> None:

@@ -54,7 +54,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from planner.coverage import CoverageTable
-from planner.highs_worker import HighsProcess, Program
+from planner.highs_worker import Answer, HighsProcess, Program
 from planner.selection import GOAL_SLACK_M2, Selection, greedy, replay
 
 # Above this many nonzeros HiGHS's presolve alone outlasts any sensible time limit (hall-full:
@@ -491,7 +491,7 @@ class _Problem:
     def builder(self) -> ProgramBuilder:
         return ProgramBuilder(self.table.n_candidates)
 
-    def solve(self, builder: ProgramBuilder) -> Any:
+    def solve(self, builder: ProgramBuilder) -> Answer | None:
         for hook in self.hooks:
             hook(builder)
         return self.highs.solve(builder.build(), self.deadline)
@@ -699,10 +699,7 @@ def choose_stations(table: CoverageTable, *, method: str, goal: float, time_limi
         for step, s in solved[g].seconds.items():
             seconds[step] = seconds.get(step, 0.0) + s
     optimal = solved.get(goal) if method == "optimal" else None
-    if optimal is not None:
-        chosen = optimal.selection
-    else:
-        chosen = selections[method].truncated(goal)
+    chosen = optimal.selection if optimal is not None else selections[method].truncated(goal)
     report = _selection_report(table, selections, chosen, goal, optimal, fixed)
     return SelectionOutcome(selections=selections, chosen=chosen, optimal=optimal,
                             curve=tuple(solved[g] for g in goals), report=report,
