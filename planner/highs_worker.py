@@ -11,6 +11,7 @@ The child runs :func:`main` of this module (imported, so pickled classes resolve
 
 from __future__ import annotations
 
+import math
 import os
 import pickle
 import select
@@ -47,13 +48,14 @@ class Program:
     rows: sp.csr_matrix
     row_lower: NDArray[np.float64]
     row_upper: NDArray[np.float64]
+    start: NDArray[np.float64] | None = None  # (V,) a feasible solution to start from
 
 
 @dataclass(frozen=True)
 class Answer:
     """What HiGHS returned: ``x`` None when it found no solution; ``dual_bound`` on the cost."""
 
-    status: int  # scipy.optimize.milp: 0 optimal, 1 time/iteration limit, 2 infeasible, ...
+    status: int  # 0 optimal, 1 time limit, 2 infeasible, 3 anything else
     x: NDArray[np.float64] | None
     cost: float | None
     dual_bound: float | None
@@ -61,22 +63,44 @@ class Answer:
 
 
 def solve(program: Program, time_limit_s: float) -> Answer:
-    """Run HiGHS (scipy.optimize.milp) on ``program`` in this process."""
-    from scipy.optimize import Bounds, LinearConstraint, milp
+    """Run HiGHS (highspy) on ``program`` in this process, from ``program.start`` if given."""
+    import highspy
 
-    constraints = ([LinearConstraint(program.rows, program.row_lower, program.row_upper)]
-                   if program.rows.shape[0] else [])
-    result = milp(program.cost, integrality=program.integrality,
-                  bounds=Bounds(program.lower, program.upper), constraints=constraints,
-                  options={"time_limit": max(time_limit_s, 0.01), "disp": False,
-                           "presolve": True})
-    bound = getattr(result, "mip_dual_bound", None)
+    highs = highspy.Highs()  # type: ignore[no-untyped-call]
+    highs.setOptionValue("output_flag", False)
+    highs.setOptionValue("time_limit", max(float(time_limit_s), 0.01))
+    rows = program.rows
+    lp = highspy.HighsLp()
+    lp.num_col_, lp.num_row_ = len(program.cost), rows.shape[0]
+    lp.col_cost_, lp.col_lower_, lp.col_upper_ = program.cost, program.lower, program.upper
+    lp.row_lower_, lp.row_upper_ = program.row_lower, program.row_upper
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kRowwise
+    lp.a_matrix_.num_col_, lp.a_matrix_.num_row_ = lp.num_col_, lp.num_row_
+    lp.a_matrix_.start_ = rows.indptr.astype(np.int32)
+    lp.a_matrix_.index_ = rows.indices.astype(np.int32)
+    lp.a_matrix_.value_ = rows.data.astype(np.float64)
+    lp.integrality_ = [highspy.HighsVarType.kInteger if i else highspy.HighsVarType.kContinuous
+                       for i in program.integrality]
+    highs.passModel(lp)
+    if program.start is not None:  # a MIP start: HiGHS begins from this incumbent
+        start = highspy.HighsSolution()
+        start.col_value = list(program.start)
+        start.value_valid = True
+        highs.setSolution(start)
+    highs.run()
+    model_status = highs.getModelStatus()
+    info = highs.getInfo()
+    kinds = highspy.HighsModelStatus
+    status = {kinds.kOptimal: 0, kinds.kTimeLimit: 1, kinds.kInterrupt: 1,
+              kinds.kInfeasible: 2}.get(model_status, 3)
+    has_solution = info.primal_solution_status == highspy.SolutionStatus.kSolutionStatusFeasible
+    bound = float(info.mip_dual_bound) if status != 2 else math.inf
     return Answer(
-        status=int(result.status),
-        x=None if result.x is None else np.asarray(result.x, np.float64),
-        cost=None if result.fun is None else float(result.fun),
-        dual_bound=None if bound is None or not np.isfinite(bound) else float(bound),
-        message=str(result.message),
+        status=status,
+        x=np.asarray(highs.getSolution().col_value, np.float64) if has_solution else None,
+        cost=float(info.objective_function_value) if has_solution else None,
+        dual_bound=bound if np.isfinite(bound) else None,
+        message=highs.modelStatusToString(model_status),
     )
 
 

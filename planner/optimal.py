@@ -129,6 +129,8 @@ class ProgramBuilder:
         self._upper: list[NDArray[np.float64]] = []
         self._rows: list[tuple[sp.csr_matrix, NDArray[np.float64], NDArray[np.float64]]] = []
         self.n_variables = 0
+        # (V,) a feasible solution HiGHS starts from (dropped if hooks add variables later)
+        self.start: NDArray[np.float64] | None = None
         self.add_variables(np.zeros(n_candidates), integer=True, lower=0.0, upper=1.0)
 
     def add_variables(self, cost: NDArray[np.float64], *, integer: bool,
@@ -166,6 +168,7 @@ class ProgramBuilder:
             lower=np.concatenate(self._lower), upper=np.concatenate(self._upper), rows=rows,
             row_lower=np.concatenate([lo for _, lo, _ in self._rows]) if blocks else np.zeros(0),
             row_upper=np.concatenate([hi for _, _, hi in self._rows]) if blocks else np.zeros(0),
+            start=self.start if self.start is not None and len(self.start) == width else None,
         )
 
 
@@ -517,6 +520,8 @@ def _set_cover(problem: _Problem, best: list[int], lower: int
         builder = problem.builder()
         builder.set_cost(0, np.ones(problem.table.n_candidates))
         builder.add_rows(rows[np.flatnonzero(active)], 1.0, np.inf)
+        builder.start = np.zeros(problem.table.n_candidates)
+        builder.start[[c for c in best if c not in problem.fixed]] = 1.0
         answer = problem.solve(builder)
         if answer is None:
             status = f"time limit reached solving the set cover on {active.sum()} rows"
@@ -560,60 +565,46 @@ def _fixed_area(problem: _Problem) -> float:
 
 def _partial_cover(problem: _Problem, best: list[int], lower: int
                    ) -> tuple[list[int], int, str, int]:
-    """Partial goals: the fewest stations covering ``need_m2``, cut off below the incumbent.
+    """Partial goals: the fewest stations covering ``need_m2``, from the incumbent.
 
-    ``min sum x  s.t.  y_k <= sum_{c covers k} x_c,  sum_k area_k y_k >= need,
-    sum x <= incumbent - 1``. The cutoff is how the incumbent enters (scipy's HiGHS takes no
-    start solution): every solution HiGHS finds is a better plan, infeasibility proves the
-    incumbent optimal, and the dual bound is a lower bound either way.
+    ``min sum x  s.t.  y_k <= sum_{c covers k} x_c,  sum_k area_k y_k >= need`` with
+    ``y`` in [0, 1] continuous (exact with integer ``x``: a covered class may take y = 1).
+    HiGHS starts from the incumbent (a MIP start), so the answer is never worse, and its
+    dual bound is a lower bound whenever it stops.
     """
     table = problem.table
     cover, area, exact = relaxed_classes(table, problem.centroids, MAX_NONZEROS, problem.rest)
     n_cand, n_class = cover.shape
     n_fixed = len(problem.fixed)
     need_total = problem.need_m2 + _fixed_area(problem)
-    status = "time limit reached before HiGHS answered"
-    while len(best) > lower:
-        builder = problem.builder()
-        builder.set_cost(0, np.ones(n_cand))
-        y = builder.add_variables(np.zeros(n_class), integer=False, lower=0.0, upper=1.0)
-        # y_k - sum_c cover[c, k] x_c <= 0
-        builder.add_rows(sp.hstack([-cover.T, sp.identity(n_class)], format="csr"),
-                         -np.inf, 0.0)
-        builder.add_rows(sp.hstack([sp.csr_matrix((1, n_cand)), sp.csr_matrix(area[None, :])]),
-                         problem.need_m2, np.inf)
-        builder.add_rows(sp.csr_matrix(np.ones((1, n_cand))), 0.0,
-                         float(len(best) - n_fixed - 1))
-        assert y == n_cand
-        answer = problem.solve(builder)
-        if answer is None:
-            status = f"time limit reached before HiGHS answered ({n_class} face classes)"
-            break
-        if answer.status == 2:  # infeasible: nothing below the incumbent
-            lower = len(best)
-            status = f"proven: no {len(best) - 1} stations reach the goal"
-            break
-        if answer.dual_bound is not None:
-            lower = max(lower, n_fixed + math.ceil(answer.dual_bound - 1e-6))
-        if answer.x is None:
-            status = f"time limit reached, no plan below {len(best)} found ({answer.message})"
-            break
+    builder = problem.builder()
+    builder.set_cost(0, np.ones(n_cand))
+    builder.add_variables(np.zeros(n_class), integer=False, lower=0.0, upper=1.0)
+    # y_k - sum_c cover[c, k] x_c <= 0
+    builder.add_rows(sp.hstack([-cover.T, sp.identity(n_class)], format="csr"), -np.inf, 0.0)
+    builder.add_rows(sp.hstack([sp.csr_matrix((1, n_cand)), sp.csr_matrix(area[None, :])]),
+                     problem.need_m2, np.inf)
+    x0 = np.zeros(n_cand)
+    x0[[c for c in best if c not in problem.fixed]] = 1.0
+    builder.start = np.concatenate([x0, np.minimum(1.0, cover.T @ x0)])
+    answer = problem.solve(builder)
+    if answer is None:
+        return best, lower, f"time limit reached before HiGHS answered ({n_class} face classes)", \
+            n_class
+    if answer.dual_bound is not None:
+        lower = max(lower, n_fixed + math.ceil(answer.dual_bound - 1e-6))
+    status = f"HiGHS: {answer.message}"
+    if answer.x is not None:
         plan = problem.plan_of(answer.x)
         if not exact and replay(table, plan, "optimal").covered_area_m2[-1] < need_total:
             plan = _repair(table, plan, need_total, n_fixed, problem.deadline)
-            if not plan or len(plan) >= len(best):
-                status = (f"the relaxed program ({n_class} voxel classes) allows plans that "
-                          "do not reach the goal on the exact table")
-                break
-        best = plan
+            status += " (relaxed answer, repaired on the exact table)"
+        if plan and len(plan) < len(best):
+            best = plan
         if answer.status == 0 and exact:
             lower = max(lower, len(best))
-        status = (f"{len(best)} stations reach the goal" if answer.status in (0, 1) else
-                  f"{len(best)} stations reach the goal ({answer.message})")
-        if answer.status != 0:
-            break
-    if len(best) <= lower:
-        status += "; proven optimal"
+    if not exact:
+        status += f"; relaxed per voxel to {n_class} classes"
     return best, lower, status, n_class
 
 
