@@ -19,6 +19,7 @@ import struct
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import IO, Any
 
@@ -32,6 +33,8 @@ _HEADER = struct.Struct("<Q")
 # ANSWER_MARGIN_S early; the parent kills it at the deadline proper.
 ANSWER_SHARE = 0.85
 ANSWER_MARGIN_S = 0.4
+# how often the parent looks at its tick (progress, cancellation) while HiGHS works
+POLL_S = 0.5
 
 
 @dataclass(frozen=True)
@@ -105,10 +108,15 @@ def solve(program: Program, time_limit_s: float) -> Answer:
 
 
 class HighsProcess:
-    """A child process running :func:`solve`; killed when an answer is late. Use ``with``."""
+    """A child process running :func:`solve`; killed when an answer is late. Use ``with``.
 
-    def __init__(self) -> None:
+    ``tick`` is called about every POLL_S seconds while HiGHS works; it may raise (a
+    cancelled plan), and the child is then killed on the way out of ``with``.
+    """
+
+    def __init__(self, tick: Callable[[], None] | None = None) -> None:
         self._child: subprocess.Popen[bytes] | None = None
+        self._tick = tick
 
     def start(self) -> None:
         """Start the child now (it imports scipy while the caller does other work)."""
@@ -130,7 +138,7 @@ class HighsProcess:
             return None
         try:
             _send(child.stdin, (program, limit_s))
-            reply = _receive(child.stdout, deadline)
+            reply = _receive(child.stdout, deadline, self._tick)
         except (BrokenPipeError, EOFError, TimeoutError):
             self.close()
             return None
@@ -160,14 +168,20 @@ def _send(stream: IO[bytes], message: Any) -> None:
     stream.flush()
 
 
-def _read_exactly(stream: IO[bytes], size: int, deadline: float | None) -> bytes:
+def _read_exactly(stream: IO[bytes], size: int, deadline: float | None,
+                  tick: Callable[[], None] | None = None) -> bytes:
     chunks: list[bytes] = []
     fd = stream.fileno()
     while size:
         if deadline is not None:
-            left_s = deadline - time.monotonic()
-            if left_s <= 0 or not select.select([fd], [], [], left_s)[0]:
-                raise TimeoutError("HiGHS did not answer in time")
+            while True:
+                left_s = deadline - time.monotonic()
+                if left_s <= 0:
+                    raise TimeoutError("HiGHS did not answer in time")
+                if select.select([fd], [], [], min(left_s, POLL_S))[0]:
+                    break
+                if tick is not None:
+                    tick()
         chunk = os.read(fd, min(size, 1 << 20))
         if not chunk:
             raise EOFError("the HiGHS process ended")
@@ -176,8 +190,9 @@ def _read_exactly(stream: IO[bytes], size: int, deadline: float | None) -> bytes
     return b"".join(chunks)
 
 
-def _receive(stream: IO[bytes], deadline: float | None) -> Any:
-    (size,) = _HEADER.unpack(_read_exactly(stream, _HEADER.size, deadline))
+def _receive(stream: IO[bytes], deadline: float | None,
+             tick: Callable[[], None] | None = None) -> Any:
+    (size,) = _HEADER.unpack(_read_exactly(stream, _HEADER.size, deadline, tick))
     return pickle.loads(_read_exactly(stream, size, deadline))  # our own child's bytes
 
 

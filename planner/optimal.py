@@ -421,14 +421,15 @@ def solve_optimal(
     table: CoverageTable, goal: float, time_limit_s: float,
     incumbents: Sequence[Selection], centroids: np.ndarray, *,
     fixed: tuple[int, ...] = (), deadline: float | None = None,
-    constraint_hooks: Sequence[ConstraintHook] = (),
+    constraint_hooks: Sequence[ConstraintHook] = (), tick: Callable[[], None] | None = None,
 ) -> OptimalResult:
     """The fewest stations reaching ``goal`` of the achievable area (see module docstring).
 
     ``incumbents`` are heuristic plans (greedy, weighted greedy; their first stations are
     ``fixed``): the answer is never worse than the best of them. ``centroids`` (F, 3) place
     the faces for the relaxation of programs too large to solve. Stops by ``time_limit_s``
-    (or the earlier ``deadline``, ``time.monotonic()`` seconds).
+    (or the earlier ``deadline``, ``time.monotonic()`` seconds). ``tick`` is called about
+    twice a second while HiGHS works and may raise to cancel.
     """
     start = time.monotonic()
     stop = start + time_limit_s if deadline is None else min(deadline, start + time_limit_s)
@@ -451,7 +452,7 @@ def solve_optimal(
     n_classes = 0
     t_milp = time.monotonic()
     if len(best) > lower and need_rest > 0:
-        with HighsProcess() as highs:
+        with HighsProcess(tick) as highs:
             highs.start()
             solver = _set_cover if goal >= 1.0 else _partial_cover
             best, lower, status, n_classes = solver(
@@ -662,12 +663,15 @@ class SelectionOutcome:
 def choose_stations(table: CoverageTable, *, method: str, goal: float, time_limit_s: float,
                     centroids: np.ndarray, fixed: tuple[int, ...] = (),
                     curve_goals: tuple[float, ...] | None = None,
-                    constraint_hooks: Sequence[ConstraintHook] = ()) -> SelectionOutcome:
+                    constraint_hooks: Sequence[ConstraintHook] = (),
+                    progress: Callable[[float], None] | None = None) -> SelectionOutcome:
     """Both heuristics, then ``optimal`` for the plan's goal and for ``curve_goals``.
 
     ``curve_goals`` None means the plan's goal when ``method`` is optimal, no goal
     otherwise. The MILPs share ``time_limit_s``, counted from the start of this stage: the
-    plan's goal first, each goal getting an equal share of what is left.
+    plan's goal first, each goal getting an equal share of what is left. ``progress`` is
+    called with the share of the time limit used (0..1), about twice a second while HiGHS
+    works; it may raise to cancel the plan.
     """
     start = time.monotonic()
     deadline = start + time_limit_s
@@ -686,7 +690,9 @@ def choose_stations(table: CoverageTable, *, method: str, goal: float, time_limi
         share = (deadline - time.monotonic()) / (len(todo) - i)
         solved[g] = solve_optimal(
             table, g, max(share, 0.0), [selections["greedy"], selections["weighted_greedy"]],
-            centroids, fixed=fixed, deadline=deadline, constraint_hooks=constraint_hooks)
+            centroids, fixed=fixed, deadline=deadline, constraint_hooks=constraint_hooks,
+            tick=None if progress is None else lambda: progress(
+                min(1.0, (time.monotonic() - start) / time_limit_s)))
         for step, s in solved[g].seconds.items():
             seconds[step] = seconds.get(step, 0.0) + s
     optimal = solved.get(goal) if method == "optimal" else None

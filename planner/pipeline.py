@@ -132,7 +132,8 @@ def plan(
     outcome = choose_stations(
         table, method=spec.method, goal=spec.coverage_goal,
         time_limit_s=spec.optimal_time_limit_s, centroids=scene.centroids, fixed=fixed,
-        curve_goals=spec.curve_goals)
+        curve_goals=spec.curve_goals,
+        progress=lambda fraction: _notify(progress, "selection", fraction))
     selections, chosen, optimal = outcome.selections, outcome.chosen, outcome.optimal
     stats.seconds["selection"] = time.perf_counter() - t2
     for step, seconds in outcome.seconds.items():

@@ -12,7 +12,7 @@ import pytest
 import planner.optimal as optimal
 from planner.candidates import read_candidates_csv
 from planner.coverage import CoverageTable, QualifiedPairs
-from planner.errors import ParameterError
+from planner.errors import CancelledError, ParameterError
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
 from planner.readers import read_scene
@@ -194,3 +194,25 @@ def test_rescan_from_a_new_position_with_optimal(scenes_dir: Path) -> None:
     assert result.optimal is not None
     check_optimal(result, result.optimal)
     json.dumps(document)  # plain data
+
+
+def test_a_plan_can_be_cancelled_while_highs_works(scenes_dir: Path) -> None:
+    # hall-small at 95 %: HiGHS works for the whole limit; the service cancels through the
+    # progress callback, which the selection stage now asks while HiGHS works
+    seen: list[float] = []
+
+    def progress(stage: str, fraction: float) -> bool:
+        if stage == "selection" and fraction > 0:
+            seen.append(fraction)
+            return True
+        return False
+
+    folder = scenes_dir / "hall-small"
+    scene = read_scene(folder / "hall.obj", max_edge_m=None)
+    candidates = read_candidates_csv(folder / "candidates.csv").tolist()
+    spec = PlanSpec.from_mapping({"candidates": candidates, "max_edge_m": None,
+                                  "method": "optimal", "coverage_goal": 0.95,
+                                  "optimal_time_limit_s": 60})
+    with pytest.raises(CancelledError, match="selection"):
+        plan(scene, spec, progress=progress)
+    assert len(seen) == 1 and 0 < seen[0] < 1
