@@ -448,7 +448,7 @@ def solve_optimal(
     rest = table.achievable & ~fixed_faces
     need_rest = need - float(table.face_area_m2[fixed_faces].sum())
     lower = n_fixed + _counting_bound(table, need_rest, rest)
-    status = "the best heuristic plan meets the area bound"
+    status = "the plan meets the area bound (fewest candidates whose areas add up to the goal)"
     n_classes = 0
     t_milp = time.monotonic()
     if len(best) > lower and need_rest > 0:
