@@ -203,19 +203,18 @@ class _Quantizer:
                 "scale": [self.step_m] * 3}
 
 
-def _flat_primitive(builder: _Builder, triangles: NDArray[np.float64],
+def _flat_primitive(builder: _Builder, triangles: NDArray[np.float32] | NDArray[np.uint16],
                     rgba: NDArray[np.uint8], feature: NDArray[np.float32] | None,
-                    material: int, quantizer: _Quantizer | None = None) -> dict[str, Any]:
+                    material: int) -> dict[str, Any]:
     """A primitive of unshared triangles (T, 3, 3) with one RGBA (T, 4) per triangle.
 
     Not indexed on purpose: every face has its own colour and face id, so no two faces
     could share a vertex and an index buffer would only count 0, 1, 2, ... No ``NORMAL``:
     glTF viewers must then draw flat faces with computed normals, which is what a per-face
-    colouring shows anyway, at a third less data. With a ``quantizer`` the positions are
-    uint16 grid steps (the node scales them back), else float32 model coordinates.
+    colouring shows anyway, at a third less data. ``triangles`` are float32 model
+    coordinates, or uint16 grid steps of :class:`_Quantizer` (the node scales them back).
     """
-    corners = triangles.reshape(-1, 3)
-    positions = quantizer(corners) if quantizer is not None else corners.astype(np.float32)
+    positions = triangles.reshape(-1, 3)
     attributes = {
         "POSITION": builder.accessor(positions, "VEC3", bounds=True),
         "COLOR_0": builder.accessor(np.repeat(rgba, 3, axis=0), "VEC4", normalized=True),
@@ -295,7 +294,9 @@ def coverage_glb(result: PlanResult, *, compress: bool = True) -> bytes:
     classes = face_classes(result.faces, result.limits.target)
     rgb = face_rgb(result.faces, result.limits.target, result.limits.min_density_pts_m2)
     rgba = np.concatenate([linear_bytes(rgb), np.full((len(rgb), 1), 255, np.uint8)], axis=1)
-    triangles = scene.triangles
+    # quantize the V vertices once, then gather corners: (T, 3, 3) uint16 per class is a
+    # quarter of the float64 corners a 10 M-face scene would otherwise copy
+    grid_vertices = quantizer(scene.vertices)
     meshes: list[dict[str, Any]] = []
     nodes: list[dict[str, Any]] = [{"name": "scanplan", "rotation": _Z_UP_TO_Y_UP,
                                     "children": []}]
@@ -303,9 +304,8 @@ def coverage_glb(result: PlanResult, *, compress: bool = True) -> bytes:
         members = np.flatnonzero(classes == k)
         if len(members) == 0:
             continue
-        primitive = _flat_primitive(builder, triangles[members], rgba[members],
-                                    members.astype(np.float32), material=0,
-                                    quantizer=quantizer)
+        primitive = _flat_primitive(builder, grid_vertices[scene.faces[members]],
+                                    rgba[members], members.astype(np.float32), material=0)
         meshes.append({"name": name, "primitives": [primitive]})
         nodes[0]["children"].append(len(nodes))
         nodes.append({"name": name, "mesh": len(meshes) - 1, **quantizer.node(),
@@ -314,7 +314,8 @@ def coverage_glb(result: PlanResult, *, compress: bool = True) -> bytes:
     station_rgba = np.array([[*linear_bytes(np.array(STATION_RGB, np.uint8)), 255]], np.uint8)
     marker = _marker(_MARKER_RADIUS_M)
     meshes.append({"name": "station_marker", "primitives": [_flat_primitive(
-        builder, marker, np.repeat(station_rgba, len(marker), axis=0), None, material=1)]})
+        builder, marker.astype(np.float32), np.repeat(station_rgba, len(marker), axis=0),
+        None, material=1)]})
     marker_mesh = len(meshes) - 1
     chosen = result.chosen
     max_area = chosen.max_achievable_area_m2
@@ -322,7 +323,7 @@ def coverage_glb(result: PlanResult, *, compress: bool = True) -> bytes:
         label = str(order + 1)
         digits = _digits(label, _DIGIT_HEIGHT_M) + np.array([0.0, 0.0, 0.15])
         meshes.append({"name": f"station {label} number", "primitives": [_flat_primitive(
-            builder, digits, np.repeat(station_rgba, len(digits), axis=0), None,
+            builder, digits.astype(np.float32), np.repeat(station_rgba, len(digits), axis=0), None,
             material=1)]})
         position = [round(float(v), 6) for v in result.candidates.positions[candidate]]
         covered = chosen.covered_area_m2[order]
