@@ -18,10 +18,10 @@ Layout
   (``KHR_mesh_quantization``; the class node's ``scale`` and ``translation`` map them back,
   ``position_step_m`` in the scene extras gives the step), and every vertex attribute and
   property-table column is stored with ``EXT_meshopt_compression`` (lossless). Both are in
-  ``extensionsRequired``; three.js and Babylon.js read them, and ``coverage_glb(result,
-  compress=False)`` gives the same arrays uncompressed. A 1.16 M-face plan (FZK-Haus at
-  ``max_edge_m`` 0.2) takes 18 MB instead of 141 MB; exact per-face values stay in
-  ``faces.npz``.
+  ``extensionsRequired``; three.js and Babylon.js read them, and the parameter
+  ``glb_compression`` ``none`` gives the same arrays uncompressed. A 1.16 M-face plan
+  (FZK-Haus at ``max_edge_m`` 0.2) takes 18 MB instead of 141 MB; exact per-face values
+  stay in ``faces.npz``.
 - ``_FEATURE_ID_0`` (float, per vertex) is the face index (the row of ``faces.npz``).
   ``EXT_mesh_features`` points it at the property table of ``EXT_structural_metadata``
   (class ``face``): ``covered``, ``face_class``, ``best_lpd_pts_m2``,
@@ -274,14 +274,16 @@ def _digits(label: str, height: float) -> NDArray[np.float64]:
     return np.asarray(np.concatenate(boxes) if boxes else np.zeros((0, 3, 3)), np.float64)
 
 
-def coverage_glb(result: PlanResult, *, compress: bool = True) -> bytes:
+def coverage_glb(result: PlanResult, *, compress: bool | None = None) -> bytes:
     """The bytes of ``coverage.glb`` (see the module docstring).
 
-    ``compress=False`` leaves out ``EXT_meshopt_compression`` (same arrays, plain bytes) for
-    loaders that lack a meshopt decoder.
+    ``compress`` (default: the plan's ``glb_compression`` is ``meshopt``): False leaves out
+    ``EXT_meshopt_compression`` (same arrays, plain bytes) for loaders that lack a meshopt
+    decoder.
     """
     scene = result.scene
-    builder = _Builder(compress)
+    builder = _Builder(result.spec.glb_compression == "meshopt" if compress is None
+                       else compress)
     quantizer = _Quantizer(scene.bounds)
     materials = [
         {"name": "coverage", "doubleSided": True,

@@ -7,6 +7,7 @@ which trimesh then reads."""
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import struct
@@ -19,6 +20,8 @@ import pytest
 import trimesh
 
 from planner import drawing, glb
+from planner.errors import ParameterError
+from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult
 from planner.report import faces_npz
 from tests.planner.test_drawing import plan_hall_small
@@ -154,3 +157,11 @@ def test_stations_are_numbered_markers(result: PlanResult, plain: bytes) -> None
         np.testing.assert_allclose(world, root @ position, atol=1e-6)
         assert f"{name} number" in loaded.geometry
     assert document["scenes"][0]["extras"]["scanplan"]["stations"] == len(result.chosen.stations)
+
+
+def test_glb_compression_parameter(result: PlanResult, plain: bytes) -> None:
+    """``glb_compression: none`` gives the uncompressed file; a wrong value names the fix."""
+    spec = PlanSpec.from_mapping({**result.spec.to_dict(), "glb_compression": "none"})
+    assert glb.coverage_glb(dataclasses.replace(result, spec=spec)) == plain
+    with pytest.raises(ParameterError, match=r"glb_compression.*meshopt, none"):
+        PlanSpec.from_mapping({"glb_compression": "draco"})
