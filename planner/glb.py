@@ -61,7 +61,6 @@ from planner.pipeline import PlanResult
 _FLOAT, _UBYTE, _USHORT, _UINT = 5126, 5121, 5123, 5125
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
 _TYPE_WIDTH = {"SCALAR": 1, "VEC3": 3, "VEC4": 4}
-_MESHOPT_LEVEL = 2  # meshoptimizer's default: level 3 saves little more and costs time
 _Z_UP_TO_Y_UP = [-math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)]  # quaternion x, y, z, w
 _MARKER_RADIUS_M = 0.12
 _DIGIT_HEIGHT_M = 0.3
@@ -107,11 +106,11 @@ class _Builder:
         return length + (-length % align)
 
     def view(self, data: NDArray[Any], target: int | None = None, *,
-             stride: int | None = None, compressible: bool = False) -> int:
+             stride: int | None = None) -> int:
         """A buffer view of ``data``'s bytes; ``stride``: bytes per vertex of an attribute.
 
-        ``compressible`` views are meshopt-compressed when the builder compresses; their
-        length must be a multiple of 4 (the codec works on rows of 4 to 256 bytes).
+        Meshopt-compressed when the builder compresses; the length must then be a multiple
+        of 4 (the codec works on rows of 4 to 256 bytes: ``stride``, else 4).
         """
         raw = np.ascontiguousarray(data)
         view: dict[str, Any] = {"buffer": 0, "byteLength": raw.nbytes}
@@ -119,10 +118,11 @@ class _Builder:
             view["byteStride"] = stride
         if target is not None:
             view["target"] = target
-        if self.compress and compressible and raw.nbytes:
+        if self.compress and raw.nbytes:
             row_bytes = stride if stride is not None else 4
             rows = raw.view(np.uint8).reshape(-1, row_bytes)
-            packed = meshopt.encode_vertex_buffer_level(rows, _MESHOPT_LEVEL, 0)
+            # vertex codec version 0: the one EXT_meshopt_compression defines
+            packed = meshopt.encode_gltf_buffer(rows, "ATTRIBUTES", version=0)
             self.blob.extend(b"\0" * (-len(self.blob) % 4))
             view["extensions"] = {"EXT_meshopt_compression": {
                 "buffer": 0, "byteOffset": len(self.blob), "byteLength": len(packed),
@@ -158,7 +158,7 @@ class _Builder:
             padded[:, :width] = data
             data = padded
         accessor: dict[str, Any] = {
-            "bufferView": self.view(data, _ARRAY_BUFFER, stride=stride, compressible=True),
+            "bufferView": self.view(data, _ARRAY_BUFFER, stride=stride),
             "componentType": component, "count": len(data), "type": kind,
         }
         if normalized:
@@ -397,7 +397,7 @@ def _property_table(builder: _Builder, result: PlanResult,
         # uint8 columns are padded to whole 4-byte rows for the codec; count says the length
         padded = np.zeros(len(values) + (-values.nbytes % 4) // values.itemsize, values.dtype)
         padded[:len(values)] = values
-        table[name] = {"values": builder.view(padded, compressible=True)}
+        table[name] = {"values": builder.view(padded)}
     return {
         "schema": {"id": "scanplan", "classes": {"face": {
             "description": "per-face coverage of the plan, one row per face of faces.npz",
