@@ -33,6 +33,7 @@ typecheck: $(STAMP)  ## mypy --strict only
 
 bench: $(STAMP)  ## print the benchmark figures
 	$(BIN)/python benchmarks/plan_hall.py
+	$(BIN)/python benchmarks/cli_startup.py
 
 openapi: $(STAMP)  ## re-export openapi/openapi.json from the app
 	$(BIN)/python -m service.openapi_export openapi/openapi.json

@@ -16,7 +16,6 @@ from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any, TextIO
 
-from planner.candidates import read_candidates_csv
 from planner.errors import PlannerError
 from planner.parameters import PlanSpec
 
@@ -62,6 +61,9 @@ def load_params(path: str | None) -> dict[str, Any]:
 
 
 def run_plan(args: argparse.Namespace) -> int:
+    # imported here, not at the top: they bring numpy, scipy, trimesh and numba, which
+    # ``scanplan --help`` and the service's subcommands do not need
+    from planner.candidates import read_candidates_csv
     from planner.pipeline import plan
     from planner.readers import read_scene
     from planner.report import write_outputs

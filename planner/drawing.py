@@ -305,7 +305,9 @@ def _draw_level(ax: Axes, result: PlanResult, level: Level, mesh: Any,
     if len(below):
         polys = scene.vertices[scene.faces[below]][:, :, :2]
         colours = rgb[below] / 255.0
-        ax.add_collection(PolyCollection(list(polys), facecolors=colours, edgecolors=colours,
+        # one (T, 3, 2) array, not a list: matplotlib's fast path builds the T paths at once
+        ax.add_collection(PolyCollection(polys,  # type: ignore[arg-type]  # stubs: lists only
+                                         facecolors=colours, edgecolors=colours,
                                          linewidths=0.0, antialiased=False, zorder=1))
     lines, cut_faces = trimesh.intersections.mesh_plane(  # type: ignore[no-untyped-call]
         mesh, plane_normal=[0.0, 0.0, 1.0], plane_origin=[0.0, 0.0, level.section_z],

@@ -16,6 +16,8 @@ from planner.errors import ParameterError
 
 Method = Literal["greedy", "weighted_greedy", "optimal"]
 METHODS: tuple[Method, ...] = ("greedy", "weighted_greedy", "optimal")
+GlbCompression = Literal["meshopt", "none"]
+GLB_COMPRESSIONS: tuple[GlbCompression, ...] = ("meshopt", "none")
 
 
 @dataclass(frozen=True)
@@ -64,6 +66,8 @@ class PlanSpec:
     area_of_interest: tuple[tuple[float, float], ...] | None = None
     storeys: tuple[str, ...] | None = None
     rooms: tuple[str, ...] | None = None
+    # outputs
+    glb_compression: GlbCompression = "meshopt"
 
     def __post_init__(self) -> None:
         # accept plain data too (dicts, lists), as from_mapping does
@@ -143,6 +147,11 @@ def _convert(name: str, value: Any) -> Any:
     if name == "method":
         if value not in METHODS:
             raise ParameterError(name, f"{value!r} is not one of {', '.join(METHODS)}")
+        return value
+    if name == "glb_compression":
+        if value not in GLB_COMPRESSIONS:
+            raise ParameterError(name, f"{value!r} is not one of {', '.join(GLB_COMPRESSIONS)}; "
+                                       "use none for glTF loaders without a meshopt decoder")
         return value
     if name in ("candidates", "fixed_stations"):
         return None if value is None else _points(name, value, 3)
@@ -248,6 +257,8 @@ def _validate(spec: PlanSpec) -> None:
         f"{spec.coverage_goal} is outside (0, 1]; 0.8 means 80 % of the achievable area",
     )
     _check(spec.method in METHODS, "method", f"{spec.method!r} is not one of {METHODS}")
+    _check(spec.glb_compression in GLB_COMPRESSIONS, "glb_compression",
+           f"{spec.glb_compression!r} is not one of {GLB_COMPRESSIONS}")
     _check(spec.scanner_height_m > 0, "scanner_height_m",
            f"{spec.scanner_height_m} must be greater than 0")
     _check(spec.clearance_m >= 0, "clearance_m", f"{spec.clearance_m} is negative")

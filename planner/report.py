@@ -25,6 +25,7 @@ import os
 import tempfile
 import zipfile
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -193,20 +194,49 @@ OUTPUTS: dict[str, Callable[[PlanResult], bytes | None]] = {
 }
 
 
+# Pictures: slow to render and not what a BIM platform waits for, so they are drawn in
+# background threads while the data files are written, and land on disk after them. One
+# thread per group: matplotlib is not thread-safe, so its two pictures share one thread;
+# coverage.glb (numpy and meshopt, which release the GIL) has its own.
+PICTURE_GROUPS = (("preview.png", "curve.png"), ("coverage.glb",))
+
+
 def write_outputs(result: PlanResult, out_dir: str | Path,
                   names: tuple[str, ...] | None = None) -> list[Path]:
-    """Write every output into ``out_dir`` (created), each file atomically."""
+    """Write every output into ``out_dir`` (created), each file atomically.
+
+    The data files (plan.json first, in the order of :data:`OUTPUTS`) are on disk before any
+    picture; the pictures render meanwhile (see :data:`PICTURE_GROUPS`). Returns the paths
+    in the order of :data:`OUTPUTS`, whatever order they were finished in.
+    """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, render in OUTPUTS.items():
-        if names is not None and name not in names:
-            continue
-        data = render(result)
-        if data is None:
-            continue
-        written.append(atomic_write(out / name, data))
-    return written
+    wanted = [name for name in OUTPUTS if names is None or name in names]
+    pictures = {name for group in PICTURE_GROUPS for name in group}
+    groups = [[name for name in group if name in wanted] for group in PICTURE_GROUPS]
+    written: dict[str, Path] = {}
+    with ThreadPoolExecutor(max_workers=len(PICTURE_GROUPS),
+                            thread_name_prefix="scanplan-pictures") as pool:
+        rendering = [pool.submit(_render_all, result, group) for group in groups if group]
+        for name in wanted:
+            if name not in pictures:
+                data = OUTPUTS[name](result)
+                if data is not None:
+                    written[name] = atomic_write(out / name, data)
+        for future in rendering:
+            for name, data in future.result():
+                written[name] = atomic_write(out / name, data)
+    return [written[name] for name in wanted if name in written]
+
+
+def _render_all(result: PlanResult, group: list[str]) -> list[tuple[str, bytes]]:
+    """The bytes of the outputs named in ``group``, rendered one after the other."""
+    rendered = []
+    for name in group:
+        data = OUTPUTS[name](result)
+        if data is not None:
+            rendered.append((name, data))
+    return rendered
 
 
 def atomic_write(path: Path, data: bytes) -> Path:

@@ -13,9 +13,10 @@ import multiprocessing
 import os
 import signal
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from service.config import Settings
+if TYPE_CHECKING:  # imported where used: pydantic-settings would slow ``scanplan --help``
+    from service.config import Settings
 
 log = logging.getLogger("scanplan.service")
 _STOP_WAIT_S = 15.0
@@ -50,6 +51,8 @@ def _common(parser: argparse.ArgumentParser) -> None:
 
 def settings_from(args: argparse.Namespace) -> Settings:
     """Settings from the environment, overridden by the options given."""
+    from service.config import Settings
+
     overrides = {name: getattr(args, name, None) for name in ("host", "port", "data_dir",
                                                               "workers")}
     return Settings(**{k: v for k, v in overrides.items() if v is not None})

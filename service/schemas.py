@@ -83,6 +83,8 @@ class PlanParameters(BaseModel):
     grid_spacing_m: Number = _d("grid_spacing_m", "spacing of generated candidates, metres")
     scanner_height_m: Number = _d("scanner_height_m", "height above the floor, metres")
     clearance_m: Number = _d("clearance_m", "least distance to any surface, metres")
+    glb_compression: Literal["meshopt", "none"] = _d(
+        "glb_compression", "coverage.glb: meshopt-compressed, or none for plain loaders")
     area_of_interest: list[Point2] | None = _d(
         "area_of_interest", "polygon [x, y] the generated candidates stay in; null: all")
     storeys: list[str] | None = _d("storeys", "IFC storeys to plan for; null: all")

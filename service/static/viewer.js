@@ -4,6 +4,8 @@
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+// coverage.glb is meshopt-compressed (EXT_meshopt_compression): the decoder is WebAssembly
+import { MeshoptDecoder } from 'three/addons/libs/meshopt_decoder.module.js';
 import {
   ProblemError, askForKey, authHeaders, basePath, el, fetchOk, fmt, getJSON, problemText,
 } from './api.js';
@@ -232,6 +234,7 @@ async function loadModel() {
 
   const loader = new GLTFLoader();
   loader.setRequestHeader(authHeaders());
+  loader.setMeshoptDecoder(MeshoptDecoder);
   let gltf;
   try {
     gltf = await loader.loadAsync(`${basePath()}${jobPath}/results/coverage.glb`);

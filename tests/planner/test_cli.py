@@ -91,3 +91,33 @@ def test_unreadable_model_is_one_line(tmp_path: Path) -> None:
     assert done.returncode == 2
     assert "not a model format" in done.stderr
     assert done.stderr.count("\n") == 1
+
+
+def test_help_imports_no_heavy_library() -> None:
+    """``scanplan --help`` lists every subcommand without loading the planner's numerical
+    stack or the web stack (that is what keeps the command quick to start)."""
+    probe = (
+        "import sys\n"
+        "from planner.__main__ import main\n"
+        "try:\n"
+        "    main(['--help'])\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "heavy = {'numpy', 'scipy', 'trimesh', 'numba', 'embreex', 'matplotlib', 'fastapi',\n"
+        "         'pydantic', 'pydantic_settings', 'sqlalchemy', 'huey'}\n"
+        "print(sorted(heavy & {name.split('.')[0] for name in sys.modules}), file=sys.stderr)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                          timeout=60, check=False)
+    assert "serve" in done.stdout and "plan" in done.stdout
+    assert done.stderr.strip() == "[]"
+
+
+def test_planner_package_exports_load_on_use() -> None:
+    import planner
+
+    assert planner.PlanSpec.from_mapping({}).max_edge_m is not None
+    assert callable(planner.plan) and callable(planner.read_scene)
+    assert {"plan", "read_scene", "write_outputs"} <= set(dir(planner))
+    with pytest.raises(AttributeError, match="no_such_name"):
+        planner.no_such_name  # noqa: B018

@@ -145,3 +145,19 @@ def test_registered_outputs(result: PlanResult, tmp_path: Path) -> None:
     written = write_outputs(result, tmp_path, names=("preview.png", "curve.png"))
     assert sorted(p.name for p in written) == ["curve.png", "preview.png"]
     assert (tmp_path / "preview.png").read_bytes() == drawing.preview_png(result)
+
+
+def test_data_files_land_before_pictures(result: PlanResult, tmp_path: Path) -> None:
+    """A BIM platform watching the folder gets plan.json and the other data files first;
+    the pictures, rendered in threads meanwhile, are the same bytes as rendered alone."""
+    written = write_outputs(result, tmp_path)
+    names = [p.name for p in written]
+    assert names == [name for name in OUTPUTS if (tmp_path / name).exists()]  # OUTPUTS order
+    assert names[0] == "plan.json"
+    pictures = {"preview.png", "curve.png", "coverage.glb"}
+    assert pictures <= set(names)
+    modified = {p.name: p.stat().st_mtime_ns for p in written}
+    assert max(t for n, t in modified.items() if n not in pictures) <= min(
+        modified[n] for n in pictures)
+    for path in written:
+        assert path.read_bytes() == OUTPUTS[path.name](result), path.name

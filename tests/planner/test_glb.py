@@ -1,19 +1,27 @@
 """coverage.glb: a valid glTF binary that trimesh loads, face colours and the property table
-agree with faces.npz, stations where the plan puts them, same bytes twice."""
+agree with faces.npz, stations where the plan puts them, same bytes twice.
+
+The default file is meshopt-compressed, which trimesh cannot read: it is decoded here with
+the ``meshopt`` decoder and shown to hold exactly the arrays of the uncompressed variant,
+which trimesh then reads."""
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import struct
 from pathlib import Path
 from typing import Any
 
+import meshopt
 import numpy as np
 import pytest
 import trimesh
 
 from planner import drawing, glb
+from planner.errors import ParameterError
+from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult
 from planner.report import faces_npz
 from tests.planner.test_drawing import plan_hall_small
@@ -29,6 +37,11 @@ def data(result: PlanResult) -> bytes:
     return glb.coverage_glb(result)
 
 
+@pytest.fixture(scope="module")
+def plain(result: PlanResult) -> bytes:
+    return glb.coverage_glb(result, compress=False)
+
+
 def chunks(data: bytes) -> tuple[dict[str, Any], bytes]:
     magic, version, total = struct.unpack_from("<4sII", data, 0)
     assert (magic, version, total) == (b"glTF", 2, len(data))
@@ -42,16 +55,53 @@ def chunks(data: bytes) -> tuple[dict[str, Any], bytes]:
     return document, blob
 
 
-def test_same_bytes_twice(result: PlanResult, data: bytes) -> None:
+def view_bytes(document: dict[str, Any], blob: bytes, index: int) -> bytes:
+    """The (decompressed) bytes of buffer view ``index``."""
+    view = document["bufferViews"][index]
+    packed = view.get("extensions", {}).get("EXT_meshopt_compression")
+    if packed is None:
+        assert view["buffer"] == 0
+        return blob[view["byteOffset"]:view["byteOffset"] + view["byteLength"]]
+    assert document["buffers"][view["buffer"]]["extensions"]["EXT_meshopt_compression"][
+        "fallback"]
+    start = packed["byteOffset"]
+    rows = meshopt.decode_gltf_buffer(blob[start:start + packed["byteLength"]],
+                                      packed["count"], packed["byteStride"], packed["mode"])
+    data = np.asarray(rows, np.uint8).tobytes()
+    assert len(data) == view["byteLength"]
+    return data
+
+
+def test_same_bytes_twice(result: PlanResult, data: bytes, plain: bytes) -> None:
     assert glb.coverage_glb(result) == data
+    assert glb.coverage_glb(result, compress=False) == plain
 
 
-def test_face_colours_match_faces_npz(result: PlanResult, data: bytes) -> None:
+def test_compressed_file_holds_the_plain_arrays(data: bytes, plain: bytes) -> None:
+    packed_doc, packed_blob = chunks(data)
+    plain_doc, plain_blob = chunks(plain)
+    assert "EXT_meshopt_compression" in packed_doc["extensionsRequired"]
+    assert "EXT_meshopt_compression" not in plain_doc["extensionsUsed"]
+    for key in ("nodes", "meshes", "accessors", "scenes", "materials"):
+        assert packed_doc[key] == plain_doc[key]
+    assert len(packed_doc["bufferViews"]) == len(plain_doc["bufferViews"])
+    for index in range(len(plain_doc["bufferViews"])):
+        assert (view_bytes(packed_doc, packed_blob, index)
+                == view_bytes(plain_doc, plain_blob, index))
+    assert len(data) < len(plain) / 2  # the point of compressing
+
+
+def test_face_colours_match_faces_npz(result: PlanResult, plain: bytes) -> None:
     arrays = np.load(io.BytesIO(faces_npz(result)))
     classes = drawing.face_classes(arrays, result.limits.target)
     expected = glb.linear_bytes(drawing.face_rgb(arrays, result.limits.target,
                                                  result.limits.min_density_pts_m2))
-    loaded = trimesh.load(io.BytesIO(data), file_type="glb", process=False)
+    loaded = trimesh.load(io.BytesIO(plain), file_type="glb", process=False)
+    document, _ = chunks(plain)
+    assert "KHR_mesh_quantization" in document["extensionsRequired"]
+    step_m = document["scenes"][0]["extras"]["scanplan"]["position_step_m"]
+    root_inverse = np.diag([1.0, 1.0, 1.0, 1.0])
+    root_inverse[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]  # glTF Y-up -> model Z-up
     seen = np.zeros(result.scene.n_faces, int)
     for k, name in enumerate(drawing.CLASS_NAMES):
         if not (classes == k).any():
@@ -64,14 +114,18 @@ def test_face_colours_match_faces_npz(result: PlanResult, data: bytes) -> None:
         assert (classes[ids] == k).all()
         colours = np.asarray(mesh.visual.vertex_attributes["color"]).reshape(-1, 3, 4)
         assert (colours[:, :, :3] == expected[ids][:, None, :]).all()
-        # geometry is the scene's, in model coordinates under the root rotation
-        np.testing.assert_allclose(mesh.vertices.reshape(-1, 3, 3),
-                                   result.scene.triangles[ids], atol=1e-5)
+        # geometry is the scene's: uint16 grid steps that the node scales back to model
+        # coordinates (under the root rotation), within half a step
+        to_model = root_inverse @ loaded.graph[name][0]
+        vertices = trimesh.transform_points(np.asarray(mesh.vertices, float), to_model)
+        np.testing.assert_allclose(vertices.reshape(-1, 3, 3), result.scene.triangles[ids],
+                                   rtol=0, atol=0.5 * step_m + 1e-9)
         seen[ids] += 1
     assert (seen == 1).all()  # every face once
 
 
 def test_property_table_carries_faces_npz(result: PlanResult, data: bytes) -> None:
+    """Read from the compressed file, as a BIM platform with a meshopt decoder would."""
     document, blob = chunks(data)
     arrays = np.load(io.BytesIO(faces_npz(result)))
     metadata = document["extensions"]["EXT_structural_metadata"]
@@ -81,17 +135,17 @@ def test_property_table_carries_faces_npz(result: PlanResult, data: bytes) -> No
     schema = metadata["schema"]["classes"]["face"]["properties"]
     for name in ("covered", "best_lpd_pts_m2", "n_stations", "first_station", "n_candidates",
                  "source_face"):
-        view = document["bufferViews"][table["properties"][name]["values"]]
-        assert view["byteOffset"] % 8 == 0
-        values = np.frombuffer(blob, types[schema[name]["componentType"]],
-                               count=table["count"], offset=view["byteOffset"])
+        index = table["properties"][name]["values"]
+        assert document["bufferViews"][index]["byteOffset"] % 8 == 0
+        values = np.frombuffer(view_bytes(document, blob, index),
+                               types[schema[name]["componentType"]], count=table["count"])
         np.testing.assert_array_equal(values, arrays[name].astype(values.dtype))
 
 
-def test_stations_are_numbered_markers(result: PlanResult, data: bytes) -> None:
-    document, _ = chunks(data)
+def test_stations_are_numbered_markers(result: PlanResult, plain: bytes) -> None:
+    document, _ = chunks(plain)
     nodes = {node["name"]: node for node in document["nodes"]}
-    loaded = trimesh.load(io.BytesIO(data), file_type="glb", process=False)
+    loaded = trimesh.load(io.BytesIO(plain), file_type="glb", process=False)
     root = np.array([[1, 0, 0], [0, 0, 1], [0, -1, 0]], float)  # model Z-up -> glTF Y-up
     for order, candidate in enumerate(result.chosen.stations):
         name = f"station {order + 1}"
@@ -103,3 +157,11 @@ def test_stations_are_numbered_markers(result: PlanResult, data: bytes) -> None:
         np.testing.assert_allclose(world, root @ position, atol=1e-6)
         assert f"{name} number" in loaded.geometry
     assert document["scenes"][0]["extras"]["scanplan"]["stations"] == len(result.chosen.stations)
+
+
+def test_glb_compression_parameter(result: PlanResult, plain: bytes) -> None:
+    """``glb_compression: none`` gives the uncompressed file; a wrong value names the fix."""
+    spec = PlanSpec.from_mapping({**result.spec.to_dict(), "glb_compression": "none"})
+    assert glb.coverage_glb(dataclasses.replace(result, spec=spec)) == plain
+    with pytest.raises(ParameterError, match=r"glb_compression.*meshopt, none"):
+        PlanSpec.from_mapping({"glb_compression": "draco"})
