@@ -21,8 +21,10 @@ from planner.errors import CancelledError, NothingVisibleError
 from planner.optimal import OptimalResult, solve_optimal
 from planner.pairs import FaceLimits, PairFinder
 from planner.parameters import PlanSpec
+from planner.registration import connected_greedy, overlap_matrix
 from planner.scene import Scene
 from planner.selection import Selection, coverage_state, greedy
+from planner.survey import Survey, survey
 from planner.visibility import (
     Backend,
     Occlusion,
@@ -62,6 +64,7 @@ class PlanResult:
     optimal: OptimalResult | None
     faces: dict[str, np.ndarray]
     stats: Stats
+    survey: Survey | None = None  # registration, route, field time (planner.survey)
 
 
 def _notify(progress: ProgressCallback | None, stage: str, fraction: float) -> None:
@@ -122,19 +125,33 @@ def plan(
         weighted = pool.submit(greedy, table, weighted=True)
         selections = {"greedy": greedy(table), "weighted_greedy": weighted.result()}
     optimal = None
+    overlap = None
     if spec.method == "optimal":
         _notify(progress, "selection", 0.5)
         optimal = solve_optimal(table, spec.coverage_goal, spec.optimal_time_limit_s,
                                 incumbent=selections["greedy"], centroids=scene.centroids)
         chosen = optimal.selection
+    elif spec.min_overlap_m2 is not None:
+        # registration constraint: every station after the first overlaps a chosen one
+        t_overlap = time.perf_counter()
+        overlap = overlap_matrix(scene, candidates.positions, limits, occlusion,
+                                 spec.overlap_density_pts_m2, threads=threads)
+        stats.seconds["overlap"] = time.perf_counter() - t_overlap
+        chosen = connected_greedy(
+            table, overlap, scene, candidates.positions, spec.min_overlap_m2,
+            weighted=spec.method == "weighted_greedy").truncated(spec.coverage_goal)
     else:
         chosen = selections[spec.method].truncated(spec.coverage_goal)
     stats.seconds["selection"] = time.perf_counter() - t2
+    station_overlap = None if overlap is None else overlap[list(chosen.stations)]
+    plan_survey = survey(scene, spec, candidates.positions[list(chosen.stations)], limits,
+                         occlusion, _caster(scene, limits, occlusion), stats.seconds,
+                         station_overlap=station_overlap, threads=threads)
     _notify(progress, "report", 0.0)
     faces = coverage_state(table, chosen.stations)
     return PlanResult(scene=scene, spec=spec, candidates=candidates, table=table,
                       limits=limits, selections=selections, chosen=chosen, optimal=optimal,
-                      faces=faces, stats=stats)
+                      faces=faces, stats=stats, survey=plan_survey)
 
 
 def _caster(scene: Scene, limits: FaceLimits, occlusion: Occlusion) -> RayCaster:
