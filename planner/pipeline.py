@@ -139,7 +139,8 @@ def plan(
         stats.seconds["overlap"] = time.perf_counter() - t_overlap
         chosen = connected_greedy(
             table, overlap, scene, candidates.positions, spec.min_overlap_m2,
-            weighted=spec.method == "weighted_greedy").truncated(spec.coverage_goal)
+            weighted=spec.method == "weighted_greedy", goal=spec.coverage_goal,
+        ).truncated(spec.coverage_goal)
     else:
         chosen = selections[spec.method].truncated(spec.coverage_goal)
     stats.seconds["selection"] = time.perf_counter() - t2

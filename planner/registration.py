@@ -36,7 +36,7 @@ from scipy.sparse.csgraph import connected_components
 from planner.coverage import CoverageTable
 from planner.pairs import FaceLimits
 from planner.scene import Scene
-from planner.selection import GAIN_QUANTUM_M2, Selection
+from planner.selection import GAIN_QUANTUM_M2, GOAL_SLACK_M2, Selection
 from planner.visibility import Occlusion
 
 # smallest eigenvalue over trace of the normal scatter matrix for an edge to register in
@@ -54,13 +54,13 @@ def overlap_limits(limits: FaceLimits, overlap_density_pts_m2: float) -> FaceLim
 def overlap_matrix(scene: Scene, positions: NDArray[np.float64], limits: FaceLimits,
                    occlusion: Occlusion, overlap_density_pts_m2: float,
                    threads: int | None = None) -> sp.csr_matrix:
-    """(N, F) CSR bool: which face each of the (N, 3) positions qualifies for at the
+    """(N, F) CSR float64 of 1.0: which face each of the (N, 3) positions qualifies for at the
     overlap density (same limits and occlusion as coverage otherwise)."""
     from planner.pipeline import Stats, qualify_pairs  # the pipeline imports this module
 
     qualified = qualify_pairs(scene, positions, overlap_limits(limits, overlap_density_pts_m2),
                               occlusion, Stats(), threads=threads)
-    data = np.ones(len(qualified.face), bool)
+    data = np.ones(len(qualified.face), np.float64)
     return sp.csr_matrix((data, (qualified.candidate, qualified.face)),
                          shape=(len(positions), scene.n_faces))
 
@@ -87,23 +87,28 @@ def _constraint(scatter6: NDArray[np.float64]) -> NDArray[np.float64]:
 def overlap_with(overlap: sp.csr_matrix, row: int, scene: Scene,
                  weights6: NDArray[np.float64]) -> tuple[NDArray[np.float64],
                                                          NDArray[np.float64]]:
-    """Overlap area (m^2) and constraint of row ``row`` with every row of ``overlap``."""
+    """Overlap area (m^2) and constraint of row ``row`` with every row of ``overlap``.
+
+    ``overlap``: (N, F) CSR float64 of 0/1 (float once, so each call is two products).
+    """
+    faces = overlap.indices[overlap.indptr[row]:overlap.indptr[row + 1]]
     mask = np.zeros(scene.n_faces)
-    mask[overlap.indices[overlap.indptr[row]:overlap.indptr[row + 1]]] = 1.0
-    as_float = overlap.astype(np.float64)
-    area = np.asarray(as_float @ (scene.areas * mask)).reshape(-1)
-    scatter = np.asarray(as_float @ (weights6 * mask[:, None]))
+    mask[faces] = 1.0
+    area = np.asarray(overlap @ (scene.areas * mask)).reshape(-1)
+    scatter = np.asarray(overlap @ (weights6 * mask[:, None]))
     return area, _constraint(scatter)
 
 
 def connected_greedy(table: CoverageTable, overlap: sp.csr_matrix, scene: Scene,
                      positions: NDArray[np.float64], min_overlap_m2: float,
-                     *, weighted: bool = False) -> Selection:
+                     *, weighted: bool = False, goal: float = 1.0) -> Selection:
     """Greedy (or weighted greedy) whose stations form one connected overlap graph.
 
     Gains are the same exact integers as :func:`planner.selection.greedy` (ties go to the
-    lowest index); a candidate is *allowed* once it overlaps a chosen station.
+    lowest index); a candidate is *allowed* once it overlaps a chosen station. Stops once
+    ``goal`` of the achievable area is covered (each step costs a pass over ``overlap``).
     """
+    needed_m2 = goal * table.max_achievable_area_m2 - GOAL_SLACK_M2
     area = table.face_area_m2
     if weighted:
         k = table.candidates_per_face
@@ -141,6 +146,8 @@ def connected_greedy(table: CoverageTable, overlap: sp.csr_matrix, scene: Scene,
         new_area.append(added)
         covered.append(total)
         chosen[candidate] = True
+        if total >= needed_m2:
+            break
         if len(stations) == 1:
             allowed[:] = False
         overlap_m2, constraint = overlap_with(overlap, candidate, scene, weights6)

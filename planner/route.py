@@ -3,11 +3,12 @@
 Each station is attached to the walk graph (:mod:`planner.walkgraph`) at the nearest floor
 sample below it whose knee-height segment to the station's foot is free; shortest paths on
 the graph come from ``scipy.sparse.csgraph.dijkstra``. The visiting order is a shortest
-open tour (a path, no return) over those distances, solved by OR-Tools' routing solver:
+open tour (a path, no return) over those distances: exact (Held-Karp) up to
+``EXACT_MAX_POINTS`` points, above that OR-Tools' routing solver
+(cheapest-arc start, then local search to a local optimum):
 from ``route_start`` when given (snapped to the graph like a station), else from whichever
-station gives the shortest tour (a dummy depot at distance 0 from every station). OR-Tools
-runs guided local search bounded by a number of solutions, not by time, so the same input
-gives the same route.
+station gives the shortest tour (a dummy depot at distance 0 from every station). Neither
+step has a time limit, so the same input gives the same route.
 
 Stations not attached to the graph, or in another part of it than the start (or, with no
 start, than the most stations), are *unreachable*: they are reported by id and never joined
@@ -30,9 +31,8 @@ from planner.walkgraph import KNEE_HEIGHT_M, STEP_M, WalkGraph, segment_free
 _ATTACH_CELLS = 2.0
 # OR-Tools costs are integers: millimetres
 _COST_SCALE = 1000.0
-# solutions guided local search may try: enough to reach the optimum of small tours,
-# a count (not a time limit) so that the route is deterministic
-_SOLUTION_LIMIT = 2000
+# up to this many points (stations + start) the tour is the exact optimum
+EXACT_MAX_POINTS = 11
 
 
 @dataclass(frozen=True)
@@ -98,16 +98,54 @@ def attach(graph: WalkGraph, caster: RayCaster, points: NDArray[np.float64]
     return nodes, foot + knee
 
 
+def exact_open_tour(cost_m: NDArray[np.float64], start: int | None) -> list[int]:
+    """The optimum open path by Held-Karp dynamic programming (O(2^n n^2); n <= 12).
+
+    ``best[mask, j]``: shortest path that visits the points of ``mask`` and ends at j.
+    """
+    n = len(cost_m)
+    full = (1 << n) - 1
+    best = np.full((1 << n, n), np.inf)
+    parent = np.full((1 << n, n), -1, np.int64)
+    for j in range(n) if start is None else [start]:
+        best[1 << j, j] = 0.0
+    for mask in range(1, full + 1):
+        row = best[mask]
+        ends = [j for j in range(n) if np.isfinite(row[j])]
+        if not ends:
+            continue
+        for k in range(n):
+            if mask & (1 << k):
+                continue
+            # extend the best path of this mask by k; strict < keeps the lowest j on ties
+            via = row[ends] + cost_m[ends, k]
+            i = int(np.argmin(via))
+            if via[i] < best[mask | (1 << k), k]:
+                best[mask | (1 << k), k] = via[i]
+                parent[mask | (1 << k), k] = ends[i]
+    end = int(np.argmin(best[full]))
+    order = [end]
+    mask = full
+    while parent[mask, order[-1]] >= 0:
+        previous = int(parent[mask, order[-1]])
+        mask &= ~(1 << order[-1])
+        order.append(previous)
+    return order[::-1]
+
+
 def open_tour(cost_m: NDArray[np.float64], start: int | None) -> list[int]:
     """Order of the (n, n) cost matrix's points on a shortest open path.
 
-    ``start``: index the path must begin at; None lets the solver choose.
+    ``start``: index the path must begin at; None lets the solver choose. Up to
+    ``EXACT_MAX_POINTS`` points the exact optimum (Held-Karp); above, OR-Tools.
     """
-    from ortools.constraint_solver import pywrapcp, routing_enums_pb2
-
     n = len(cost_m)
     if n <= 1:
         return list(range(n))
+    if n <= EXACT_MAX_POINTS:
+        return exact_open_tour(cost_m, start)
+    from ortools.constraint_solver import pywrapcp, routing_enums_pb2
+
     cost = np.round(cost_m * _COST_SCALE).astype(np.int64)
     # a depot the path leaves from and returns to at no cost: the tour becomes a path
     depot = n if start is None else start
@@ -125,9 +163,10 @@ def open_tour(cost_m: NDArray[np.float64], start: int | None) -> list[int]:
     routing.SetArcCostEvaluatorOfAllVehicles(routing.RegisterTransitCallback(arc))
     params = pywrapcp.DefaultRoutingSearchParameters()
     params.first_solution_strategy = routing_enums_pb2.FirstSolutionStrategy.PATH_CHEAPEST_ARC
+    # local search (2-opt, or-opt, relocate, ...) down to a local optimum: no time limit,
+    # so the same costs give the same order
     params.local_search_metaheuristic = (
-        routing_enums_pb2.LocalSearchMetaheuristic.GUIDED_LOCAL_SEARCH)
-    params.solution_limit = _SOLUTION_LIMIT
+        routing_enums_pb2.LocalSearchMetaheuristic.GREEDY_DESCENT)
     solution = routing.SolveWithParameters(params)
     order: list[int] = []
     index = routing.Start(0)
