@@ -80,8 +80,9 @@ def _constraint(scatter6: NDArray[np.float64]) -> NDArray[np.float64]:
                   np.stack([xz, yz, zz], -1)], axis=-2)
     trace = xx + yy + zz
     smallest = np.linalg.eigvalsh(m)[:, 0] if len(m) else np.zeros(0)
-    return np.divide(np.maximum(smallest, 0.0), trace, out=np.zeros_like(trace),
-                     where=trace > 0)
+    ratio: NDArray[np.float64] = np.divide(np.maximum(smallest, 0.0), trace,
+                                           out=np.zeros_like(trace), where=trace > 0)
+    return ratio
 
 
 def overlap_with(overlap: sp.csr_matrix, row: int, scene: Scene,

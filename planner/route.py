@@ -17,6 +17,7 @@ by a straight line.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import Any
 
@@ -216,7 +217,7 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
     point_ids = [i + 1 for i in reachable] + ([None] if route_start is not None else [])
     feet_used = feet[reachable + ([s] if route_start is not None else [])]
     legs: list[Leg] = []
-    for a, b in zip(order, order[1:], strict=False):
+    for a, b in itertools.pairwise(order):
         path_nodes = [sources[b]]
         while path_nodes[-1] != sources[a]:
             path_nodes.append(int(predecessor[a, path_nodes[-1]]))
@@ -225,6 +226,6 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
         end = point_ids[b]
         assert end is not None  # only the start is None, and it is never visited later
         legs.append(Leg(point_ids[a], end, float(cost[a, b]),
-                        tuple(tuple(float(v) for v in p) for p in path)))
+                        tuple((float(p[0]), float(p[1]), float(p[2])) for p in path)))
     visits = tuple(pid for pid in (point_ids[i] for i in order) if pid is not None)
     return Route(visits, tuple(legs), unreachable)

@@ -57,10 +57,10 @@ def _floor_samples(scene: Scene, caster: RayCaster, grid_m: float
                    ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
     """(N, 3) floor points and their (N,) grid column indices ix, iy."""
     lo, hi = scene.bounds
-    nx = int(math.floor((hi[0] - lo[0]) / grid_m)) + 1
-    ny = int(math.floor((hi[1] - lo[1]) / grid_m)) + 1
-    ix, iy = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
-    ix, iy = ix.ravel(), iy.ravel()
+    nx = math.floor((hi[0] - lo[0]) / grid_m) + 1
+    ny = math.floor((hi[1] - lo[1]) / grid_m) + 1
+    grid_x, grid_y = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    ix, iy = grid_x.ravel(), grid_y.ravel()
     xy = np.stack([lo[0] + (ix + 0.5) * grid_m, lo[1] + (iy + 0.5) * grid_m], axis=1)
     z = np.full(len(xy), hi[2] + 1.0)
     down = np.tile([0.0, 0.0, -1.0], (len(xy), 1))
@@ -78,7 +78,7 @@ def _floor_samples(scene: Scene, caster: RayCaster, grid_m: float
         floor = origins.copy()
         floor[:, 2] -= distance
         horizontal = np.abs(scene.normals[face, 2]) >= _MIN_FLOOR_NZ
-        above = floor + [0.0, 0.0, _EPS_M * 10]
+        above = floor + np.array([0.0, 0.0, _EPS_M * 10])
         _, free = caster.first_hit(above, up[: len(above)])
         keep = horizontal & (free >= HEADROOM_M)
         points.append(floor[keep])

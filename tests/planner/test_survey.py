@@ -45,8 +45,8 @@ def test_no_preset_keeps_the_papers_table_2() -> None:
 
 
 def test_unknown_preset_names_the_parameter_and_the_known_ones() -> None:
-    with pytest.raises(ParameterError, match="scanner: 'leica-x' is not a known preset.*"
-                                             "trimble-x7"):
+    with pytest.raises(ParameterError, match=r"scanner: 'leica-x' is not a known preset.*"
+                                             r"trimble-x7"):
         PlanSpec.from_mapping({"scanner": "leica-x"})
 
 
