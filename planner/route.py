@@ -185,6 +185,8 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
     s = len(stations_xyz)
     points = stations_xyz if route_start is None else np.vstack([stations_xyz, [route_start]])
     nodes, feet = attach(graph, caster, np.asarray(points, np.float64))
+    if graph.n_nodes == 0:  # no floor anywhere (a facade, a single object): nobody walks
+        return Route((), (), tuple(range(1, s + 1)))
     _, component = connected_components(graph.links, directed=False)
     labels = np.where(nodes >= 0, component[np.maximum(nodes, 0)], -1)
     if route_start is not None:

@@ -20,6 +20,7 @@ from planner.visibility import make_occlusion, make_ray_caster
 from planner.walkgraph import KNEE_HEIGHT_M, build_walk_graph, segment_free
 from tests.planner.survey_scenes import (
     MEZZANINE_Z_M,
+    boxes_scene,
     staircase,
     two_room_candidates,
     two_rooms,
@@ -217,3 +218,11 @@ def test_long_tour_visits_every_station_once_and_beats_the_input_order() -> None
     assert walked < sum(cost[i, i + 1] for i in range(29)) / 2
     assert order == open_tour(cost, None)  # deterministic
     assert exact_open_tour(cost[:5, :5], None) == open_tour(cost[:5, :5], None)
+
+
+def test_model_without_a_floor_leaves_every_station_unreachable() -> None:
+    scene = boxes_scene([((3.0, -2.0, 0.0), (3.2, 2.0, 3.0))])  # one free-standing wall
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    graph = build_walk_graph(scene, caster)
+    route = plan_route(graph, caster, np.array([[0.0, 0.0, 1.5], [1.0, 0.0, 1.5]]), None)
+    assert route.to_dict() == {"visits": [], "length_m": 0.0, "legs": [], "unreachable": [1, 2]}
