@@ -19,7 +19,7 @@ from planner.parameters import PlanSpec
 from planner.registration import Registration, overlap_matrix, station_registration
 from planner.route import Route, plan_route
 from planner.scene import Scene
-from planner.visibility import Occlusion, RayCaster
+from planner.visibility import Occlusion, RayCaster, make_ray_caster
 from planner.walkgraph import build_walk_graph
 
 DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the preset gives one
@@ -76,6 +76,22 @@ def field_time(spec: PlanSpec, n_stations: int, route: Route) -> FieldTime:
     )
 
 
+# IFC classes a person walks through: door leaves are modelled closed, but doors open
+WALK_THROUGH_CLASSES = ("IfcDoor",)
+
+
+def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster) -> RayCaster:
+    """Rays for walking: every face blocks (glass too, which coverage may see through)
+    except doors; the coverage caster is reused when it blocks exactly those faces."""
+    blocks = np.ones(scene.n_faces, bool)
+    if scene.elements:
+        door = np.array([e.ifc_class in WALK_THROUGH_CLASSES for e in scene.elements] + [False])
+        blocks &= ~door[scene.face_element]  # -1 (no element) picks the trailing False
+    if np.array_equal(blocks, limits.occludes):
+        return caster
+    return make_ray_caster(scene, blocks)
+
+
 def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceLimits,
            occlusion: Occlusion, caster: RayCaster, seconds: dict[str, float],
            station_overlap: sp.csr_matrix | None = None,
@@ -93,7 +109,8 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
                                         spec.overlap_density_pts_m2)
     t1 = time.perf_counter()
     seconds["overlap"] = seconds.get("overlap", 0.0) + t1 - t0
-    graph = build_walk_graph(scene, caster)
-    route = plan_route(graph, caster, stations_xyz, spec.route_start)
+    walk_caster = _walk_caster(scene, limits, caster)
+    graph = build_walk_graph(scene, walk_caster)
+    route = plan_route(graph, walk_caster, stations_xyz, spec.route_start)
     seconds["walk graph"] = time.perf_counter() - t1
     return Survey(registration, route, field_time(spec, len(stations_xyz), route))
