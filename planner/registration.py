@@ -17,7 +17,9 @@ With the constraint on, :func:`connected_greedy` runs the paper's greedy (or wei
 greedy) but, after the first station, considers only candidates that overlap a chosen
 station. When no such candidate adds area while area is left, it adds a *relay*: the
 allowed candidate nearest to the best candidate not yet allowed (ties to the lowest index),
-which adds no area but opens the way; it stops when no allowed candidate is left.
+which adds no area but opens the way. It stops when no allowed candidate is left or a relay
+would be no nearer to its target than the previous one (the rest cannot be registered:
+the plan then reports ``goal_reached`` false).
 
 Array letters: C candidates, F faces, S stations.
 """
@@ -37,7 +39,8 @@ from planner.coverage import CoverageTable
 from planner.pairs import FaceLimits
 from planner.scene import Scene
 from planner.selection import GAIN_QUANTUM_M2, GOAL_SLACK_M2, Selection
-from planner.visibility import Occlusion
+from planner.visibility import Occlusion, make_occlusion
+from planner.walkgraph import door_faces
 
 # smallest eigenvalue over trace of the normal scatter matrix for an edge to register in
 # all three directions: the weakest direction carries at least 5 % of the normal weight
@@ -55,8 +58,13 @@ def overlap_matrix(scene: Scene, positions: NDArray[np.float64], limits: FaceLim
                    occlusion: Occlusion, overlap_density_pts_m2: float,
                    threads: int | None = None) -> sp.csr_matrix:
     """(N, F) CSR float64 of 1.0: which face each of the (N, 3) positions qualifies for at the
-    overlap density (same limits and occlusion as coverage otherwise)."""
+    overlap density (same limits and occlusion as coverage otherwise, except that IFC doors
+    are open: a crew scans with the doors open, and the route walks through them)."""
     from planner.pipeline import Stats, qualify_pairs  # the pipeline imports this module
+
+    doors = door_faces(scene)
+    if (doors & limits.occludes).any():
+        occlusion = make_occlusion(scene, limits.occludes & ~doors, "embree")
 
     qualified = qualify_pairs(scene, positions, overlap_limits(limits, overlap_density_pts_m2),
                               occlusion, Stats(), threads=threads)
@@ -127,6 +135,7 @@ def connected_greedy(table: CoverageTable, overlap: sp.csr_matrix, scene: Scene,
     new_area: list[float] = []
     covered: list[float] = []
     total = 0.0
+    relay_gap_m = np.inf  # distance of the last relay to its target; a relay must get closer
     while True:
         open_gains = np.where(allowed & ~chosen, gains, -1.0)
         candidate = int(np.argmax(open_gains))
@@ -137,7 +146,13 @@ def connected_greedy(table: CoverageTable, overlap: sp.csr_matrix, scene: Scene,
                 break
             target = positions[int(np.argmax(waiting))]
             distance = np.linalg.norm(positions[relays] - target, axis=1)
-            candidate = int(relays[int(np.argmin(distance))])  # first of equal minima
+            nearest = int(np.argmin(distance))  # first of equal minima: lowest index
+            if distance[nearest] >= relay_gap_m:
+                break  # relaying makes no progress: the rest cannot be registered
+            relay_gap_m = float(distance[nearest])
+            candidate = int(relays[nearest])
+        else:
+            relay_gap_m = np.inf
         faces = table.faces_of(candidate)
         fresh = faces[uncovered[faces]]
         uncovered[fresh] = False

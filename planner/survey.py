@@ -20,7 +20,7 @@ from planner.registration import Registration, overlap_matrix, station_registrat
 from planner.route import Route, plan_route
 from planner.scene import Scene
 from planner.visibility import Occlusion, RayCaster, make_ray_caster
-from planner.walkgraph import build_walk_graph
+from planner.walkgraph import build_walk_graph, door_faces
 
 DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the preset gives one
 
@@ -76,17 +76,10 @@ def field_time(spec: PlanSpec, n_stations: int, route: Route) -> FieldTime:
     )
 
 
-# IFC classes a person walks through: door leaves are modelled closed, but doors open
-WALK_THROUGH_CLASSES = ("IfcDoor",)
-
-
 def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster) -> RayCaster:
     """Rays for walking: every face blocks (glass too, which coverage may see through)
     except doors; the coverage caster is reused when it blocks exactly those faces."""
-    blocks = np.ones(scene.n_faces, bool)
-    if scene.elements:
-        door = np.array([e.ifc_class in WALK_THROUGH_CLASSES for e in scene.elements] + [False])
-        blocks &= ~door[scene.face_element]  # -1 (no element) picks the trailing False
+    blocks = ~door_faces(scene)
     if np.array_equal(blocks, limits.occludes):
         return caster
     return make_ray_caster(scene, blocks)

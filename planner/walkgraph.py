@@ -34,6 +34,19 @@ _MAX_LEVELS = 8  # floors stacked over one grid column (storeys, stairs, roofs)
 _EPS_M = 1e-3
 
 
+# IFC classes modelled closed that a survey crew opens: people walk and scanners see through
+OPEN_DOOR_CLASSES = ("IfcDoor",)
+
+
+def door_faces(scene: Scene) -> NDArray[np.bool_]:
+    """(F,) bool: faces of IFC doors (all False for a mesh without elements)."""
+    if not scene.elements:
+        return np.zeros(scene.n_faces, bool)
+    door = np.array([e.ifc_class in OPEN_DOOR_CLASSES for e in scene.elements] + [False])
+    result: NDArray[np.bool_] = door[scene.face_element]  # -1 picks the trailing False
+    return result
+
+
 @dataclass(frozen=True, eq=False)
 class WalkGraph:
     """Floor samples and the links between them.
