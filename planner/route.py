@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components, dijkstra
 
+from planner.errors import ParameterError
 from planner.visibility import RayCaster
 from planner.walkgraph import KNEE_HEIGHT_M, STEP_M, WalkGraph, segment_free
 
@@ -185,6 +186,11 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
     s = len(stations_xyz)
     points = stations_xyz if route_start is None else np.vstack([stations_xyz, [route_start]])
     nodes, feet = attach(graph, caster, np.asarray(points, np.float64))
+    if route_start is not None and nodes[s] < 0:
+        raise ParameterError(
+            "route_start", f"{list(route_start)} is not over a floor a person can walk on; "
+            "give a point inside the building, above its floor (e.g. at scanner height), "
+            "or null to let the route choose")
     if graph.n_nodes == 0:  # no floor anywhere (a facade, a single object): nobody walks
         return Route((), (), tuple(range(1, s + 1)))
     _, component = connected_components(graph.links, directed=False)

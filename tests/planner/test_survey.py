@@ -62,6 +62,9 @@ def test_every_preset_figure_has_a_source_and_five_makers_are_listed(
     assert main(["scanners", "--json"]) == 0
     listed = json.loads(capsys.readouterr().out)
     assert len({s["maker"] for s in listed}) >= 5
+    assert main(["scanners"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in lines] == [s["id"] for s in listed]
 
 
 # --- registration overlap --------------------------------------------------------------
@@ -189,6 +192,8 @@ def test_route_from_a_given_start() -> None:
     assert route["legs"][0]["from"] is None and route["visits"][0] == 2
     assert route["length_m"] == pytest.approx(sum(leg["length_m"] for leg in route["legs"]),
                                               abs=0.01)
+    with pytest.raises(ParameterError, match=r"route_start: \[20.0, 2.0, 1.5\] is not over a "):
+        plan_route(build_walk_graph(scene, caster), caster, stations, (20.0, 2.0, 1.5))
 
 
 @pytest.mark.parametrize("start", [None, 0])
