@@ -46,11 +46,14 @@ def main() -> int:
     parser.add_argument("scene_dir", nargs="?", default=str(SHARED / "scenes" / "hall-full"))
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--min-overlap-m2", type=float, default=None,
+                        help="turn the registration constraint on (stage 'overlap')")
     args = parser.parse_args()
     scene_dir = Path(args.scene_dir)
     print(f"warm-up (kernel compile or cache load): {warm_up():.2f} s")
     candidates = read_candidates_csv(scene_dir / "candidates.csv")
-    spec = PlanSpec(candidates=tuple(map(tuple, candidates.tolist())), max_edge_m=None)
+    spec = PlanSpec(candidates=tuple(map(tuple, candidates.tolist())), max_edge_m=None,
+                    min_overlap_m2=args.min_overlap_m2)
     best: dict[str, float] = {}
     for run in range(args.repeat):
         with tempfile.TemporaryDirectory() as out:
@@ -72,6 +75,9 @@ def main() -> int:
     print(f"rays cast: {stats.rays_cast:,}  qualified pairs: {stats.qualified_pairs:,}")
     print(f"rays/s (visibility stage, best run): {stats.rays_cast / best['visibility']:,.0f}")
     print("best of runs: " + ", ".join(f"{k} {v:.2f} s" for k, v in best.items()))
+    survey_s = best.get("overlap", 0.0) + best.get("walk graph", 0.0)
+    print(f"survey stages (overlap + walk graph, best): {survey_s:.2f} s = "
+          f"{100 * survey_s / (best['total'] - survey_s):.0f} % on top of the rest")
     print(f"peak RSS: {peak_mb:.0f} MB")
     print(f"greedy stations at goal {spec.coverage_goal}: {list(result.chosen.stations)}")
     return 0

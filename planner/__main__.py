@@ -94,6 +94,20 @@ def run_plan(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_scanners(args: argparse.Namespace) -> int:
+    from planner.scanners import scanners  # lazily: only this command reads the presets
+
+    if args.json:
+        print(json.dumps([s.to_dict() for s in scanners().values()], indent=2))
+        return 0
+    for scanner in scanners().values():
+        steps = ", ".join(f"{s.point_spacing_m_at_10m * 1000:g} mm" for s in scanner.settings)
+        print(f"{scanner.id:<24} {scanner.name:<24} range {scanner.dof_min_m}-"
+              f"{scanner.dof_max_m} m, elevation {scanner.elevation_min_deg}.."
+              f"{scanner.elevation_max_deg} deg, steps at 10 m: {steps or 'not stated'}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="scanplan", description="Plan terrestrial laser scanner stations on a 3D model."
@@ -106,6 +120,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="directory for plan.json, faces.npz, ...")
     p.add_argument("--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(handler=run_plan)
+    s = sub.add_parser("scanners", help="list the scanner presets (the scanner parameter)")
+    s.add_argument("--json", action="store_true", help="print the presets with their sources")
+    s.set_defaults(handler=run_scanners)
     for entry in entry_points(group="scanplan.commands"):
         entry.load()(sub)
     return parser

@@ -326,6 +326,8 @@ def _draw_level(ax: Axes, result: PlanResult, level: Level, mesh: Any,
     reach = min(reach, result.spec.dof_max_m)
     members = set(level.candidates.tolist())
     station_colour = _rgb(STATION_RGB)
+    if result.survey is not None:
+        _draw_survey(ax, result, level, members)
     for order, candidate in enumerate(result.chosen.stations):
         if candidate not in members:
             continue
@@ -340,6 +342,31 @@ def _draw_level(ax: Axes, result: PlanResult, level: Level, mesh: Any,
                 markeredgecolor="white", markeredgewidth=1.2, linestyle="none", zorder=8)
         ax.text(x, y, label, ha="center", va="center_baseline", color="white",
                 fontsize=8 if len(label) < 3 else 7, fontweight="bold", zorder=9)
+
+
+def _draw_survey(ax: Axes, result: PlanResult, level: Level, members: set[int]) -> None:
+    """Registration edges (thin, dotted) and the walking route (legs, with visit numbers)."""
+    assert result.survey is not None
+    positions = result.candidates.positions
+    stations = result.chosen.stations
+    for edge in result.survey.registration.edges:
+        a, b = stations[edge.a - 1], stations[edge.b - 1]
+        if edge.ok and a in members and b in members:
+            ax.plot(positions[[a, b], 0], positions[[a, b], 1], linestyle=(0, (1, 2)),
+                    linewidth=0.9, color=(0.15, 0.45, 0.15), zorder=6)
+    low, high = level.floor_z - 0.3, level.section_z
+    for leg in result.survey.route.legs:
+        path = np.asarray(leg.path)
+        inside = (path[:, 2] >= low) & (path[:, 2] <= high)
+        segments = [path[i:i + 2, :2] for i in range(len(path) - 1) if inside[i] and inside[i + 1]]
+        ax.add_collection(LineCollection(segments, colors=[(0.85, 0.35, 0.0)], linewidths=1.3,
+                                         zorder=7))
+    for order, candidate in enumerate(stations):
+        visit = result.survey.visit_of(order + 1)
+        if candidate in members and visit is not None:
+            x, y = positions[candidate, :2]
+            ax.annotate(f"v{visit}", (x, y), xytext=(8, 8), textcoords="offset points",
+                        fontsize=7, color=(0.85, 0.35, 0.0), fontweight="bold", zorder=9)
 
 
 def _nice_length(span_m: float) -> float:

@@ -68,6 +68,15 @@ class PlanSpec:
     rooms: tuple[str, ...] | None = None
     # outputs
     glb_compression: GlbCompression = "meshopt"
+    # survey (issue 11): presets, registration overlap, walking route, field time
+    scanner: str | None = None  # a preset of planner/scanners.json; sets the defaults above
+    min_overlap_m2: float | None = None  # null: the paper's selection, no overlap constraint
+    # a surface counts for registration at this density: 25 mm x 25 mm, the data density of
+    # Level of Detail 2 in GSA BIM Guide Series 03, 3D Imaging (U.S. GSA, 2009)
+    overlap_density_pts_m2: float = 1600.0
+    route_start: tuple[float, float, float] | None = None  # null: the route chooses
+    setup_time_s: float | None = None  # per station; null: the preset's, else 60 s
+    walking_speed_m_s: float = 0.8
 
     def __post_init__(self) -> None:
         # accept plain data too (dicts, lists), as from_mapping does
@@ -77,6 +86,9 @@ class PlanSpec:
             value = getattr(self, name)
             if value is not None:
                 object.__setattr__(self, name, _points(name, value, dims))
+        if self.route_start is not None:
+            object.__setattr__(self, "route_start",
+                               _points("route_start", [self.route_start], 3)[0])
         _validate(self)
 
     @property
@@ -101,6 +113,13 @@ class PlanSpec:
             raise ParameterError(
                 unknown[0], f"unknown parameter; known ones are {', '.join(sorted(known))}"
             )
+        if values.get("scanner") is not None:
+            if not isinstance(values["scanner"], str):
+                raise ParameterError("scanner", f"expected a preset id, got {values['scanner']!r}")
+            from planner.scanners import preset_defaults
+
+            # the preset fills the defaults; what the caller gave explicitly wins
+            values = {**preset_defaults(values["scanner"]), **values}
         kwargs: dict[str, Any] = {}
         for name, value in values.items():
             if value is None and name not in _NULLABLE:
@@ -114,6 +133,7 @@ class PlanSpec:
         data["group_requirements"] = {
             k: asdict(v) for k, v in sorted(self.group_requirements.items())
         }
+        data["route_start"] = None if self.route_start is None else list(self.route_start)
         for key in ("candidates", "area_of_interest", "storeys", "rooms", "curve_goals",
                     "fixed_stations"):
             value = getattr(self, key)
@@ -124,7 +144,8 @@ class PlanSpec:
 
 
 _NULLABLE = {"max_edge_m", "candidates", "area_of_interest", "storeys", "rooms",
-             "curve_goals", "fixed_stations"}
+             "curve_goals", "fixed_stations", "scanner", "min_overlap_m2", "route_start",
+             "setup_time_s"}
 _FLOATS = {
     f.name
     for f in fields(PlanSpec)
@@ -163,6 +184,8 @@ def _convert(name: str, value: Any) -> Any:
         return tuple(_number(f"{name}[{i}]", v) for i, v in enumerate(value))
     if name == "area_of_interest":
         return None if value is None else _points(name, value, 2)
+    if name == "route_start":
+        return None if value is None else _points(name, [value], 3)[0]
     if name in ("storeys", "rooms"):
         if value is None:
             return None
@@ -272,6 +295,18 @@ def _validate(spec: PlanSpec) -> None:
     if spec.area_of_interest is not None:
         _check(len(spec.area_of_interest) >= 3, "area_of_interest",
                "needs at least 3 [x, y] vertices")
+    if spec.scanner is not None:
+        from planner.scanners import get
+
+        get(spec.scanner)  # raises, naming the known presets
+    _check(spec.min_overlap_m2 is None or spec.min_overlap_m2 > 0, "min_overlap_m2",
+           f"{spec.min_overlap_m2} must be greater than 0, or null for no overlap constraint")
+    _check(spec.overlap_density_pts_m2 > 0, "overlap_density_pts_m2",
+           f"{spec.overlap_density_pts_m2} must be greater than 0")
+    _check(spec.setup_time_s is None or spec.setup_time_s >= 0, "setup_time_s",
+           f"{spec.setup_time_s} is negative; use 0 or more, or null for the preset's")
+    _check(spec.walking_speed_m_s > 0, "walking_speed_m_s",
+           f"{spec.walking_speed_m_s} must be greater than 0 (0.8 is a slow walk with a tripod)")
     for group, req in spec.group_requirements.items():
         where = f"group_requirements.{group}"
         if req.min_density_pts_m2 is not None:

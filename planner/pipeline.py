@@ -23,8 +23,10 @@ from planner.errors import CancelledError, NothingVisibleError
 from planner.optimal import OptimalResult, choose_stations
 from planner.pairs import FaceLimits, PairFinder
 from planner.parameters import PlanSpec
+from planner.registration import connected_greedy, overlap_matrix
 from planner.scene import Scene
 from planner.selection import Selection, coverage_state, fixed_candidates
+from planner.survey import Survey, survey
 from planner.visibility import (
     Backend,
     Occlusion,
@@ -66,6 +68,7 @@ class PlanResult:
     stats: Stats
     optimal_curve: tuple[OptimalResult, ...] = ()  # per goal of curve_goals
     selection_report: dict[str, Any] = field(default_factory=dict)  # plan.json "selection"
+    survey: Survey | None = None  # registration, route, field time (planner.survey)
 
 
 def _notify(progress: ProgressCallback | None, stage: str, fraction: float) -> None:
@@ -135,15 +138,30 @@ def plan(
         curve_goals=spec.curve_goals,
         progress=lambda fraction: _notify(progress, "selection", fraction))
     selections, chosen, optimal = outcome.selections, outcome.chosen, outcome.optimal
+    overlap = None
+    if spec.min_overlap_m2 is not None and spec.method != "optimal":
+        # registration constraint: every station after the first overlaps a chosen one
+        t_overlap = time.perf_counter()
+        overlap = overlap_matrix(scene, candidates.positions, limits, occlusion,
+                                 spec.overlap_density_pts_m2, threads=threads)
+        stats.seconds["overlap"] = time.perf_counter() - t_overlap
+        chosen = connected_greedy(
+            table, overlap, scene, candidates.positions, spec.min_overlap_m2,
+            weighted=spec.method == "weighted_greedy", goal=spec.coverage_goal,
+        ).truncated(spec.coverage_goal)
     stats.seconds["selection"] = time.perf_counter() - t2
     for step, seconds in outcome.seconds.items():
         stats.seconds[f"selection_{step}"] = seconds
+    station_overlap = None if overlap is None else overlap[list(chosen.stations)]
+    plan_survey = survey(scene, spec, candidates.positions[list(chosen.stations)], limits,
+                         occlusion, _caster(scene, limits, occlusion), stats.seconds,
+                         station_overlap=station_overlap, threads=threads)
     _notify(progress, "report", 0.0)
     faces = coverage_state(table, chosen.stations)
     return PlanResult(scene=scene, spec=spec, candidates=candidates, table=table,
                       limits=limits, selections=selections, chosen=chosen, optimal=optimal,
                       faces=faces, stats=stats, optimal_curve=outcome.curve,
-                      selection_report=outcome.report)
+                      selection_report=outcome.report, survey=plan_survey)
 
 
 def _caster(scene: Scene, limits: FaceLimits, occlusion: Occlusion) -> RayCaster:

@@ -6,10 +6,12 @@ written without timestamps. Timings never enter these files (they live in
 
 Outputs of :func:`write_outputs` (the names the service serves too):
 
-- ``plan.json``: totals, stations, coverage curve, parameters, candidates (+ optimal);
+- ``plan.json``: totals, stations, coverage curve, parameters, candidates (+ optimal), and
+  the survey (:mod:`planner.survey`): ``registration``, ``route``, ``field_time``;
 - ``faces.npz``: per face ``covered``, ``best_lpd_pts_m2``, ``n_stations``,
   ``first_station``, ``n_candidates``, ``source_face``;
-- ``stations.csv``: ``id,x,y,z,order`` in model coordinates;
+- ``stations.csv``: ``id,x,y,z,order,candidate_index,visit`` in model coordinates (``visit``:
+  place on the walking route, empty when unreachable);
 - ``candidates.csv``: every candidate considered, ``x,y,z``;
 - ``elements.csv``, ``elements.json``: coverage per BIM element (IFC models only, see
   :mod:`planner.bim`); a renderer that returns None writes no file.
@@ -71,6 +73,8 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
             station["label"] = dict(labels[candidate])
         if order < chosen.fixed:
             station["fixed"] = True  # re-scan: scanned before (fixed_stations)
+        if result.survey is not None:
+            station["visit"] = result.survey.visit_of(order + 1)
         stations.append(station)
     document: dict[str, Any] = {
         "format_version": FORMAT_VERSION,
@@ -100,6 +104,10 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
             "bounds": [[_r(v) for v in row] for row in result.scene.bounds],
         },
     }
+    if result.survey is not None:
+        document["registration"] = result.survey.registration.to_dict()
+        document["route"] = result.survey.route.to_dict()
+        document["field_time"] = result.survey.field_time.to_dict()
     if result.optimal is not None:
         document["optimal"] = result.optimal.to_dict()
         document["optimal"]["greedy_stations"] = result.selections["greedy"].count_for_goal(
@@ -140,11 +148,14 @@ def faces_npz(result: PlanResult) -> bytes:
 def stations_csv(result: PlanResult) -> bytes:
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(["id", "x", "y", "z", "order", "candidate_index"])
+    writer.writerow(["id", "x", "y", "z", "order", "candidate_index", "visit"])
     positions = result.candidates.positions
     for order, candidate in enumerate(result.chosen.stations):
         x, y, z = (f"{v:.6f}" for v in positions[candidate])
-        writer.writerow([order + 1, x, y, z, order + 1, int(candidate)])
+        visit = None if result.survey is None else result.survey.visit_of(order + 1)
+        # an unreachable station has no place on the route: an empty cell
+        writer.writerow([order + 1, x, y, z, order + 1, int(candidate),
+                         "" if visit is None else visit])
     return out.getvalue().encode("utf-8")
 
 

@@ -89,6 +89,17 @@ class PlanParameters(BaseModel):
         "area_of_interest", "polygon [x, y] the generated candidates stay in; null: all")
     storeys: list[str] | None = _d("storeys", "IFC storeys to plan for; null: all")
     rooms: list[str] | None = _d("rooms", "IFC spaces to plan for; null: all")
+    scanner: str | None = _d("scanner", "scanner preset id (GET /processes/scan-plan lists "
+                             "them); sets the defaults of the limits it knows; null: Table 2")
+    min_overlap_m2: Number | None = _d(
+        "min_overlap_m2", "least shared area for a registration edge, m²; null: no constraint")
+    overlap_density_pts_m2: Number = _d(
+        "overlap_density_pts_m2", "density at which a surface counts for registration, pts/m²")
+    route_start: Point3 | None = _d("route_start",
+                                    "walking route start [x, y, z]; null: chosen")
+    setup_time_s: Number | None = _d("setup_time_s",
+                                     "per-station setup, seconds; null: the preset's or 60")
+    walking_speed_m_s: Number = _d("walking_speed_m_s", "walking speed with the kit, m/s")
 
 
 class ExecuteInputs(BaseModel):

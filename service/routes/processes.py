@@ -11,6 +11,7 @@ from starlette.concurrency import run_in_threadpool
 
 from planner.parameters import PlanSpec
 from planner.report import OUTPUTS
+from planner.scanners import scanners
 from service.deps import OwnerDep, ServicesDep
 from service.problems import IdempotencyKeyReusedError, NoSuchProcessError, NotFoundError
 from service.routes.jobs import media_type, status_info
@@ -50,6 +51,7 @@ def _description() -> dict[str, Any]:
                            "schema": PlanParameters.model_json_schema(),
                            "minOccurs": 0, "maxOccurs": 1},
         },
+        "scanners": [scanner.to_dict() for scanner in scanners().values()],
         "outputs": {
             name: {"title": name,
                    "schema": {"type": "string", "contentMediaType": media_type(name)}}

@@ -61,7 +61,7 @@ def test_faces_npz_agrees_with_plan(hall_small: dict[str, Path]) -> None:
 
 def test_stations_csv(hall_small: dict[str, Path]) -> None:
     lines = (hall_small["a"] / "stations.csv").read_text().splitlines()
-    assert lines[0] == "id,x,y,z,order,candidate_index"
+    assert lines[0] == "id,x,y,z,order,candidate_index,visit"
     assert len(lines) == 1 + len(json.loads((hall_small["a"] / "plan.json").read_text())[
         "stations"])
 

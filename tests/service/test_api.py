@@ -221,6 +221,13 @@ def test_processes_describe_real_defaults(client: TestClient) -> None:
         assert prop["default"] == (dict(value) if name == "group_requirements" else value)
 
 
+def test_process_lists_the_scanner_presets(client: TestClient) -> None:
+    scanners = client.get("/processes/scan-plan").json()["scanners"]
+    rtc360 = next(s for s in scanners if s["id"] == "leica-rtc360")
+    assert rtc360["defaults"]["dof_max_m"] == 130.0
+    assert all(s["sources"] for s in scanners)
+
+
 def test_readyz(client: TestClient) -> None:
     ready = client.get("/readyz")
     assert ready.status_code == 200 and ready.json()["status"] == "ready"

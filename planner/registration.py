@@ -1,0 +1,249 @@
+"""Registration overlap between stations, and greedy selection that keeps it connected.
+
+Two stations *overlap* when the faces both qualify for at ``overlap_density_pts_m2`` (the
+density at which a surface counts for cloud-to-cloud registration; the occlusion ray and
+the analytic limits apply as for coverage) have a total area of at least
+``min_overlap_m2`` AND those shared faces constrain a rigid registration in all three
+directions. The constraint test: with ``M = sum_f area_f * n_f n_f^T`` the area-weighted
+scatter matrix of the shared faces' unit normals,
+
+    constraint = smallest eigenvalue of M / trace(M)        (0 .. 1/3)
+
+It is 0 when every normal lies in one plane (a corridor of parallel walls and floor slides
+along its axis: point-to-plane registration cannot fix that translation) and 1/3 for three
+equal orthogonal planes. An edge needs ``constraint >= MIN_CONSTRAINT``.
+
+With the constraint on, :func:`connected_greedy` runs the paper's greedy (or weighted
+greedy) but, after the first station, considers only candidates that overlap a chosen
+station. When no such candidate adds area while area is left, it adds a *relay*: the
+allowed candidate nearest to the best candidate not yet allowed (ties to the lowest index),
+which adds no area but opens the way. It stops when no allowed candidate is left or a relay
+would be no nearer to its target than the previous one (the rest cannot be registered:
+the plan then reports ``goal_reached`` false).
+
+Array letters: C candidates, F faces, S stations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+from scipy.sparse.csgraph import connected_components
+
+from planner.coverage import CoverageTable
+from planner.pairs import FaceLimits
+from planner.scene import Scene
+from planner.selection import GAIN_QUANTUM_M2, GOAL_SLACK_M2, Selection
+from planner.visibility import Occlusion, make_occlusion
+from planner.walkgraph import door_faces
+
+# smallest eigenvalue over trace of the normal scatter matrix for an edge to register in
+# all three directions: the weakest direction carries at least 5 % of the normal weight
+MIN_CONSTRAINT = 0.05
+
+
+def overlap_limits(limits: FaceLimits, overlap_density_pts_m2: float) -> FaceLimits:
+    """The plan's limits with the density requirement replaced by the overlap density."""
+    return dataclasses.replace(
+        limits, min_density_pts_m2=np.full_like(limits.min_density_pts_m2,
+                                                overlap_density_pts_m2))
+
+
+def overlap_matrix(scene: Scene, positions: NDArray[np.float64], limits: FaceLimits,
+                   occlusion: Occlusion, overlap_density_pts_m2: float,
+                   threads: int | None = None) -> sp.csr_matrix:
+    """(N, F) CSR float64 of 1.0: which face each of the (N, 3) positions qualifies for at the
+    overlap density (same limits and occlusion as coverage otherwise, except that IFC doors
+    are open: a crew scans with the doors open, and the route walks through them)."""
+    from planner.pipeline import Stats, qualify_pairs  # the pipeline imports this module
+
+    doors = door_faces(scene)
+    if (doors & limits.occludes).any():
+        occlusion = make_occlusion(scene, limits.occludes & ~doors, "embree")
+
+    qualified = qualify_pairs(scene, positions, overlap_limits(limits, overlap_density_pts_m2),
+                              occlusion, Stats(), threads=threads)
+    data = np.ones(len(qualified.face), np.float64)
+    return sp.csr_matrix((data, (qualified.candidate, qualified.face)),
+                         shape=(len(positions), scene.n_faces))
+
+
+def _scatter_weights(scene: Scene) -> NDArray[np.float64]:
+    """(F, 6) float64: area * (nx nx, ny ny, nz nz, nx ny, nx nz, ny nz) per face."""
+    n = scene.normals
+    products = np.stack([n[:, 0] * n[:, 0], n[:, 1] * n[:, 1], n[:, 2] * n[:, 2],
+                         n[:, 0] * n[:, 1], n[:, 0] * n[:, 2], n[:, 1] * n[:, 2]], axis=1)
+    return products * scene.areas[:, None]
+
+
+def _constraint(scatter6: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N,) smallest eigenvalue / trace of the (N, 6) packed symmetric 3x3 matrices."""
+    xx, yy, zz, xy, xz, yz = scatter6.T
+    m = np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1),
+                  np.stack([xz, yz, zz], -1)], axis=-2)
+    trace = xx + yy + zz
+    smallest = np.linalg.eigvalsh(m)[:, 0] if len(m) else np.zeros(0)
+    ratio: NDArray[np.float64] = np.divide(np.maximum(smallest, 0.0), trace,
+                                           out=np.zeros_like(trace), where=trace > 0)
+    return ratio
+
+
+def overlap_with(overlap: sp.csr_matrix, row: int, scene: Scene,
+                 weights6: NDArray[np.float64]) -> tuple[NDArray[np.float64],
+                                                         NDArray[np.float64]]:
+    """Overlap area (m^2) and constraint of row ``row`` with every row of ``overlap``.
+
+    ``overlap``: (N, F) CSR float64 of 0/1 (float once, so each call is two products).
+    """
+    faces = overlap.indices[overlap.indptr[row]:overlap.indptr[row + 1]]
+    mask = np.zeros(scene.n_faces)
+    mask[faces] = 1.0
+    area = np.asarray(overlap @ (scene.areas * mask)).reshape(-1)
+    scatter = np.asarray(overlap @ (weights6 * mask[:, None]))
+    return area, _constraint(scatter)
+
+
+def connected_greedy(table: CoverageTable, overlap: sp.csr_matrix, scene: Scene,
+                     positions: NDArray[np.float64], min_overlap_m2: float,
+                     *, weighted: bool = False, goal: float = 1.0) -> Selection:
+    """Greedy (or weighted greedy) whose stations form one connected overlap graph.
+
+    Gains are the same exact integers as :func:`planner.selection.greedy` (ties go to the
+    lowest index); a candidate is *allowed* once it overlaps a chosen station. Stops once
+    ``goal`` of the achievable area is covered (each step costs a pass over ``overlap``).
+    """
+    needed_m2 = goal * table.max_achievable_area_m2 - GOAL_SLACK_M2
+    area = table.face_area_m2
+    if weighted:
+        k = table.candidates_per_face
+        weight = np.divide(area, k, out=np.zeros_like(area), where=k > 0)
+    else:
+        weight = area
+    units = np.round(weight / GAIN_QUANTUM_M2)
+    gains = np.bincount(table.candidate_of_entry, weights=units[table.by_candidate.indices],
+                        minlength=table.n_candidates)
+    weights6 = _scatter_weights(scene)
+    uncovered = np.ones(table.n_faces, bool)
+    allowed = np.ones(table.n_candidates, bool)  # the first station may be any
+    chosen = np.zeros(table.n_candidates, bool)
+    stations: list[int] = []
+    new_area: list[float] = []
+    covered: list[float] = []
+    total = 0.0
+    relay_gap_m = np.inf  # distance of the last relay to its target; a relay must get closer
+    while True:
+        open_gains = np.where(allowed & ~chosen, gains, -1.0)
+        candidate = int(np.argmax(open_gains))
+        if open_gains[candidate] <= 0:
+            waiting = np.where(~allowed, gains, 0.0)
+            relays = np.flatnonzero(allowed & ~chosen)
+            if waiting.max() <= 0 or len(relays) == 0:
+                break
+            target = positions[int(np.argmax(waiting))]
+            distance = np.linalg.norm(positions[relays] - target, axis=1)
+            nearest = int(np.argmin(distance))  # first of equal minima: lowest index
+            if distance[nearest] >= relay_gap_m:
+                break  # relaying makes no progress: the rest cannot be registered
+            relay_gap_m = float(distance[nearest])
+            candidate = int(relays[nearest])
+        else:
+            relay_gap_m = np.inf
+        faces = table.faces_of(candidate)
+        fresh = faces[uncovered[faces]]
+        uncovered[fresh] = False
+        added = float(area[fresh].sum())
+        total += added
+        stations.append(candidate)
+        new_area.append(added)
+        covered.append(total)
+        chosen[candidate] = True
+        if total >= needed_m2:
+            break
+        if len(stations) == 1:
+            allowed[:] = False
+        overlap_m2, constraint = overlap_with(overlap, candidate, scene, weights6)
+        allowed |= (overlap_m2 >= min_overlap_m2) & (constraint >= MIN_CONSTRAINT)
+        by_face = table.by_face
+        starts, stops = by_face.indptr[fresh], by_face.indptr[fresh + 1]
+        counts = stops - starts
+        entry = np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
+        gains -= np.bincount(by_face.indices[entry], weights=np.repeat(units[fresh], counts),
+                             minlength=table.n_candidates)
+    return Selection(
+        method="weighted_greedy" if weighted else "greedy",
+        stations=tuple(stations),
+        new_area_m2=tuple(new_area),
+        covered_area_m2=tuple(covered),
+        max_achievable_area_m2=table.max_achievable_area_m2,
+    )
+
+
+@dataclass(frozen=True)
+class Edge:
+    a: int  # station ids (1-based, selection order)
+    b: int
+    overlap_m2: float
+    constraint: float
+    ok: bool
+
+
+@dataclass(frozen=True)
+class Registration:
+    """The overlap graph of a plan's stations."""
+
+    min_overlap_m2: float | None
+    overlap_density_pts_m2: float
+    edges: tuple[Edge, ...]
+    components: tuple[tuple[int, ...], ...]  # station ids per connected component
+
+    @property
+    def connected(self) -> bool:
+        return len(self.components) <= 1
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "min_overlap_m2": self.min_overlap_m2,
+            "overlap_density_pts_m2": self.overlap_density_pts_m2,
+            "connected": self.connected,
+            "components": [list(c) for c in self.components],
+            "edges": [{"a": e.a, "b": e.b, "overlap_m2": round(e.overlap_m2, 6),
+                       "constraint": round(e.constraint, 6), "ok": e.ok} for e in self.edges],
+        }
+
+
+def station_registration(scene: Scene, station_overlap: sp.csr_matrix,
+                         min_overlap_m2: float | None,
+                         overlap_density_pts_m2: float) -> Registration:
+    """Edges between every two stations that share area, from their (S, F) overlap rows.
+
+    ``ok`` needs the overlap (``min_overlap_m2``; any shared area when it is null) and the
+    constraint test; components are taken over the ok edges.
+    """
+    n = station_overlap.shape[0]
+    weights6 = _scatter_weights(scene)
+    edges: list[Edge] = []
+    rows: list[int] = []
+    cols: list[int] = []
+    for a in range(n):
+        overlap_m2, constraint = overlap_with(station_overlap, a, scene, weights6)
+        for b in range(a + 1, n):
+            if overlap_m2[b] <= 0:
+                continue
+            ok = bool(overlap_m2[b] >= (min_overlap_m2 or 0.0)
+                      and constraint[b] >= MIN_CONSTRAINT)
+            edges.append(Edge(a + 1, b + 1, float(overlap_m2[b]), float(constraint[b]), ok))
+            if ok:
+                rows.append(a)
+                cols.append(b)
+    graph = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+    count, labels = connected_components(graph, directed=False)
+    components = tuple(tuple(int(i) + 1 for i in np.flatnonzero(labels == c))
+                       for c in range(count))
+    # components in order of their first station
+    return Registration(min_overlap_m2, overlap_density_pts_m2, tuple(edges),
+                        tuple(sorted(components)) if n else ())

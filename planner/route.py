@@ -1,0 +1,239 @@
+"""The walking route: the order to visit the stations, and the path of every leg.
+
+Each station is attached to the walk graph (:mod:`planner.walkgraph`) at the nearest floor
+sample below it whose knee-height segment to the station's foot is free; shortest paths on
+the graph come from ``scipy.sparse.csgraph.dijkstra``. The visiting order is a shortest
+open tour (a path, no return) over those distances: exact (Held-Karp) up to
+``EXACT_MAX_POINTS`` points, above that OR-Tools' routing solver
+(cheapest-arc start, then local search to a local optimum):
+from ``route_start`` when given (snapped to the graph like a station), else from whichever
+station gives the shortest tour (a dummy depot at distance 0 from every station). Neither
+step has a time limit, so the same input gives the same route.
+
+Stations not attached to the graph, or in another part of it than the start (or, with no
+start, than the most stations), are *unreachable*: they are reported by id and never joined
+by a straight line.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.sparse.csgraph import connected_components, dijkstra
+
+from planner.errors import ParameterError
+from planner.visibility import RayCaster
+from planner.walkgraph import KNEE_HEIGHT_M, STEP_M, WalkGraph, segment_free
+
+# a station attaches to a floor sample at most this far away horizontally (grid units)
+_ATTACH_CELLS = 2.0
+# OR-Tools costs are integers: millimetres
+_COST_SCALE = 1000.0
+# up to this many points (stations + start) the tour is the exact optimum
+EXACT_MAX_POINTS = 11
+
+
+@dataclass(frozen=True)
+class Leg:
+    start: int | None  # station id; None for the leg from route_start
+    end: int
+    length_m: float
+    path: tuple[tuple[float, float, float], ...]  # points at knee height
+
+
+@dataclass(frozen=True)
+class Route:
+    visits: tuple[int, ...]  # station ids in walking order
+    legs: tuple[Leg, ...]
+    unreachable: tuple[int, ...]
+
+    @property
+    def length_m(self) -> float:
+        return sum(leg.length_m for leg in self.legs)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "visits": list(self.visits),
+            "length_m": round(self.length_m, 3),
+            "legs": [{"from": leg.start, "to": leg.end, "length_m": round(leg.length_m, 3),
+                      "path": [[round(v, 3) for v in p] for p in leg.path]}
+                     for leg in self.legs],
+            "unreachable": list(self.unreachable),
+        }
+
+
+def attach(graph: WalkGraph, caster: RayCaster, points: NDArray[np.float64]
+           ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Node of every (K, 3) point (a station or the start) and its foot at knee height.
+
+    The foot is where a ray straight down from the point meets the model; -1 when no
+    floor sample is near enough or the way to it is blocked.
+    """
+    k = len(points)
+    down = np.tile([0.0, 0.0, -1.0], (k, 1))
+    _, drop = caster.first_hit(points, down)
+    foot = points.copy()
+    foot[:, 2] -= np.where(np.isfinite(drop), drop, 0.0)
+    knee = np.array([0.0, 0.0, KNEE_HEIGHT_M])
+    nodes = np.full(k, -1, np.int64)
+    if graph.n_nodes == 0:
+        return nodes, foot + knee
+    reach = _ATTACH_CELLS * graph.grid_m
+    for i in range(k):
+        if not np.isfinite(drop[i]):
+            continue
+        horizontal = np.linalg.norm(graph.floor_xyz[:, :2] - foot[i, :2], axis=1)
+        near = np.flatnonzero((horizontal <= reach)
+                              & (np.abs(graph.floor_xyz[:, 2] - foot[i, 2]) <= STEP_M))
+        if len(near) == 0:
+            continue
+        distance = np.linalg.norm(graph.floor_xyz[near] - foot[i], axis=1)
+        near = near[np.lexsort((near, distance))]  # nearest first, ties by index
+        free = segment_free(caster, np.repeat(foot[i:i + 1] + knee, len(near), axis=0),
+                            graph.floor_xyz[near] + knee)
+        if free.any():
+            nodes[i] = near[int(np.argmax(free))]
+    return nodes, foot + knee
+
+
+def exact_open_tour(cost_m: NDArray[np.float64], start: int | None) -> list[int]:
+    """The optimum open path by Held-Karp dynamic programming (O(2^n n^2); n <= 12).
+
+    ``best[mask, j]``: shortest path that visits the points of ``mask`` and ends at j.
+    """
+    n = len(cost_m)
+    full = (1 << n) - 1
+    best = np.full((1 << n, n), np.inf)
+    parent = np.full((1 << n, n), -1, np.int64)
+    for j in range(n) if start is None else [start]:
+        best[1 << j, j] = 0.0
+    for mask in range(1, full + 1):
+        row = best[mask]
+        ends = [j for j in range(n) if np.isfinite(row[j])]
+        if not ends:
+            continue
+        for k in range(n):
+            if mask & (1 << k):
+                continue
+            # extend the best path of this mask by k; strict < keeps the lowest j on ties
+            via = row[ends] + cost_m[ends, k]
+            i = int(np.argmin(via))
+            if via[i] < best[mask | (1 << k), k]:
+                best[mask | (1 << k), k] = via[i]
+                parent[mask | (1 << k), k] = ends[i]
+    end = int(np.argmin(best[full]))
+    order = [end]
+    mask = full
+    while parent[mask, order[-1]] >= 0:
+        previous = int(parent[mask, order[-1]])
+        mask &= ~(1 << order[-1])
+        order.append(previous)
+    return order[::-1]
+
+
+def open_tour(cost_m: NDArray[np.float64], start: int | None) -> list[int]:
+    """Order of the (n, n) cost matrix's points on a shortest open path.
+
+    ``start``: index the path must begin at; None lets the solver choose. Up to
+    ``EXACT_MAX_POINTS`` points the exact optimum (Held-Karp); above, OR-Tools.
+    """
+    n = len(cost_m)
+    if n <= 1:
+        return list(range(n))
+    if n <= EXACT_MAX_POINTS:
+        return exact_open_tour(cost_m, start)
+    from ortools.constraint_solver import pywrapcp, routing_enums_pb2
+
+    cost = np.round(cost_m * _COST_SCALE).astype(np.int64)
+    # a depot the path leaves from and returns to at no cost: the tour becomes a path
+    depot = n if start is None else start
+    size = n + 1 if start is None else n
+    full = np.zeros((size, size), np.int64)
+    full[:n, :n] = cost
+    full[:, depot] = 0  # returning to the depot is free: the path ends anywhere
+    manager = pywrapcp.RoutingIndexManager(size, 1, depot)
+    routing = pywrapcp.RoutingModel(manager)
+    table = full.tolist()
+
+    def arc(i: int, j: int) -> int:
+        return int(table[manager.IndexToNode(i)][manager.IndexToNode(j)])
+
+    routing.SetArcCostEvaluatorOfAllVehicles(routing.RegisterTransitCallback(arc))
+    params = pywrapcp.DefaultRoutingSearchParameters()
+    params.first_solution_strategy = routing_enums_pb2.FirstSolutionStrategy.PATH_CHEAPEST_ARC
+    # local search (2-opt, or-opt, relocate, ...) down to a local optimum: no time limit,
+    # so the same costs give the same order
+    params.local_search_metaheuristic = (
+        routing_enums_pb2.LocalSearchMetaheuristic.GREEDY_DESCENT)
+    solution = routing.SolveWithParameters(params)
+    order: list[int] = []
+    index = routing.Start(0)
+    while not routing.IsEnd(index):
+        node = manager.IndexToNode(index)
+        if node < n:
+            order.append(node)
+        index = solution.Value(routing.NextVar(index))
+    return order
+
+
+def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.float64],
+               route_start: tuple[float, float, float] | None) -> Route:
+    """The route over the (S, 3) stations (ids 1..S in this order)."""
+    s = len(stations_xyz)
+    points = stations_xyz if route_start is None else np.vstack([stations_xyz, [route_start]])
+    nodes, feet = attach(graph, caster, np.asarray(points, np.float64))
+    if route_start is not None and nodes[s] < 0:
+        raise ParameterError(
+            "route_start", f"{list(route_start)} is not over a floor a person can walk on; "
+            "give a point inside the building, above its floor (e.g. at scanner height), "
+            "or null to let the route choose")
+    if graph.n_nodes == 0:  # no floor anywhere (a facade, a single object): nobody walks
+        return Route((), (), tuple(range(1, s + 1)))
+    _, component = connected_components(graph.links, directed=False)
+    labels = np.where(nodes >= 0, component[np.maximum(nodes, 0)], -1)
+    if route_start is not None:
+        main = labels[s]
+    else:
+        counted = labels[:s][labels[:s] >= 0]
+        # the part of the graph with the most stations; ties: the lowest station id's part
+        main = -1
+        if len(counted):
+            values, counts = np.unique(counted, return_counts=True)
+            best = values[counts == counts.max()]
+            main = int(next(label for label in labels[:s] if label in set(best.tolist())))
+    reachable = [i for i in range(s) if main >= 0 and labels[i] == main]
+    unreachable = tuple(i + 1 for i in range(s) if i not in set(reachable))
+    if not reachable:
+        return Route((), (), unreachable)
+    sources = [int(nodes[i]) for i in reachable]
+    if route_start is not None:
+        sources.append(int(nodes[s]))
+    distance, predecessor = dijkstra(graph.links, directed=False, indices=sources,
+                                     return_predecessors=True)
+    # foot -> node -> ... -> node -> foot; the attaching segments count too
+    attach_m = np.linalg.norm(graph.floor_xyz[sources] - (feet[reachable + ([s] if route_start
+                              is not None else [])] - [0, 0, KNEE_HEIGHT_M]), axis=1)
+    cost = distance[:, sources] + attach_m[:, None] + attach_m[None, :]
+    np.fill_diagonal(cost, 0.0)
+    start = len(reachable) if route_start is not None else None
+    order = open_tour(cost, start)
+    knee = np.array([0.0, 0.0, KNEE_HEIGHT_M])
+    point_ids = [i + 1 for i in reachable] + ([None] if route_start is not None else [])
+    feet_used = feet[reachable + ([s] if route_start is not None else [])]
+    legs: list[Leg] = []
+    for a, b in itertools.pairwise(order):
+        path_nodes = [sources[b]]
+        while path_nodes[-1] != sources[a]:
+            path_nodes.append(int(predecessor[a, path_nodes[-1]]))
+        path_nodes.reverse()
+        path = [feet_used[a]] + [graph.floor_xyz[p] + knee for p in path_nodes] + [feet_used[b]]
+        end = point_ids[b]
+        assert end is not None  # only the start is None, and it is never visited later
+        legs.append(Leg(point_ids[a], end, float(cost[a, b]),
+                        tuple((float(p[0]), float(p[1]), float(p[2])) for p in path)))
+    visits = tuple(pid for pid in (point_ids[i] for i in order) if pid is not None)
+    return Route(visits, tuple(legs), unreachable)

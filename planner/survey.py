@@ -1,0 +1,109 @@
+"""A survey a crew can run: registration overlap, walking route and field time of a plan.
+
+:func:`survey` runs after the selection, on the chosen stations only (S of them), so with
+default parameters it adds one overlap pass over S positions and the walk graph to a plan;
+the constrained selection itself lives in :mod:`planner.registration`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from planner.pairs import FaceLimits
+from planner.parameters import PlanSpec
+from planner.registration import Registration, overlap_matrix, station_registration
+from planner.route import Route, plan_route
+from planner.scene import Scene
+from planner.visibility import Occlusion, RayCaster, make_ray_caster
+from planner.walkgraph import build_walk_graph, door_faces
+
+DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the preset gives one
+
+
+@dataclass(frozen=True)
+class FieldTime:
+    setup_s: float
+    scan_s: float | None  # None: no scan duration known for this scanner and resolution
+    walk_s: float
+    scanner: str | None
+
+    @property
+    def total_s(self) -> float | None:
+        if self.scan_s is None:
+            return None
+        return self.setup_s + self.scan_s + self.walk_s
+
+    def to_dict(self) -> dict[str, Any]:
+        def r(v: float | None) -> float | None:
+            return None if v is None else round(v, 1)
+
+        return {"total_s": r(self.total_s), "setup_s": r(self.setup_s), "scan_s": r(self.scan_s),
+                "walk_s": r(self.walk_s), "scanner": self.scanner}
+
+
+@dataclass(frozen=True)
+class Survey:
+    registration: Registration
+    route: Route
+    field_time: FieldTime
+
+    def visit_of(self, station_id: int) -> int | None:
+        """1-based place of a station on the route; None when it is unreachable."""
+        try:
+            return self.route.visits.index(station_id) + 1
+        except ValueError:
+            return None
+
+
+def field_time(spec: PlanSpec, n_stations: int, route: Route) -> FieldTime:
+    scan_one_s: float | None = None
+    if spec.scanner is not None:
+        from planner.scanners import get
+
+        setting = get(spec.scanner).setting_for(spec.point_spacing_m, spec.reference_distance_m)
+        scan_one_s = None if setting is None else setting.scan_duration_s
+    setup_one_s = DEFAULT_SETUP_TIME_S if spec.setup_time_s is None else spec.setup_time_s
+    return FieldTime(
+        setup_s=setup_one_s * n_stations,
+        scan_s=None if scan_one_s is None else scan_one_s * n_stations,
+        walk_s=route.length_m / spec.walking_speed_m_s,
+        scanner=spec.scanner,
+    )
+
+
+def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster) -> RayCaster:
+    """Rays for walking: every face blocks (glass too, which coverage may see through)
+    except doors; the coverage caster is reused when it blocks exactly those faces."""
+    blocks = ~door_faces(scene)
+    if np.array_equal(blocks, limits.occludes):
+        return caster
+    return make_ray_caster(scene, blocks)
+
+
+def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceLimits,
+           occlusion: Occlusion, caster: RayCaster, seconds: dict[str, float],
+           station_overlap: sp.csr_matrix | None = None,
+           threads: int | None = None) -> Survey:
+    """Registration, route and field time of the (S, 3) stations, in selection order.
+
+    ``station_overlap``: the stations' (S, F) overlap rows when the selection already made
+    them; ``seconds`` gains the stages "overlap" and "walk graph".
+    """
+    t0 = time.perf_counter()
+    if station_overlap is None:
+        station_overlap = overlap_matrix(scene, stations_xyz, limits, occlusion,
+                                         spec.overlap_density_pts_m2, threads=threads)
+    registration = station_registration(scene, station_overlap, spec.min_overlap_m2,
+                                        spec.overlap_density_pts_m2)
+    t1 = time.perf_counter()
+    seconds["overlap"] = seconds.get("overlap", 0.0) + t1 - t0
+    walk_caster = _walk_caster(scene, limits, caster)
+    graph = build_walk_graph(scene, walk_caster)
+    route = plan_route(graph, walk_caster, stations_xyz, spec.route_start)
+    seconds["walk graph"] = time.perf_counter() - t1
+    return Survey(registration, route, field_time(spec, len(stations_xyz), route))

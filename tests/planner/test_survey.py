@@ -1,0 +1,233 @@
+"""Issue 11: scanner presets, registration overlap, walking route and field time."""
+
+from __future__ import annotations
+
+import itertools
+import json
+from importlib import resources
+
+import numpy as np
+import pytest
+
+from planner.__main__ import main
+from planner.errors import ParameterError
+from planner.parameters import PlanSpec
+from planner.pipeline import PlanResult, plan
+from planner.registration import MIN_CONSTRAINT, overlap_matrix, station_registration
+from planner.report import plan_document, stations_csv
+from planner.route import exact_open_tour, open_tour, plan_route
+from planner.visibility import make_occlusion, make_ray_caster
+from planner.walkgraph import KNEE_HEIGHT_M, build_walk_graph, segment_free
+from tests.planner.survey_scenes import (
+    MEZZANINE_Z_M,
+    boxes_scene,
+    staircase,
+    two_room_candidates,
+    two_rooms,
+)
+
+# --- scanner presets -------------------------------------------------------------------
+
+
+def test_preset_sets_defaults_and_explicit_parameters_win() -> None:
+    preset = PlanSpec.from_mapping({"scanner": "leica-rtc360"})
+    assert (preset.dof_min_m, preset.dof_max_m) == (0.5, 130.0)
+    assert (preset.elevation_min_deg, preset.elevation_max_deg) == (-60.0, 90.0)
+    assert (preset.point_spacing_m, preset.reference_distance_m) == (0.006, 10.0)
+    explicit = PlanSpec.from_mapping({"scanner": "leica-rtc360", "dof_max_m": 40.0,
+                                      "point_spacing_m": 0.003})
+    assert (explicit.dof_min_m, explicit.dof_max_m, explicit.point_spacing_m) == (0.5, 40.0,
+                                                                                 0.003)
+
+
+def test_no_preset_keeps_the_papers_table_2() -> None:
+    assert PlanSpec.from_mapping({}) == PlanSpec()
+    assert PlanSpec().scanner is None and PlanSpec().dof_min_m == 1.5
+
+
+def test_unknown_preset_names_the_parameter_and_the_known_ones() -> None:
+    with pytest.raises(ParameterError, match=r"scanner: 'leica-x' is not a known preset.*"
+                                             r"trimble-x7"):
+        PlanSpec.from_mapping({"scanner": "leica-x"})
+
+
+def test_every_preset_figure_has_a_source_and_five_makers_are_listed(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    data = json.loads(resources.files("planner").joinpath("scanners.json").read_text())
+    for scanner in data["scanners"]:
+        figures = [v for v in scanner.values() if isinstance(v, dict)] + scanner["settings"]
+        for figure in figures:
+            source = data["sources"][figure["source"]]
+            assert source["title"] and "year" in source
+    assert main(["scanners", "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)
+    assert len({s["maker"] for s in listed}) >= 5
+    assert main(["scanners"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in lines] == [s["id"] for s in listed]
+
+
+# --- registration overlap --------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def rooms() -> tuple[PlanResult, PlanResult]:
+    scene = two_rooms()
+    spec = PlanSpec(candidates=two_room_candidates(), max_edge_m=None)
+    return plan(scene, spec), plan(scene, spec.with_changes(min_overlap_m2=2.0))
+
+
+def test_papers_plan_is_disconnected_and_the_constrained_plan_connected(
+        rooms: tuple[PlanResult, PlanResult]) -> None:
+    paper, constrained = rooms
+    rows = overlap_matrix(paper.scene, paper.candidates.positions[list(paper.chosen.stations)],
+                          paper.limits, make_occlusion(paper.scene, paper.limits.occludes,
+                                                       "embree"), 1600.0)
+    assert not station_registration(paper.scene, rows, 2.0, 1600.0).connected
+    document = plan_document(constrained)
+    registration = document["registration"]
+    assert registration["connected"] and registration["min_overlap_m2"] == 2.0
+    assert registration["components"] == [list(range(1, len(constrained.chosen.stations) + 1))]
+    assert document["goal_reached"]
+    # the paper's selection is untouched by the constraint (only the plan changes)
+    assert constrained.selections["greedy"].stations == paper.selections["greedy"].stations
+
+
+def test_edge_overlap_is_the_area_of_the_faces_both_stations_qualify_for(
+        rooms: tuple[PlanResult, PlanResult]) -> None:
+    _, result = rooms
+    positions = result.candidates.positions[list(result.chosen.stations)]
+    rows = overlap_matrix(result.scene, positions, result.limits,
+                          make_occlusion(result.scene, result.limits.occludes, "embree"), 1600.0)
+    edges = plan_document(result)["registration"]["edges"]
+    assert any(e["ok"] for e in edges)
+    for edge in edges:
+        a, b = rows[edge["a"] - 1].indices, rows[edge["b"] - 1].indices
+        shared = np.intersect1d(a, b)
+        assert edge["overlap_m2"] == pytest.approx(result.scene.areas[shared].sum(), rel=0.01)
+        normals = result.scene.normals[shared]
+        scatter = (normals * result.scene.areas[shared, None]).T @ normals
+        ratio = np.linalg.eigvalsh(scatter)[0] / np.trace(scatter)
+        assert edge["constraint"] == pytest.approx(ratio, abs=1e-5)
+        assert edge["ok"] == (edge["overlap_m2"] >= 2.0 and ratio >= MIN_CONSTRAINT)
+
+
+def test_plan_json_and_stations_csv_carry_the_visit(rooms: tuple[PlanResult, PlanResult]) -> None:
+    _, result = rooms
+    document = plan_document(result)
+    visits = [s["visit"] for s in document["stations"]]
+    assert sorted(visits) == list(range(1, len(visits) + 1))
+    assert sorted(document["route"]["visits"]) == [s["id"] for s in document["stations"]]
+    lines = stations_csv(result).decode().splitlines()
+    assert lines[0].endswith(",visit")
+    assert [int(line.split(",")[-1]) for line in lines[1:]] == visits
+    field = document["field_time"]
+    assert field["setup_s"] == 60.0 * len(visits)
+    assert field["walk_s"] == pytest.approx(document["route"]["length_m"] / 0.8, abs=0.1)
+    assert field["scan_s"] is None and field["total_s"] is None  # no preset: no scan time
+
+
+def test_field_time_uses_the_presets_scan_duration() -> None:
+    scene = two_rooms()
+    spec = PlanSpec.from_mapping({"scanner": "trimble-x7", "max_edge_m": None,
+                                  "candidates": [list(c) for c in two_room_candidates()],
+                                  "setup_time_s": 90.0, "walking_speed_m_s": 1.0})
+    document = plan_document(plan(scene, spec))
+    n = len(document["stations"])
+    field = document["field_time"]
+    assert field["scanner"] == "trimble-x7"
+    assert (field["setup_s"], field["scan_s"]) == (90.0 * n, 240.0 * n)  # the 4 min setting
+    assert field["total_s"] == pytest.approx(field["setup_s"] + field["scan_s"]
+                                             + field["walk_s"], abs=0.2)
+
+
+# --- walking route ---------------------------------------------------------------------
+
+
+def _assert_free_at_knee_height(scene_caster: object, path: list[list[float]]) -> None:
+    points = np.asarray(path, float)
+    assert segment_free(scene_caster, points[:-1], points[1:]).all()  # type: ignore[arg-type]
+    assert segment_free(scene_caster, points[1:], points[:-1]).all()  # type: ignore[arg-type]
+
+
+def test_route_climbs_the_stairs() -> None:
+    scene = staircase()
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    stations = np.array([[1.5, 2.2, 1.5], [4.5, 1.5, MEZZANINE_Z_M + 1.5]])
+    route = plan_route(build_walk_graph(scene, caster), caster, stations, None).to_dict()
+    assert route["unreachable"] == [] and sorted(route["visits"]) == [1, 2]
+    (leg,) = route["legs"]
+    heights = sorted(p[2] for p in leg["path"])
+    assert heights[0] == pytest.approx(KNEE_HEIGHT_M, abs=0.01)
+    assert heights[-1] == pytest.approx(MEZZANINE_Z_M + KNEE_HEIGHT_M, abs=0.01)
+    assert sum(1.0 < z < 2.0 for z in heights) >= 3  # on the steps, not a jump
+    _assert_free_at_knee_height(caster, leg["path"])
+    # walking is longer than the straight line, which goes through the mezzanine slab
+    assert leg["length_m"] > np.linalg.norm(stations[1] - stations[0])
+
+
+def test_unreachable_station_is_reported_not_joined() -> None:
+    scene = two_rooms(closet=True)
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    stations = np.array([[2.0, 2.0, 1.5], [11.0, 1.0, 1.5], [6.2, 3.0, 1.5]])
+    route = plan_route(build_walk_graph(scene, caster), caster, stations, None).to_dict()
+    assert route["unreachable"] == [2]
+    assert sorted(route["visits"]) == [1, 3]
+    assert all(2 not in (leg["from"], leg["to"]) for leg in route["legs"])
+    for leg in route["legs"]:
+        _assert_free_at_knee_height(caster, leg["path"])
+        # the only way between the rooms is the door
+        xs = [p[0] for p in leg["path"]]
+        door = [p for p in leg["path"] if 3.9 < p[0] < 4.3]
+        assert min(xs) < 4.0 < max(xs) and door
+        assert all(0.3 < p[1] < 1.2 for p in door)
+
+
+def test_route_from_a_given_start() -> None:
+    scene = two_rooms()
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    stations = np.array([[2.0, 2.0, 1.5], [6.2, 3.0, 1.5], [1.0, 3.0, 1.5]])
+    route = plan_route(build_walk_graph(scene, caster), caster, stations,
+                       (7.0, 1.0, 1.5)).to_dict()
+    assert route["legs"][0]["from"] is None and route["visits"][0] == 2
+    assert route["length_m"] == pytest.approx(sum(leg["length_m"] for leg in route["legs"]),
+                                              abs=0.01)
+    with pytest.raises(ParameterError, match=r"route_start: \[20.0, 2.0, 1.5\] is not over a "):
+        plan_route(build_walk_graph(scene, caster), caster, stations, (20.0, 2.0, 1.5))
+
+
+@pytest.mark.parametrize("start", [None, 0])
+def test_tour_of_up_to_ten_stations_is_the_exact_optimum(start: int | None) -> None:
+    rng = np.random.default_rng(7)
+    points = rng.random((8, 3)) * [20, 10, 3]
+    cost = np.linalg.norm(points[:, None] - points[None], axis=2)
+
+    def length(order: tuple[int, ...] | list[int]) -> float:
+        return float(sum(cost[a, b] for a, b in itertools.pairwise(order)))
+
+    firsts = range(8) if start is None else [start]
+    best = min(length((f, *rest)) for f in firsts
+               for rest in itertools.permutations([i for i in range(8) if i != f]))
+    order = open_tour(cost, start)
+    assert sorted(order) == list(range(8)) and length(order) == pytest.approx(best)
+    assert start is None or order[0] == start
+
+
+def test_long_tour_visits_every_station_once_and_beats_the_input_order() -> None:
+    rng = np.random.default_rng(3)
+    points = rng.random((30, 2)) * 50
+    cost = np.linalg.norm(points[:, None] - points[None], axis=2)
+    order = open_tour(cost, None)
+    assert sorted(order) == list(range(30))
+    walked = sum(cost[a, b] for a, b in itertools.pairwise(order))
+    assert walked < sum(cost[i, i + 1] for i in range(29)) / 2
+    assert order == open_tour(cost, None)  # deterministic
+    assert exact_open_tour(cost[:5, :5], None) == open_tour(cost[:5, :5], None)
+
+
+def test_model_without_a_floor_leaves_every_station_unreachable() -> None:
+    scene = boxes_scene([((3.0, -2.0, 0.0), (3.2, 2.0, 3.0))])  # one free-standing wall
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    graph = build_walk_graph(scene, caster)
+    route = plan_route(graph, caster, np.array([[0.0, 0.0, 1.5], [1.0, 0.0, 1.5]]), None)
+    assert route.to_dict() == {"visits": [], "length_m": 0.0, "legs": [], "unreachable": [1, 2]}
