@@ -174,6 +174,13 @@ class JobStore:
         return self._update(job_id, [jobs.c.status == RUNNING, jobs.c.worker_token == token],
                             **values)
 
+    def holds_claim(self, job_id: str, token: str) -> bool:
+        """Whether ``token`` still runs ``job_id`` (a read: cheap enough to ask often)."""
+        query = select(jobs.c.id).where(jobs.c.id == job_id, jobs.c.status == RUNNING,
+                                        jobs.c.worker_token == token)
+        with self.engine.connect() as conn:
+            return conn.execute(query).first() is not None
+
     def finish(self, job_id: str, token: str, status: str, *, message: str,
                problem: dict[str, Any] | None = None, timings: dict[str, float] | None = None,
                outputs: dict[str, dict[str, Any]] | None = None) -> bool:

@@ -11,6 +11,7 @@ import importlib.util
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from http import HTTPStatus
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +20,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.types import ASGIApp, Receive, Scope, Send
 
 from planner.errors import PlannerError
 from service.auth import KeyRing
@@ -78,11 +80,37 @@ def create_app(settings: Settings | None = None, *, queue: JobQueue | None = Non
 
     app = FastAPI(title="scanplan", version=VERSION, description=DESCRIPTION,
                   lifespan=lifespan)
+    app.add_middleware(RequestSizeLimit, max_bytes=settings.max_request_bytes)
     _add_problem_handlers(app)
     for module in (meshes, processes, jobs, health):
         app.include_router(module.router)
     _add_pages(app)
     return app
+
+
+class RequestSizeLimit:
+    """413 for a request body over ``max_bytes`` except uploads (``/meshes`` has its cap).
+
+    A pure ASGI middleware: it looks at the ``Content-Length`` header only, so it adds no
+    latency; 1e6 candidates (some 30 MB of JSON) are refused before anything parses them.
+    """
+
+    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] == "http" and not scope["path"].startswith("/meshes"):
+            declared = dict(scope["headers"]).get(b"content-length", b"")
+            if declared.isdigit() and int(declared) > self.max_bytes:
+                detail = (f"the request body has {int(declared)} bytes, more than "
+                          f"{self.max_bytes} (SCANPLAN_MAX_REQUEST_BYTES); for many "
+                          "candidates use a larger grid_spacing_m or an area_of_interest")
+                response = _problem_response(http_problem(
+                    413, "Request body too large", detail, instance=scope["path"]))
+                await response(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
 
 
 def open_services(settings: Settings, queue: JobQueue | None = None) -> Services:
@@ -124,7 +152,7 @@ def _add_problem_handlers(app: FastAPI) -> None:
 
     async def http_error(request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, StarletteHTTPException)
-        title = {404: "Not Found", 405: "Method Not Allowed"}.get(exc.status_code, "Error")
+        title = HTTPStatus(exc.status_code).phrase
         detail = str(exc.detail)
         if exc.status_code == 404:
             detail = f"no resource at {request.url.path}; see /docs for the API"

@@ -117,14 +117,15 @@ def kind_of(exc: BaseException) -> ProblemKind:
 
 
 def problem_for(exc: BaseException, *, instance: str | None = None) -> dict[str, Any]:
-    """The problem document of ``exc``; a ParameterError adds ``parameter``."""
+    """The problem document of ``exc``; an error that names a parameter adds ``parameter``."""
     kind = kind_of(exc)
     detail = str(exc) if kind is not INTERNAL else "an unexpected error; see the server log"
     document: dict[str, Any] = {
         "type": kind.type, "title": kind.title, "status": kind.status, "detail": detail,
     }
-    if isinstance(exc, ParameterError):
-        document["parameter"] = exc.parameter
+    parameter = getattr(exc, "parameter", None)  # ParameterError, JobTooLargeError
+    if isinstance(parameter, str):
+        document["parameter"] = parameter
     if instance is not None:
         document["instance"] = instance
     return document
@@ -140,3 +141,21 @@ class WorkerLostError(ServiceError):
 
 
 PROBLEMS[WorkerLostError] = ProblemKind(500, "urn:scanplan:problem:worker-lost", "Worker lost")
+
+
+class OutOfMemoryError(ServiceError):
+    """The job's planning process went past the worker's memory limit."""
+
+
+class JobTooLargeError(ServiceError):
+    """The estimated work of a plan exceeds a configured cap; names the parameter."""
+
+    def __init__(self, parameter: str, message: str) -> None:
+        super().__init__(message)
+        self.parameter = parameter
+
+
+PROBLEMS[OutOfMemoryError] = ProblemKind(422, "urn:scanplan:problem:out-of-memory",
+                                         "Out of memory")
+PROBLEMS[JobTooLargeError] = ProblemKind(422, "urn:scanplan:problem:job-too-large",
+                                         "The plan would be too large for this service")

@@ -11,6 +11,7 @@ from starlette.concurrency import run_in_threadpool
 
 from planner.parameters import PlanSpec
 from planner.report import OUTPUTS
+from service import guards
 from service.deps import OwnerDep, ServicesDep
 from service.problems import IdempotencyKeyReusedError, NoSuchProcessError, NotFoundError
 from service.routes.jobs import media_type, status_info
@@ -88,16 +89,18 @@ async def execute(
     """Queue a plan of ``inputs.mesh`` with ``inputs.parameters``; 201 and Location."""
     _check_process(process_id)
     parameters = body.inputs.parameters.model_dump(exclude_unset=True)
-    PlanSpec.from_mapping(parameters)  # ranges and consistency: 422 naming the parameter
+    spec = PlanSpec.from_mapping(parameters)  # ranges and consistency: 422 naming it
     return await run_in_threadpool(_submit, services, owner, body.inputs.mesh, parameters,
-                                   idempotency_key, response)
+                                   spec, idempotency_key, response)
 
 
 def _submit(services: ServicesDep, owner: str, mesh_id: str, parameters: dict[str, Any],
-            idempotency_key: str | None, response: Response) -> StatusInfo:
-    if services.meshes.get(mesh_id, owner) is None:
+            spec: PlanSpec, idempotency_key: str | None, response: Response) -> StatusInfo:
+    mesh = services.meshes.get(mesh_id, owner)
+    if mesh is None:
         raise MeshNotFoundError(f"inputs.mesh: no mesh {mesh_id}; upload the model with "
                                 "POST /meshes and use the id it returns")
+    guards.check(mesh.summary, spec, services.settings)  # 422 naming the parameter
     request_hash = hashlib.sha256(json.dumps(
         {"mesh": mesh_id, "parameters": parameters}, sort_keys=True).encode()).hexdigest()
     job, created = services.jobs.create(owner, mesh_id, parameters,
