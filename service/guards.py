@@ -19,6 +19,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from planner.parameters import PlanSpec
 from service.config import Settings
 from service.problems import JobTooLargeError
@@ -28,35 +30,38 @@ _EQUILATERAL_AREA_FACTOR = math.sqrt(3) / 4
 
 @dataclass(frozen=True)
 class WorkEstimate:
-    """The estimated size of one plan."""
+    """The estimated size of one plan (floats: absurd parameters give inf, not an error)."""
 
-    faces: int
-    candidates: int
+    faces: float
+    candidates: float
     pairs: float
 
 
 def estimate(summary: dict[str, Any], spec: PlanSpec) -> WorkEstimate:
     """The work of planning ``spec`` on a mesh with upload ``summary`` (see module doc)."""
-    scale = spec.unit_scale
-    faces = int(summary["faces"])
-    if spec.max_edge_m is not None:
-        area_m2 = float(summary["total_area_m2"]) * scale * scale
-        faces = max(faces, math.ceil(area_m2 / (_EQUILATERAL_AREA_FACTOR
-                                                * spec.max_edge_m ** 2)))
-    if spec.candidates is not None:
-        candidates = len(spec.candidates)
-    else:
-        if spec.area_of_interest is not None:
-            xs = [p[0] for p in spec.area_of_interest]
-            ys = [p[1] for p in spec.area_of_interest]
-            width_m, depth_m = max(xs) - min(xs), max(ys) - min(ys)
+    scale = np.float64(spec.unit_scale)
+    faces = float(summary["faces"])
+    # float64 with errors ignored: 1e-300 m spacings must give inf, which every cap refuses
+    with np.errstate(all="ignore"):
+        if spec.max_edge_m is not None:
+            area_m2 = np.float64(summary["total_area_m2"]) * scale * scale
+            smallest_face_m2 = _EQUILATERAL_AREA_FACTOR * np.square(np.float64(spec.max_edge_m))
+            faces = max(faces, float(area_m2 / smallest_face_m2))
+        if spec.candidates is not None:
+            candidates = float(len(spec.candidates))
         else:
-            (x0, y0, _), (x1, y1, _) = summary["bounds"]
-            width_m, depth_m = (x1 - x0) * scale, (y1 - y0) * scale
-        columns = math.floor(width_m / spec.grid_spacing_m) + 1
-        rows = math.floor(depth_m / spec.grid_spacing_m) + 1
-        candidates = columns * rows
-    return WorkEstimate(faces=faces, candidates=candidates, pairs=float(faces) * candidates)
+            if spec.area_of_interest is not None:
+                xs = [p[0] for p in spec.area_of_interest]
+                ys = [p[1] for p in spec.area_of_interest]
+                width_m, depth_m = max(xs) - min(xs), max(ys) - min(ys)
+            else:
+                (x0, y0, _), (x1, y1, _) = summary["bounds"]
+                width_m, depth_m = (x1 - x0) * scale, (y1 - y0) * scale
+            columns = np.floor(np.float64(width_m) / spec.grid_spacing_m) + 1
+            rows = np.floor(np.float64(depth_m) / spec.grid_spacing_m) + 1
+            candidates = float(columns * rows)
+        pairs = float(np.float64(faces) * candidates)
+    return WorkEstimate(faces=faces, candidates=candidates, pairs=pairs)
 
 
 def check(summary: dict[str, Any], spec: PlanSpec, settings: Settings) -> WorkEstimate:
@@ -71,7 +76,7 @@ def check(summary: dict[str, Any], spec: PlanSpec, settings: Settings) -> WorkEs
     grid = spec.candidates is None
     if not grid and work.candidates > settings.max_candidates:
         raise JobTooLargeError("candidates", (
-            f"candidates: {work.candidates} positions, more than this service plans "
+            f"candidates: {work.candidates:.0f} positions, more than this service plans "
             f"({settings.max_candidates}, SCANPLAN_MAX_CANDIDATES); give fewer"))
     if grid and work.candidates > settings.max_grid_points:
         raise JobTooLargeError("grid_spacing_m", (

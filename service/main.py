@@ -18,11 +18,14 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Route
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from planner.errors import PlannerError
+from planner.errors import ParameterError, PlannerError
+from planner.parameters import GROUP_RANGES, RANGES, check_range
 from service.auth import KeyRing
 from service.config import Settings
 from service.database import make_engine
@@ -31,13 +34,14 @@ from service.job_store import JobStore
 from service.mesh_store import MeshStore
 from service.problems import (
     MEDIA_TYPE,
+    PROBLEM_SCHEMA,
     ServiceError,
     UnauthorizedError,
     http_problem,
     problem_for,
 )
 from service.queue import HueyQueue, JobQueue, make_huey
-from service.routes import health, jobs, meshes, processes
+from service.routes import health, jobs, landing, meshes, processes
 from service.worker import Reaper
 
 log = logging.getLogger("scanplan.service")
@@ -78,11 +82,13 @@ def create_app(settings: Settings | None = None, *, queue: JobQueue | None = Non
                 keeper.stop()
             services.jobs.engine.dispose()
 
+    # operation ids are the handlers' names: what a generated client calls its functions
     app = FastAPI(title="scanplan", version=VERSION, description=DESCRIPTION,
-                  lifespan=lifespan)
+                  lifespan=lifespan, generate_unique_id_function=lambda route: route.name)
+    _add_problem_component(app)
     app.add_middleware(RequestSizeLimit, max_bytes=settings.max_request_bytes)
     _add_problem_handlers(app)
-    for module in (meshes, processes, jobs, health):
+    for module in (landing, meshes, processes, jobs, health):
         app.include_router(module.router)
     _add_pages(app)
     return app
@@ -111,6 +117,19 @@ class RequestSizeLimit:
                 await response(scope, receive, send)
                 return
         await self.app(scope, receive, send)
+
+
+def _add_problem_component(app: FastAPI) -> None:
+    """Put the problem document's schema into the OpenAPI components (routes refer to it)."""
+    generate = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        document = generate()
+        document.setdefault("components", {}).setdefault("schemas", {})["Problem"] = \
+            PROBLEM_SCHEMA
+        return document
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def open_services(settings: Settings, queue: JobQueue | None = None) -> Services:
@@ -154,11 +173,17 @@ def _add_problem_handlers(app: FastAPI) -> None:
         assert isinstance(exc, StarletteHTTPException)
         title = HTTPStatus(exc.status_code).phrase
         detail = str(exc.detail)
+        headers = dict(exc.headers or {})
         if exc.status_code == 404:
             detail = f"no resource at {request.url.path}; see /docs for the API"
+        if exc.status_code == 405:
+            # Starlette names the methods of the first route that matched the path only
+            allowed = _allowed_methods(request.app, request.url.path)
+            headers["Allow"] = ", ".join(allowed)
+            detail = f"{request.method} is not allowed on {request.url.path}; use " \
+                     f"{', '.join(allowed)}"
         return _problem_response(http_problem(exc.status_code, title, detail,
-                                              instance=request.url.path),
-                                 dict(exc.headers or {}))
+                                              instance=request.url.path), headers)
 
     async def unexpected(request: Request, exc: Exception) -> JSONResponse:
         log.exception("unexpected error on %s", request.url.path, exc_info=exc)
@@ -171,13 +196,44 @@ def _add_problem_handlers(app: FastAPI) -> None:
     app.add_exception_handler(Exception, unexpected)
 
 
+_RANGE_ERRORS = {"greater_than", "greater_than_equal", "less_than", "less_than_equal"}
+
+
+def _allowed_methods(app: Any, path: str) -> list[str]:
+    """Every method some route serves at ``path`` (GET brings HEAD along)."""
+    methods: set[str] = set()
+    for route in app.routes:
+        if isinstance(route, APIRoute | Route) and route.path_regex.match(path):
+            methods |= set(route.methods or ())
+    return sorted(methods)
+
+
 def _describe_validation(error: Any) -> str:
+    range_message = _range_message(error)
+    if range_message is not None:
+        return range_message
     where = ".".join(str(p) for p in error.get("loc", ()) if p != "body")
     message = error.get("msg", "invalid")
     if "input" in error and error.get("type") != "missing":
         value = repr(error["input"])
         message += f" (got {value[:60]})"
     return f"{where}: {message}" if where else message
+
+
+def _range_message(error: Any) -> str | None:
+    """The planner's own words for a parameter out of its range (the fix included)."""
+    parameter = _parameter_of(error)
+    if error.get("type") not in _RANGE_ERRORS or parameter is None:
+        return None
+    name = parameter.rsplit(".", 1)[-1]
+    bounds = (GROUP_RANGES if parameter.startswith("group_requirements.") else RANGES).get(name)
+    if bounds is None or not isinstance(error.get("input"), int | float):
+        return None
+    try:
+        check_range(parameter, float(error["input"]), bounds)
+    except ParameterError as exc:
+        return str(exc)
+    return None
 
 
 def _parameter_of(error: Any) -> str | None:

@@ -131,6 +131,42 @@ def problem_for(exc: BaseException, *, instance: str | None = None) -> dict[str,
     return document
 
 
+# JSON Schema of a problem document (RFC 9457), a component of the OpenAPI document
+PROBLEM_SCHEMA: dict[str, Any] = {
+    "title": "Problem",
+    "description": "RFC 9457 problem details",
+    "type": "object",
+    "required": ["type", "title", "status"],
+    "properties": {
+        "type": {"type": "string", "description": "URI of the problem type"},
+        "title": {"type": "string"},
+        "status": {"type": "integer", "minimum": 400, "maximum": 599},
+        "detail": {"type": "string", "description": "what went wrong and how to fix it"},
+        "instance": {"type": "string"},
+        "parameter": {"type": "string", "description": "the parameter to change"},
+    },
+}
+PROBLEM_REF = "#/components/schemas/Problem"
+_WHEN = {
+    400: "malformed request (body not JSON, broken multipart)",
+    401: "missing or unknown API key (only when keys are configured)",
+    404: "no such resource for this key",
+    409: "conflicts with the resource's state",
+    413: "request body over the configured cap",
+    415: "not a model format the planner reads",
+    422: "invalid input, named in `parameter`",
+    500: "unexpected error",
+    503: "a dependency is unreachable",
+}
+
+
+def problem_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI ``responses`` entries: each status answered with a problem document."""
+    return {status: {"description": _WHEN.get(status, "problem"),
+                     "content": {MEDIA_TYPE: {"schema": {"$ref": PROBLEM_REF}}}}
+            for status in statuses}
+
+
 def http_problem(status: int, title: str, detail: str, **extra: Any) -> dict[str, Any]:
     """A problem for a plain HTTP error (unknown route, wrong method, ...)."""
     return {"type": "about:blank", "title": title, "status": status, "detail": detail, **extra}
