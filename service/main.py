@@ -18,10 +18,9 @@ from typing import Any
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
-from starlette.routing import Route
+from starlette.routing import compile_path
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from planner.errors import ParameterError, PlannerError
@@ -179,7 +178,8 @@ def _add_problem_handlers(app: FastAPI) -> None:
         if exc.status_code == 405:
             # Starlette names the methods of the first route that matched the path only
             allowed = _allowed_methods(request.app, request.url.path)
-            headers["Allow"] = ", ".join(allowed)
+            if allowed:  # else a page outside the API: Starlette's own Allow stands
+                headers["Allow"] = ", ".join(allowed)
             detail = f"{request.method} is not allowed on {request.url.path}; use " \
                      f"{', '.join(allowed)}"
         return _problem_response(http_problem(exc.status_code, title, detail,
@@ -200,11 +200,13 @@ _RANGE_ERRORS = {"greater_than", "greater_than_equal", "less_than", "less_than_e
 
 
 def _allowed_methods(app: Any, path: str) -> list[str]:
-    """Every method some route serves at ``path`` (GET brings HEAD along)."""
+    """Every method the OpenAPI document declares at ``path`` (GET brings HEAD along)."""
     methods: set[str] = set()
-    for route in app.routes:
-        if isinstance(route, APIRoute | Route) and route.path_regex.match(path):
-            methods |= set(route.methods or ())
+    for template, operations in app.openapi()["paths"].items():
+        if compile_path(template)[0].match(path):
+            methods |= {method.upper() for method in operations}
+    if "GET" in methods:
+        methods.add("HEAD")
     return sorted(methods)
 
 

@@ -46,23 +46,26 @@ class ConfClasses(BaseModel):
     conformsTo: list[str]  # noqa: N815 - OGC's name
 
 
-def _landing() -> LandingPage:
+def _landing(base: str) -> LandingPage:
+    """The landing page with absolute links under ``base`` (clients resolve them as given)."""
     return LandingPage(
         title="scanplan",
         description="Plan terrestrial laser scanner stations on a 3D model (OGC API - "
                     "Processes): upload a model with POST /meshes, then execute scan-plan.",
         links=[
-            Link(href="/?f=json", rel="self", type="application/json", title="this document"),
-            Link(href="/?f=html", rel="alternate", type="text/html", title="the page to plan"),
-            Link(href="/openapi.json", rel="service-desc",
+            Link(href=f"{base}/?f=json", rel="self", type="application/json",
+                 title="this document"),
+            Link(href=f"{base}/?f=html", rel="alternate", type="text/html",
+                 title="the page to plan"),
+            Link(href=f"{base}/openapi.json", rel="service-desc",
                  type="application/vnd.oai.openapi+json;version=3.0", title="the API"),
-            Link(href="/docs", rel="service-doc", type="text/html",
+            Link(href=f"{base}/docs", rel="service-doc", type="text/html",
                  title="the API documentation"),
-            Link(href="/conformance", rel=_REL + "conformance", type="application/json",
+            Link(href=f"{base}/conformance", rel=_REL + "conformance", type="application/json",
                  title="conformance classes"),
-            Link(href="/processes", rel=_REL + "processes", type="application/json",
+            Link(href=f"{base}/processes", rel=_REL + "processes", type="application/json",
                  title="the processes"),
-            Link(href="/jobs", rel=_REL + "job-list", type="application/json",
+            Link(href=f"{base}/jobs", rel=_REL + "job-list", type="application/json",
                  title="the jobs"),
         ])
 
@@ -85,7 +88,8 @@ def landing_page(
     if _wants_html(request, f):
         response: Response = page("index.html")
     else:
-        response = JSONResponse(_landing().model_dump(exclude_none=True))
+        base = str(request.base_url).rstrip("/")
+        response = JSONResponse(_landing(base).model_dump(exclude_none=True))
     response.headers["Vary"] = "Accept"
     return response
 
