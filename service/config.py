@@ -75,7 +75,7 @@ class Settings(BaseSettings):
                                 description="refuse more explicit candidates than this")
     max_candidate_face_pairs: float = Field(
         default=2e11, gt=0, description="refuse plans above this many candidate x face pairs")
-    max_request_bytes: int = Field(default=16 * 1024 * 1024, gt=0,
+    max_request_bytes: int = Field(default=8 * 1024 * 1024, gt=0,
                                    description="largest JSON request body (not uploads)")
 
     @field_validator("api_keys", mode="before")
