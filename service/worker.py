@@ -342,6 +342,10 @@ def run_consumer(settings: Settings, *, with_reaper: bool) -> None:
     when wanted, runs in a process of its own.
     """
     _configure_logging(settings)
+    # below the API's priority: on a shared machine planning takes the idle CPU, so that a
+    # submission is answered at once even while every worker plans (huey forks the
+    # workers from this process, and each job's planning process from a worker)
+    os.nice(settings.worker_nice)
     if with_reaper:
         reaper = multiprocessing.get_context("fork").Process(
             target=run_reaper, args=(settings,), name="reaper", daemon=True)
