@@ -6,6 +6,7 @@ overrides the environment, which overrides the defaults.
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 from typing import Annotated
@@ -21,11 +22,18 @@ def _cores() -> int:
 
 
 def _memory_bytes() -> int | None:
-    """Physical memory of the machine (None when the platform does not say)."""
-    try:
-        return int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES"))
-    except (ValueError, OSError, AttributeError):
-        return None
+    """Memory this service may use: the machine's, or its container's cgroup limit if lower
+    (None when the platform says neither)."""
+    sizes = []
+    with contextlib.suppress(ValueError, OSError, AttributeError):
+        sizes.append(int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES")))
+    try:  # cgroup v2 (Docker, systemd): "max" or a number of bytes
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit.isdigit():
+            sizes.append(int(limit))
+    except OSError:
+        pass
+    return min(sizes) if sizes else None
 
 
 class Settings(BaseSettings):

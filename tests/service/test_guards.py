@@ -95,7 +95,9 @@ def test_delete_frees_the_worker_within_2_s_in_every_stage(
             assert worker.is_alive(), client.get(f"/jobs/{job_id}").json()
             assert time.monotonic() < deadline, f"the job never reached {stage}"
             time.sleep(0.02)
-        assert _children(_pid()), "the plan should run in a child process"
+        children = _children(_pid())
+        assert len(children) == 1, "the plan should run in one child process"
+        assert _address_space_limit_mb(children[0]) == 4096, "the child runs unlimited"
         assert client.delete(f"/jobs/{job_id}").json()["status"] == "dismissed"
         worker.join(2.0)
         assert not worker.is_alive(), f"the worker was still busy 2 s after DELETE in {stage}"
@@ -141,6 +143,15 @@ def _pid() -> int:
     import os
 
     return os.getpid()
+
+
+def _address_space_limit_mb(pid: int) -> int | None:
+    """The RLIMIT_AS of ``pid`` in MiB (None: unlimited), from /proc/<pid>/limits."""
+    for line in Path(f"/proc/{pid}/limits").read_text().splitlines():
+        if line.startswith("Max address space"):
+            soft = line.split()[3]
+            return None if soft == "unlimited" else int(soft) // 2**20
+    raise AssertionError("no address space line in /proc/<pid>/limits")
 
 
 def _address_space_mb() -> int:
