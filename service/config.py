@@ -74,7 +74,8 @@ class Settings(BaseSettings):
                     "default: 80 % of the machine's memory shared by the workers; 0: none")
     worker_nice: int = Field(
         default=10, ge=0, le=19,
-        description="CPU niceness of the workers: planning yields the cores to the API")
+        description="CPU niceness of each job's planning process: it yields the cores to "
+                    "the API and to the workers' heartbeats and shutdown")
     cancel_poll_interval_s: float = Field(
         default=0.25, gt=0, description="how often a worker checks that its job still stands")
     max_faces: int = Field(default=20_000_000, ge=1,

@@ -63,9 +63,14 @@ class StoppedError(Exception):
 
 @dataclass
 class ChildLimits:
-    """What the child may use. ``memory_bytes`` None: no limit."""
+    """What the child may use. ``memory_bytes`` None: no limit.
+
+    ``nice``: added to the child's CPU niceness, so that planning takes the CPU the API and
+    the workers' own bookkeeping (heartbeats, cancel checks, shutdown) leave idle.
+    """
 
     memory_bytes: int | None
+    nice: int = 0
 
 
 def run_in_child(work: Work, *, limits: ChildLimits,
@@ -167,6 +172,8 @@ def _child_main(work: Work, sender: Connection, parent_pid: int, limits: ChildLi
         # huey's handlers would turn SIGTERM into KeyboardInterrupt inside the plan
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
         signal.signal(signal.SIGINT, signal.SIG_DFL)
+        if limits.nice:
+            os.nice(limits.nice)
         if limits.memory_bytes is not None:
             resource.setrlimit(resource.RLIMIT_AS, (limits.memory_bytes, limits.memory_bytes))
         last: dict[str, float] = {}

@@ -211,7 +211,8 @@ def _run_plan(ctx: WorkerContext, job: JobRecord,
 
     try:
         outputs, timings = run_in_child(
-            work, limits=ChildLimits(memory_bytes=ctx.settings.job_memory_limit_bytes),
+            work, limits=ChildLimits(memory_bytes=ctx.settings.job_memory_limit_bytes,
+                                     nice=ctx.settings.worker_nice),
             on_progress=reporter, should_stop=should_stop,
             poll_interval_s=ctx.settings.cancel_poll_interval_s,
             describe_error=lambda exc: problem_for(exc))
@@ -342,10 +343,6 @@ def run_consumer(settings: Settings, *, with_reaper: bool) -> None:
     when wanted, runs in a process of its own.
     """
     _configure_logging(settings)
-    # below the API's priority: on a shared machine planning takes the idle CPU, so that a
-    # submission is answered at once even while every worker plans (huey forks the
-    # workers from this process, and each job's planning process from a worker)
-    os.nice(settings.worker_nice)
     if with_reaper:
         reaper = multiprocessing.get_context("fork").Process(
             target=run_reaper, args=(settings,), name="reaper", daemon=True)
