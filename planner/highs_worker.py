@@ -15,6 +15,7 @@ import math
 import os
 import pickle
 import select
+import signal
 import struct
 import subprocess
 import sys
@@ -122,7 +123,8 @@ class HighsProcess:
         """Start the child now (it imports scipy while the caller does other work)."""
         if self._child is None or self._child.poll() is not None:
             self._child = subprocess.Popen(
-                [sys.executable, "-c", "from planner.highs_worker import main; main()"],
+                [sys.executable, "-c",
+                 f"from planner.highs_worker import main; main({os.getpid()})"],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
             )
 
@@ -196,8 +198,24 @@ def _receive(stream: IO[bytes], deadline: float | None,
     return pickle.loads(_read_exactly(stream, size, deadline))  # our own child's bytes
 
 
-def main() -> None:
+def _die_with_parent(parent_pid: int) -> None:
+    """SIGKILL this child when the planning process dies, even by SIGKILL (Linux prctl
+    PDEATHSIG): a cancelled job must not leave HiGHS solving until its time limit."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return  # not Linux: the closed stdin pipe still ends the child after its solve
+    if os.getppid() != parent_pid:  # the parent died before prctl took effect
+        os._exit(1)
+
+
+def main(parent_pid: int | None = None) -> None:
     """The child: answer programs until stdin closes."""
+    if parent_pid is not None:
+        _die_with_parent(parent_pid)
     replies = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # anything HiGHS prints goes to stderr, not into the protocol
     requests = sys.stdin.buffer

@@ -3,6 +3,12 @@
 The names are the API contract: the CLI's ``--params`` JSON, the service's request body and
 ``plan.json`` all use exactly these keys. :class:`PlanSpec` is frozen; build one with
 :meth:`PlanSpec.from_mapping`, which validates and names the offending key in its error.
+
+Adding a number parameter with a range: add the field to :class:`PlanSpec` and one line to
+:data:`RANGES` (e.g. ``"scan_time_s": Range(gt=0)``). The validator checks it from there, and
+the service's HTTP model (``service/schemas.py``) puts the same bounds into the OpenAPI
+schema, so a client can validate before it calls. Checks between fields (``dof_min_m <
+dof_max_m``) stay in :func:`_validate`: JSON Schema cannot say them.
 """
 
 from __future__ import annotations
@@ -143,6 +149,69 @@ class PlanSpec:
         return data
 
 
+@dataclass(frozen=True)
+class Range:
+    """Bounds of a number parameter: ``ge``/``gt`` below, ``le``/``lt`` above (None: open).
+
+    ``hint`` is appended to the error message: the fix in the user's words.
+    """
+
+    ge: float | None = None
+    gt: float | None = None
+    le: float | None = None
+    lt: float | None = None
+    hint: str = ""
+
+    def contains(self, value: float) -> bool:
+        return ((self.ge is None or value >= self.ge) and (self.gt is None or value > self.gt)
+                and (self.le is None or value <= self.le)
+                and (self.lt is None or value < self.lt))
+
+    def describe(self) -> str:
+        """The interval in words: "greater than 0", "in (0, 1]", "0 or more"."""
+        low = self.ge if self.ge is not None else self.gt
+        high = self.le if self.le is not None else self.lt
+        if high is None:
+            return f"{_g(low)} or more" if self.ge is not None else f"greater than {_g(low)}"
+        if low is None:
+            return f"{_g(high)} or less" if self.le is not None else f"less than {_g(high)}"
+        return (f"in {'[' if self.ge is not None else '('}{_g(low)}, {_g(high)}"
+                f"{']' if self.le is not None else ')'}")
+
+
+def _g(number: float | None) -> str:
+    return f"{number:g}"
+
+
+# The one table of ranges: the validator below and the service's OpenAPI schema read it.
+RANGES: dict[str, Range] = {
+    "dof_min_m": Range(ge=0),
+    "dof_max_m": Range(gt=0),
+    "point_spacing_m": Range(gt=0),
+    "reference_distance_m": Range(gt=0),
+    "elevation_min_deg": Range(ge=-90, le=90),
+    "elevation_max_deg": Range(ge=-90, le=90),
+    "min_incidence_deg": Range(ge=0, le=90),
+    "min_density_pts_m2": Range(ge=0),
+    "coverage_goal": Range(gt=0, le=1, hint="0.8 means 80 % of the achievable area"),
+    "optimal_time_limit_s": Range(gt=0),
+    "max_edge_m": Range(gt=0, hint="or null to use the mesh as given"),
+    "unit_scale": Range(gt=0, hint="0.001 for a model in millimetres"),
+    "grid_spacing_m": Range(gt=0),
+    "scanner_height_m": Range(gt=0),
+    "clearance_m": Range(ge=0),
+    "min_overlap_m2": Range(gt=0, hint="or null for no overlap constraint"),
+    "overlap_density_pts_m2": Range(gt=0),
+    "setup_time_s": Range(ge=0, hint="or null for the preset's"),
+    "walking_speed_m_s": Range(gt=0, hint="0.8 is a slow walk with a tripod"),
+}
+# the same for the per-group overrides (GroupRequirement)
+GROUP_RANGES: dict[str, Range] = {
+    "min_density_pts_m2": RANGES["min_density_pts_m2"],
+    "min_incidence_deg": RANGES["min_incidence_deg"],
+}
+
+
 _NULLABLE = {"max_edge_m", "candidates", "area_of_interest", "storeys", "rooms",
              "curve_goals", "fixed_stations", "scanner", "min_overlap_m2", "route_start",
              "setup_time_s"}
@@ -242,49 +311,33 @@ def _check(ok: bool, name: str, message: str) -> None:
         raise ParameterError(name, message)
 
 
+def check_range(name: str, value: float | None, bounds: Range) -> None:
+    """A :class:`ParameterError` naming ``name`` when ``value`` is out of ``bounds``."""
+    if value is None or bounds.contains(value):
+        return
+    hint = f"; {bounds.hint}" if bounds.hint else ""
+    if bounds.ge == 0 and bounds.le is None and value < 0:
+        raise ParameterError(name, f"{value} is negative; use 0 or more{hint}")
+    raise ParameterError(name, f"{value} must be {bounds.describe()}{hint}")
+
+
 def _validate(spec: PlanSpec) -> None:
-    _check(spec.dof_min_m >= 0, "dof_min_m", f"{spec.dof_min_m} is negative; use 0 or more")
+    for name, bounds in RANGES.items():
+        check_range(name, getattr(spec, name), bounds)
     _check(
         spec.dof_min_m < spec.dof_max_m,
         "dof_min_m",
         f"{spec.dof_min_m} must be less than dof_max_m ({spec.dof_max_m})",
     )
-    for name in ("point_spacing_m", "reference_distance_m", "grid_spacing_m",
-                 "unit_scale", "optimal_time_limit_s"):
-        value = getattr(spec, name)
-        _check(value > 0, name, f"{value} must be greater than 0")
     _check(
-        spec.max_edge_m is None or spec.max_edge_m > 0,
-        "max_edge_m",
-        f"{spec.max_edge_m} must be greater than 0, or null to use the mesh as given",
-    )
-    _check(
-        -90 <= spec.elevation_min_deg < spec.elevation_max_deg <= 90,
+        spec.elevation_min_deg < spec.elevation_max_deg,
         "elevation_min_deg",
-        f"need -90 <= elevation_min_deg ({spec.elevation_min_deg}) < elevation_max_deg "
-        f"({spec.elevation_max_deg}) <= 90",
-    )
-    _check(
-        0 <= spec.min_incidence_deg <= 90,
-        "min_incidence_deg",
-        f"{spec.min_incidence_deg} is outside [0, 90]",
-    )
-    _check(
-        spec.min_density_pts_m2 >= 0,
-        "min_density_pts_m2",
-        f"{spec.min_density_pts_m2} is negative; use 0 or more",
-    )
-    _check(
-        0 < spec.coverage_goal <= 1,
-        "coverage_goal",
-        f"{spec.coverage_goal} is outside (0, 1]; 0.8 means 80 % of the achievable area",
+        f"elevation_min_deg ({spec.elevation_min_deg}) must be less than elevation_max_deg "
+        f"({spec.elevation_max_deg})",
     )
     _check(spec.method in METHODS, "method", f"{spec.method!r} is not one of {METHODS}")
     _check(spec.glb_compression in GLB_COMPRESSIONS, "glb_compression",
            f"{spec.glb_compression!r} is not one of {GLB_COMPRESSIONS}")
-    _check(spec.scanner_height_m > 0, "scanner_height_m",
-           f"{spec.scanner_height_m} must be greater than 0")
-    _check(spec.clearance_m >= 0, "clearance_m", f"{spec.clearance_m} is negative")
     if spec.candidates is not None:
         _check(len(spec.candidates) > 0, "candidates",
                "is an empty list; give at least one [x, y, z] or null to generate a grid")
@@ -299,19 +352,6 @@ def _validate(spec: PlanSpec) -> None:
         from planner.scanners import get
 
         get(spec.scanner)  # raises, naming the known presets
-    _check(spec.min_overlap_m2 is None or spec.min_overlap_m2 > 0, "min_overlap_m2",
-           f"{spec.min_overlap_m2} must be greater than 0, or null for no overlap constraint")
-    _check(spec.overlap_density_pts_m2 > 0, "overlap_density_pts_m2",
-           f"{spec.overlap_density_pts_m2} must be greater than 0")
-    _check(spec.setup_time_s is None or spec.setup_time_s >= 0, "setup_time_s",
-           f"{spec.setup_time_s} is negative; use 0 or more, or null for the preset's")
-    _check(spec.walking_speed_m_s > 0, "walking_speed_m_s",
-           f"{spec.walking_speed_m_s} must be greater than 0 (0.8 is a slow walk with a tripod)")
     for group, req in spec.group_requirements.items():
-        where = f"group_requirements.{group}"
-        if req.min_density_pts_m2 is not None:
-            _check(req.min_density_pts_m2 >= 0, f"{where}.min_density_pts_m2",
-                   f"{req.min_density_pts_m2} is negative")
-        if req.min_incidence_deg is not None:
-            _check(0 <= req.min_incidence_deg <= 90, f"{where}.min_incidence_deg",
-                   f"{req.min_incidence_deg} is outside [0, 90]")
+        for name, bounds in GROUP_RANGES.items():
+            check_range(f"group_requirements.{group}.{name}", getattr(req, name), bounds)

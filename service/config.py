@@ -6,6 +6,7 @@ overrides the environment, which overrides the defaults.
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 from typing import Annotated
@@ -18,6 +19,21 @@ LOOPBACK_HOSTS = ("127.0.0.1", "::1", "localhost")
 
 def _cores() -> int:
     return os.cpu_count() or 1
+
+
+def _memory_bytes() -> int | None:
+    """Memory this service may use: the machine's, or its container's cgroup limit if lower
+    (None when the platform says neither)."""
+    sizes = []
+    with contextlib.suppress(ValueError, OSError, AttributeError):
+        sizes.append(int(os.sysconf("SC_PAGE_SIZE")) * int(os.sysconf("SC_PHYS_PAGES")))
+    try:  # cgroup v2 (Docker, systemd): "max" or a number of bytes
+        limit = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if limit.isdigit():
+            sizes.append(int(limit))
+    except OSError:
+        pass
+    return min(sizes) if sizes else None
 
 
 class Settings(BaseSettings):
@@ -51,6 +67,28 @@ class Settings(BaseSettings):
     worker_health_interval_s: float = Field(
         default=2.0, gt=0, description="how often a dead worker process is replaced")
     log_level: str = Field(default="info", description="debug, info, warning or error")
+    # guards: what one job may cost (see service/guards.py and service/plan_process.py)
+    job_memory_limit_mb: int | None = Field(
+        default=None, ge=0,
+        description="address-space limit of each job's planning process, MiB (RLIMIT_AS); "
+                    "default: 80 % of the machine's memory shared by the workers; 0: none")
+    worker_nice: int = Field(
+        default=10, ge=0, le=19,
+        description="CPU niceness of each job's planning process: it yields the cores to "
+                    "the API and to the workers' heartbeats and shutdown")
+    cancel_poll_interval_s: float = Field(
+        default=0.25, gt=0, description="how often a worker checks that its job still stands")
+    max_faces: int = Field(default=20_000_000, ge=1,
+                           description="refuse plans estimated above this many faces after "
+                                       "remeshing")
+    max_grid_points: int = Field(default=2_000_000, ge=1,
+                                 description="refuse generated grids above this many points")
+    max_candidates: int = Field(default=100_000, ge=1,
+                                description="refuse more explicit candidates than this")
+    max_candidate_face_pairs: float = Field(
+        default=2e11, gt=0, description="refuse plans above this many candidate x face pairs")
+    max_request_bytes: int = Field(default=8 * 1024 * 1024, gt=0,
+                                   description="largest JSON request body (not uploads)")
 
     @field_validator("api_keys", mode="before")
     @classmethod
@@ -77,6 +115,19 @@ class Settings(BaseSettings):
         if self.database_url:
             return self.database_url
         return f"sqlite:///{(self.data_dir / 'jobs.db').resolve()}"
+
+    @property
+    def job_memory_limit_bytes(self) -> int | None:
+        """RLIMIT_AS of a job's planning process in bytes; None: unlimited."""
+        if self.job_memory_limit_mb == 0:
+            return None
+        if self.job_memory_limit_mb is not None:
+            return self.job_memory_limit_mb * 2**20
+        total = _memory_bytes()
+        if total is None:
+            return None
+        # at least 2 GiB: below that the imported libraries alone leave too little room
+        return max(2 * 2**30, int(total * 0.8) // max(1, self.workers))
 
     @property
     def threads_per_job(self) -> int:

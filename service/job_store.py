@@ -8,6 +8,7 @@ claim alive with heartbeats, and only the holder of the current token may finish
 from __future__ import annotations
 
 import json
+import threading
 import time
 import uuid
 from collections.abc import Sequence
@@ -68,6 +69,9 @@ class JobStore:
 
     def __init__(self, engine: Engine) -> None:
         self.engine = engine
+        # one writer at a time in this process: threads wait on this lock instead of
+        # SQLite's busy handler, which sleeps up to 100 ms per retry under contention
+        self._write_lock = threading.Lock()
 
     def ping(self) -> None:
         """Raise when the database is unreachable."""
@@ -83,23 +87,27 @@ class JobStore:
         """
         now = time.time()
         job_id = uuid.uuid4().hex
-        values = {
+        values: dict[str, Any] = {
             "id": job_id, "owner": owner, "mesh_id": mesh_id,
             "parameters": _json(parameters), "status": ACCEPTED, "progress": 0,
             "message": "queued", "created": now, "updated": now, "attempts": 0,
             "idempotency_key": idempotency_key, "request_hash": request_hash,
         }
         try:
-            with self.engine.begin() as conn:
+            with self._write_lock, self.engine.begin() as conn:
                 conn.execute(insert(jobs).values(**values))
         except IntegrityError:
             existing = self.by_idempotency_key(owner, idempotency_key)
             if existing is None:
                 raise
             return existing, False
-        record = self.get(job_id)
-        assert record is not None
-        return record, True
+        # the row as inserted (no read back: a submission costs one write)
+        return JobRecord(
+            id=job_id, owner=owner, mesh_id=mesh_id, parameters=parameters, status=ACCEPTED,
+            progress=0, message="queued", created=now, started=None, finished=None,
+            updated=now, heartbeat=None, attempts=0, worker_token=None, worker=None,
+            idempotency_key=idempotency_key, request_hash=request_hash, problem=None,
+            timings=None, outputs=None), True
 
     def by_idempotency_key(self, owner: str, key: str | None) -> JobRecord | None:
         """The job created with ``key`` by ``owner``, if any."""
@@ -151,7 +159,7 @@ class JobStore:
     def _update(self, job_id: str, where: Sequence[Any], **values: Any) -> bool:
         values.setdefault("updated", time.time())
         statement = update(jobs).where(jobs.c.id == job_id, *where).values(**values)
-        with self.engine.begin() as conn:
+        with self._write_lock, self.engine.begin() as conn:
             return bool(conn.execute(statement).rowcount == 1)
 
     def claim(self, job_id: str, token: str, worker: str) -> bool:
@@ -173,6 +181,13 @@ class JobStore:
             values["message"] = message
         return self._update(job_id, [jobs.c.status == RUNNING, jobs.c.worker_token == token],
                             **values)
+
+    def holds_claim(self, job_id: str, token: str) -> bool:
+        """Whether ``token`` still runs ``job_id`` (a read: cheap enough to ask often)."""
+        query = select(jobs.c.id).where(jobs.c.id == job_id, jobs.c.status == RUNNING,
+                                        jobs.c.worker_token == token)
+        with self.engine.connect() as conn:
+            return conn.execute(query).first() is not None
 
     def finish(self, job_id: str, token: str, status: str, *, message: str,
                problem: dict[str, Any] | None = None, timings: dict[str, float] | None = None,

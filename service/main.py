@@ -11,6 +11,7 @@ import importlib.util
 import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from http import HTTPStatus
 from pathlib import Path
 from typing import Any
 
@@ -19,8 +20,11 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import compile_path
+from starlette.types import ASGIApp, Receive, Scope, Send
 
-from planner.errors import PlannerError
+from planner.errors import ParameterError, PlannerError
+from planner.parameters import GROUP_RANGES, RANGES, check_range
 from service.auth import KeyRing
 from service.config import Settings
 from service.database import make_engine
@@ -29,13 +33,14 @@ from service.job_store import JobStore
 from service.mesh_store import MeshStore
 from service.problems import (
     MEDIA_TYPE,
+    PROBLEM_SCHEMA,
     ServiceError,
     UnauthorizedError,
     http_problem,
     problem_for,
 )
 from service.queue import HueyQueue, JobQueue, make_huey
-from service.routes import health, jobs, meshes, processes
+from service.routes import health, jobs, landing, meshes, processes
 from service.worker import Reaper
 
 log = logging.getLogger("scanplan.service")
@@ -76,13 +81,54 @@ def create_app(settings: Settings | None = None, *, queue: JobQueue | None = Non
                 keeper.stop()
             services.jobs.engine.dispose()
 
+    # operation ids are the handlers' names: what a generated client calls its functions
     app = FastAPI(title="scanplan", version=VERSION, description=DESCRIPTION,
-                  lifespan=lifespan)
+                  lifespan=lifespan, generate_unique_id_function=lambda route: route.name)
+    _add_problem_component(app)
+    app.add_middleware(RequestSizeLimit, max_bytes=settings.max_request_bytes)
     _add_problem_handlers(app)
-    for module in (meshes, processes, jobs, health):
+    for module in (landing, meshes, processes, jobs, health):
         app.include_router(module.router)
     _add_pages(app)
     return app
+
+
+class RequestSizeLimit:
+    """413 for a request body over ``max_bytes`` except uploads (``/meshes`` has its cap).
+
+    A pure ASGI middleware: it looks at the ``Content-Length`` header only, so it adds no
+    latency; 1e6 candidates (some 30 MB of JSON) are refused before anything parses them.
+    """
+
+    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
+        self.app = app
+        self.max_bytes = max_bytes
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] == "http" and not scope["path"].startswith("/meshes"):
+            declared = dict(scope["headers"]).get(b"content-length", b"")
+            if declared.isdigit() and int(declared) > self.max_bytes:
+                detail = (f"the request body has {int(declared)} bytes, more than "
+                          f"{self.max_bytes} (SCANPLAN_MAX_REQUEST_BYTES); for many "
+                          "candidates use a larger grid_spacing_m or an area_of_interest")
+                response = _problem_response(http_problem(
+                    413, "Request body too large", detail, instance=scope["path"]))
+                await response(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
+
+
+def _add_problem_component(app: FastAPI) -> None:
+    """Put the problem document's schema into the OpenAPI components (routes refer to it)."""
+    generate = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        document = generate()
+        document.setdefault("components", {}).setdefault("schemas", {})["Problem"] = \
+            PROBLEM_SCHEMA
+        return document
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def open_services(settings: Settings, queue: JobQueue | None = None) -> Services:
@@ -124,13 +170,20 @@ def _add_problem_handlers(app: FastAPI) -> None:
 
     async def http_error(request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, StarletteHTTPException)
-        title = {404: "Not Found", 405: "Method Not Allowed"}.get(exc.status_code, "Error")
+        title = HTTPStatus(exc.status_code).phrase
         detail = str(exc.detail)
+        headers = dict(exc.headers or {})
         if exc.status_code == 404:
             detail = f"no resource at {request.url.path}; see /docs for the API"
+        if exc.status_code == 405:
+            # Starlette names the methods of the first route that matched the path only
+            allowed = _allowed_methods(request.app, request.url.path)
+            if allowed:  # else a page outside the API: Starlette's own Allow stands
+                headers["Allow"] = ", ".join(allowed)
+            detail = f"{request.method} is not allowed on {request.url.path}; use " \
+                     f"{', '.join(allowed)}"
         return _problem_response(http_problem(exc.status_code, title, detail,
-                                              instance=request.url.path),
-                                 dict(exc.headers or {}))
+                                              instance=request.url.path), headers)
 
     async def unexpected(request: Request, exc: Exception) -> JSONResponse:
         log.exception("unexpected error on %s", request.url.path, exc_info=exc)
@@ -143,13 +196,46 @@ def _add_problem_handlers(app: FastAPI) -> None:
     app.add_exception_handler(Exception, unexpected)
 
 
+_RANGE_ERRORS = {"greater_than", "greater_than_equal", "less_than", "less_than_equal"}
+
+
+def _allowed_methods(app: Any, path: str) -> list[str]:
+    """Every method the OpenAPI document declares at ``path`` (GET brings HEAD along)."""
+    methods: set[str] = set()
+    for template, operations in app.openapi()["paths"].items():
+        if compile_path(template)[0].match(path):
+            methods |= {method.upper() for method in operations}
+    if "GET" in methods:
+        methods.add("HEAD")
+    return sorted(methods)
+
+
 def _describe_validation(error: Any) -> str:
+    range_message = _range_message(error)
+    if range_message is not None:
+        return range_message
     where = ".".join(str(p) for p in error.get("loc", ()) if p != "body")
     message = error.get("msg", "invalid")
     if "input" in error and error.get("type") != "missing":
         value = repr(error["input"])
         message += f" (got {value[:60]})"
     return f"{where}: {message}" if where else message
+
+
+def _range_message(error: Any) -> str | None:
+    """The planner's own words for a parameter out of its range (the fix included)."""
+    parameter = _parameter_of(error)
+    if error.get("type") not in _RANGE_ERRORS or parameter is None:
+        return None
+    name = parameter.rsplit(".", 1)[-1]
+    bounds = (GROUP_RANGES if parameter.startswith("group_requirements.") else RANGES).get(name)
+    if bounds is None or not isinstance(error.get("input"), int | float):
+        return None
+    try:
+        check_range(parameter, float(error["input"]), bounds)
+    except ParameterError as exc:
+        return str(exc)
+    return None
 
 
 def _parameter_of(error: Any) -> str | None:

@@ -117,17 +117,54 @@ def kind_of(exc: BaseException) -> ProblemKind:
 
 
 def problem_for(exc: BaseException, *, instance: str | None = None) -> dict[str, Any]:
-    """The problem document of ``exc``; a ParameterError adds ``parameter``."""
+    """The problem document of ``exc``; an error that names a parameter adds ``parameter``."""
     kind = kind_of(exc)
     detail = str(exc) if kind is not INTERNAL else "an unexpected error; see the server log"
     document: dict[str, Any] = {
         "type": kind.type, "title": kind.title, "status": kind.status, "detail": detail,
     }
-    if isinstance(exc, ParameterError):
-        document["parameter"] = exc.parameter
+    parameter = getattr(exc, "parameter", None)  # ParameterError, JobTooLargeError
+    if isinstance(parameter, str):
+        document["parameter"] = parameter
     if instance is not None:
         document["instance"] = instance
     return document
+
+
+# JSON Schema of a problem document (RFC 9457), a component of the OpenAPI document
+PROBLEM_SCHEMA: dict[str, Any] = {
+    "title": "Problem",
+    "description": "RFC 9457 problem details",
+    "type": "object",
+    "required": ["type", "title", "status"],
+    "properties": {
+        "type": {"type": "string", "description": "URI of the problem type"},
+        "title": {"type": "string"},
+        "status": {"type": "integer", "minimum": 400, "maximum": 599},
+        "detail": {"type": "string", "description": "what went wrong and how to fix it"},
+        "instance": {"type": "string"},
+        "parameter": {"type": "string", "description": "the parameter to change"},
+    },
+}
+PROBLEM_REF = "#/components/schemas/Problem"
+_WHEN = {
+    400: "malformed request (body not JSON, broken multipart)",
+    401: "missing or unknown API key (only when keys are configured)",
+    404: "no such resource for this key",
+    409: "conflicts with the resource's state",
+    413: "request body over the configured cap",
+    415: "not a model format the planner reads",
+    422: "invalid input, named in `parameter`",
+    500: "unexpected error",
+    503: "a dependency is unreachable",
+}
+
+
+def problem_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI ``responses`` entries: each status answered with a problem document."""
+    return {status: {"description": _WHEN.get(status, "problem"),
+                     "content": {MEDIA_TYPE: {"schema": {"$ref": PROBLEM_REF}}}}
+            for status in statuses}
 
 
 def http_problem(status: int, title: str, detail: str, **extra: Any) -> dict[str, Any]:
@@ -140,3 +177,21 @@ class WorkerLostError(ServiceError):
 
 
 PROBLEMS[WorkerLostError] = ProblemKind(500, "urn:scanplan:problem:worker-lost", "Worker lost")
+
+
+class OutOfMemoryError(ServiceError):
+    """The job's planning process went past the worker's memory limit."""
+
+
+class JobTooLargeError(ServiceError):
+    """The estimated work of a plan exceeds a configured cap; names the parameter."""
+
+    def __init__(self, parameter: str, message: str) -> None:
+        super().__init__(message)
+        self.parameter = parameter
+
+
+PROBLEMS[OutOfMemoryError] = ProblemKind(422, "urn:scanplan:problem:out-of-memory",
+                                         "Out of memory")
+PROBLEMS[JobTooLargeError] = ProblemKind(422, "urn:scanplan:problem:job-too-large",
+                                         "The plan would be too large for this service")

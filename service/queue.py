@@ -33,7 +33,10 @@ def make_huey(settings: Settings) -> Huey:
     if settings.queue_url:
         return RedisHuey("scanplan", url=settings.queue_url, results=False)
     settings.data_dir.mkdir(parents=True, exist_ok=True)
-    return SqliteHuey("scanplan", filename=str(settings.data_dir / "queue.db"), results=False)
+    # fsync=False: the job table is the truth and the reaper re-enqueues accepted jobs, so
+    # the queue need not wait for the disk on every submission
+    return SqliteHuey("scanplan", filename=str(settings.data_dir / "queue.db"), results=False,
+                      fsync=False)
 
 
 class HueyQueue:

@@ -1,9 +1,10 @@
 """HTTP models. The plan parameters take their defaults from :class:`planner.PlanSpec`.
 
 Field names and types are written out (a generated client needs them); every default is
-read from the dataclass, and a test fails when a field is added to one but not the other.
-Pydantic checks types strictly (no "1.5" for a number); ranges and consistency stay in
-:meth:`PlanSpec.from_mapping`, the one validator of values.
+read from the dataclass and every range from :data:`planner.parameters.RANGES`, and a test
+fails when a field is added to one but not the other. Pydantic checks types strictly (no
+"1.5" for a number) and the ranges; checks between fields stay in
+:meth:`PlanSpec.from_mapping`, which runs after it.
 """
 
 from __future__ import annotations
@@ -11,9 +12,9 @@ from __future__ import annotations
 from dataclasses import MISSING, fields
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, Strict, StrictBool
+from pydantic import BaseModel, ConfigDict, Field, RootModel, Strict, StrictBool
 
-from planner.parameters import PlanSpec
+from planner.parameters import GROUP_RANGES, RANGES, PlanSpec, Range
 
 
 def _defaults() -> dict[str, Any]:
@@ -30,11 +31,19 @@ DEFAULTS = _defaults()
 Number = Annotated[float, Strict()]
 Point3 = Annotated[list[Number], Field(min_length=3, max_length=3)]
 Point2 = Annotated[list[Number], Field(min_length=2, max_length=2)]
+Goal = Annotated[float, Strict(), Field(gt=0, le=1)]  # as PlanSpec checks curve_goals[i]
+
+
+def _ranged(default: Any, description: str, bounds: Range | None) -> Any:
+    """A field with the bounds of the planner's range table (None: no bound)."""
+    bounds = bounds or Range()
+    return Field(default=default, description=description, ge=bounds.ge, gt=bounds.gt,
+                 le=bounds.le, lt=bounds.lt)
 
 
 def _d(name: str, description: str) -> Any:
-    """A field whose default is PlanSpec's."""
-    return Field(default=DEFAULTS[name], description=description)
+    """A field whose default is PlanSpec's and whose range is the planner's."""
+    return _ranged(DEFAULTS[name], description, RANGES.get(name))
 
 
 class GroupRequirementModel(BaseModel):
@@ -42,9 +51,10 @@ class GroupRequirementModel(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    min_density_pts_m2: Number | None = Field(default=None,
-                                              description="points per m², null: plan-wide")
-    min_incidence_deg: Number | None = Field(default=None, description="degrees, null: plan-wide")
+    min_density_pts_m2: Number | None = _ranged(None, "points per m², null: plan-wide",
+                                                GROUP_RANGES["min_density_pts_m2"])
+    min_incidence_deg: Number | None = _ranged(None, "degrees, null: plan-wide",
+                                               GROUP_RANGES["min_incidence_deg"])
     target: StrictBool = Field(default=True, description="false: blocks rays, needs no coverage")
     occludes: StrictBool = Field(default=True, description="false: rays pass through (glass)")
 
@@ -70,7 +80,7 @@ class PlanParameters(BaseModel):
     method: Literal["greedy", "weighted_greedy", "optimal"] = _d(
         "method", "station selection method")
     optimal_time_limit_s: Number = _d("optimal_time_limit_s", "MILP time limit, seconds")
-    curve_goals: list[Number] | None = _d(
+    curve_goals: list[Goal] | None = _d(
         "curve_goals", "goals in (0, 1] of the curve's optimal row; null: the plan's goal "
         "when method is optimal")
     fixed_stations: list[Point3] | None = _d(
@@ -113,11 +123,19 @@ class ExecuteInputs(BaseModel):
 
 
 class ExecuteRequest(BaseModel):
-    """``POST /processes/scan-plan/execution`` body (OGC API - Processes)."""
+    """``POST /processes/scan-plan/execution`` body (OGC API - Processes ``execute.yaml``).
+
+    ``outputs`` and ``response`` are accepted as the standard defines them; every job keeps
+    all its outputs and ``GET /jobs/{id}/results`` always answers the results document.
+    """
 
     model_config = ConfigDict(extra="forbid")
 
     inputs: ExecuteInputs
+    outputs: dict[str, dict[str, Any]] | None = Field(
+        default=None, description="OGC: outputs wanted; every output is kept")
+    response: Literal["raw", "document"] = Field(
+        default="document", description="OGC: results as a document (the only form here)")
 
 
 class Link(BaseModel):
@@ -129,13 +147,16 @@ class Link(BaseModel):
     title: str | None = None
 
 
+JobStatus = Literal["accepted", "running", "successful", "failed", "dismissed"]
+
+
 class StatusInfo(BaseModel):
     """A job's status document (OGC ``statusInfo`` plus a few fields of ours)."""
 
     jobID: str  # noqa: N815 - OGC's name
     processID: str = "scan-plan"  # noqa: N815
     type: str = "process"
-    status: Literal["accepted", "running", "successful", "failed", "dismissed"]
+    status: JobStatus
     message: str
     progress: int = Field(..., ge=0, le=100)
     created: str
@@ -184,9 +205,9 @@ class OutputRef(BaseModel):
     sha256: str
 
 
-class JobResults(BaseModel):
-    """``GET /jobs/{id}/results``: the plan inline, every output by reference."""
+class JobResults(RootModel[dict[str, dict[str, Any]]]):
+    """``GET /jobs/{id}/results`` (OGC ``results.yaml``): output id -> value or link.
 
-    plan: dict[str, Any]
-    outputs: dict[str, OutputRef]
-    links: list[Link]
+    ``plan`` is the plan inline (the content of plan.json); every file output (``plan.json``,
+    ``faces.npz``, ...) is a link ``{href, type, bytes, sha256}``.
+    """

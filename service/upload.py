@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import AsyncIterator
 from dataclasses import dataclass, field
 
+from python_multipart.exceptions import MultipartParseError
 from python_multipart.multipart import MultipartParser, parse_options_header
 from starlette.requests import Request
 
@@ -81,12 +82,16 @@ class MultipartFile:
 
     async def chunks(self) -> AsyncIterator[bytes]:
         """The bytes of the ``file`` part, as they arrive."""
-        async for body in self.request.stream():
-            self.parser.write(body)
-            pending, self.state.chunks = self.state.chunks, []
-            for chunk in pending:
-                yield chunk
-        self.parser.finalize()
+        try:
+            async for body in self.request.stream():
+                self.parser.write(body)
+                pending, self.state.chunks = self.state.chunks, []
+                for chunk in pending:
+                    yield chunk
+            self.parser.finalize()
+        except MultipartParseError as exc:
+            raise BadRequestError(f"the multipart body is malformed ({exc}); send the model "
+                                  f"as -F {FILE_FIELD}=@model.obj or as a raw body") from exc
         for chunk in self.state.chunks:
             yield chunk
         if not self.state.seen_file:

@@ -31,7 +31,15 @@ from service.config import Settings
 from service.database import make_engine
 from service.job_store import FAILED, SUCCESSFUL, JobRecord, JobStore
 from service.mesh_store import MeshStore
-from service.problems import WorkerLostError, problem_for
+from service.plan_process import (
+    ChildFailedError,
+    ChildLimits,
+    PlanProcessError,
+    Progress,
+    StoppedError,
+    run_in_child,
+)
+from service.problems import OutOfMemoryError, WorkerLostError, problem_for
 from service.queue import HueyQueue, JobQueue, make_huey
 
 log = logging.getLogger("scanplan.worker")
@@ -137,15 +145,25 @@ def execute_job(ctx: WorkerContext, job_id: str) -> None:
     assert job is not None
     reporter = ProgressReporter(ctx, job_id, token)
     log.info("job %s: running (attempt %d)", job_id, job.attempts)
+    instance = f"/jobs/{job_id}"
     try:
         with Heartbeat(reporter, ctx.settings.heartbeat_interval_s):
             outputs, timings = _run_plan(ctx, job, reporter)
-    except CancelledError:
+    except (CancelledError, StoppedError):
         log.info("job %s: stopped (dismissed or reassigned)", job_id)
+    except ChildFailedError as exc:
+        log.info("job %s: failed: %s", job_id, exc)
+        ctx.jobs.finish(job_id, token, FAILED, message=str(exc),
+                        problem={**exc.problem, "instance": instance})
+    except PlanProcessError as exc:
+        log.warning("job %s: %s", job_id, exc)
+        error = OutOfMemoryError(str(exc)) if exc.out_of_memory else exc
+        ctx.jobs.finish(job_id, token, FAILED, message=str(exc),
+                        problem=problem_for(error, instance=instance))
     except PlannerError as exc:
         log.info("job %s: failed: %s", job_id, exc)
         ctx.jobs.finish(job_id, token, FAILED, message=str(exc),
-                        problem=problem_for(exc, instance=f"/jobs/{job_id}"))
+                        problem=problem_for(exc, instance=instance))
     except KeyboardInterrupt:  # huey stops the worker: hand the job back, it is not lost
         if ctx.jobs.release(job_id, token):
             ctx.queue.enqueue(job_id)
@@ -153,56 +171,68 @@ def execute_job(ctx: WorkerContext, job_id: str) -> None:
     except Exception as exc:
         log.exception("job %s: unexpected error", job_id)
         ctx.jobs.finish(job_id, token, FAILED, message="internal error",
-                        problem=problem_for(exc, instance=f"/jobs/{job_id}"))
+                        problem=problem_for(exc, instance=instance))
     else:
         if ctx.jobs.finish(job_id, token, SUCCESSFUL, message="done", timings=timings,
                            outputs=outputs):
             log.info("job %s: successful", job_id)
-        else:  # dismissed while the files were written
+        else:  # dismissed while the files were moved into place
             shutil.rmtree(results_dir(ctx.settings, job_id), ignore_errors=True)
 
 
 def _run_plan(ctx: WorkerContext, job: JobRecord,
               reporter: ProgressReporter) -> tuple[dict[str, dict[str, Any]], dict[str, float]]:
+    """Plan ``job`` in a child process (see :mod:`service.plan_process`), then move the
+    outputs it wrote into place."""
     spec = PlanSpec.from_mapping(job.parameters)
     mesh_path = ctx.meshes.path(job.mesh_id)
     if mesh_path is None:
         raise SceneError(f"mesh {job.mesh_id} is no longer stored; upload it again")
-    timings: dict[str, float] = {}
-    reporter("reading", 0.0)
-    started = time.perf_counter()
-    scene = read_scene(mesh_path, max_edge_m=spec.max_edge_m, unit_scale=spec.unit_scale)
-    timings["reading"] = time.perf_counter() - started
-    result = plan(scene, spec, progress=reporter, threads=ctx.settings.threads_per_job)
-    timings.update(result.stats.seconds)
-    if reporter("writing", 0.0):
-        raise CancelledError("the plan was cancelled before writing")
-    started = time.perf_counter()
-    outputs = _write_atomically(ctx, job.id, reporter.token, result)
-    timings["writing"] = time.perf_counter() - started
-    return outputs, {name: round(seconds, 4) for name, seconds in timings.items()}
-
-
-def _write_atomically(ctx: WorkerContext, job_id: str, token: str,
-                      result: Any) -> dict[str, dict[str, Any]]:
-    """Write every output into a temporary directory, then rename it into place."""
     ctx.results_root.mkdir(parents=True, exist_ok=True)
-    temporary = ctx.results_root / f".tmp-{job_id}-{token}"
-    final = results_dir(ctx.settings, job_id)
+    temporary = ctx.results_root / f".tmp-{job.id}-{reporter.token}"
+    threads = ctx.settings.threads_per_job
+
+    def work(progress: Progress) -> tuple[dict[str, dict[str, Any]], dict[str, float]]:
+        timings: dict[str, float] = {}
+        progress("reading", 0.0)
+        started = time.perf_counter()
+        scene = read_scene(mesh_path, max_edge_m=spec.max_edge_m, unit_scale=spec.unit_scale)
+        timings["reading"] = time.perf_counter() - started
+        result = plan(scene, spec, progress=progress, threads=threads)
+        timings.update(result.stats.seconds)
+        progress("writing", 0.0)
+        started = time.perf_counter()
+        outputs = _write_outputs(result, temporary)
+        timings["writing"] = time.perf_counter() - started
+        return outputs, {name: round(seconds, 4) for name, seconds in timings.items()}
+
+    def should_stop() -> bool:
+        return reporter.cancelled.is_set() or not ctx.jobs.holds_claim(job.id, reporter.token)
+
     try:
-        written = write_outputs(result, temporary)
-        outputs = {
-            path.name: {"bytes": path.stat().st_size,
-                        "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
-            for path in written
-        }
+        outputs, timings = run_in_child(
+            work, limits=ChildLimits(memory_bytes=ctx.settings.job_memory_limit_bytes,
+                                     nice=ctx.settings.worker_nice),
+            on_progress=reporter, should_stop=should_stop,
+            poll_interval_s=ctx.settings.cancel_poll_interval_s,
+            describe_error=lambda exc: problem_for(exc))
+        if reporter("writing", 1.0):
+            raise CancelledError("the plan was cancelled before its outputs were in place")
+        final = results_dir(ctx.settings, job.id)
         if final.exists():  # left by an earlier attempt that could not finish
             shutil.rmtree(final)
         temporary.rename(final)
-    except BaseException:
+    finally:
         shutil.rmtree(temporary, ignore_errors=True)
-        raise
-    return outputs
+    return outputs, timings
+
+
+def _write_outputs(result: Any, folder: Path) -> dict[str, dict[str, Any]]:
+    """Write every output into ``folder``; name -> bytes and sha256."""
+    written = write_outputs(result, folder)
+    return {path.name: {"bytes": path.stat().st_size,
+                        "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
+            for path in written}
 
 
 def worker_lost_problem(job: JobRecord) -> dict[str, Any]:

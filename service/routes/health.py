@@ -7,9 +7,9 @@ from typing import Any
 from fastapi import APIRouter
 
 from service.deps import ServicesDep
-from service.problems import NotReadyError
+from service.problems import NotReadyError, problem_responses
 
-router = APIRouter(tags=["health"])
+router = APIRouter(tags=["health"], responses=problem_responses(500))
 
 
 @router.get("/healthz")
@@ -18,7 +18,7 @@ def healthz() -> dict[str, str]:
     return {"status": "ok"}
 
 
-@router.get("/readyz", responses={503: {"description": "a dependency is unreachable"}})
+@router.get("/readyz", responses=problem_responses(503))
 def readyz(services: ServicesDep) -> dict[str, Any]:
     """Readiness: the job table, the queue and the data directory all answer."""
     checks = {

@@ -4,20 +4,23 @@ from __future__ import annotations
 
 import json
 import shutil
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response, status
 from fastapi.responses import FileResponse, JSONResponse
 
 from service.deps import OwnerDep, ServicesDep
-from service.job_store import ACTIVE, FAILED, STATUSES, SUCCESSFUL, JobRecord
-from service.problems import MEDIA_TYPE, NoSuchJobError, ResultNotReadyError
-from service.schemas import JobList, JobResults, Link, OutputRef, StatusInfo
+from service.job_store import ACTIVE, FAILED, SUCCESSFUL, JobRecord
+from service.problems import MEDIA_TYPE, NoSuchJobError, ResultNotReadyError, problem_responses
+from service.schemas import JobList, JobResults, JobStatus, Link, OutputRef, StatusInfo
 from service.timefmt import iso
 from service.worker import results_dir
 
-router = APIRouter(prefix="/jobs", tags=["jobs"])
+router = APIRouter(prefix="/jobs", tags=["jobs"],
+                   responses=problem_responses(401, 404, 422, 500))
 
+# the output id of the plan inline in the results document (the files are named outputs)
+PLAN_OUTPUT = "plan"
 RESULTS_REL = "http://www.opengis.net/def/rel/ogc/1.0/results"
 MEDIA_TYPES = {
     ".json": "application/json", ".csv": "text/csv; charset=utf-8", ".png": "image/png",
@@ -61,19 +64,14 @@ def _job(services: ServicesDep, owner: str, job_id: str) -> JobRecord:
 @router.get("", response_model=JobList)
 def list_jobs(
     request: Request, services: ServicesDep, owner: OwnerDep,
-    status_: Annotated[list[str] | None, Query(alias="status",
-                                               description=f"any of {', '.join(STATUSES)}")]
+    status_: Annotated[list[JobStatus] | None, Query(alias="status",
+                                                     description="only jobs in these states")]
     = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 50,
     offset: Annotated[int, Query(ge=0)] = 0,
 ) -> JobList:
     """Your jobs, newest first, ``limit`` at a time."""
-    wanted = [s for s in status_ or [] if s]
-    unknown = sorted(set(wanted) - set(STATUSES))
-    if unknown:
-        from service.problems import BadRequestError
-
-        raise BadRequestError(f"status {unknown[0]!r} is not one of {', '.join(STATUSES)}")
+    wanted = list(status_ or [])
     records, total = services.jobs.page(owner, wanted, limit=limit, offset=offset)
     links = [Link(href=str(request.url), rel="self", type="application/json")]
     if offset + limit < total:
@@ -107,8 +105,7 @@ def delete_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInf
 
 
 @router.get("/{job_id}/results", response_model=JobResults,
-            responses={404: {"description": "no such job, or not finished"},
-                       422: {"description": "the job failed: its problem"}})
+            responses=problem_responses(409))
 def get_results(job_id: str, services: ServicesDep, owner: OwnerDep) -> JobResults | Response:
     """The plan inline and every output by href; a failed job's problem."""
     job = _job(services, owner, job_id)
@@ -119,14 +116,13 @@ def get_results(job_id: str, services: ServicesDep, owner: OwnerDep) -> JobResul
         raise ResultNotReadyError(f"job {job_id} is {job.status}; results come once it is "
                                   "successful")
     folder = results_dir(services.settings, job_id)
-    plan = json.loads((folder / "plan.json").read_text(encoding="utf-8"))
-    outputs = {
-        name: OutputRef(href=f"/jobs/{job_id}/results/{name}", type=media_type(name),
-                        bytes=meta["bytes"], sha256=meta["sha256"])
-        for name, meta in sorted(job.outputs.items())
-    }
-    return JobResults(plan=plan, outputs=outputs, links=[
-        Link(href=f"/jobs/{job_id}", rel="up", type="application/json", title="status")])
+    document: dict[str, dict[str, Any]] = {
+        PLAN_OUTPUT: json.loads((folder / "plan.json").read_text(encoding="utf-8"))}
+    for name, meta in sorted(job.outputs.items()):
+        document[name] = OutputRef(href=f"/jobs/{job_id}/results/{name}",
+                                   type=media_type(name), bytes=meta["bytes"],
+                                   sha256=meta["sha256"]).model_dump()
+    return JobResults(document)
 
 
 @router.get("/{job_id}/results/{output}", response_class=FileResponse,

@@ -11,12 +11,18 @@ from starlette.concurrency import run_in_threadpool
 
 from service.deps import OwnerDep, ServicesDep
 from service.mesh_store import MeshRecord
-from service.problems import ConflictError, NotFoundError, PayloadTooLargeError
+from service.problems import (
+    ConflictError,
+    NotFoundError,
+    PayloadTooLargeError,
+    problem_responses,
+)
 from service.schemas import Link, MeshInfo
 from service.timefmt import iso
 from service.upload import FILE_FIELD, MultipartFile, multipart_boundary
 
-router = APIRouter(prefix="/meshes", tags=["meshes"])
+router = APIRouter(prefix="/meshes", tags=["meshes"],
+                   responses=problem_responses(401, 404, 422, 500))
 
 _UPLOAD_BODY: dict[str, Any] = {
     "requestBody": {
@@ -32,6 +38,13 @@ _UPLOAD_BODY: dict[str, Any] = {
         },
     }
 }
+
+
+# OpenAPI link: what a client does with an uploaded mesh (Schemathesis follows it)
+_EXECUTE_LINK = {"execute": {
+    "operationId": "execute", "parameters": {"process_id": "scan-plan"},
+    "requestBody": {"inputs": {"mesh": "$response.body#/id"}},
+    "description": "plan on the uploaded mesh"}}
 
 
 def mesh_info(record: MeshRecord) -> MeshInfo:
@@ -53,7 +66,10 @@ def _not_found(mesh_id: str) -> NotFoundError:
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=MeshInfo,
              openapi_extra=_UPLOAD_BODY,
-             responses={200: {"model": MeshInfo, "description": "already uploaded"}})
+             responses={201: {"links": _EXECUTE_LINK},
+                        200: {"model": MeshInfo, "description": "already uploaded",
+                              "links": _EXECUTE_LINK},
+                        **problem_responses(400, 413, 415)})
 async def upload_mesh(
     request: Request, response: Response, services: ServicesDep, owner: OwnerDep,
     filename: Annotated[str | None, Query(description="the model's file name")] = None,
@@ -104,7 +120,8 @@ def get_mesh_content(mesh_id: str, services: ServicesDep, owner: OwnerDep) -> Fi
                         headers={"ETag": f'"{record.id}"'})
 
 
-@router.delete("/{mesh_id}", status_code=status.HTTP_204_NO_CONTENT)
+@router.delete("/{mesh_id}", status_code=status.HTTP_204_NO_CONTENT,
+               responses=problem_responses(409))
 def delete_mesh(mesh_id: str, services: ServicesDep, owner: OwnerDep) -> Response:
     """Forget the mesh; 409 while an unfinished job plans on it."""
     if services.meshes.get(mesh_id, owner) is None:

@@ -1,4 +1,5 @@
-"""HTML pages for people who open the service in a browser: the job list and the viewer.
+"""HTML pages for people who open the service in a browser: the viewer (``/`` is in
+:mod:`service.routes.landing`, which serves the page to plan to browsers).
 
 The pages are static files (``service/static``); their scripts read the job id from the
 address and talk to the JSON API (``GET /jobs``, ``GET /jobs/{id}``,
@@ -20,19 +21,14 @@ STATIC = Path(__file__).resolve().parent.parent / "static"
 router = APIRouter(tags=["pages"], include_in_schema=False)
 
 
-def _page(name: str) -> HTMLResponse:
+def page(name: str) -> HTMLResponse:
+    """A static page, never cached."""
     # no-cache: a new release of the page must not meet an old script in the browser
     return HTMLResponse((STATIC / name).read_text(encoding="utf-8"),
                         headers={"Cache-Control": "no-cache"})
 
 
-@router.get("/", response_class=HTMLResponse)
-def job_list_page() -> HTMLResponse:
-    """The job list (polls ``GET /jobs``)."""
-    return _page("index.html")
-
-
 @router.get("/jobs/{job_id}/viewer", response_class=HTMLResponse)
 def viewer_page(job_id: str) -> HTMLResponse:
     """The 3D viewer of one job (polls ``GET /jobs/{job_id}`` until it has finished)."""
-    return _page("viewer.html")
+    return page("viewer.html")

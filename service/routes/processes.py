@@ -6,18 +6,25 @@ import hashlib
 import json
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Header, Response, status
+from fastapi import APIRouter, Header, Path, Response, status
 from starlette.concurrency import run_in_threadpool
 
 from planner.parameters import PlanSpec
 from planner.report import OUTPUTS
 from planner.scanners import scanners
+from service import guards
 from service.deps import OwnerDep, ServicesDep
-from service.problems import IdempotencyKeyReusedError, NoSuchProcessError, NotFoundError
-from service.routes.jobs import media_type, status_info
+from service.problems import (
+    IdempotencyKeyReusedError,
+    NoSuchProcessError,
+    NotFoundError,
+    problem_responses,
+)
+from service.routes.jobs import PLAN_OUTPUT, media_type, status_info
 from service.schemas import ExecuteRequest, PlanParameters, StatusInfo
 
-router = APIRouter(prefix="/processes", tags=["processes"])
+router = APIRouter(prefix="/processes", tags=["processes"],
+                   responses=problem_responses(401, 404, 422, 500))
 
 PROCESS_ID = "scan-plan"
 _SUMMARY: dict[str, Any] = {
@@ -33,6 +40,17 @@ _SUMMARY: dict[str, Any] = {
                "rel": "http://www.opengis.net/def/rel/ogc/1.0/execute",
                "type": "application/json"}],
 }
+
+
+# OpenAPI links from a new job to what a client does next (Schemathesis follows them)
+_JOB_LINKS = {
+    operation: {"operationId": operation, "parameters": {"job_id": "$response.body#/jobID"}}
+    for operation in ("get_job", "get_results", "delete_job")
+}
+
+
+# the schema lists the one process; another id is still a 404 no-such-process (OGC), not a 422
+ProcessIdPath = Annotated[str, Path(json_schema_extra={"enum": [PROCESS_ID]})]
 
 
 class MeshNotFoundError(NotFoundError):
@@ -53,9 +71,11 @@ def _description() -> dict[str, Any]:
         },
         "scanners": [scanner.to_dict() for scanner in scanners().values()],
         "outputs": {
-            name: {"title": name,
-                   "schema": {"type": "string", "contentMediaType": media_type(name)}}
-            for name in OUTPUTS
+            PLAN_OUTPUT: {"title": "the plan inline", "description": "the content of plan.json",
+                          "schema": {"type": "object"}},
+            **{name: {"title": name,
+                      "schema": {"type": "string", "contentMediaType": media_type(name)}}
+               for name in OUTPUTS},
         },
     }
 
@@ -68,7 +88,7 @@ def list_processes() -> dict[str, Any]:
 
 
 @router.get("/{process_id}")
-def describe_process(process_id: str) -> dict[str, Any]:
+def describe_process(process_id: ProcessIdPath) -> dict[str, Any]:
     """Inputs (JSON Schema with the real defaults) and outputs of the process."""
     _check_process(process_id)
     return _description()
@@ -81,25 +101,37 @@ def _check_process(process_id: str) -> None:
 
 @router.post("/{process_id}/execution", status_code=status.HTTP_201_CREATED,
              response_model=StatusInfo,
-             responses={200: {"model": StatusInfo, "description": "Idempotency-Key replay"}})
+             responses={201: {"links": _JOB_LINKS},
+                        200: {"model": StatusInfo, "description": "Idempotency-Key replay"},
+                        **problem_responses(400, 413)})
 async def execute(
-    process_id: str, body: ExecuteRequest, response: Response, services: ServicesDep,
+    process_id: ProcessIdPath, body: ExecuteRequest, response: Response, services: ServicesDep,
     owner: OwnerDep,
     idempotency_key: Annotated[str | None, Header(max_length=255)] = None,
+    prefer: Annotated[str | None, Header(
+        description="OGC: respond-async (every execution is asynchronous)")] = None,
 ) -> StatusInfo:
-    """Queue a plan of ``inputs.mesh`` with ``inputs.parameters``; 201 and Location."""
+    """Queue a plan of ``inputs.mesh`` with ``inputs.parameters``; 201 and Location.
+
+    Execution is always asynchronous (``jobControlOptions``: async-execute); a
+    ``Prefer: respond-async`` is answered with ``Preference-Applied: respond-async``.
+    """
     _check_process(process_id)
+    if prefer is not None and "respond-async" in prefer:
+        response.headers["Preference-Applied"] = "respond-async"
     parameters = body.inputs.parameters.model_dump(exclude_unset=True)
-    PlanSpec.from_mapping(parameters)  # ranges and consistency: 422 naming the parameter
+    spec = PlanSpec.from_mapping(parameters)  # ranges and consistency: 422 naming it
     return await run_in_threadpool(_submit, services, owner, body.inputs.mesh, parameters,
-                                   idempotency_key, response)
+                                   spec, idempotency_key, response)
 
 
 def _submit(services: ServicesDep, owner: str, mesh_id: str, parameters: dict[str, Any],
-            idempotency_key: str | None, response: Response) -> StatusInfo:
-    if services.meshes.get(mesh_id, owner) is None:
+            spec: PlanSpec, idempotency_key: str | None, response: Response) -> StatusInfo:
+    mesh = services.meshes.get(mesh_id, owner)
+    if mesh is None:
         raise MeshNotFoundError(f"inputs.mesh: no mesh {mesh_id}; upload the model with "
                                 "POST /meshes and use the id it returns")
+    guards.check(mesh.summary, spec, services.settings)  # 422 naming the parameter
     request_hash = hashlib.sha256(json.dumps(
         {"mesh": mesh_id, "parameters": parameters}, sort_keys=True).encode()).hexdigest()
     job, created = services.jobs.create(owner, mesh_id, parameters,

@@ -42,7 +42,7 @@ export function problemText(problem) {
   return parts.join(': ') || 'unknown error';
 }
 
-async function problemOf(response) {
+export async function problemOf(response) {
   let body = null;
   try { body = await response.json(); } catch { body = null; }
   if (body && typeof body === 'object' && (body.title || body.detail)) {

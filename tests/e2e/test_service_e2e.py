@@ -72,6 +72,30 @@ def test_stopping_serve_stops_its_worker_processes(tmp_path: Path, stop_signal: 
         service.kill_leftovers()
 
 
+@pytest.mark.parametrize("stop_signal", [signal.SIGTERM, signal.SIGKILL])
+def test_stopping_serve_stops_busy_workers_too(tmp_path: Path, stop_signal: int) -> None:
+    """A worker in a stage that never polls (candidates on a 1 cm grid) stops with serve."""
+    small = _scene("hall-small")
+    service = Service(tmp_path / "data", workers=2).start()
+    try:
+        with service.client() as client:
+            job_id = _submit(client, small, candidates=None, grid_spacing_m=0.01)
+            deadline = time.monotonic() + 60
+            while not client.get(f"/jobs/{job_id}").json()["message"].startswith(
+                    "candidates"):
+                assert time.monotonic() < deadline, "the job never reached its candidates"
+                time.sleep(0.05)
+        assert service.process is not None
+        service.process.send_signal(stop_signal)
+        service.process.wait(30)
+        deadline = time.monotonic() + 20  # the consumer's grace period is 15 s
+        while service.session_pids() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert service.session_pids() == [], "a busy worker outlived scanplan serve"
+    finally:
+        service.kill_leftovers()
+
+
 def test_plan_through_workers_equals_in_process(service: Service, tmp_path: Path) -> None:
     hall = _scene("hall-small")
     with service.client() as client:
@@ -80,7 +104,7 @@ def test_plan_through_workers_equals_in_process(service: Service, tmp_path: Path
         assert status["status"] == "successful", status
         results = client.get(f"/jobs/{job_id}/results").json()
         served = {name: client.get(ref["href"]).content
-                  for name, ref in results["outputs"].items()}
+                  for name, ref in results.items() if name != "plan"}
     spec = PlanSpec.from_mapping(_parameters(hall))
     expected = tmp_path / "in-process"
     write_outputs(plan(read_scene(hall / "hall.obj", max_edge_m=None), spec), expected)

@@ -57,14 +57,14 @@ def test_plan_equals_in_process_plan(client: TestClient, hall: Path, hall_bytes:
     assert any(link["href"].endswith("/viewer") for link in status["links"])
     results = client.get(f"/jobs/{job_id}/results").json()
     assert results["plan"]["totals"]["stations"] >= 1
-    assert set(results["outputs"]) >= {"plan.json", "faces.npz", "stations.csv"}
+    assert set(results) >= {"plan", "plan.json", "faces.npz", "stations.csv"}
 
     spec = PlanSpec.from_mapping(hall_parameters)
     scene = read_scene(hall / "hall.obj", max_edge_m=spec.max_edge_m)
     expected = tmp_path / "expected"
     write_outputs(plan(scene, spec), expected)
     for name in ("plan.json", "faces.npz", "stations.csv"):
-        served = client.get(results["outputs"][name]["href"])
+        served = client.get(results[name]["href"])
         assert served.content == (expected / name).read_bytes(), name
     assert results["plan"] == json.loads((expected / "plan.json").read_text())
 
@@ -121,7 +121,7 @@ def test_oversized_upload(tmp_path: Path, hall_bytes: bytes) -> None:
     ({"dof_min_m": -1}, "dof_min_m", "negative"),
     ({"dof_min_m": "abc"}, "dof_min_m", "valid number"),
     ({"dof_min_m": "1.5"}, "dof_min_m", "valid number"),
-    ({"coverage_goal": 2}, "coverage_goal", "outside"),
+    ({"coverage_goal": 2}, "coverage_goal", "(0, 1]"),
     ({"method": "best"}, "method", "greedy"),
     ({"no_such": 1}, "no_such", "Extra inputs"),
     ({"candidates": [[0, 0]]}, "candidates.0", "3"),
@@ -190,7 +190,7 @@ def test_job_list_filters_and_pages(tmp_path: Path, hall_bytes: bytes) -> None:
         assert any(link["rel"] == "next" for link in page["links"])
         accepted = client.get("/jobs?status=accepted").json()
         assert {j["jobID"] for j in accepted["jobs"]} == set(ids[1:])
-        assert_problem(client.get("/jobs?status=bogus"), 400, "bogus")
+        assert_problem(client.get("/jobs?status=bogus"), 422, "bogus")
 
 
 def test_api_keys(tmp_path: Path, hall_bytes: bytes) -> None:

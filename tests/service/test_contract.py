@@ -34,3 +34,37 @@ def test_every_planner_error_has_a_status() -> None:
         if isinstance(cls, type) and issubclass(cls, errors.PlannerError):
             assert kind_of(cls.__new__(cls)).status in (409, 415, 422), name
     assert all(400 <= kind.status < 600 for kind in PROBLEMS.values())
+
+
+def test_schema_ranges_are_the_validators() -> None:
+    """Each bound of RANGES is in the schema, and both sides agree at and past the bound."""
+    import pytest
+    from pydantic import ValidationError
+
+    from planner.errors import ParameterError
+    from planner.parameters import RANGES
+
+    properties = PlanParameters.model_json_schema()["properties"]
+    keywords = {"ge": "minimum", "gt": "exclusiveMinimum", "le": "maximum",
+                "lt": "exclusiveMaximum"}
+    assert set(RANGES) <= set(properties)
+    for name, bounds in RANGES.items():
+        schema = properties[name]
+        number = next(s for s in schema.get("anyOf", [schema]) if s.get("type") == "number")
+        for attribute, keyword in keywords.items():
+            assert number.get(keyword) == getattr(bounds, attribute), (name, keyword)
+        # the values at and just past each bound: accepted or refused by both alike
+        edges = [v for v in (bounds.ge, bounds.gt, bounds.le, bounds.lt) if v is not None]
+        for value in [e + d for e in edges for d in (-1e-6, 0.0, 1e-6)]:
+            schema_ok = True
+            try:
+                PlanParameters.model_validate({name: value})
+            except ValidationError:
+                schema_ok = False
+            planner_ok = bounds.contains(value)
+            assert schema_ok == planner_ok, (name, value)
+            if not planner_ok:
+                with pytest.raises(ParameterError):
+                    from planner.parameters import check_range
+
+                    check_range(name, value, bounds)

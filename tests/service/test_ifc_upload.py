@@ -43,7 +43,7 @@ def test_ifc_upload_and_a_ground_floor_plan(client: TestClient, fzk_bytes: bytes
     assert labels and all(label["storey"] == "Erdgeschoss" for label in labels)
     assert {label["room"] for label in labels} <= GROUND_FLOOR_ROOMS
 
-    elements = client.get(results["outputs"]["elements.csv"]["href"])
+    elements = client.get(results["elements.csv"]["href"])
     assert elements.status_code == 200
     rows = list(csv.DictReader(io.StringIO(elements.text)))
     walls = [row for row in rows if row["ifc_class"] == "IfcWallStandardCase"]
