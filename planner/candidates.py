@@ -36,6 +36,7 @@ from planner.errors import NoCandidatesError, ParameterError
 from planner.parameters import PlanSpec
 from planner.scene import Scene
 from planner.visibility import RayCaster
+from planner.winding import winding_numbers
 
 DROP_REASONS = (
     "outside_area_of_interest",
@@ -45,6 +46,8 @@ DROP_REASONS = (
     "too_close",
 )
 _MAX_FLOOR_SLOPE_DEG = 30.0
+# grid points per spatial query in closer_than: bounds its pair arrays
+_POINTS_PER_QUERY = 256
 
 
 @dataclass(frozen=True, eq=False)
@@ -228,22 +231,38 @@ def closer_than(
     if radius_m <= 0 or len(points) == 0:
         return result
     triangles = scene.triangles
-    tri_xy = triangles[:, :, :2]
-    centre_xy = tri_xy.mean(axis=1)
-    spread = float(np.linalg.norm(tri_xy - centre_xy[:, None, :], axis=2).max())
     z_low, z_high = triangles[:, :, 2].min(axis=1), triangles[:, :, 2].max(axis=1)
-    lists = cKDTree(centre_xy).query_ball_point(points[:, :2], radius_m + spread + 1e-9)
-    counts = np.array([len(x) for x in lists])
-    if counts.sum() == 0:
-        return result
-    point_of_pair = np.repeat(np.arange(len(points)), counts)
-    face_of_pair = np.concatenate([np.asarray(x, np.int64) for x in lists if x])
-    span_low = floor_z_m[point_of_pair] + 0.01
-    span_high = points[point_of_pair, 2] + radius_m
-    in_span = (z_high[face_of_pair] >= span_low) & (z_low[face_of_pair] <= span_high)
-    p, f = point_of_pair[in_span], face_of_pair[in_span]
-    gap = _distance_to_triangles_xy(points[p, :2], tri_xy[f])
-    np.logical_or.at(result, p, gap < radius_m)
+    # only faces reaching into some tripod's height span can be obstacles
+    useful = np.flatnonzero((z_high >= floor_z_m.min() + 0.01)
+                            & (z_low <= points[:, 2].max() + radius_m))
+    tri_xy = triangles[useful, :, :2]
+    del triangles
+    centre_xy = tri_xy.mean(axis=1)
+    spread = np.linalg.norm(tri_xy - centre_xy[:, None, :], axis=2).max(axis=1)
+    # Faces are searched by their centre within radius + their own spread. One search
+    # radius for all (the largest spread) would pair every point with every face of a
+    # model that has one huge face; classes of similar spread keep the pairs local.
+    spread_class = np.ceil(np.log2(np.maximum(spread, radius_m / 8) / (radius_m / 8)))
+    for level in np.unique(spread_class):
+        members = np.flatnonzero(spread_class == level)
+        reach = radius_m + float(spread[members].max()) + 1e-9
+        tree = cKDTree(centre_xy[members])
+        for s in range(0, len(points), _POINTS_PER_QUERY):
+            chunk = np.arange(s, min(s + _POINTS_PER_QUERY, len(points)))
+            lists = tree.query_ball_point(points[chunk, :2], reach)
+            counts = np.array([len(x) for x in lists])
+            if counts.sum() == 0:
+                continue
+            point_of_pair = np.repeat(chunk, counts)
+            face_of_pair = members[np.concatenate([np.asarray(x, np.int64) for x in lists
+                                                   if x])]
+            span_low = floor_z_m[point_of_pair] + 0.01
+            span_high = points[point_of_pair, 2] + radius_m
+            faces = useful[face_of_pair]
+            in_span = (z_high[faces] >= span_low) & (z_low[faces] <= span_high)
+            p, f = point_of_pair[in_span], face_of_pair[in_span]
+            gap = _distance_to_triangles_xy(points[p, :2], tri_xy[f])
+            np.logical_or.at(result, p, gap < radius_m)
     return result
 
 
@@ -286,23 +305,5 @@ def inside_closed_groups(scene: Scene, points: NDArray[np.float64]) -> NDArray[n
         tri = triangles[faces]
         lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
         boxed = np.flatnonzero(((points > lo) & (points < hi)).all(axis=1) & ~result)
-        for s in range(0, len(boxed), 64):
-            chunk = boxed[s:s + 64]
-            result[chunk] = winding_number(tri, points[chunk]) > 0.5
+        result[boxed] = winding_numbers(tri, points[boxed]) > 0.5
     return result
-
-
-def winding_number(triangles: NDArray[np.float64], points: NDArray[np.float64]
-                   ) -> NDArray[np.float64]:
-    """(N,) winding numbers of (N, 3) points w.r.t. (T, 3, 3) triangles (Van Oosterom)."""
-    a = triangles[None, :, 0, :] - points[:, None, :]
-    b = triangles[None, :, 1, :] - points[:, None, :]
-    c = triangles[None, :, 2, :] - points[:, None, :]
-    la, lb, lc = (np.linalg.norm(v, axis=2) for v in (a, b, c))
-    det = np.einsum("ntk,ntk->nt", a, np.cross(b, c))
-    dot_ab = np.einsum("ntk,ntk->nt", a, b)
-    dot_bc = np.einsum("ntk,ntk->nt", b, c)
-    dot_ca = np.einsum("ntk,ntk->nt", c, a)
-    denom = la * lb * lc + dot_ab * lc + dot_ca * lb + dot_bc * la
-    solid = 2.0 * np.arctan2(det, denom)
-    return np.asarray(solid.sum(axis=1) / (4.0 * math.pi))

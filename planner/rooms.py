@@ -29,12 +29,12 @@ from planner.candidates import (
     closer_than,
     grid_points_xy,
     inside_closed_groups,
-    winding_number,
 )
 from planner.errors import NoCandidatesError, ParameterError
 from planner.parameters import PlanSpec
 from planner.scene import Scene
 from planner.visibility import RayCaster
+from planner.winding import winding_numbers
 
 FLOOR_TOLERANCE_M = 0.3
 
@@ -226,10 +226,7 @@ def inside_elements(scene: Scene, points: NDArray[np.float64]) -> NDArray[np.boo
             continue
         lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
         boxed = np.flatnonzero(((points > lo) & (points < hi)).all(axis=1) & ~result)
-        step = max(1, 1_000_000 // len(tri))
-        for s in range(0, len(boxed), step):
-            chunk = boxed[s:s + step]
-            result[chunk] = winding_number(tri, points[chunk]) > 0.5
+        result[boxed] = winding_numbers(tri, points[boxed]) > 0.5
     return result
 
 

@@ -19,7 +19,8 @@ import trimesh
 from shapely import Polygon, intersects_xy
 
 from planner import bim
-from planner.candidates import DROP_REASONS, winding_number
+from planner.candidates import DROP_REASONS
+from planner.winding import winding_numbers
 from planner.errors import NoCandidatesError, ParameterError, SceneError
 from planner.ifc import read_ifc, room_candidates
 from planner.pairs import FaceLimits
@@ -178,7 +179,7 @@ def test_the_files_triangles_are_rebuilt_from_their_pieces(scenes_dir: Path) -> 
     inside = np.zeros(len(points), bool)
     for e in range(len(pieces.elements)):
         own = pieces.face_element == e
-        inside |= winding_number(pieces.triangles[own], points) > 0.5
+        inside |= winding_numbers(pieces.triangles[own], points) > 0.5
     assert inside.any()
     np.testing.assert_array_equal(inside_elements(pieces, points), inside)
 
