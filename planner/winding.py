@@ -18,8 +18,10 @@ Array letters: T triangles, N points, K cells, B cap triangles.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import numba
@@ -45,15 +47,16 @@ def winding_numbers(triangles: NDArray[np.float64], points: NDArray[np.float64]
     return _in_threads(points, cells.winding)
 
 
-def _in_threads(points: NDArray[np.float64], kernel: object) -> NDArray[np.float64]:
-    """Run a nogil kernel over halves of the points on the machine's cores (same result)."""
-    assert callable(kernel)
+def _in_threads(points: NDArray[np.float64],
+                kernel: Callable[[NDArray[np.float64]], NDArray[np.float64]]
+                ) -> NDArray[np.float64]:
+    """Run a nogil kernel over parts of the points on the machine's cores (same result)."""
     workers = min(os.cpu_count() or 1, max(1, len(points) // 16))
     if workers == 1:
         return np.asarray(kernel(points))
     bounds = np.linspace(0, len(points), workers + 1).astype(int)
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        parts = list(pool.map(kernel, [points[a:b] for a, b in zip(bounds, bounds[1:])]))
+        parts = list(pool.map(kernel, [points[a:b] for a, b in itertools.pairwise(bounds)]))
     return np.concatenate(parts)
 
 
@@ -81,9 +84,9 @@ class _Cells:
         by_position = np.lexsort(corners.T[::-1])
         ordered = corners[by_position]
         new_id = np.r_[False, (ordered[1:] != ordered[:-1]).any(axis=1)].cumsum()
-        corner_id = np.empty(len(corners), np.int64)
-        corner_id[by_position] = new_id
-        corner_id = corner_id.reshape(-1, 3)
+        flat_id = np.empty(len(corners), np.int64)
+        flat_id[by_position] = new_id
+        corner_id = flat_id.reshape(-1, 3)
         lo_all, hi_all = corners.min(axis=0), corners.max(axis=0)
         # caps cost about T / sqrt(n) per point for n triangles per cell, the cells around
         # the point about n: both balance at n = T^(2/3)

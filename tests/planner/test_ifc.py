@@ -20,7 +20,6 @@ from shapely import Polygon, intersects_xy
 
 from planner import bim
 from planner.candidates import DROP_REASONS
-from planner.winding import winding_numbers
 from planner.errors import NoCandidatesError, ParameterError, SceneError
 from planner.ifc import read_ifc, room_candidates
 from planner.pairs import FaceLimits
@@ -30,6 +29,7 @@ from planner.readers import read_scene
 from planner.report import plan_document, write_outputs
 from planner.rooms import inside_elements, source_triangles
 from planner.scene import Element, Scene, build_scene, remesh
+from planner.winding import winding_numbers
 
 ifcopenshell = pytest.importorskip("ifcopenshell")
 
