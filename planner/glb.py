@@ -46,6 +46,7 @@ from planner.drawing import (
     face_classes,
     face_rgb,
 )
+from planner.orientation import glb_root_rotation
 from planner.pipeline import PlanResult
 
 _FLOAT, _UBYTE, _USHORT, _UINT = 5126, 5121, 5123, 5125
@@ -196,7 +197,9 @@ def coverage_glb(result: PlanResult) -> bytes:
     rgba = np.concatenate([linear_bytes(rgb), np.full((len(rgb), 1), 255, np.uint8)], axis=1)
     triangles = scene.triangles
     meshes: list[dict[str, Any]] = []
-    nodes: list[dict[str, Any]] = [{"name": "scanplan", "rotation": _Z_UP_TO_Y_UP,
+    # the root puts the plan frame back into the model's coordinates (up_axis)
+    root_rotation = glb_root_rotation(scene.metadata) or _Z_UP_TO_Y_UP
+    nodes: list[dict[str, Any]] = [{"name": "scanplan", "rotation": root_rotation,
                                     "children": []}]
     for k, name in enumerate(CLASS_NAMES):
         members = np.flatnonzero(classes == k)

@@ -16,6 +16,8 @@ from planner.errors import ParameterError
 
 Method = Literal["greedy", "weighted_greedy", "optimal"]
 METHODS: tuple[Method, ...] = ("greedy", "weighted_greedy", "optimal")
+UpAxis = Literal["+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto"]
+UP_AXES: tuple[UpAxis, ...] = ("+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto")
 
 
 @dataclass(frozen=True)
@@ -54,6 +56,7 @@ class PlanSpec:
     # scene preparation
     max_edge_m: float | None = 0.2
     unit_scale: float = 1.0
+    up_axis: UpAxis | None = None  # None: the format's own (+Y glTF/GLB, +Z otherwise)
     # candidates
     candidates: tuple[tuple[float, float, float], ...] | None = None
     grid_spacing_m: float = 0.5
@@ -116,7 +119,7 @@ class PlanSpec:
         return data
 
 
-_NULLABLE = {"max_edge_m", "candidates", "area_of_interest", "storeys", "rooms"}
+_NULLABLE = {"max_edge_m", "up_axis", "candidates", "area_of_interest", "storeys", "rooms"}
 _FLOATS = {
     f.name
     for f in fields(PlanSpec)
@@ -139,6 +142,11 @@ def _convert(name: str, value: Any) -> Any:
     if name == "method":
         if value not in METHODS:
             raise ParameterError(name, f"{value!r} is not one of {', '.join(METHODS)}")
+        return value
+    if name == "up_axis":
+        if value is not None and value not in UP_AXES:
+            raise ParameterError(name, f"{value!r} is not one of {', '.join(UP_AXES)}, "
+                                 "or null for the format's own")
         return value
     if name == "candidates":
         return None if value is None else _points(name, value, 3)
@@ -238,6 +246,8 @@ def _validate(spec: PlanSpec) -> None:
         f"{spec.coverage_goal} is outside (0, 1]; 0.8 means 80 % of the achievable area",
     )
     _check(spec.method in METHODS, "method", f"{spec.method!r} is not one of {METHODS}")
+    _check(spec.up_axis is None or spec.up_axis in UP_AXES, "up_axis",
+           f"{spec.up_axis!r} is not one of {', '.join(UP_AXES)}, or null for the format's own")
     _check(spec.scanner_height_m > 0, "scanner_height_m",
            f"{spec.scanner_height_m} must be greater than 0")
     _check(spec.clearance_m >= 0, "clearance_m", f"{spec.clearance_m} is negative")

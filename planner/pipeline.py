@@ -19,6 +19,7 @@ from planner.candidates import CandidateSet, explicit_candidates, generate_grid
 from planner.coverage import CoverageTable, QualifiedPairs
 from planner.errors import CancelledError, NothingVisibleError
 from planner.optimal import OptimalResult, solve_optimal
+from planner.orientation import scene_rotation, to_plan
 from planner.pairs import FaceLimits, PairFinder
 from planner.parameters import PlanSpec
 from planner.scene import Scene
@@ -92,7 +93,9 @@ def plan(
     occlusion = make_occlusion(scene, limits.occludes, backend)
     _notify(progress, "candidates", 0.0)
     if spec.candidates is not None:
-        candidates = explicit_candidates(spec.candidates)
+        # given in model coordinates; the planner works Z-up (up_axis, planner.orientation)
+        candidates = explicit_candidates(
+            to_plan(scene_rotation(scene.metadata), np.asarray(spec.candidates)))
     elif scene.metadata.get("spaces"):
         from planner import ifc
 
