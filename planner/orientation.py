@@ -21,10 +21,12 @@ building are few, large and perpendicular):
    floor or the other walls if 1. was a wall), refined by the 4-fold circular mean of their
    directions, which squares the frame exactly to the walls;
 3. of the three axes, up is the one with the most facing area per metre of extent
-   (a building is wider than its storey is high, floors and ceilings span it);
-4. its sign: floors face up and lie below the ceilings that face down (the area-weighted
-   height of up-facing faces is below that of down-facing faces, also for scans whose
-   ceiling is missing);
+   (a storey is wider than it is high, floors and ceilings span it), weighted up by how
+   much more area faces one way than the other (gravity breaks the symmetry: table tops,
+   sills and stair treads face up, a scan sees more floor than ceiling);
+4. its sign: the area facing up exceeds the area facing down, and the walls' area lies
+   below mid-height (furniture stands on the floor); ``vote = asymmetry - 2 x (wall
+   centre - middle) / height``. A symmetric empty box cannot be told and fails;
 5. of the four headings that level the model, the smallest rotation: a model that is
    already Z-up comes back unchanged.
 
@@ -112,26 +114,29 @@ def find_up(vertices: NDArray[np.float64], faces: NDArray[np.int64]
     third = np.cross(first, second)
     axes = np.stack([first, second, third])
 
-    facing = np.abs(normals @ axes.T) > cos_tol  # (F, 3)
+    along = normals @ axes.T  # (F, 3)
+    up_area = (areas[:, None] * (along > cos_tol)).sum(axis=0)
+    down_area = (areas[:, None] * (along < -cos_tol)).sum(axis=0)
+    # gravity breaks a room's symmetry: table tops, sills and treads face up, a scan sees
+    # floors better than ceilings; walls look the same from both sides
+    asymmetry = (up_area - down_area) / np.maximum(up_area + down_area, 1e-12)
     extent = np.ptp(centroids @ axes.T, axis=0)
-    score = (areas[:, None] * facing).sum(axis=0) / np.maximum(extent, 1e-9)
+    score = (up_area + down_area) / np.maximum(extent, 1e-9) * (1.0 + np.abs(asymmetry))
     ranked = np.argsort(-score, kind="stable")
     axis_confidence = float(1.0 - score[ranked[1]] / score[ranked[0]])
-    up = axes[ranked[0]]
+    k = int(ranked[0])
+    up = axes[k]
 
+    # the sign: things stand on floors, so the wall area lies below mid-height, and more
+    # area faces up than down (both measured along +up)
     height = centroids @ up
-    along = normals @ up
-    up_facing, down_facing = along > cos_tol, along < -cos_tol
-    if not up_facing.any() or not down_facing.any():
-        # one side only (a floor without ceiling): it faces up
-        sign = 1.0 if up_facing.any() else -1.0
-        sign_confidence = 1.0
-    else:
-        low = np.average(height[up_facing], weights=areas[up_facing])
-        high = np.average(height[down_facing], weights=areas[down_facing])
-        sign = 1.0 if low <= high else -1.0
-        sign_confidence = float(min(1.0, abs(high - low) / max(float(np.ptp(height)), 1e-9)
-                                    * 2.0))
+    wall = np.abs(along[:, k]) < sin_tol
+    middle = (height.min() + height.max()) / 2.0
+    wall_mean = (np.average(height[wall], weights=areas[wall]) - middle) / max(
+        float(np.ptp(height)), 1e-9)
+    vote = float(asymmetry[k] - 2.0 * wall_mean)
+    sign = 1.0 if vote >= 0 else -1.0
+    sign_confidence = float(min(1.0, abs(vote) * 5.0))
     up = up * sign
     if min(axis_confidence, sign_confidence) < _MIN_CONFIDENCE:
         raise _undecided(
