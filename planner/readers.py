@@ -171,12 +171,13 @@ def _oriented(scene: Scene, fmt: str, up_axis: str | None) -> Scene:
         info.update(report)
     else:
         rotation = axis_rotation(applied)
-    if np.array_equal(rotation, np.eye(3)):
+    # the rounded matrix is the one applied, so that writing back uses exactly its inverse;
+    # auto on a level model rounds to the identity and leaves the scene untouched
+    exact = np.round(rotation, 12) + 0.0  # + 0.0: no -0.0 in plan.json
+    if np.array_equal(exact, np.eye(3)):
         scene.metadata["orientation"] = info
         return scene
-    info["rotation"] = [[round(float(v), 12) for v in row] for row in rotation]
-    # the rounded matrix is the one applied, so that writing back uses exactly its inverse
-    exact = np.asarray(info["rotation"], np.float64)
+    info["rotation"] = exact.tolist()
     return _with(scene, scene.vertices @ exact.T, {**scene.metadata, "orientation": info})
 
 
