@@ -16,6 +16,8 @@ from planner.errors import ParameterError
 
 Method = Literal["greedy", "weighted_greedy", "optimal"]
 METHODS: tuple[Method, ...] = ("greedy", "weighted_greedy", "optimal")
+FloorLevels = Literal["lowest", "all"]
+FLOOR_LEVELS: tuple[FloorLevels, ...] = ("lowest", "all")
 UpAxis = Literal["+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto"]
 UP_AXES: tuple[UpAxis, ...] = ("+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto")
 
@@ -63,6 +65,7 @@ class PlanSpec:
     scanner_height_m: float = 1.5
     clearance_m: float = 0.3
     area_of_interest: tuple[tuple[float, float], ...] | None = None
+    floor_levels: FloorLevels = "lowest"  # "all": every walkable surface with head room
     storeys: tuple[str, ...] | None = None
     rooms: tuple[str, ...] | None = None
 
@@ -142,6 +145,10 @@ def _convert(name: str, value: Any) -> Any:
     if name == "method":
         if value not in METHODS:
             raise ParameterError(name, f"{value!r} is not one of {', '.join(METHODS)}")
+        return value
+    if name == "floor_levels":
+        if value not in FLOOR_LEVELS:
+            raise ParameterError(name, f"{value!r} is not one of {', '.join(FLOOR_LEVELS)}")
         return value
     if name == "up_axis":
         if value is not None and value not in UP_AXES:
@@ -246,6 +253,8 @@ def _validate(spec: PlanSpec) -> None:
         f"{spec.coverage_goal} is outside (0, 1]; 0.8 means 80 % of the achievable area",
     )
     _check(spec.method in METHODS, "method", f"{spec.method!r} is not one of {METHODS}")
+    _check(spec.floor_levels in FLOOR_LEVELS, "floor_levels",
+           f"{spec.floor_levels!r} is not one of {', '.join(FLOOR_LEVELS)}")
     _check(spec.up_axis is None or spec.up_axis in UP_AXES, "up_axis",
            f"{spec.up_axis!r} is not one of {', '.join(UP_AXES)}, or null for the format's own")
     _check(spec.scanner_height_m > 0, "scanner_height_m",

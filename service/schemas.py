@@ -82,6 +82,8 @@ class PlanParameters(BaseModel):
     clearance_m: Number = _d("clearance_m", "least distance to any surface, metres")
     area_of_interest: list[Point2] | None = _d(
         "area_of_interest", "polygon [x, y] the generated candidates stay in; null: all")
+    floor_levels: Literal["lowest", "all"] = _d(
+        "floor_levels", "grid on the lowest surface, or on every walkable level (meshes)")
     storeys: list[str] | None = _d("storeys", "IFC storeys to plan for; null: all")
     rooms: list[str] | None = _d("rooms", "IFC spaces to plan for; null: all")
 

@@ -20,9 +20,10 @@ from planner.parameters import PlanSpec
 from planner.pipeline import plan
 from planner.readers import read_scene
 from planner.report import plan_document, write_outputs
-from planner.scene import build_scene
+from planner.scene import Scene, build_scene, remesh
 from planner.visibility import make_ray_caster
 from planner.winding import _Cells, _direct
+from tests.planner.scenes import scene_of
 
 EDGE_M = 0.5
 # model_gltf = Y_UP @ model_zup: the usual Z-up to Y-up turn (x stays, z becomes y)
@@ -178,3 +179,38 @@ def test_generated_grids_are_unchanged(scenes_dir: Path, name: str, considered: 
                                make_ray_caster(scene, np.ones(scene.n_faces, bool)))
     assert (candidates.considered, len(candidates)) == (considered, kept)
     assert {k: v for k, v in candidates.dropped.items() if v} == dropped
+
+
+def _two_storeys() -> Scene:
+    """A 10 x 6 m house, storeys of 3 m on 0.2 m slabs, a stair in a hole of the upper slab."""
+    boxes: list[tuple[tuple[float, float, float], tuple[float, float, float]]] = [
+        ((0, 0, -0.2), (10, 6, 0)),  # ground slab
+        ((0, 1.5, 3.0), (10, 6, 3.2)),  # upper slab, stair hole along y < 1.5 ...
+        ((0, 0, 3.0), (6, 1.5, 3.2)),  # ... for x > 6
+        ((0, 0, 6.2), (10, 6, 6.4)),  # roof
+        ((-0.2, -0.2, -0.2), (0, 6.2, 6.4)), ((10, -0.2, -0.2), (10.2, 6.2, 6.4)),
+        ((0, -0.2, -0.2), (10, 0, 6.4)), ((0, 6, -0.2), (10, 6.2, 6.4)),
+    ]
+    rise = 3.2 / 11
+    boxes += [((6 + 0.36 * k, 0, 0), (6 + 0.36 * (k + 1), 1.5, rise * (k + 1)))
+              for k in range(11)]
+    parts = []
+    for lo, hi in boxes:
+        box = trimesh.creation.box(bounds=[lo, hi])
+        parts.append((np.asarray(box.vertices), np.asarray(box.faces)))
+    return scene_of(*parts)
+
+
+def test_a_two_storey_mesh_gets_candidates_and_stations_on_both_storeys() -> None:
+    scene = _two_storeys()
+    spec = PlanSpec(floor_levels="all", grid_spacing_m=1.0, max_edge_m=1.0)
+    result = plan(remesh(scene, 1.0), spec)
+    levels = result.candidates.summary()["levels"]
+    assert isinstance(levels, list)
+    assert [level["floor_z_m"] for level in levels] == [0.0, 3.2]
+    assert all(level["candidates"] > 0 for level in levels)
+    floors = result.candidates.positions[result.chosen.stations, 2] - 1.5
+    assert set(np.round(floors, 3)) == {0.0, 3.2}
+    # the labels name the level, as IFC storeys do, so preview.png draws a panel per level
+    assert {label["storey"] for label in result.candidates.labels} == {
+        level["name"] for level in levels}
