@@ -69,6 +69,8 @@ class CandidateSet:
     dropped : count per reason in ``DROP_REASONS``
     labels : per candidate, e.g. the room and storey it stands in (empty when unknown)
     levels : ``floor_levels`` "all": name, floor height and candidate count per level
+    floor_from_space : room candidates: the rooms without a slab, standing on their
+        IfcSpace's bottom
     """
 
     positions: NDArray[np.float64]
@@ -77,6 +79,7 @@ class CandidateSet:
     dropped: dict[str, int] = field(default_factory=dict)
     labels: tuple[dict[str, str], ...] = ()
     levels: list[dict[str, object]] | None = None
+    floor_from_space: tuple[str, ...] | None = None
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -90,6 +93,8 @@ class CandidateSet:
         }
         if self.levels is not None:
             summary["levels"] = list(self.levels)
+        if self.floor_from_space is not None:
+            summary["floor_from_space"] = list(self.floor_from_space)
         return summary
 
 

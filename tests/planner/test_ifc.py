@@ -463,3 +463,24 @@ def test_a_mesh_without_elements_writes_no_element_tables(tmp_path: Path) -> Non
     assert "plan.json" in names
     assert not names & {"elements.csv", "elements.json"}
     assert bim.elements_json(result) is None
+
+
+def test_rooms_without_slabs_stand_on_their_spaces(scenes_dir: Path, tmp_path: Path,
+                                                   fzk: Scene) -> None:
+    # a BIM platform often sends the architectural model alone: the slabs are elsewhere
+    model = ifcopenshell.open(str(scenes_dir / f"{FZK}.ifc"))
+    for slab in model.by_type("IfcSlab"):
+        model.remove(slab)
+    path = tmp_path / "fzk-without-slabs.ifc"
+    model.write(str(path))
+    spec = _spec()
+    bare = remesh(read_ifc(path), EDGE_M)
+    assert "IfcSlab" not in bare.groups
+    candidates = room_candidates(bare, spec, _caster(bare, spec))
+    rooms = {label["room_global_id"] for label in candidates.labels}
+    assert rooms == {space["global_id"] for space in bare.metadata["spaces"]}
+    assert candidates.floor_from_space
+    assert set(candidates.floor_from_space) <= {label["room"] for label in candidates.labels}
+    # with its slabs, every room finds its floor and none needs its space
+    full = room_candidates(fzk, spec, _caster(fzk, spec))
+    assert full.floor_from_space == ()
