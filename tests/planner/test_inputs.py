@@ -124,10 +124,12 @@ def test_the_copy_room_scan_plans_with_auto(scenes_dir: Path) -> None:
     assert np.all(np.abs(floor_z - lowest) < 0.3)
 
 
-@pytest.mark.parametrize("up_axis", ["up", "Z", "+z"])
-def test_an_unknown_up_axis_names_the_parameter(up_axis: str) -> None:
-    with pytest.raises(ParameterError, match="up_axis"):
-        PlanSpec.from_mapping({"up_axis": up_axis})
+@pytest.mark.parametrize(("name", "value"), [
+    ("up_axis", "up"), ("up_axis", "Z"), ("up_axis", "+z"), ("floor_levels", "every"),
+])
+def test_an_unknown_choice_names_the_parameter(name: str, value: str) -> None:
+    with pytest.raises(ParameterError, match=f"^{name}: "):
+        PlanSpec.from_mapping({name: value})
 
 
 def test_an_ifc_model_is_z_up(scenes_dir: Path) -> None:
@@ -148,6 +150,7 @@ def test_a_model_in_millimetres_gets_a_unit_warning(scenes_dir: Path, tmp_path: 
     trimesh.Trimesh(mesh.vertices * 1000.0, mesh.faces, process=False).export(path)
     scene = read_scene(path, max_edge_m=None)
     assert any("unit_scale 0.001" in w for w in scene.metadata["warnings"])
+    assert scene.summary()["warnings"] == scene.metadata["warnings"]  # the upload shows it
     fine = read_scene(path, max_edge_m=None, unit_scale=0.001)
     assert "warnings" not in fine.metadata
 
