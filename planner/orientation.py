@@ -15,11 +15,12 @@ taken as +Z.
 building are few, large and perpendicular):
 
 1. the dominant plane orientation: the face normal whose +/-10 degree neighbourhood holds
-   the most area (sampled, deterministic), refined to the area-weighted mean normal of that
-   neighbourhood;
+   the most area (sampled, deterministic), refined to the area-weighted mean normal of
+   neighbourhoods narrowing from 10 to 0.01 degrees (small faces slightly off the plane
+   stop pulling);
 2. the dominant orientation among the faces perpendicular to it (walls if 1. was the floor,
-   floor or the other walls if 1. was a wall), refined by the 4-fold circular mean of their
-   directions, which squares the frame exactly to the walls;
+   floor or the other walls if 1. was a wall): the 4-fold circular mean of their
+   directions, refined the same way, which squares the frame exactly to the walls;
 3. of the three axes, up is the one with the most facing area per metre of extent
    (a storey is wider than it is high, floors and ceilings span it), weighted up by how
    much more area faces one way than the other (gravity breaks the symmetry: table tops,
@@ -58,6 +59,9 @@ _AXIS_ROTATIONS: dict[str, tuple[tuple[int, int, int], ...]] = {
     "-X": ((0, -1, 0), (0, 0, 1), (-1, 0, 0)),
 }
 _PLANE_TOLERANCE_DEG = 10.0
+# refinement of the dominant directions over narrowing neighbourhoods, degrees
+_REFINE_DEG = (10.0, 1.0, 0.1, 0.01)
+_REFINE_COS = tuple(math.cos(math.radians(d)) for d in _REFINE_DEG)
 _MIN_CONFIDENCE = 0.1
 _PROBES = 512  # normals tried as the dominant orientation (half the largest faces)
 _SAMPLE_FACES = 20_000  # faces that score each probe: (20 k, 512) scores, 80 MB
@@ -144,7 +148,7 @@ def find_up(vertices: NDArray[np.float64], faces: NDArray[np.int64]
 
     rotation = _closest_heading(up, axes[ranked[1]])
     report = {
-        "up_in_model": [round(float(v), 6) for v in up],
+        "up_in_model": [round(float(v), 6) + 0.0 for v in up],  # + 0.0: no -0.0
         "confidence": round(min(axis_confidence, sign_confidence), 3),
         "axis_confidence": round(axis_confidence, 3),
         "sign_confidence": round(sign_confidence, 3),
@@ -170,9 +174,13 @@ def _dominant(normals: NDArray[np.float64], areas: NDArray[np.float64], cos_tol:
     sample, weight = normals[::step_sample], areas[::step_sample]
     held = (np.abs(sample @ probes.T) > cos_tol).T @ weight
     best = probes[int(np.argmax(held))]
-    for _ in range(3):  # refine on every face: the mean of the flipped neighbourhood
+    for tolerance in _REFINE_COS:
+        # refine on every face: the mean of the flipped neighbourhood, narrower each time so
+        # that small faces slightly off the plane (railings, mouldings) stop pulling
         along = normals @ best
-        near = np.abs(along) > cos_tol
+        near = np.abs(along) > tolerance
+        if not near.any():
+            break
         mean = (normals[near] * (areas[near] * np.sign(along[near]))[:, None]).sum(axis=0)
         best = mean / np.linalg.norm(mean)
     return np.asarray(best)
@@ -186,8 +194,15 @@ def _square(normals: NDArray[np.float64], areas: NDArray[np.float64],
     u /= np.linalg.norm(u)
     v = np.cross(axis, u)
     angle = np.arctan2(normals @ v, normals @ u)
-    # 4-fold circular mean: walls at 0, 90, 180, 270 degrees all pull the same way
-    phase = np.angle(np.sum(areas * np.exp(4j * angle))) / 4.0
+    # 4-fold circular mean: walls at 0, 90, 180, 270 degrees all pull the same way; then
+    # again over the faces within a narrowing angle of it (exact for exactly square walls)
+    phase = float(np.angle(np.sum(areas * np.exp(4j * angle)))) / 4.0
+    for tolerance_deg in _REFINE_DEG:
+        off = np.angle(np.exp(4j * (angle - phase))) / 4.0  # to the nearest wall direction
+        near = np.abs(off) < math.radians(tolerance_deg)
+        if not near.any():
+            break
+        phase += float(np.angle(np.sum(areas[near] * np.exp(4j * off[near])))) / 4.0
     direction = math.cos(phase) * u + math.sin(phase) * v
     return np.asarray(direction / np.linalg.norm(direction))
 
