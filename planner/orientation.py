@@ -29,7 +29,7 @@ building are few, large and perpendicular):
    below mid-height (furniture stands on the floor); ``vote = asymmetry - 2 x (wall
    centre - middle) / height``. A symmetric empty box cannot be told and fails;
 5. of the four headings that level the model, the smallest rotation: a model that is
-   already Z-up comes back unchanged.
+   already Z-up comes back unchanged (within a microradian of the axes counts as on them).
 
 Confidence is reported per decision (0..1); below ``_MIN_CONFIDENCE`` the reader stops
 with a :class:`ParameterError` naming ``up_axis``.
@@ -61,6 +61,7 @@ _AXIS_ROTATIONS: dict[str, tuple[tuple[int, int, int], ...]] = {
 _PLANE_TOLERANCE_DEG = 10.0
 # refinement of the dominant directions over narrowing neighbourhoods, degrees
 _REFINE_DEG = (10.0, 1.0, 0.1, 0.01)
+_SNAP = 1e-6
 _REFINE_COS = tuple(math.cos(math.radians(d)) for d in _REFINE_DEG)
 _MIN_CONFIDENCE = 0.1
 _PROBES = 512  # normals tried as the dominant orientation (half the largest faces)
@@ -147,6 +148,11 @@ def find_up(vertices: NDArray[np.float64], faces: NDArray[np.int64]
             f"axis confidence {axis_confidence:.2f}, sign confidence {sign_confidence:.2f}")
 
     rotation = _closest_heading(up, axes[ranked[1]])
+    # a model square to its axes to within a microradian (0.05 mm over 50 m) is square: its
+    # rotation is the exact signed permutation, so that a level model stays untouched
+    snapped = np.round(rotation)
+    if np.abs(rotation - snapped).max() < _SNAP:
+        rotation = snapped + 0.0
     report = {
         "up_in_model": [round(float(v), 6) + 0.0 for v in up],  # + 0.0: no -0.0
         "confidence": round(min(axis_confidence, sign_confidence), 3),
