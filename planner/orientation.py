@@ -25,10 +25,13 @@ building are few, large and perpendicular):
    (a storey is wider than it is high, floors and ceilings span it), weighted up by how
    much more area faces one way than the other (gravity breaks the symmetry: table tops,
    sills and stair treads face up, a scan sees more floor than ceiling);
-4. its sign: the area facing up exceeds the area facing down, and the walls' area lies
-   below mid-height (furniture stands on the floor); ``vote = asymmetry - 2 x (wall
-   centre - middle) / height``. A symmetric empty box cannot be told and fails;
-5. of the four headings that level the model, the smallest rotation: a model that is
+4. its sign: the area leaning up (more than 10 degrees off vertical: floors, table tops,
+   sloped roofs) exceeds the area leaning down, and the walls' area lies below mid-height
+   (furniture stands on the floor); ``vote = lean asymmetry - 2 x (wall centre - middle)
+   / height``. A symmetric empty box cannot be told and fails;
+5. up is then made perpendicular to the walls (walls are plumb; a site or a scanned floor
+   may slope);
+6. of the four headings that level the model, the smallest rotation: a model that is
    already Z-up comes back unchanged (within a microradian of the axes counts as on them).
 
 Confidence is reported per decision (0..1); below ``_MIN_CONFIDENCE`` the reader stops
@@ -139,7 +142,12 @@ def find_up(vertices: NDArray[np.float64], faces: NDArray[np.int64]
     middle = (height.min() + height.max()) / 2.0
     wall_mean = (np.average(height[wall], weights=areas[wall]) - middle) / max(
         float(np.ptp(height)), 1e-9)
-    vote = float(asymmetry[k] - 2.0 * wall_mean)
+    # every face that leans up or down counts here, sloped roofs (outward normals) too
+    leaning = np.abs(along[:, k]) > sin_tol
+    up_lean = float(areas[leaning & (along[:, k] > 0)].sum())
+    lean_asymmetry = (2.0 * up_lean - float(areas[leaning].sum())) / max(
+        float(areas[leaning].sum()), 1e-12)
+    vote = lean_asymmetry - 2.0 * float(wall_mean)
     sign = 1.0 if vote >= 0 else -1.0
     sign_confidence = float(min(1.0, abs(vote) * 5.0))
     up = up * sign
@@ -147,7 +155,10 @@ def find_up(vertices: NDArray[np.float64], faces: NDArray[np.int64]
         raise _undecided(
             f"axis confidence {axis_confidence:.2f}, sign confidence {sign_confidence:.2f}")
 
-    rotation = _closest_heading(up, axes[ranked[1]])
+    up = _plumb(normals[wall], areas[wall], up)
+    # the heading again, now in the plane across the plumb up
+    across = np.abs(normals @ up) < sin_tol
+    rotation = _closest_heading(up, _square(normals[across], areas[across], up))
     # a model square to its axes to within a microradian (0.05 mm over 50 m) is square: its
     # rotation is the exact signed permutation, so that a level model stays untouched
     snapped = np.round(rotation)
@@ -211,6 +222,26 @@ def _square(normals: NDArray[np.float64], areas: NDArray[np.float64],
         phase += float(np.angle(np.sum(areas[near] * np.exp(4j * off[near])))) / 4.0
     direction = math.cos(phase) * u + math.sin(phase) * v
     return np.asarray(direction / np.linalg.norm(direction))
+
+
+def _plumb(normals: NDArray[np.float64], areas: NDArray[np.float64],
+           up: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(3,) ``up`` made perpendicular to the walls: walls are plumb, floors and sites may slope.
+
+    The direction least along the walls' normals (smallest eigenvector of their
+    area-weighted scatter); ``up`` unchanged when the walls run one way only.
+    """
+    for tolerance_deg in _REFINE_DEG:  # narrowing, so that faces off the walls stop pulling
+        near = np.abs(normals @ up) < math.sin(math.radians(tolerance_deg))
+        if not near.any():
+            break
+        scatter = (normals[near] * areas[near, None]).T @ normals[near]
+        values, vectors = np.linalg.eigh(scatter)  # ascending
+        if values[1] < 0.1 * values[2]:  # walls in one direction: they do not fix up
+            break
+        plumb = vectors[:, 0] * (1.0 if vectors[:, 0] @ up >= 0 else -1.0)
+        up = plumb / np.linalg.norm(plumb)
+    return np.asarray(up)
 
 
 def _closest_heading(up: NDArray[np.float64], wall: NDArray[np.float64]

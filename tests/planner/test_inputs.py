@@ -85,10 +85,12 @@ def test_auto_levels_a_rotated_ply_and_gives_the_same_stations(
     assert 0 < orientation["confidence"] <= 1
 
 
-@pytest.mark.parametrize("name", ["hall-small/hall.obj", "AC20-FZK-Haus.obj"])
+@pytest.mark.parametrize("name", ["hall-small/hall.obj", "AC20-FZK-Haus.obj",
+                                  "IfcOpenHouse_IFC4.obj"])
 def test_auto_leaves_a_z_up_model_alone(scenes_dir: Path, name: str) -> None:
-    # FZK-Haus has railings and window bars a little off its walls: the heading is refined
-    # down to the walls themselves
+    # FZK-Haus has railings and window bars a little off its walls, IfcOpenHouse a sloped
+    # site larger than its floors and roofs with outward normals: up and heading are
+    # refined down to the plumb walls themselves
     scene = read_scene(scenes_dir / name, max_edge_m=None, up_axis="auto")
     assert scene.metadata["orientation"]["rotation"] is None
     original = read_scene(scenes_dir / name, max_edge_m=None)
