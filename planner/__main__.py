@@ -75,7 +75,8 @@ def run_plan(args: argparse.Namespace) -> int:
     progress = ProgressLine(sys.stderr)
     started = time.perf_counter()
     progress("reading", 0.0)
-    scene = read_scene(args.scene, max_edge_m=spec.max_edge_m, unit_scale=spec.unit_scale)
+    scene = read_scene(args.scene, max_edge_m=spec.max_edge_m, unit_scale=spec.unit_scale,
+                       up_axis=spec.up_axis)
     try:
         result = plan(scene, spec, progress=progress)
         progress("writing", 1.0)

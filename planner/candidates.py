@@ -36,6 +36,7 @@ from planner.errors import NoCandidatesError, ParameterError
 from planner.parameters import PlanSpec
 from planner.scene import Scene
 from planner.visibility import RayCaster
+from planner.winding import winding_numbers
 
 DROP_REASONS = (
     "outside_area_of_interest",
@@ -45,6 +46,15 @@ DROP_REASONS = (
     "too_close",
 )
 _MAX_FLOOR_SLOPE_DEG = 30.0
+# grid points per spatial query in closer_than: bounds its pair arrays
+_POINTS_PER_QUERY = 256
+# floor_levels "all": surfaces followed up each ray, the step past each, the height gap
+# that separates two levels, and the least area of a level (a table top or a stair tread
+# is smaller; a landing of 2 x 2 m is not)
+_MAX_SURFACES = 32
+_SURFACE_STEP_M = 1e-4
+_LEVEL_GAP_M = 0.15
+_MIN_LEVEL_AREA_M2 = 4.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,6 +68,9 @@ class CandidateSet:
     considered : grid points before any was dropped (C for explicit candidates)
     dropped : count per reason in ``DROP_REASONS``
     labels : per candidate, e.g. the room and storey it stands in (empty when unknown)
+    levels : ``floor_levels`` "all": name, floor height and candidate count per level
+    floor_from_space : room candidates: the rooms without a slab, standing on their
+        IfcSpace's bottom
     """
 
     positions: NDArray[np.float64]
@@ -65,17 +78,24 @@ class CandidateSet:
     considered: int
     dropped: dict[str, int] = field(default_factory=dict)
     labels: tuple[dict[str, str], ...] = ()
+    levels: list[dict[str, object]] | None = None
+    floor_from_space: tuple[str, ...] | None = None
 
     def __len__(self) -> int:
         return len(self.positions)
 
     def summary(self) -> dict[str, object]:
-        return {
+        summary: dict[str, object] = {
             "source": self.source,
             "count": len(self),
             "considered": self.considered,
             "dropped": dict(self.dropped),
         }
+        if self.levels is not None:
+            summary["levels"] = list(self.levels)
+        if self.floor_from_space is not None:
+            summary["floor_from_space"] = list(self.floor_from_space)
+        return summary
 
 
 def explicit_candidates(points: NDArray[np.float64] | tuple[tuple[float, float, float], ...]
@@ -149,9 +169,20 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
         inside = intersects_xy(polygon, xy[:, 0], xy[:, 1])
         dropped["outside_area_of_interest"] = int((~inside).sum())
         xy = xy[inside]
-    positions = place_on_floor(scene, xy, spec, caster, dropped)
-    floors = positions[:, 2] - spec.scanner_height_m
-    positions = drop_unclear(scene, positions, spec.clearance_m, dropped, floors)
+    labels: tuple[dict[str, str], ...] = ()
+    levels: list[dict[str, object]] | None = None
+    if spec.floor_levels == "all":
+        positions, level_of = place_on_levels(scene, xy, spec, caster, dropped)
+        # a point may stand on several levels: count what was looked at, level by level
+        considered = len(positions) + sum(dropped.values())
+        floors = positions[:, 2] - spec.scanner_height_m
+        keep = unclear_mask(scene, positions, spec.clearance_m, dropped, floors)
+        positions, level_of = positions[keep], level_of[keep]
+        levels, labels = _level_labels(positions[:, 2] - spec.scanner_height_m, level_of)
+    else:
+        positions = place_on_floor(scene, xy, spec, caster, dropped)
+        floors = positions[:, 2] - spec.scanner_height_m
+        positions = drop_unclear(scene, positions, spec.clearance_m, dropped, floors)
     if len(positions) == 0:
         raise NoCandidatesError(
             f"no grid point is left out of {considered} "
@@ -160,7 +191,88 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
             "area_of_interest, or give candidates explicitly"
         )
     return CandidateSet(positions=positions, source="grid", considered=considered,
-                        dropped=dropped)
+                        dropped=dropped, labels=labels, levels=levels)
+
+
+def place_on_levels(
+    scene: Scene, xy: NDArray[np.float64], spec: PlanSpec, caster: RayCaster,
+    dropped: dict[str, int],
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """(C, 3) positions above every walkable surface under the (N, 2) points, (C,) level.
+
+    Rays go up through the model, surface after surface. A surface is walkable when it is
+    flatter than 30 degrees and the next surface above is more than ``scanner_height_m`` +
+    ``clearance_m`` away (head room); above the lowest surface there must be a next surface
+    (a roof's top is outside, not a level). Floor heights are grouped into levels (a gap of more
+    than ``_LEVEL_GAP_M`` starts a new one); a level smaller than ``_MIN_LEVEL_AREA_M2`` of
+    grid cells is a table top or a stair tread, not a floor, and its points count as
+    ``no_floor``. The lowest surface of each point is accounted as
+    :func:`place_on_floor` does; upper surfaces count only when they are walkable.
+    """
+    if len(xy) == 0:
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    steep = math.cos(math.radians(_MAX_FLOOR_SLOPE_DEG))
+    reach = spec.scanner_height_m + spec.clearance_m
+    hit_point: list[NDArray[np.int64]] = []
+    hit_z: list[NDArray[np.float64]] = []
+    hit_flat: list[NDArray[np.bool_]] = []
+    active = np.arange(len(xy))
+    z = np.full(len(xy), scene.bounds[0, 2] - 1.0)
+    up = np.tile([0.0, 0.0, 1.0], (len(xy), 1))
+    for _ in range(_MAX_SURFACES):
+        face, distance = caster.first_hit(np.column_stack([xy[active], z[active]]),
+                                          up[: len(active)])
+        hit = face >= 0
+        active, face, z_hit = active[hit], face[hit], z[active[hit]] + distance[hit]
+        if len(active) == 0:
+            break
+        hit_point.append(active)
+        hit_z.append(z_hit)
+        hit_flat.append(np.abs(scene.normals[face, 2]) >= steep)
+        z[active] = z_hit + _SURFACE_STEP_M
+    if not hit_point:
+        dropped["no_floor"] += len(xy)
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    point = np.concatenate(hit_point)
+    order = np.lexsort((np.concatenate(hit_z), point))
+    point, zs, flat = point[order], np.concatenate(hit_z)[order], np.concatenate(hit_flat)[order]
+    last = np.r_[point[1:] != point[:-1], True]
+    head_room = np.where(last, np.inf, np.r_[zs[1:], np.inf] - zs)
+    first = np.r_[True, point[1:] != point[:-1]]
+    dropped["no_floor"] += len(xy) - int(first.sum()) + int((first & ~flat).sum())
+    dropped["blocked_above_floor"] += int((first & flat & (head_room <= reach)).sum())
+    # above the lowest surface, a level needs a roof over it: the top of a roof is outside
+    walkable = flat & (head_room > reach) & (first | np.isfinite(head_room))
+    point, floor_z = point[walkable], zs[walkable]
+    # levels: floor heights grouped where they lie close together
+    by_height = np.argsort(floor_z, kind="stable")
+    level_sorted = np.r_[0, np.cumsum(np.diff(floor_z[by_height]) > _LEVEL_GAP_M)]
+    level = np.empty(len(floor_z), np.int64)
+    level[by_height] = level_sorted
+    area = np.bincount(level) * spec.grid_spacing_m ** 2
+    big = area[level] >= _MIN_LEVEL_AREA_M2
+    dropped["no_floor"] += int((~big).sum())
+    point, floor_z, level = point[big], floor_z[big], level[big]
+    _, level = np.unique(level, return_inverse=True)  # renumber the levels that stay
+    order = np.lexsort((point, level))  # level by level, grid rows within
+    point, floor_z, level = point[order], floor_z[order], level[order]
+    positions = np.column_stack([xy[point], floor_z + spec.scanner_height_m])
+    return positions, level.astype(np.int64)
+
+
+def _level_labels(floor_z: NDArray[np.float64], level: NDArray[np.int64]
+                  ) -> tuple[list[dict[str, object]], tuple[dict[str, str], ...]]:
+    """The levels' summary for plan.json and a ``storey`` label per candidate (drawing)."""
+    summary: list[dict[str, object]] = []
+    names: list[str] = []
+    _, level = np.unique(level, return_inverse=True)  # only levels that kept candidates
+    for k in range(int(level.max()) + 1 if len(level) else 0):
+        members = level == k
+        height = float(np.median(floor_z[members]))
+        names.append(f"level {k + 1} ({height:+.2f} m)")
+        summary.append({"name": names[-1], "floor_z_m": round(height, 3),
+                        "candidates": int(members.sum())})
+    return summary, tuple({"storey": names[k]} for k in level)
 
 
 def place_on_floor(
@@ -199,18 +311,28 @@ def drop_unclear(
     ``floor_z_m`` (C,) is the floor under each position; by default the lowest point of the
     model.
     """
+    if floor_z_m is None:
+        floor_z_m = np.full(len(positions), scene.bounds[0, 2])
+    return positions[unclear_mask(scene, positions, clearance_m, dropped, floor_z_m)]
+
+
+def unclear_mask(
+    scene: Scene, positions: NDArray[np.float64], clearance_m: float, dropped: dict[str, int],
+    floor_z_m: NDArray[np.float64],
+) -> NDArray[np.bool_]:
+    """(C,) bool: the (C, 3) positions that are neither inside objects nor too close."""
+    keep = np.ones(len(positions), bool)
     if len(positions) == 0:
-        return positions
+        return keep
     inside = inside_closed_groups(scene, positions)
     dropped["inside_geometry"] += int(inside.sum())
-    positions = positions[~inside]
-    if floor_z_m is None:
-        floors = np.full(len(positions), scene.bounds[0, 2])
-    else:
-        floors = np.asarray(floor_z_m, np.float64)[~inside]
-    near = closer_than(scene, positions, clearance_m, floors)
+    keep[inside] = False
+    index = np.flatnonzero(keep)
+    near = closer_than(scene, positions[index], clearance_m,
+                       np.asarray(floor_z_m, np.float64)[index])
     dropped["too_close"] += int(near.sum())
-    return positions[~near]
+    keep[index[near]] = False
+    return keep
 
 
 def closer_than(
@@ -228,22 +350,38 @@ def closer_than(
     if radius_m <= 0 or len(points) == 0:
         return result
     triangles = scene.triangles
-    tri_xy = triangles[:, :, :2]
-    centre_xy = tri_xy.mean(axis=1)
-    spread = float(np.linalg.norm(tri_xy - centre_xy[:, None, :], axis=2).max())
     z_low, z_high = triangles[:, :, 2].min(axis=1), triangles[:, :, 2].max(axis=1)
-    lists = cKDTree(centre_xy).query_ball_point(points[:, :2], radius_m + spread + 1e-9)
-    counts = np.array([len(x) for x in lists])
-    if counts.sum() == 0:
-        return result
-    point_of_pair = np.repeat(np.arange(len(points)), counts)
-    face_of_pair = np.concatenate([np.asarray(x, np.int64) for x in lists if x])
-    span_low = floor_z_m[point_of_pair] + 0.01
-    span_high = points[point_of_pair, 2] + radius_m
-    in_span = (z_high[face_of_pair] >= span_low) & (z_low[face_of_pair] <= span_high)
-    p, f = point_of_pair[in_span], face_of_pair[in_span]
-    gap = _distance_to_triangles_xy(points[p, :2], tri_xy[f])
-    np.logical_or.at(result, p, gap < radius_m)
+    # only faces reaching into some tripod's height span can be obstacles
+    useful = np.flatnonzero((z_high >= floor_z_m.min() + 0.01)
+                            & (z_low <= points[:, 2].max() + radius_m))
+    tri_xy = triangles[useful, :, :2]
+    del triangles
+    centre_xy = tri_xy.mean(axis=1)
+    spread = np.linalg.norm(tri_xy - centre_xy[:, None, :], axis=2).max(axis=1)
+    # Faces are searched by their centre within radius + their own spread. One search
+    # radius for all (the largest spread) would pair every point with every face of a
+    # model that has one huge face; classes of similar spread keep the pairs local.
+    spread_class = np.ceil(np.log2(np.maximum(spread, radius_m / 8) / (radius_m / 8)))
+    for level in np.unique(spread_class):
+        members = np.flatnonzero(spread_class == level)
+        reach = radius_m + float(spread[members].max()) + 1e-9
+        tree = cKDTree(centre_xy[members])
+        for s in range(0, len(points), _POINTS_PER_QUERY):
+            chunk = np.arange(s, min(s + _POINTS_PER_QUERY, len(points)))
+            lists = tree.query_ball_point(points[chunk, :2], reach)
+            counts = np.array([len(x) for x in lists])
+            if counts.sum() == 0:
+                continue
+            point_of_pair = np.repeat(chunk, counts)
+            face_of_pair = members[np.concatenate([np.asarray(x, np.int64) for x in lists
+                                                   if x])]
+            span_low = floor_z_m[point_of_pair] + 0.01
+            span_high = points[point_of_pair, 2] + radius_m
+            faces = useful[face_of_pair]
+            in_span = (z_high[faces] >= span_low) & (z_low[faces] <= span_high)
+            p, f = point_of_pair[in_span], face_of_pair[in_span]
+            gap = _distance_to_triangles_xy(points[p, :2], tri_xy[f])
+            np.logical_or.at(result, p, gap < radius_m)
     return result
 
 
@@ -286,23 +424,5 @@ def inside_closed_groups(scene: Scene, points: NDArray[np.float64]) -> NDArray[n
         tri = triangles[faces]
         lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
         boxed = np.flatnonzero(((points > lo) & (points < hi)).all(axis=1) & ~result)
-        for s in range(0, len(boxed), 64):
-            chunk = boxed[s:s + 64]
-            result[chunk] = winding_number(tri, points[chunk]) > 0.5
+        result[boxed] = winding_numbers(tri, points[boxed]) > 0.5
     return result
-
-
-def winding_number(triangles: NDArray[np.float64], points: NDArray[np.float64]
-                   ) -> NDArray[np.float64]:
-    """(N,) winding numbers of (N, 3) points w.r.t. (T, 3, 3) triangles (Van Oosterom)."""
-    a = triangles[None, :, 0, :] - points[:, None, :]
-    b = triangles[None, :, 1, :] - points[:, None, :]
-    c = triangles[None, :, 2, :] - points[:, None, :]
-    la, lb, lc = (np.linalg.norm(v, axis=2) for v in (a, b, c))
-    det = np.einsum("ntk,ntk->nt", a, np.cross(b, c))
-    dot_ab = np.einsum("ntk,ntk->nt", a, b)
-    dot_bc = np.einsum("ntk,ntk->nt", b, c)
-    dot_ca = np.einsum("ntk,ntk->nt", c, a)
-    denom = la * lb * lc + dot_ab * lc + dot_ca * lb + dot_bc * la
-    solid = 2.0 * np.arctan2(det, denom)
-    return np.asarray(solid.sum(axis=1) / (4.0 * math.pi))

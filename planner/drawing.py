@@ -47,6 +47,7 @@ from numpy.typing import NDArray
 
 from planner.curve import coverage_curve
 from planner.density import density_range_m
+from planner.orientation import scene_rotation, to_model
 from planner.pipeline import PlanResult
 
 # --- face classes and their colours (sRGB 0-255) -------------------------------------------
@@ -470,8 +471,10 @@ def _station_table(fig: Figure, result: PlanResult, top: float) -> None:
     max_area = chosen.max_achievable_area_m2
     rows = ["  no.      x       y       z   new m²  cum. %"]
     limit = 14
+    # the plan view is drawn levelled (up_axis); the table gives the model's coordinates
+    positions = to_model(scene_rotation(result.scene.metadata), result.candidates.positions)
     for order, candidate in enumerate(chosen.stations[:limit]):
-        x, y, z = result.candidates.positions[candidate]
+        x, y, z = positions[candidate]
         fraction = chosen.covered_area_m2[order] / max_area * 100 if max_area else 0.0
         rows.append(f"{order + 1:5d} {x:7.2f} {y:7.2f} {z:6.2f} {chosen.new_area_m2[order]:8.2f}"
                     f" {fraction:7.1f}")

@@ -56,6 +56,7 @@ from planner.drawing import (
     face_classes,
     face_rgb,
 )
+from planner.orientation import glb_root_rotation, scene_rotation, to_model
 from planner.pipeline import PlanResult
 
 _FLOAT, _UBYTE, _USHORT, _UINT = 5126, 5121, 5123, 5125
@@ -300,7 +301,9 @@ def coverage_glb(result: PlanResult, *, compress: bool | None = None) -> bytes:
     # quarter of the float64 corners a 10 M-face scene would otherwise copy
     grid_vertices = quantizer(scene.vertices)
     meshes: list[dict[str, Any]] = []
-    nodes: list[dict[str, Any]] = [{"name": "scanplan", "rotation": _Z_UP_TO_Y_UP,
+    # the root puts the plan frame back into the model's coordinates (up_axis)
+    root_rotation = glb_root_rotation(scene.metadata) or _Z_UP_TO_Y_UP
+    nodes: list[dict[str, Any]] = [{"name": "scanplan", "rotation": root_rotation,
                                     "children": []}]
     for k, name in enumerate(CLASS_NAMES):
         members = np.flatnonzero(classes == k)
@@ -328,13 +331,16 @@ def coverage_glb(result: PlanResult, *, compress: bool | None = None) -> bytes:
             builder, digits.astype(np.float32), np.repeat(station_rgba, len(digits), axis=0), None,
             material=1)]})
         position = [round(float(v), 6) for v in result.candidates.positions[candidate]]
+        at = result.candidates.positions[candidate:candidate + 1]
+        # the node sits in the levelled frame under the root; extras give model coordinates
+        in_model = [round(float(v), 6) for v in to_model(scene_rotation(scene.metadata), at)[0]]
         covered = chosen.covered_area_m2[order]
         nodes[0]["children"].append(len(nodes))
         nodes.append({
             "name": f"station {label}", "mesh": marker_mesh, "translation": position,
             "children": [len(nodes) + 1],
             "extras": {"station": order + 1, "order": order + 1,
-                       "candidate_index": int(candidate), "position": position,
+                       "candidate_index": int(candidate), "position": in_model,
                        "new_area_m2": round(chosen.new_area_m2[order], 6),
                        "covered_area_m2": round(covered, 6),
                        "coverage_fraction": round(covered / max_area if max_area else 0.0, 6)},

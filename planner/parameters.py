@@ -24,6 +24,10 @@ Method = Literal["greedy", "weighted_greedy", "optimal"]
 METHODS: tuple[Method, ...] = ("greedy", "weighted_greedy", "optimal")
 GlbCompression = Literal["meshopt", "none"]
 GLB_COMPRESSIONS: tuple[GlbCompression, ...] = ("meshopt", "none")
+FloorLevels = Literal["lowest", "all"]
+FLOOR_LEVELS: tuple[FloorLevels, ...] = ("lowest", "all")
+UpAxis = Literal["+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto"]
+UP_AXES: tuple[UpAxis, ...] = ("+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto")
 
 
 @dataclass(frozen=True)
@@ -64,12 +68,14 @@ class PlanSpec:
     # scene preparation
     max_edge_m: float | None = 0.2
     unit_scale: float = 1.0
+    up_axis: UpAxis | None = None  # None: the format's own (+Y glTF/GLB, +Z otherwise)
     # candidates
     candidates: tuple[tuple[float, float, float], ...] | None = None
     grid_spacing_m: float = 0.5
     scanner_height_m: float = 1.5
     clearance_m: float = 0.3
     area_of_interest: tuple[tuple[float, float], ...] | None = None
+    floor_levels: FloorLevels = "lowest"  # "all": every walkable surface with head room
     storeys: tuple[str, ...] | None = None
     rooms: tuple[str, ...] | None = None
     # outputs
@@ -214,7 +220,7 @@ GROUP_RANGES: dict[str, Range] = {
 
 _NULLABLE = {"max_edge_m", "candidates", "area_of_interest", "storeys", "rooms",
              "curve_goals", "fixed_stations", "scanner", "min_overlap_m2", "route_start",
-             "setup_time_s"}
+             "setup_time_s", "up_axis"}
 _FLOATS = {
     f.name
     for f in fields(PlanSpec)
@@ -242,6 +248,15 @@ def _convert(name: str, value: Any) -> Any:
         if value not in GLB_COMPRESSIONS:
             raise ParameterError(name, f"{value!r} is not one of {', '.join(GLB_COMPRESSIONS)}; "
                                        "use none for glTF loaders without a meshopt decoder")
+        return value
+    if name == "floor_levels":
+        if value not in FLOOR_LEVELS:
+            raise ParameterError(name, f"{value!r} is not one of {', '.join(FLOOR_LEVELS)}")
+        return value
+    if name == "up_axis":
+        if value is not None and value not in UP_AXES:
+            raise ParameterError(name, f"{value!r} is not one of {', '.join(UP_AXES)}, "
+                                 "or null for the format's own")
         return value
     if name in ("candidates", "fixed_stations"):
         return None if value is None else _points(name, value, 3)
@@ -338,6 +353,10 @@ def _validate(spec: PlanSpec) -> None:
     _check(spec.method in METHODS, "method", f"{spec.method!r} is not one of {METHODS}")
     _check(spec.glb_compression in GLB_COMPRESSIONS, "glb_compression",
            f"{spec.glb_compression!r} is not one of {GLB_COMPRESSIONS}")
+    _check(spec.floor_levels in FLOOR_LEVELS, "floor_levels",
+           f"{spec.floor_levels!r} is not one of {', '.join(FLOOR_LEVELS)}")
+    _check(spec.up_axis is None or spec.up_axis in UP_AXES, "up_axis",
+           f"{spec.up_axis!r} is not one of {', '.join(UP_AXES)}, or null for the format's own")
     if spec.candidates is not None:
         _check(len(spec.candidates) > 0, "candidates",
                "is an empty list; give at least one [x, y, z] or null to generate a grid")

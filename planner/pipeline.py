@@ -21,6 +21,7 @@ from planner.candidates import CandidateSet, explicit_candidates, generate_grid
 from planner.coverage import CoverageTable, QualifiedPairs
 from planner.errors import CancelledError, NothingVisibleError
 from planner.optimal import OptimalResult, choose_stations
+from planner.orientation import scene_rotation, to_plan
 from planner.pairs import FaceLimits, PairFinder
 from planner.parameters import PlanSpec
 from planner.registration import connected_greedy, overlap_matrix
@@ -99,7 +100,9 @@ def plan(
     occlusion = make_occlusion(scene, limits.occludes, backend)
     _notify(progress, "candidates", 0.0)
     if spec.candidates is not None:
-        candidates = explicit_candidates(spec.candidates)
+        # given in model coordinates; the planner works Z-up (up_axis, planner.orientation)
+        candidates = explicit_candidates(
+            to_plan(scene_rotation(scene.metadata), np.asarray(spec.candidates)))
     elif scene.metadata.get("spaces"):
         from planner import ifc
 
@@ -108,7 +111,9 @@ def plan(
         candidates = generate_grid(scene, spec, _caster(scene, limits, occlusion))
     fixed: tuple[int, ...] = ()
     if spec.fixed_stations:  # re-scan: stations already scanned are candidates too
-        positions, fixed = fixed_candidates(candidates.positions, spec.fixed_stations)
+        fixed_xyz = to_plan(scene_rotation(scene.metadata), np.asarray(spec.fixed_stations))
+        positions, fixed = fixed_candidates(
+            candidates.positions, tuple((float(x), float(y), float(z)) for x, y, z in fixed_xyz))
         if len(positions) > len(candidates):
             candidates = dataclasses.replace(
                 candidates, positions=positions,

@@ -20,6 +20,8 @@ import numpy as np
 import trimesh
 
 from planner.errors import ParameterError, SceneError, UnsupportedFormatError
+from planner.orientation import axis_rotation, default_up_axis, find_up
+from planner.parameters import UP_AXES
 from planner.scene import Element, Scene, build_scene, remesh
 
 FORMATS = ("obj", "ply", "stl", "off", "glb", "gltf", "ifc")
@@ -79,7 +81,8 @@ def file_format(path: Path) -> str:
 
 
 def read_scene(
-    path: str | Path, *, max_edge_m: float | None = 0.2, unit_scale: float = 1.0
+    path: str | Path, *, max_edge_m: float | None = 0.2, unit_scale: float = 1.0,
+    up_axis: str | None = None,
 ) -> Scene:
     """Read a model and prepare it for planning.
 
@@ -89,10 +92,15 @@ def read_scene(
     max_edge_m : split faces until no edge is longer; None uses the mesh as given
     unit_scale : multiply coordinates by this (0.001 for a model in millimetres); must be
         1 for IFC, which is converted from its own length unit
+    up_axis : the model's up, one of :data:`planner.orientation.UP_AXES`; None follows the
+        format (+Y for glTF/GLB, +Z otherwise). A model whose up is not +Z is rotated into
+        the plan frame; ``metadata["orientation"]`` keeps the rotation so that outputs go
+        back to model coordinates (:mod:`planner.orientation`)
 
     Raises
     ------
-    SceneError, UnsupportedFormatError, ParameterError (unit_scale with an IFC file)
+    SceneError, UnsupportedFormatError, ParameterError (unit_scale or up_axis with an IFC
+    file, an unknown up_axis, auto that cannot tell)
     """
     path = Path(path)
     if not path.is_file():
@@ -100,7 +108,13 @@ def read_scene(
     if max_edge_m is not None and max_edge_m <= 0:
         raise SceneError(f"max_edge_m is {max_edge_m}; use a positive length or null")
     fmt = file_format(path)
+    if up_axis is not None and up_axis not in UP_AXES:
+        raise ParameterError("up_axis", f"{up_axis!r} is not one of {', '.join(UP_AXES)}")
     if fmt == "ifc":
+        if up_axis not in (None, "+Z", "auto"):  # rooms and storeys are Z-up by the schema
+            raise ParameterError(
+                "up_axis", f"is {up_axis}, but IFC world coordinates are Z-up by the schema; "
+                "leave up_axis unset, +Z or auto")
         if unit_scale != 1.0:  # rooms and storeys are in metres too: scaling would split them
             raise ParameterError(
                 "unit_scale", f"is {unit_scale}, but an IFC file is converted to metres from "
@@ -113,9 +127,71 @@ def read_scene(
     if unit_scale != 1.0:
         scene = _scaled(scene, unit_scale)
     scene.metadata.setdefault("format", fmt)
+    scene = _oriented(scene, fmt, up_axis)
+    warning = _unit_warning(scene, unit_scale)
+    if warning:
+        scene.metadata.setdefault("warnings", []).append(warning)
     if max_edge_m is not None:
         scene = remesh(scene, max_edge_m)
     return scene
+
+
+# a model wider than this is probably not in metres (a 15 km "room" is 15 m in millimetres)
+_LARGEST_PLAUSIBLE_M = 2_000.0
+# narrower than this, probably in kilometres or decimetres gone wrong
+_SMALLEST_PLAUSIBLE_M = 0.5
+
+
+def _unit_warning(scene: Scene, unit_scale: float) -> str | None:
+    """A warning naming ``unit_scale`` when the model's size suggests another unit."""
+    extent_m = float(np.ptp(scene.vertices, axis=0).max())
+    if extent_m > _LARGEST_PLAUSIBLE_M:
+        return (f"unit_scale: the model is {extent_m:,.0f} m across with unit_scale "
+                f"{unit_scale}; if it is in millimetres use unit_scale 0.001, in inches "
+                "0.0254, in feet 0.3048")
+    if extent_m < _SMALLEST_PLAUSIBLE_M:
+        return (f"unit_scale: the model is only {extent_m:.3g} m across with unit_scale "
+                f"{unit_scale}; check that it is in metres (unit_scale converts)")
+    return None
+
+
+def _oriented(scene: Scene, fmt: str, up_axis: str | None) -> Scene:
+    """The scene in the Z-up plan frame, ``metadata["orientation"]`` saying how."""
+    if fmt == "ifc":
+        applied, source = "+Z", "IFC world coordinates"
+    elif up_axis is None:
+        applied, source = default_up_axis(fmt), f"{fmt.upper()} default"
+    elif up_axis == "auto":
+        applied, source = "auto", "auto"
+    else:
+        applied, source = up_axis, "up_axis"
+    info: dict[str, Any] = {"up_axis": applied, "source": source, "rotation": None}
+    if applied == "auto":
+        rotation, report = find_up(scene.vertices, scene.faces)
+        info.update(report)
+    else:
+        rotation = axis_rotation(applied)
+    # the rounded matrix is the one applied, so that writing back uses exactly its inverse;
+    # auto on a level model rounds to the identity and leaves the scene untouched
+    exact = np.round(rotation, 12) + 0.0  # + 0.0: no -0.0 in plan.json
+    if np.array_equal(exact, np.eye(3)):
+        scene.metadata["orientation"] = info
+        return scene
+    info["rotation"] = exact.tolist()
+    return _with(scene, scene.vertices @ exact.T, {**scene.metadata, "orientation": info})
+
+
+def _with(scene: Scene, vertices: np.ndarray, metadata: dict[str, Any]) -> Scene:
+    return Scene(
+        vertices=vertices,
+        faces=scene.faces,
+        face_group=scene.face_group,
+        groups=scene.groups,
+        source_face=scene.source_face,
+        face_element=scene.face_element,
+        elements=scene.elements,
+        metadata=metadata,
+    )
 
 
 def _scaled(scene: Scene, unit_scale: float) -> Scene:

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from planner.curve import coverage_curve
+from planner.orientation import scene_rotation, to_model
 from planner.pipeline import PlanResult
 from planner.selection import GOAL_SLACK_M2
 
@@ -50,12 +51,30 @@ def _r(value: float, decimals: int = _AREA_DECIMALS) -> float:
     return 0.0 if rounded == 0 else rounded  # no "-0.0"
 
 
+def model_positions(result: PlanResult) -> np.ndarray:
+    """(C, 3) candidate positions in the model's own coordinates (see ``up_axis``)."""
+    return to_model(scene_rotation(result.scene.metadata), result.candidates.positions)
+
+
+def _route_in_model(result: PlanResult) -> dict[str, Any]:
+    """The walking route with its leg paths in the model's own coordinates (``up_axis``)."""
+    assert result.survey is not None
+    route = result.survey.route.to_dict()
+    rotation = scene_rotation(result.scene.metadata)
+    if rotation is not None:
+        for leg in route["legs"]:
+            if leg["path"]:
+                leg["path"] = [[round(float(v), 3) for v in p]
+                               for p in to_model(rotation, np.asarray(leg["path"]))]
+    return route
+
+
 def plan_document(result: PlanResult) -> dict[str, Any]:
     """The content of ``plan.json`` as plain data."""
     table, chosen = result.table, result.chosen
     max_area = table.max_achievable_area_m2
     covered = chosen.covered_area_m2[-1] if chosen.stations else 0.0
-    positions = result.candidates.positions
+    positions = model_positions(result)
     labels = result.candidates.labels
     stations = []
     for order, (candidate, new, cumulative) in enumerate(
@@ -102,11 +121,13 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
             "format": result.scene.metadata.get("format", ""),
             "groups": list(result.scene.groups),
             "bounds": [[_r(v) for v in row] for row in result.scene.bounds],
+            "orientation": result.scene.metadata.get("orientation"),
+            "warnings": list(result.scene.metadata.get("warnings", [])),
         },
     }
     if result.survey is not None:
         document["registration"] = result.survey.registration.to_dict()
-        document["route"] = result.survey.route.to_dict()
+        document["route"] = _route_in_model(result)
         document["field_time"] = result.survey.field_time.to_dict()
     if result.optimal is not None:
         document["optimal"] = result.optimal.to_dict()
@@ -149,7 +170,7 @@ def stations_csv(result: PlanResult) -> bytes:
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(["id", "x", "y", "z", "order", "candidate_index", "visit"])
-    positions = result.candidates.positions
+    positions = model_positions(result)
     for order, candidate in enumerate(result.chosen.stations):
         x, y, z = (f"{v:.6f}" for v in positions[candidate])
         visit = None if result.survey is None else result.survey.visit_of(order + 1)
@@ -163,7 +184,7 @@ def candidates_csv(result: PlanResult) -> bytes:
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(["x", "y", "z"])
-    for x, y, z in result.candidates.positions:
+    for x, y, z in model_positions(result):
         writer.writerow([f"{x:.6f}", f"{y:.6f}", f"{z:.6f}"])
     return out.getvalue().encode("utf-8")
 

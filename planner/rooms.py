@@ -7,11 +7,14 @@ For each room (restricted by ``spec.storeys`` / ``spec.rooms``): grid points at 
 ``grid_spacing_m`` inside the floor polygon (boundary inclusive) and inside
 ``area_of_interest`` if given, at ``floor_z_m + scanner_height_m``. A point is dropped when
 the first surface straight below the scanner is not within ``FLOOR_TOLERANCE_M`` of the
-room's floor (``no_floor``: a stair hole, a void; ``blocked_above_floor``: a table, a stair
-under the scanner), when it is inside a closed object (``inside_geometry``), or when the
-tripod lacks ``clearance_m`` of room around its axis from that floor to above the scanner
-(``too_close``, as :func:`planner.candidates.closer_than` measures it). A point on the
-boundary shared by two rooms belongs to the first. Order: rooms as in
+room's floor (``no_floor``: a stair hole, a void; but a room where no point has a floor has
+no slab in this model, e.g. the slabs live in the structural model, and its IfcSpace's own
+bottom is the floor: ``CandidateSet.floor_from_space`` names those rooms;
+``blocked_above_floor``: a table, a stair under the scanner), when it is inside a closed
+object (``inside_geometry``), or when the tripod lacks ``clearance_m`` of room around its
+axis from that floor to above the scanner (``too_close``, as
+:func:`planner.candidates.closer_than` measures it). A point on the boundary shared by two
+rooms belongs to the first. Order: rooms as in
 ``metadata["spaces"]``, then grid rows (y, then x).
 """
 
@@ -29,12 +32,12 @@ from planner.candidates import (
     closer_than,
     grid_points_xy,
     inside_closed_groups,
-    winding_number,
 )
 from planner.errors import NoCandidatesError, ParameterError
 from planner.parameters import PlanSpec
 from planner.scene import Scene
 from planner.visibility import RayCaster
+from planner.winding import winding_numbers
 
 FLOOR_TOLERANCE_M = 0.3
 
@@ -97,7 +100,15 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
         inside = intersects_xy(area, positions[:, 0], positions[:, 1])
         dropped["outside_area_of_interest"] = int((~inside).sum())
         keep_mask &= inside
-    on_floor, floor_z = _on_floor(scene, positions, spec, caster, keep_mask, dropped)
+    on_floor, floor_z, no_floor = _on_floor(scene, positions, spec, caster, keep_mask,
+                                            dropped)
+    from_space = _rooms_without_slab(labels, keep_mask, no_floor)
+    if from_space:
+        # the room's own bottom is its floor: the slab lives in another model (structure)
+        rescued = np.isin([label["room_global_id"] for label in labels], list(from_space))
+        rescued &= no_floor
+        dropped["no_floor"] -= int(rescued.sum())
+        on_floor |= rescued
     keep_mask &= on_floor
     keep_mask &= _clear(scene, positions, spec.clearance_m, floor_z, keep_mask, dropped)
     if not keep_mask.any():
@@ -112,7 +123,26 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
     return CandidateSet(
         positions=positions[index], source="rooms", considered=considered,
         dropped=dropped, labels=tuple(labels[i] for i in index),
+        floor_from_space=tuple(from_space.values()),
     )
+
+
+def _rooms_without_slab(labels: list[dict[str, str]], alive: NDArray[np.bool_],
+                        no_floor: NDArray[np.bool_]) -> dict[str, str]:
+    """Rooms none of whose points has a floor under it: GlobalId -> room name, in order.
+
+    One point without a floor is a stair hole or a void and stays dropped; a room without
+    any floor has no slab in this model, and its IfcSpace's bottom stands in for it.
+    """
+    rooms: dict[str, str] = {}
+    has_floor: set[str] = set()
+    for label, live, missing in zip(labels, alive, no_floor, strict=True):
+        if not live:
+            continue
+        rooms.setdefault(label["room_global_id"], label["room"])
+        if not missing:
+            has_floor.add(label["room_global_id"])
+    return {gid: name for gid, name in rooms.items() if gid not in has_floor}
 
 
 def select_spaces(spaces: list[dict[str, Any]], storeys: list[dict[str, Any]],
@@ -159,16 +189,18 @@ def select_spaces(spaces: list[dict[str, Any]], storeys: list[dict[str, Any]],
 
 def _on_floor(scene: Scene, positions: NDArray[np.float64], spec: PlanSpec, caster: RayCaster,
               alive: NDArray[np.bool_], dropped: dict[str, int]
-              ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+              ) -> tuple[NDArray[np.bool_], NDArray[np.float64], NDArray[np.bool_]]:
     """(C,) bool: straight below the scanner, the first surface is the room's floor.
 
-    Also returns (C,) the height of that surface (the room's floor where nothing was hit).
+    Also returns (C,) the height of that surface (the room's floor where nothing was hit)
+    and (C,) bool: the points dropped as ``no_floor``.
     """
     ok = np.ones(len(positions), bool)
     floor_z = positions[:, 2] - spec.scanner_height_m
+    missing = np.zeros(len(positions), bool)
     index = np.flatnonzero(alive)
     if len(index) == 0:
-        return ok, floor_z
+        return ok, floor_z, missing
     down = np.tile([0.0, 0.0, -1.0], (len(index), 1))
     face, distance = caster.first_hit(positions[index], down)
     height = spec.scanner_height_m
@@ -179,7 +211,8 @@ def _on_floor(scene: Scene, positions: NDArray[np.float64], spec: PlanSpec, cast
     ok[index[no_floor | blocked]] = False
     hit = ~(no_floor | blocked)
     floor_z[index[hit]] = positions[index[hit], 2] - distance[hit]
-    return ok, floor_z
+    missing[index[no_floor]] = True
+    return ok, floor_z, missing
 
 
 def _clear(scene: Scene, positions: NDArray[np.float64], clearance_m: float,
@@ -226,10 +259,7 @@ def inside_elements(scene: Scene, points: NDArray[np.float64]) -> NDArray[np.boo
             continue
         lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
         boxed = np.flatnonzero(((points > lo) & (points < hi)).all(axis=1) & ~result)
-        step = max(1, 1_000_000 // len(tri))
-        for s in range(0, len(boxed), step):
-            chunk = boxed[s:s + step]
-            result[chunk] = winding_number(tri, points[chunk]) > 0.5
+        result[boxed] = winding_numbers(tri, points[boxed]) > 0.5
     return result
 
 

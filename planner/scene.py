@@ -103,13 +103,16 @@ class Scene:
     def summary(self) -> dict[str, Any]:
         """Counts and bounds a user checks after an upload."""
         counts = np.bincount(self.face_group, minlength=len(self.groups))
-        return {
+        summary: dict[str, Any] = {
             "faces": self.n_faces,
             "vertices": len(self.vertices),
             "total_area_m2": round(float(self.areas.sum()), 6),
             "bounds": [[round(float(v), 6) for v in row] for row in self.bounds],
             "groups": {name: int(n) for name, n in zip(self.groups, counts, strict=True) if n},
         }
+        if self.metadata.get("warnings"):  # e.g. a size that suggests another unit_scale
+            summary["warnings"] = list(self.metadata["warnings"])
+        return summary
 
 
 def build_scene(

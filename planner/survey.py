@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from planner.orientation import scene_rotation, to_plan
 from planner.pairs import FaceLimits
 from planner.parameters import PlanSpec
 from planner.registration import Registration, overlap_matrix, station_registration
@@ -104,6 +105,10 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     seconds["overlap"] = seconds.get("overlap", 0.0) + t1 - t0
     walk_caster = _walk_caster(scene, limits, caster)
     graph = build_walk_graph(scene, walk_caster)
-    route = plan_route(graph, walk_caster, stations_xyz, spec.route_start)
+    start = spec.route_start
+    if start is not None:  # given in model coordinates, like every position (up_axis)
+        x, y, z = to_plan(scene_rotation(scene.metadata), np.asarray([start], np.float64))[0]
+        start = (float(x), float(y), float(z))
+    route = plan_route(graph, walk_caster, stations_xyz, start)
     seconds["walk graph"] = time.perf_counter() - t1
     return Survey(registration, route, field_time(spec, len(stations_xyz), route))

@@ -88,6 +88,8 @@ class PlanParameters(BaseModel):
     max_edge_m: Number | None = _d("max_edge_m",
                                    "split faces to this edge length, metres; null: as given")
     unit_scale: Number = _d("unit_scale", "model units to metres (0.001 for millimetres)")
+    up_axis: Literal["+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto"] | None = _d(
+        "up_axis", "the model's up axis; auto finds gravity; null: +Y for glTF/GLB, +Z else")
     candidates: list[Point3] | None = _d(
         "candidates", "scanner positions [x, y, z] in model coordinates; null: a grid")
     grid_spacing_m: Number = _d("grid_spacing_m", "spacing of generated candidates, metres")
@@ -97,6 +99,8 @@ class PlanParameters(BaseModel):
         "glb_compression", "coverage.glb: meshopt-compressed, or none for plain loaders")
     area_of_interest: list[Point2] | None = _d(
         "area_of_interest", "polygon [x, y] the generated candidates stay in; null: all")
+    floor_levels: Literal["lowest", "all"] = _d(
+        "floor_levels", "grid on the lowest surface, or on every walkable level (meshes)")
     storeys: list[str] | None = _d("storeys", "IFC storeys to plan for; null: all")
     rooms: list[str] | None = _d("rooms", "IFC spaces to plan for; null: all")
     scanner: str | None = _d("scanner", "scanner preset id (GET /processes/scan-plan lists "

@@ -196,7 +196,8 @@ def _run_plan(ctx: WorkerContext, job: JobRecord,
         timings: dict[str, float] = {}
         progress("reading", 0.0)
         started = time.perf_counter()
-        scene = read_scene(mesh_path, max_edge_m=spec.max_edge_m, unit_scale=spec.unit_scale)
+        scene = read_scene(mesh_path, max_edge_m=spec.max_edge_m, unit_scale=spec.unit_scale,
+                           up_axis=spec.up_axis)
         timings["reading"] = time.perf_counter() - started
         result = plan(scene, spec, progress=progress, threads=threads)
         timings.update(result.stats.seconds)

@@ -19,7 +19,7 @@ import trimesh
 from shapely import Polygon, intersects_xy
 
 from planner import bim
-from planner.candidates import DROP_REASONS, winding_number
+from planner.candidates import DROP_REASONS
 from planner.errors import NoCandidatesError, ParameterError, SceneError
 from planner.ifc import read_ifc, room_candidates
 from planner.pairs import FaceLimits
@@ -29,6 +29,7 @@ from planner.readers import read_scene
 from planner.report import plan_document, write_outputs
 from planner.rooms import inside_elements, source_triangles
 from planner.scene import Element, Scene, build_scene, remesh
+from planner.winding import winding_numbers
 
 ifcopenshell = pytest.importorskip("ifcopenshell")
 
@@ -178,7 +179,7 @@ def test_the_files_triangles_are_rebuilt_from_their_pieces(scenes_dir: Path) -> 
     inside = np.zeros(len(points), bool)
     for e in range(len(pieces.elements)):
         own = pieces.face_element == e
-        inside |= winding_number(pieces.triangles[own], points) > 0.5
+        inside |= winding_numbers(pieces.triangles[own], points) > 0.5
     assert inside.any()
     np.testing.assert_array_equal(inside_elements(pieces, points), inside)
 
@@ -462,3 +463,24 @@ def test_a_mesh_without_elements_writes_no_element_tables(tmp_path: Path) -> Non
     assert "plan.json" in names
     assert not names & {"elements.csv", "elements.json"}
     assert bim.elements_json(result) is None
+
+
+def test_rooms_without_slabs_stand_on_their_spaces(scenes_dir: Path, tmp_path: Path,
+                                                   fzk: Scene) -> None:
+    # a BIM platform often sends the architectural model alone: the slabs are elsewhere
+    model = ifcopenshell.open(str(scenes_dir / f"{FZK}.ifc"))
+    for slab in model.by_type("IfcSlab"):
+        model.remove(slab)
+    path = tmp_path / "fzk-without-slabs.ifc"
+    model.write(str(path))
+    spec = _spec()
+    bare = remesh(read_ifc(path), EDGE_M)
+    assert "IfcSlab" not in bare.groups
+    candidates = room_candidates(bare, spec, _caster(bare, spec))
+    rooms = {label["room_global_id"] for label in candidates.labels}
+    assert rooms == {space["global_id"] for space in bare.metadata["spaces"]}
+    assert candidates.floor_from_space
+    assert set(candidates.floor_from_space) <= {label["room"] for label in candidates.labels}
+    # with its slabs, every room finds its floor and none needs its space
+    full = room_candidates(fzk, spec, _caster(fzk, spec))
+    assert full.floor_from_space == ()

@@ -1,0 +1,193 @@
+"""Generalised winding numbers of points with respect to a triangle mesh, exact and fast.
+
+The winding number of a point is the sum of the signed solid angles its triangles subtend,
+over 4 pi (Van Oosterom & Strackee's formula per triangle; Jacobson et al. 2013, "Robust
+inside-outside segmentation using generalized winding numbers"). Summing every triangle
+for every point costs points x triangles, which on a 1 M-face scan is minutes and
+gigabytes. Here the triangles are cut into spatial cells and a cell far from the point is
+replaced by a *cap*: a fan of triangles from one point of the cell over the cell's boundary
+edges. A cell's triangles minus its cap form a closed surface inside the cell's box, whose
+winding number at any point outside that box is exactly 0 (Jacobson et al., section 3.3),
+so the cap subtends the same solid angle as the cell. A patch of n triangles has about
+sqrt(n) boundary edges: the cost per point drops from T to (cells x boundary + the
+triangles of the few cells whose box holds the point). Results equal the direct sum up
+to floating-point rounding (about 1e-12).
+
+Array letters: T triangles, N points, K cells, B cap triangles.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+# below this many point-triangle pairs the direct sum is cheaper than building cells
+_DIRECT_PAIRS = 4_000_000
+# fewest triangles per cell aimed at (see _Cells.build)
+_MIN_FACES_PER_CELL = 400
+
+
+def winding_numbers(triangles: NDArray[np.float64], points: NDArray[np.float64]
+                    ) -> NDArray[np.float64]:
+    """(N,) winding numbers of (N, 3) points w.r.t. (T, 3, 3) triangles."""
+    triangles = np.ascontiguousarray(triangles, np.float64).reshape(-1, 3, 3)
+    points = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    if len(points) == 0 or len(triangles) == 0:
+        return np.zeros(len(points))
+    if len(triangles) * len(points) <= _DIRECT_PAIRS:
+        return _in_threads(points, lambda chunk: _direct(triangles, chunk))
+    cells = _Cells.build(triangles)
+    return _in_threads(points, cells.winding)
+
+
+def _in_threads(points: NDArray[np.float64],
+                kernel: Callable[[NDArray[np.float64]], NDArray[np.float64]]
+                ) -> NDArray[np.float64]:
+    """Run a nogil kernel over parts of the points on the machine's cores (same result)."""
+    workers = min(os.cpu_count() or 1, max(1, len(points) // 16))
+    if workers == 1:
+        return np.asarray(kernel(points))
+    bounds = np.linspace(0, len(points), workers + 1).astype(int)
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        parts = list(pool.map(kernel, [points[a:b] for a, b in itertools.pairwise(bounds)]))
+    return np.concatenate(parts)
+
+
+def _direct(triangles: NDArray[np.float64], points: NDArray[np.float64]
+            ) -> NDArray[np.float64]:
+    starts = np.array([0, len(triangles)], np.int64)
+    box = np.full((1, 3), np.inf)
+    return np.asarray(_winding_kernel(points, triangles, starts, triangles[:0], np.zeros(
+        2, np.int64), -box, box))
+
+
+class _Cells:
+    """Triangles sorted by cell, each cell's cap and its box."""
+
+    def __init__(self, triangles: NDArray[np.float64], face_start: NDArray[np.int64],
+                 caps: NDArray[np.float64], cap_start: NDArray[np.int64],
+                 lo: NDArray[np.float64], hi: NDArray[np.float64]) -> None:
+        self.triangles, self.face_start = triangles, face_start
+        self.caps, self.cap_start, self.lo, self.hi = caps, cap_start, lo, hi
+
+    @classmethod
+    def build(cls, triangles: NDArray[np.float64]) -> _Cells:
+        corners = triangles.reshape(-1, 3)
+        # shared corners by exact coordinates: files often repeat vertices per face
+        by_position = np.lexsort(corners.T[::-1])
+        ordered = corners[by_position]
+        new_id = np.r_[False, (ordered[1:] != ordered[:-1]).any(axis=1)].cumsum()
+        flat_id = np.empty(len(corners), np.int64)
+        flat_id[by_position] = new_id
+        corner_id = flat_id.reshape(-1, 3)
+        lo_all, hi_all = corners.min(axis=0), corners.max(axis=0)
+        # caps cost about T / sqrt(n) per point for n triangles per cell, the cells around
+        # the point about n: both balance at n = T^(2/3)
+        per_cell = max(_MIN_FACES_PER_CELL, len(triangles) ** (2 / 3))
+        per_axis = max(1, math.ceil(math.sqrt(len(triangles) / per_cell)))
+        size = max(float((hi_all - lo_all).max()) / per_axis, 1e-9)
+        key3 = np.floor((triangles.mean(axis=1) - lo_all) / size).astype(np.int64)
+        key = (key3[:, 0] * (per_axis + 1) + key3[:, 1]) * (per_axis + 1) + key3[:, 2]
+        order = np.argsort(key, kind="stable")
+        cell_keys, cell_of_face = np.unique(key[order], return_inverse=True)
+        n_cells = len(cell_keys)
+        sorted_tri = np.ascontiguousarray(triangles[order])
+        ids = corner_id[order]
+        face_start = np.searchsorted(cell_of_face, np.arange(n_cells + 1)).astype(np.int64)
+        lo = np.minimum.reduceat(sorted_tri.min(axis=1), face_start[:-1])
+        hi = np.maximum.reduceat(sorted_tri.max(axis=1), face_start[:-1])
+
+        # boundary: directed edges u->v that their reverse does not cancel, per cell
+        u = ids.ravel()
+        v = ids[:, [1, 2, 0]].ravel()
+        cell = np.repeat(cell_of_face, 3)
+        sign = np.where(u < v, 1, -1)
+        a, b = np.minimum(u, v), np.maximum(u, v)
+        order_e = np.lexsort((b, a, cell))  # by cell first, so caps come out per cell
+        ce, ae, be = cell[order_e], a[order_e], b[order_e]
+        first_of_run = np.flatnonzero(np.r_[True, (ce[1:] != ce[:-1]) | (ae[1:] != ae[:-1])
+                                            | (be[1:] != be[:-1])])
+        net = np.add.reduceat(sign[order_e], first_of_run).astype(np.int64)
+        keep = np.flatnonzero(net != 0)
+        first = order_e[first_of_run]
+        repeat = np.abs(net[keep])
+        src = first[keep]  # a representative directed edge of each net boundary edge
+        start_pt = np.where((net[keep] > 0)[:, None], _corner(sorted_tri, src, a, u),
+                            _corner(sorted_tri, src, b, u))
+        end_pt = np.where((net[keep] > 0)[:, None], _corner(sorted_tri, src, b, u),
+                          _corner(sorted_tri, src, a, u))
+        edge_cell = cell[src]
+        start_pt, end_pt = np.repeat(start_pt, repeat, axis=0), np.repeat(end_pt, repeat, 0)
+        edge_cell = np.repeat(edge_cell, repeat)
+        # apex: a corner of the cell (inside its box, so the closed surface stays inside)
+        apex = sorted_tri[face_start[:-1], 0]
+        caps = np.ascontiguousarray(np.stack([apex[edge_cell], start_pt, end_pt], axis=1))
+        cap_start = np.searchsorted(edge_cell, np.arange(n_cells + 1)).astype(np.int64)
+        return cls(sorted_tri, face_start, caps, cap_start, lo, hi)
+
+    def winding(self, points: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.asarray(_winding_kernel(points, self.triangles, self.face_start, self.caps,
+                                          self.cap_start, self.lo, self.hi))
+
+
+def _corner(tri: NDArray[np.float64], edge: NDArray[np.int64], wanted: NDArray[np.int64],
+            u: NDArray[np.int64]) -> NDArray[np.float64]:
+    """Coordinates of corner id ``wanted[edge]`` of the directed edge ``edge`` (3 per face).
+
+    Directed edge e of face f = e // 3 runs from corner e % 3 to corner (e % 3 + 1) % 3.
+    """
+    face, k = edge // 3, edge % 3
+    from_is_wanted = u[edge] == wanted[edge]
+    corner = np.where(from_is_wanted, k, (k + 1) % 3)
+    return np.asarray(tri[face, corner])
+
+
+@numba.njit(nogil=True, cache=True)
+def _winding_kernel(points: NDArray[np.float64], triangles: NDArray[np.float64],
+                    face_start: NDArray[np.int64], caps: NDArray[np.float64],
+                    cap_start: NDArray[np.int64], lo: NDArray[np.float64],
+                    hi: NDArray[np.float64]) -> NDArray[np.float64]:  # pragma: no cover
+    out = np.zeros(len(points))
+    margin = 1e-9
+    for i in range(len(points)):
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        total = 0.0
+        for k in range(len(face_start) - 1):
+            outside = (px < lo[k, 0] - margin or px > hi[k, 0] + margin
+                       or py < lo[k, 1] - margin or py > hi[k, 1] + margin
+                       or pz < lo[k, 2] - margin or pz > hi[k, 2] + margin)
+            if outside:
+                source, s0, s1 = caps, cap_start[k], cap_start[k + 1]
+            else:
+                source, s0, s1 = triangles, face_start[k], face_start[k + 1]
+            for t in range(s0, s1):
+                ax = source[t, 0, 0] - px
+                ay = source[t, 0, 1] - py
+                az = source[t, 0, 2] - pz
+                bx = source[t, 1, 0] - px
+                by = source[t, 1, 1] - py
+                bz = source[t, 1, 2] - pz
+                cx = source[t, 2, 0] - px
+                cy = source[t, 2, 1] - py
+                cz = source[t, 2, 2] - pz
+                la = math.sqrt(ax * ax + ay * ay + az * az)
+                lb = math.sqrt(bx * bx + by * by + bz * bz)
+                lc = math.sqrt(cx * cx + cy * cy + cz * cz)
+                det = (ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx)
+                       + az * (bx * cy - by * cx))
+                denom = (la * lb * lc + (ax * bx + ay * by + az * bz) * lc
+                         + (cx * ax + cy * ay + cz * az) * lb
+                         + (bx * cx + by * cy + bz * cz) * la)
+                total += 2.0 * math.atan2(det, denom)
+        out[i] = total / (4.0 * math.pi)
+    return out
+
+
+__all__ = ["winding_numbers"]
