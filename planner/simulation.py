@@ -14,10 +14,10 @@ The pattern of one station (all angles in radians):
 - ``step = point_spacing_m / reference_distance_m`` (1 mrad with the defaults: A = 6283,
   E = 2618, 16.4 M rays per station).
 
-A return counts for its face when the face is hit first, its range lies in
-``[dof_min_m, dof_max_m]`` and its incidence is at least the face's ``min_incidence_deg``
-(the requirement excludes grazing returns; they still block the rays behind them).
-Density of a face = returns / face area (pts/m^2).
+A return counts for its face when the face is hit first and its range lies in
+``[dof_min_m, dof_max_m]`` (the scanner records nothing outside; such faces still block
+the rays behind them). Density of a face = returns / face area (pts/m^2). The incidence
+requirement is applied by :mod:`planner.verification`, per station and face.
 
 Holes are measured on sub-face bins: each face is split into ``n x n`` equal triangles of
 a barycentric grid (the triangles of ``n - 1`` evenly spaced lines parallel to each side),
@@ -190,7 +190,6 @@ def simulate_scan(
     det = d00 * d11 - d01 * d01
     inv_det = np.divide(1.0, det, out=np.zeros_like(det), where=det > 0)
     normals = np.ascontiguousarray(scene.normals)
-    min_sin_incidence = np.sin(np.radians(limits.min_incidence_deg))
     # (A, 2) cos/sin of the azimuths, shared by every row
     cos_az, sin_az = np.cos(azimuths), np.sin(azimuths)
 
@@ -206,7 +205,7 @@ def simulate_scan(
         per_slot = np.zeros(n_slots, np.int64)
         n_hits = _count_returns(
             face, directions, stations[station], normals, corner, edge1, edge2, d00, d01,
-            d11, inv_det, min_sin_incidence, pattern.range_min_m, pattern.range_max_m,
+            d11, inv_det, pattern.range_min_m, pattern.range_max_m,
             bins.splits, bins.offset, per_face, per_slot)
         return station, per_face, per_slot, n_hits
 
@@ -257,15 +256,14 @@ def _count_returns(
     normals: NDArray[np.float64], corner: NDArray[np.float64], edge1: NDArray[np.float64],
     edge2: NDArray[np.float64], d00: NDArray[np.float64], d01: NDArray[np.float64],
     d11: NDArray[np.float64], inv_det: NDArray[np.float64],
-    min_sin_incidence: NDArray[np.float64], range_min_m: float, range_max_m: float,
+    range_min_m: float, range_max_m: float,
     splits: NDArray[np.int64], offset: NDArray[np.int64],
     per_face: NDArray[np.int64], per_slot: NDArray[np.int64],
 ) -> int:
     """Add the returns of (R,) first-hit ``face`` ids (-1 a miss) to the per-face and per-bin
     counts; returns how many rays hit a face.
 
-    A return counts when its range (ray to the face's plane) is inside the range window
-    and its incidence sine is at least the face's minimum.
+    A return counts when its range (ray to the face's plane) is inside the range window.
     """
     n_hits = 0
     for r in range(face.shape[0]):
@@ -275,7 +273,7 @@ def _count_returns(
         n_hits += 1
         dx, dy, dz = float(directions[r, 0]), float(directions[r, 1]), float(directions[r, 2])
         facing = normals[f, 0] * dx + normals[f, 1] * dy + normals[f, 2] * dz
-        if abs(facing) < min_sin_incidence[f] or facing == 0.0:
+        if facing == 0.0:  # the ray runs in the face's plane: an edge graze, no return
             continue
         ax = corner[f, 0] - origin[0]
         ay = corner[f, 1] - origin[1]

@@ -5,7 +5,9 @@ The plan promises the faces it marks ``covered``. The simulated scan of its stat
 (:mod:`planner.simulation`) delivers, per face, a density from each station. A face is
 *delivered* when its best station's density meets the face's ``min_density_pts_m2`` (the
 same per-station reading as the promise; the merged density of all stations is reported
-beside it). Totals compare the two sets by area:
+beside it). A station counts for a face only when it sees the face at the face's
+``min_incidence_deg`` or more (the angle of the ray to the face centroid, as the
+requirement is stated per face); its returns are counted whatever the incidence. Totals compare the two sets by area:
 
 - ``promised_area_m2``: target faces the plan covers;
 - ``delivered_area_m2``: target faces the simulated scan delivers;
@@ -63,6 +65,8 @@ class Verification:
     delivered : (F,) bool, target faces whose best station meets the requirement
     hole_area_m2 : (F,) float64, area of the face's hole bins (promised faces only)
     required_lpd_pts_m2 : (F,) float64, the face's min_density_pts_m2
+    station_delivers : (S, F) bool, the station alone delivers the face (density and
+        incidence)
     """
 
     scene: Scene
@@ -75,6 +79,7 @@ class Verification:
     delivered: NDArray[np.bool_]
     hole_area_m2: NDArray[np.float64]
     required_lpd_pts_m2: NDArray[np.float64]
+    station_delivers: NDArray[np.bool_]
 
     def totals(self) -> dict[str, Any]:
         area = self.scene.areas
@@ -114,34 +119,50 @@ def verify(
     area = scene.areas
     required = limits.min_density_pts_m2
     safe_area = np.where(area > 0, area, np.inf)
-    best = counts.returns.max(axis=0, initial=0) / safe_area
+    stations = np.asarray(stations_xyz, np.float64).reshape(-1, 3)
+    usable = _meets_incidence(scene, limits, stations)
+    best = np.where(usable, counts.returns, 0).max(axis=0, initial=0) / safe_area
     merged = counts.returns.sum(axis=0) / safe_area
     target = limits.target
     promised = np.asarray(promised, bool) & target
-    delivered = target & (best >= required) & (counts.returns.max(axis=0, initial=0) > 0)
+    # (S, F): the station alone meets both the incidence and the density of the face
+    station_delivers = (usable & target & (counts.returns > 0)
+                        & (counts.returns / safe_area >= required))
+    delivered = station_delivers.any(axis=0)
     bins = counts.bins
     bin_area = area[bins.face] / (bins.splits[bins.face] ** 2)
     hole = (bins.valid & promised[bins.face]
             & (counts.best_bin_lpd_pts_m2 < HOLE_DENSITY_FRACTION * required[bins.face]))
     hole_area = np.bincount(bins.face, weights=np.where(hole, bin_area, 0.0),
                             minlength=scene.n_faces)
-    result = Verification(scene=scene, counts=counts,
-                          stations_xyz=np.asarray(stations_xyz, np.float64).reshape(-1, 3),
+    result = Verification(scene=scene, counts=counts, stations_xyz=stations,
                           target=target, promised=promised, best_lpd_pts_m2=best,
                           merged_lpd_pts_m2=merged, delivered=delivered,
-                          hole_area_m2=hole_area, required_lpd_pts_m2=required)
+                          hole_area_m2=hole_area, required_lpd_pts_m2=required,
+                          station_delivers=station_delivers)
     return result
+
+
+def _meets_incidence(scene: Scene, limits: FaceLimits,
+                     stations_xyz: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """(S, F) bool: station s sees face f at its min_incidence_deg or more (centroid ray)."""
+    usable = np.zeros((len(stations_xyz), scene.n_faces), bool)
+    min_sin = np.sin(np.radians(limits.min_incidence_deg))
+    for s, position in enumerate(stations_xyz):
+        ray = scene.centroids - position
+        length = np.linalg.norm(ray, axis=1)
+        facing = np.abs(np.einsum("ij,ij->i", ray, scene.normals))
+        usable[s] = facing >= min_sin * length
+    return usable
 
 
 def verification_document(result: Verification, spec: PlanSpec) -> dict[str, Any]:
     """The content of ``verification.json``."""
     area = result.scene.areas
     counts = result.counts
-    required = result.required_lpd_pts_m2
     stations = []
     for i, position in enumerate(result.stations_xyz):
-        lpd = counts.returns[i] / np.where(area > 0, area, np.inf)
-        meets = result.target & (lpd >= required) & (counts.returns[i] > 0)
+        meets = result.station_delivers[i]
         stations.append({
             "id": i + 1,
             "position": [_r(v) for v in position],
