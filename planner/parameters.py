@@ -16,6 +16,8 @@ from planner.errors import ParameterError
 
 Method = Literal["greedy", "weighted_greedy", "optimal"]
 METHODS: tuple[Method, ...] = ("greedy", "weighted_greedy", "optimal")
+CoverageModel = Literal["centroid", "sampled"]
+COVERAGE_MODELS: tuple[CoverageModel, ...] = ("centroid", "sampled")
 
 
 @dataclass(frozen=True)
@@ -48,6 +50,10 @@ class PlanSpec:
     min_density_pts_m2: float = 45_000.0
     coverage_goal: float = 0.8
     group_requirements: Mapping[str, GroupRequirement] = field(default_factory=dict)
+    # coverage model (planner.sampled): "centroid" is the paper's one ray per face
+    coverage_model: CoverageModel = "centroid"
+    samples_per_face: int = 16
+    min_sampled_fraction: float = 1.0
     # selection
     method: Method = "greedy"
     optimal_time_limit_s: float = 60.0
@@ -139,6 +145,14 @@ def _convert(name: str, value: Any) -> Any:
     if name == "method":
         if value not in METHODS:
             raise ParameterError(name, f"{value!r} is not one of {', '.join(METHODS)}")
+        return value
+    if name == "coverage_model":
+        if value not in COVERAGE_MODELS:
+            raise ParameterError(name, f"{value!r} is not one of {', '.join(COVERAGE_MODELS)}")
+        return value
+    if name == "samples_per_face":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ParameterError(name, f"expected a whole number (1, 4, 9, 16, ...), got {value!r}")
         return value
     if name == "candidates":
         return None if value is None else _points(name, value, 3)
@@ -238,6 +252,17 @@ def _validate(spec: PlanSpec) -> None:
         f"{spec.coverage_goal} is outside (0, 1]; 0.8 means 80 % of the achievable area",
     )
     _check(spec.method in METHODS, "method", f"{spec.method!r} is not one of {METHODS}")
+    _check(spec.coverage_model in COVERAGE_MODELS, "coverage_model",
+           f"{spec.coverage_model!r} is not one of {COVERAGE_MODELS}")
+    _check(
+        1 <= spec.samples_per_face <= 256
+        and math.isqrt(spec.samples_per_face) ** 2 == spec.samples_per_face,
+        "samples_per_face",
+        f"{spec.samples_per_face} is not a square number from 1 to 256 (the samples form an "
+        "n x n barycentric grid); use 16",
+    )
+    _check(0 < spec.min_sampled_fraction <= 1, "min_sampled_fraction",
+           f"{spec.min_sampled_fraction} is outside (0, 1]; 1 means the whole face")
     _check(spec.scanner_height_m > 0, "scanner_height_m",
            f"{spec.scanner_height_m} must be greater than 0")
     _check(spec.clearance_m >= 0, "clearance_m", f"{spec.clearance_m} is negative")
