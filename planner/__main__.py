@@ -1,4 +1,5 @@
-"""Command line: ``scanplan plan SCENE --out DIR``, ``scanplan verify PLAN_DIR --scene SCENE`` and the subcommands other packages add.
+"""Command line: ``scanplan plan SCENE --out DIR``, ``scanplan verify PLAN_DIR --scene SCENE``
+and the subcommands other packages add.
 
 Errors print one line naming the parameter and the fix, and exit with status 2. On a
 terminal a progress line shows the stage and percent; piped, the command stays quiet.

@@ -97,7 +97,7 @@ class SampledQualifier:
         self.weights = sample_weights(samples_per_face)
         # a pair qualifies with at most this many failing samples
         n = len(self.weights)
-        self.max_failures = int(math.floor(n * (1.0 - min_sampled_fraction) + 1e-9))
+        self.max_failures = math.floor(n * (1.0 - min_sampled_fraction) + 1e-9)
         self.min_sin_elevation = math.sin(math.radians(limits.elevation_min_deg))
         self.max_sin_elevation = math.sin(math.radians(limits.elevation_max_deg))
         self.min_sin_incidence = np.sin(np.radians(limits.min_incidence_deg))

@@ -81,7 +81,7 @@ class ScanPattern:
     def azimuths_rad(self) -> NDArray[np.float64]:
         """(A,) float64: a full turn in equal steps as close to the angular step as fits."""
         n = max(1, round(2 * math.pi / self.angular_step_rad))
-        return np.arange(n) * (2 * math.pi / n)
+        return np.arange(n, dtype=np.float64) * (2 * math.pi / n)
 
     @property
     def elevations_rad(self) -> NDArray[np.float64]:
@@ -89,7 +89,7 @@ class ScanPattern:
         low = math.radians(self.elevation_min_deg)
         span = math.radians(self.elevation_max_deg) - low
         n = max(1, round(span / self.angular_step_rad))
-        return low + (np.arange(n) + 0.5) * (span / n)
+        return low + (np.arange(n, dtype=np.float64) + 0.5) * (span / n)
 
     @property
     def rays_per_station(self) -> int:

@@ -7,7 +7,8 @@ The plan promises the faces it marks ``covered``. The simulated scan of its stat
 same per-station reading as the promise; the merged density of all stations is reported
 beside it). A station counts for a face only when it sees the face at the face's
 ``min_incidence_deg`` or more (the angle of the ray to the face centroid, as the
-requirement is stated per face); its returns are counted whatever the incidence. Totals compare the two sets by area:
+requirement is stated per face); its returns are counted whatever the incidence.
+Totals compare the two sets by area:
 
 - ``promised_area_m2``: target faces the plan covers;
 - ``delivered_area_m2``: target faces the simulated scan delivers;
@@ -128,13 +129,13 @@ def verify(
     # (S, F): the station alone meets both the incidence and the density of the face
     station_delivers = (usable & target & (counts.returns > 0)
                         & (counts.returns / safe_area >= required))
-    delivered = station_delivers.any(axis=0)
+    delivered: NDArray[np.bool_] = np.any(station_delivers, axis=0)
     bins = counts.bins
     bin_area = area[bins.face] / (bins.splits[bins.face] ** 2)
     hole = (bins.valid & promised[bins.face]
             & (counts.best_bin_lpd_pts_m2 < HOLE_DENSITY_FRACTION * required[bins.face]))
     hole_area = np.bincount(bins.face, weights=np.where(hole, bin_area, 0.0),
-                            minlength=scene.n_faces)
+                            minlength=scene.n_faces).astype(np.float64)
     result = Verification(scene=scene, counts=counts, stations_xyz=stations,
                           target=target, promised=promised, best_lpd_pts_m2=best,
                           merged_lpd_pts_m2=merged, delivered=delivered,
