@@ -26,6 +26,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -40,6 +41,10 @@ ProgressCallback = Callable[[str, float], bool | None]
 # The centroid pre-filter keeps pairs down to this fraction of the required density: the
 # 1 / cos(elevation) gain of the grid reaches 5 at 78 deg elevation.
 _PREFILTER_DENSITY_FRACTION = 0.2
+# ... and, with that gain counted, down to this fraction: the samples of a face lie within
+# its size of the centroid, which changes the density by far less than half on the faces
+# a plan qualifies (0.2 m faces at 1.5 m or more).
+_PREFILTER_CENTROID_FRACTION = 0.5
 # candidates per block, and pairs per chunk of sample arithmetic (~16 samples each):
 # bounds the (P, N, 3) float64 scratch arrays near 40 MB
 _CANDIDATES_PER_BLOCK = 4
@@ -101,6 +106,8 @@ class SampledQualifier:
         self.min_sin_elevation = math.sin(math.radians(limits.elevation_min_deg))
         self.max_sin_elevation = math.sin(math.radians(limits.elevation_max_deg))
         self.min_sin_incidence = np.sin(np.radians(limits.min_incidence_deg))
+        self.triangles = np.ascontiguousarray(scene.triangles)
+        self.normals = np.ascontiguousarray(scene.normals)
 
     def block(self, positions: NDArray[np.float64], first_index: int
               ) -> tuple[QualifiedPairs, int, int]:
@@ -114,27 +121,18 @@ class SampledQualifier:
         return QualifiedPairs.concatenate(parts), tested, rays
 
     def _chunk(self, pairs: Pairs) -> tuple[QualifiedPairs, int]:
-        lim, scene = self.limits, self.scene
+        lim = self.limits
         face = pairs.face.astype(np.int64)
-        origin = pairs.origin.astype(np.float64)
-        # (P, N, 3) sample points and the rays to them
-        points = np.einsum("nk,pkj->pnj", self.weights, scene.triangles[face])
-        ray = points - origin[:, None, :]
-        distance = np.linalg.norm(ray, axis=2)
-        safe = np.where(distance > 0, distance, 1.0)
-        sin_elevation = ray[:, :, 2] / safe
-        cos_elevation = np.hypot(ray[:, :, 0], ray[:, :, 1]) / safe
-        sin_incidence = np.abs(np.einsum("pnj,pj->pn", ray, scene.normals[face])) / safe
-        spacing = lim.angular_step_rad * distance
-        lpd = np.divide(sin_incidence, spacing * spacing * cos_elevation,
-                        out=np.full(distance.shape, np.inf),
-                        where=spacing * cos_elevation > 0)
-        passes = ((distance > 0) & (distance >= lim.dof_min_m) & (distance <= lim.dof_max_m)
-                  & (sin_elevation >= self.min_sin_elevation)
-                  & (sin_elevation <= self.max_sin_elevation)
-                  & (sin_incidence >= self.min_sin_incidence[face][:, None])
-                  & (lpd >= lim.min_density_pts_m2[face][:, None]))
-        n = passes.shape[1]
+        n_pairs, n = len(face), len(self.weights)
+        passes = np.zeros((n_pairs, n), np.bool_)
+        lpd = np.zeros((n_pairs, n), np.float32)
+        direction = np.zeros((n_pairs, n, 3), np.float32)
+        distance = np.zeros((n_pairs, n), np.float32)
+        _sample_limits(
+            pairs.origin, face, self.triangles, self.normals, self.weights,
+            lim.dof_min_m, lim.dof_max_m, self.min_sin_elevation, self.max_sin_elevation,
+            self.min_sin_incidence, lim.min_density_pts_m2, lim.angular_step_rad,
+            _PREFILTER_CENTROID_FRACTION, passes, lpd, direction, distance)
         alive = (n - passes.sum(axis=1)) <= self.max_failures
         # occlusion rays only where the pair can still qualify, first sample first: a pair
         # hidden at its first sample usually stops there
@@ -143,17 +141,78 @@ class SampledQualifier:
             p_idx, s_idx = np.nonzero(passes[:, columns] & alive[:, None])
             s_idx = s_idx + columns.start
             if len(p_idx):
-                direction = ray[p_idx, s_idx] / distance[p_idx, s_idx, None]
                 visible = self.occlusion.visible(
-                    np.broadcast_to(origin[p_idx], direction.shape), direction,
-                    distance[p_idx, s_idx], face[p_idx])
+                    pairs.origin[p_idx], direction[p_idx, s_idx], distance[p_idx, s_idx],
+                    face[p_idx])
                 passes[p_idx[~visible], s_idx[~visible]] = False
                 rays += len(p_idx)
             alive &= (n - passes.sum(axis=1)) <= self.max_failures
         keep = alive & passes.any(axis=1)
-        lowest = np.where(passes, lpd, np.inf).min(axis=1)
+        lowest = np.where(passes, lpd, np.float32(np.inf)).min(axis=1)
         return QualifiedPairs(pairs.candidate[keep], pairs.face[keep],
                               lowest[keep].astype(np.float32)), rays
+
+
+@numba.njit(nogil=True, cache=True)
+def _sample_limits(  # compiled; its cases are in tests/planner/test_sampled.py
+    origin: NDArray[np.float32], face: NDArray[np.int64], triangles: NDArray[np.float64],
+    normals: NDArray[np.float64], weights: NDArray[np.float64],
+    dof_min_m: float, dof_max_m: float, min_sin_elevation: float, max_sin_elevation: float,
+    min_sin_incidence: NDArray[np.float64], min_density: NDArray[np.float64],
+    angular_step_rad: float, centroid_fraction: float,
+    out_passes: NDArray[np.bool_], out_lpd: NDArray[np.float32],
+    out_direction: NDArray[np.float32], out_distance: NDArray[np.float32],
+) -> None:
+    """For (P,) pairs and (N, 3) barycentric weights: which samples pass every analytic
+    limit, their density LPD / cos(elevation) and their rays ((P, N) and (P, N, 3)).
+
+    A pair whose centroid density (with the grid's gain) is under ``centroid_fraction`` of
+    the requirement is skipped: its samples, within a face's size of the centroid, cannot
+    reach it.
+    """
+    n_samples = weights.shape[0]
+    for p in range(face.shape[0]):
+        f = face[p]
+        ox, oy, oz = float(origin[p, 0]), float(origin[p, 1]), float(origin[p, 2])
+        cx = (triangles[f, 0, 0] + triangles[f, 1, 0] + triangles[f, 2, 0]) / 3.0 - ox
+        cy = (triangles[f, 0, 1] + triangles[f, 1, 1] + triangles[f, 2, 1]) / 3.0 - oy
+        cz = (triangles[f, 0, 2] + triangles[f, 1, 2] + triangles[f, 2, 2]) / 3.0 - oz
+        dc = np.sqrt(cx * cx + cy * cy + cz * cz)
+        hc = np.sqrt(cx * cx + cy * cy)
+        if dc <= 0.0:
+            continue
+        sc = abs(cx * normals[f, 0] + cy * normals[f, 1] + cz * normals[f, 2]) / dc
+        spacing = angular_step_rad * dc
+        if hc > 0.0 and sc * dc / (spacing * spacing * hc) < centroid_fraction * min_density[f]:
+            continue
+        for k in range(n_samples):
+            x = (weights[k, 0] * triangles[f, 0, 0] + weights[k, 1] * triangles[f, 1, 0]
+                 + weights[k, 2] * triangles[f, 2, 0]) - ox
+            y = (weights[k, 0] * triangles[f, 0, 1] + weights[k, 1] * triangles[f, 1, 1]
+                 + weights[k, 2] * triangles[f, 2, 1]) - oy
+            z = (weights[k, 0] * triangles[f, 0, 2] + weights[k, 1] * triangles[f, 1, 2]
+                 + weights[k, 2] * triangles[f, 2, 2]) - oz
+            d = np.sqrt(x * x + y * y + z * z)
+            if d <= 0.0 or d < dof_min_m or d > dof_max_m:
+                continue
+            uz = z / d
+            if uz < min_sin_elevation or uz > max_sin_elevation:
+                continue
+            ux, uy = x / d, y / d
+            s = abs(ux * normals[f, 0] + uy * normals[f, 1] + uz * normals[f, 2])
+            if s < min_sin_incidence[f]:
+                continue
+            cos_elevation = np.sqrt(ux * ux + uy * uy)
+            spacing = angular_step_rad * d
+            lpd = np.inf if cos_elevation <= 0.0 else s / (spacing * spacing * cos_elevation)
+            if lpd < min_density[f]:
+                continue
+            out_passes[p, k] = True
+            out_lpd[p, k] = lpd
+            out_direction[p, k, 0] = ux
+            out_direction[p, k, 1] = uy
+            out_direction[p, k, 2] = uz
+            out_distance[p, k] = d
 
 
 def qualify_sampled_pairs(
