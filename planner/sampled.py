@@ -165,7 +165,8 @@ class SampledQualifier:
         """(P,) the face's sampled density: the mean of its samples' densities, a sample
         that fails a limit counting 0 (each stands for 1 / N of the area)."""
         total: NDArray[np.float64] = np.where(passes, lpd, 0.0).sum(axis=1, dtype=np.float64)
-        return total / passes.shape[1]
+        mean: NDArray[np.float64] = total / passes.shape[1]
+        return mean
 
     def _can_qualify(self, passes: NDArray[np.bool_], lpd: NDArray[np.float32],
                      required: NDArray[np.float64]) -> NDArray[np.bool_]:
