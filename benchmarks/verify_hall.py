@@ -1,7 +1,7 @@
 """Plan the hall scenes with both coverage models and check each plan by a simulated scan.
 
 Usage: python benchmarks/verify_hall.py [--scenes hall-small hall-full] [--models centroid
-sampled] [--threads N]
+sampled] [--threads N] [--min-sampled-fraction F]
 
 For every scene and model (candidates.csv, mesh as given, greedy, goal 0.8, the paper's
 parameters) prints stations, promised and delivered area, false promises (promised but not
@@ -15,6 +15,8 @@ import argparse
 import resource
 import time
 from pathlib import Path
+
+import numpy as np
 
 from planner.candidates import read_candidates_csv
 from planner.parameters import COVERAGE_MODELS, PlanSpec
@@ -31,6 +33,7 @@ def main() -> int:
     parser.add_argument("--models", nargs="+", default=list(COVERAGE_MODELS),
                         choices=COVERAGE_MODELS)
     parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--min-sampled-fraction", type=float, default=1.0)
     args = parser.parse_args()
     header = (f"{'scene':<11} {'model':<9} {'stations':>8} {'promised':>10} {'delivered':>10} "
               f"{'false m2':>9} {'false %':>8} {'misses':>8} {'holes':>7} {'plan s':>7} "
@@ -42,11 +45,12 @@ def main() -> int:
         candidates = read_candidates_csv(scene_dir / "candidates.csv")
         for model in args.models:
             spec = PlanSpec(candidates=tuple(map(tuple, candidates.tolist())),
-                            max_edge_m=None, coverage_model=model)
+                            max_edge_m=None, coverage_model=model,
+                            min_sampled_fraction=args.min_sampled_fraction)
             t0 = time.perf_counter()
             result = plan(scene, spec, threads=args.threads)
             t1 = time.perf_counter()
-            stations = result.candidates.positions[result.chosen.stations]
+            stations = result.candidates.positions[np.asarray(result.chosen.stations, int)]
             checked = verify(scene, spec, stations, result.faces["covered"].astype(bool),
                              threads=args.threads)
             t2 = time.perf_counter()
