@@ -1,4 +1,5 @@
-"""Command line: ``scanplan plan SCENE --out DIR`` and the subcommands other packages add.
+"""Command line: ``scanplan plan SCENE --out DIR``, ``scanplan verify PLAN_DIR --scene SCENE``
+and the subcommands other packages add.
 
 Errors print one line naming the parameter and the fix, and exit with status 2. On a
 terminal a progress line shows the stage and percent; piped, the command stays quiet.
@@ -109,6 +110,33 @@ def run_scanners(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_verify(args: argparse.Namespace) -> int:
+    from planner.readers import read_scene
+    from planner.verification import read_plan_dir, verify_plan_dir
+
+    files = read_plan_dir(args.plan_dir)
+    progress = ProgressLine(sys.stderr)
+    started = time.perf_counter()
+    progress("reading", 0.0)
+    scene = read_scene(args.scene, max_edge_m=files.spec.max_edge_m,
+                       unit_scale=files.spec.unit_scale, up_axis=files.spec.up_axis)
+    try:
+        result, written = verify_plan_dir(args.plan_dir, scene, files, progress=progress)
+    finally:
+        progress.done()
+    if not args.quiet:
+        totals = result.totals()
+        print(
+            f"{len(files.stations_xyz)} stations: promised {totals['promised_area_m2']:.2f} m², "
+            f"delivered {totals['delivered_area_m2']:.2f} m², promised but not delivered "
+            f"{totals['promised_not_delivered_area_m2']:.2f} m², delivered but not promised "
+            f"{totals['delivered_not_promised_area_m2']:.2f} m², holes "
+            f"{totals['hole_area_m2']:.2f} m² in {time.perf_counter() - started:.1f} s; "
+            f"wrote {', '.join(p.name for p in written)} to {args.plan_dir}"
+        )
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="scanplan", description="Plan terrestrial laser scanner stations on a 3D model."
@@ -124,6 +152,13 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("scanners", help="list the scanner presets (the scanner parameter)")
     s.add_argument("--json", action="store_true", help="print the presets with their sources")
     s.set_defaults(handler=run_scanners)
+    v = sub.add_parser("verify", help="check a plan by a simulated scan of its stations")
+    v.add_argument("plan_dir", help="the --out directory of 'scanplan plan'")
+    v.add_argument("--scene", required=True,
+                   help="the model the plan was made from (read with the plan's max_edge_m "
+                        "and unit_scale)")
+    v.add_argument("--quiet", action="store_true", help="print nothing on success")
+    v.set_defaults(handler=run_verify)
     for entry in entry_points(group="scanplan.commands"):
         entry.load()(sub)
     return parser

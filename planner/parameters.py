@@ -28,6 +28,8 @@ FloorLevels = Literal["lowest", "all"]
 FLOOR_LEVELS: tuple[FloorLevels, ...] = ("lowest", "all")
 UpAxis = Literal["+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto"]
 UP_AXES: tuple[UpAxis, ...] = ("+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto")
+CoverageModel = Literal["centroid", "sampled"]
+COVERAGE_MODELS: tuple[CoverageModel, ...] = ("centroid", "sampled")
 
 
 @dataclass(frozen=True)
@@ -60,6 +62,10 @@ class PlanSpec:
     min_density_pts_m2: float = 45_000.0
     coverage_goal: float = 0.8
     group_requirements: Mapping[str, GroupRequirement] = field(default_factory=dict)
+    # coverage model (planner.sampled): "centroid" is the paper's one ray per face
+    coverage_model: CoverageModel = "centroid"
+    samples_per_face: int = 16
+    min_sampled_fraction: float = 1.0
     # selection
     method: Method = "greedy"
     optimal_time_limit_s: float = 60.0
@@ -210,6 +216,8 @@ RANGES: dict[str, Range] = {
     "overlap_density_pts_m2": Range(gt=0),
     "setup_time_s": Range(ge=0, hint="or null for the preset's"),
     "walking_speed_m_s": Range(gt=0, hint="0.8 is a slow walk with a tripod"),
+    "samples_per_face": Range(ge=1, le=256, hint="a square number; use 16"),
+    "min_sampled_fraction": Range(gt=0, le=1, hint="1 means the whole face"),
 }
 # the same for the per-group overrides (GroupRequirement)
 GROUP_RANGES: dict[str, Range] = {
@@ -257,6 +265,14 @@ def _convert(name: str, value: Any) -> Any:
         if value is not None and value not in UP_AXES:
             raise ParameterError(name, f"{value!r} is not one of {', '.join(UP_AXES)}, "
                                  "or null for the format's own")
+        return value
+    if name == "coverage_model":
+        if value not in COVERAGE_MODELS:
+            raise ParameterError(name, f"{value!r} is not one of {', '.join(COVERAGE_MODELS)}")
+        return value
+    if name == "samples_per_face":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ParameterError(name, f"expected a whole number (1, 4, 9, 16, ...), got {value!r}")
         return value
     if name in ("candidates", "fixed_stations"):
         return None if value is None else _points(name, value, 3)
@@ -357,6 +373,15 @@ def _validate(spec: PlanSpec) -> None:
            f"{spec.floor_levels!r} is not one of {', '.join(FLOOR_LEVELS)}")
     _check(spec.up_axis is None or spec.up_axis in UP_AXES, "up_axis",
            f"{spec.up_axis!r} is not one of {', '.join(UP_AXES)}, or null for the format's own")
+    _check(spec.coverage_model in COVERAGE_MODELS, "coverage_model",
+           f"{spec.coverage_model!r} is not one of {COVERAGE_MODELS}")
+    _check(
+        1 <= spec.samples_per_face <= 256
+        and math.isqrt(spec.samples_per_face) ** 2 == spec.samples_per_face,
+        "samples_per_face",
+        f"{spec.samples_per_face} is not a square number from 1 to 256 (the samples form an "
+        "n x n barycentric grid); use 16",
+    )
     if spec.candidates is not None:
         _check(len(spec.candidates) > 0, "candidates",
                "is an empty list; give at least one [x, y, z] or null to generate a grid")

@@ -122,8 +122,17 @@ def plan(
     stats.seconds["candidates"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
-    qualified = qualify_pairs(scene, candidates.positions, limits, occlusion, stats,
-                              progress=progress, threads=threads)
+    if spec.coverage_model == "sampled":
+        from planner.sampled import qualify_sampled_pairs
+
+        qualified, tested, rays = qualify_sampled_pairs(
+            scene, candidates.positions, limits, occlusion, spec.samples_per_face,
+            spec.min_sampled_fraction, progress=progress, threads=threads)
+        stats.pairs_tested += tested
+        stats.rays_cast += rays
+    else:
+        qualified = qualify_pairs(scene, candidates.positions, limits, occlusion, stats,
+                                  progress=progress, threads=threads)
     table = CoverageTable.from_pairs(qualified, len(candidates), scene.areas)
     stats.qualified_pairs = table.n_pairs
     stats.seconds["visibility"] = time.perf_counter() - t1

@@ -85,6 +85,13 @@ class PlanParameters(BaseModel):
         "when method is optimal")
     fixed_stations: list[Point3] | None = _d(
         "fixed_stations", "stations already scanned [x, y, z]: in every plan, first")
+    coverage_model: Literal["centroid", "sampled"] = _d(
+        "coverage_model", "centroid: one ray per face (the paper); sampled: samples_per_face "
+        "points per face, density LPD / cos(elevation)")
+    samples_per_face: Annotated[int, Strict()] = _d(
+        "samples_per_face", "sampled model: points per face, a square number (n x n grid)")
+    min_sampled_fraction: Number = _d(
+        "min_sampled_fraction", "sampled model: share of a face's area its samples must cover")
     max_edge_m: Number | None = _d("max_edge_m",
                                    "split faces to this edge length, metres; null: as given")
     unit_scale: Number = _d("unit_scale", "model units to metres (0.001 for millimetres)")
