@@ -50,12 +50,15 @@ def test_schema_ranges_are_the_validators() -> None:
     assert set(RANGES) <= set(properties)
     for name, bounds in RANGES.items():
         schema = properties[name]
-        number = next(s for s in schema.get("anyOf", [schema]) if s.get("type") == "number")
+        number = next(s for s in schema.get("anyOf", [schema])
+                      if s.get("type") in ("number", "integer"))
+        step = 1 if number["type"] == "integer" else 1e-6
         for attribute, keyword in keywords.items():
             assert number.get(keyword) == getattr(bounds, attribute), (name, keyword)
         # the values at and just past each bound: accepted or refused by both alike
         edges = [v for v in (bounds.ge, bounds.gt, bounds.le, bounds.lt) if v is not None]
-        for value in [e + d for e in edges for d in (-1e-6, 0.0, 1e-6)]:
+        for value in [e + d for e in edges for d in (-step, 0, step)]:
+            value = int(value) if step == 1 else value
             schema_ok = True
             try:
                 PlanParameters.model_validate({name: value})
