@@ -171,6 +171,19 @@ def build_interior(n_rooms: int, seed: int = 8) -> _Builder:
     return b
 
 
+def room_stations(n_rooms: int, height_m: float = 1.6) -> list[tuple[float, float, float]]:
+    """Three explicit candidates per room, on its long axis, clear of the furniture."""
+    cols = max(1, math.ceil(math.sqrt(n_rooms * ROOM_Y_M / ROOM_X_M)))
+    inner_x, inner_y = ROOM_X_M - WALL_M, ROOM_Y_M - WALL_M
+    points = []
+    for k in range(n_rooms):
+        x0 = (k % cols) * ROOM_X_M + WALL_M
+        y0 = (k // cols) * ROOM_Y_M + WALL_M
+        for fx in (0.3, 0.55, 0.8):
+            points.append((round(x0 + fx * inner_x, 3), round(y0 + 0.5 * inner_y, 3), height_m))
+    return points
+
+
 def rooms_for(target_faces: float) -> int:
     return max(1, round(target_faces / FACES_PER_ROOM))
 
@@ -187,7 +200,8 @@ from planner.report import write_outputs
 t0 = time.perf_counter()
 scene = read_scene(sys.argv[1])
 t1 = time.perf_counter()
-result = plan(scene, PlanSpec())
+spec = PlanSpec.from_mapping(json.loads(sys.argv[3]) if len(sys.argv) > 3 else {})
+result = plan(scene, spec)
 t2 = time.perf_counter()
 with tempfile.TemporaryDirectory() as out:
     write_outputs(result, out, names=("plan.json", "faces.npz", "stations.csv"))
@@ -199,10 +213,13 @@ print(json.dumps({"faces": scene.n_faces, "candidates": len(result.candidates),
 """
 
 
-def run_child(model: Path, limit_bytes: int) -> dict[str, object]:
-    """Plan ``model`` in a fresh interpreter; its JSON line of figures."""
+def run_child(model: Path, limit_bytes: int, spec: dict[str, object] | None = None
+              ) -> dict[str, object]:
+    """Plan ``model`` in a fresh interpreter (``spec``: plan parameters, default when None);
+    its JSON line of figures."""
     root = Path(__file__).resolve().parents[1]
-    done = subprocess.run([sys.executable, "-c", _CHILD, str(model), str(limit_bytes)],
+    extra = [] if spec is None else [json.dumps(spec)]
+    done = subprocess.run([sys.executable, "-c", _CHILD, str(model), str(limit_bytes), *extra],
                           capture_output=True, text=True, cwd=root, check=False)
     if done.returncode != 0:
         return {"error": done.stderr.strip().splitlines()[-1] if done.stderr else "failed"}
@@ -222,6 +239,11 @@ def main() -> int:
     parser.add_argument("--limit-gb", type=float, default=8.0,
                         help="RLIMIT_AS of each child (virtual memory, not RSS)")
     parser.add_argument("--repeat", type=int, default=1)
+    parser.add_argument("--candidates", choices=("grid", "rooms"), default="grid",
+                        help="grid: generated (default parameters); rooms: three explicit "
+                        "candidates per room, which leaves the candidate stage out")
+    parser.add_argument("--occluders", choices=("remeshed", "file"), default="remeshed",
+                        help="the plan parameter occluders (default: remeshed)")
     parser.add_argument("--keep", default=None, help="write the models here and keep them")
     args = parser.parse_args()
     sizes = [float(s) for s in args.sizes.split(",")]
@@ -231,13 +253,15 @@ def main() -> int:
         rows: list[dict[str, object]] = []
         for size in sizes:
             model = folder / f"interior_{size:g}M.obj"
-            if not model.exists():
-                n_file = build_interior(rooms_for(size * 1e6)).write_obj(model)
-            else:
-                n_file = -1
+            n_rooms = rooms_for(size * 1e6)
+            # -1: the model was kept from an earlier run (--keep)
+            n_file = -1 if model.exists() else build_interior(n_rooms).write_obj(model)
+            spec: dict[str, object] = {"occluders": args.occluders}
+            if args.candidates == "rooms":
+                spec["candidates"] = room_stations(n_rooms)
             best: dict[str, object] | None = None
             for _ in range(args.repeat):
-                figures = run_child(model, int(args.limit_gb * 2**30))
+                figures = run_child(model, int(args.limit_gb * 2**30), spec)
                 if "error" in figures:
                     best = figures
                     break

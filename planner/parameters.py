@@ -16,6 +16,8 @@ from planner.errors import ParameterError
 
 Method = Literal["greedy", "weighted_greedy", "optimal"]
 METHODS: tuple[Method, ...] = ("greedy", "weighted_greedy", "optimal")
+Occluders = Literal["remeshed", "file"]
+OCCLUDERS: tuple[Occluders, ...] = ("remeshed", "file")
 
 
 @dataclass(frozen=True)
@@ -54,6 +56,9 @@ class PlanSpec:
     # scene preparation
     max_edge_m: float | None = 0.2
     unit_scale: float = 1.0
+    # visibility: rays tested against the remeshed pieces, or the file's own faces (a ray
+    # cache the size of the file; coincident faces may then break ties differently)
+    occluders: Occluders = "remeshed"
     # candidates
     candidates: tuple[tuple[float, float, float], ...] | None = None
     grid_spacing_m: float = 0.5
@@ -139,6 +144,10 @@ def _convert(name: str, value: Any) -> Any:
     if name == "method":
         if value not in METHODS:
             raise ParameterError(name, f"{value!r} is not one of {', '.join(METHODS)}")
+        return value
+    if name == "occluders":
+        if value not in OCCLUDERS:
+            raise ParameterError(name, f"{value!r} is not one of {', '.join(OCCLUDERS)}")
         return value
     if name == "candidates":
         return None if value is None else _points(name, value, 3)
@@ -238,6 +247,8 @@ def _validate(spec: PlanSpec) -> None:
         f"{spec.coverage_goal} is outside (0, 1]; 0.8 means 80 % of the achievable area",
     )
     _check(spec.method in METHODS, "method", f"{spec.method!r} is not one of {METHODS}")
+    _check(spec.occluders in OCCLUDERS, "occluders",
+           f"{spec.occluders!r} is not one of {OCCLUDERS}")
     _check(spec.scanner_height_m > 0, "scanner_height_m",
            f"{spec.scanner_height_m} must be greater than 0")
     _check(spec.clearance_m >= 0, "clearance_m", f"{spec.clearance_m} is negative")

@@ -89,16 +89,17 @@ def plan(
     stats = Stats()
     t0 = time.perf_counter()
     limits = FaceLimits.from_spec(spec, scene)
-    occlusion = make_occlusion(scene, limits.occludes, backend)
+    occlusion = make_occlusion(scene, limits.occludes, backend,
+                               file_faces=spec.occluders == "file")
     _notify(progress, "candidates", 0.0)
     if spec.candidates is not None:
         candidates = explicit_candidates(spec.candidates)
     elif scene.metadata.get("spaces"):
         from planner import ifc
 
-        candidates = ifc.room_candidates(scene, spec, _caster(scene, limits, occlusion))
+        candidates = ifc.room_candidates(scene, spec, _caster(scene, spec, limits, occlusion))
     else:
-        candidates = generate_grid(scene, spec, _caster(scene, limits, occlusion))
+        candidates = generate_grid(scene, spec, _caster(scene, spec, limits, occlusion))
     stats.seconds["candidates"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -137,11 +138,12 @@ def plan(
                       faces=faces, stats=stats)
 
 
-def _caster(scene: Scene, limits: FaceLimits, occlusion: Occlusion) -> RayCaster:
+def _caster(scene: Scene, spec: PlanSpec, limits: FaceLimits, occlusion: Occlusion
+            ) -> RayCaster:
     """The Embree occlusion object casts the floor rays too; the brute force needs one."""
     if isinstance(occlusion, RayCaster):
         return occlusion
-    return make_ray_caster(scene, limits.occludes)
+    return make_ray_caster(scene, limits.occludes, file_faces=spec.occluders == "file")
 
 
 def qualify_pairs(

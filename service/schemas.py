@@ -73,6 +73,8 @@ class PlanParameters(BaseModel):
     max_edge_m: Number | None = _d("max_edge_m",
                                    "split faces to this edge length, metres; null: as given")
     unit_scale: Number = _d("unit_scale", "model units to metres (0.001 for millimetres)")
+    occluders: Literal["remeshed", "file"] = _d(
+        "occluders", "faces rays are tested against: the remeshed pieces or the file's own")
     candidates: list[Point3] | None = _d(
         "candidates", "scanner positions [x, y, z] in model coordinates; null: a grid")
     grid_spacing_m: Number = _d("grid_spacing_m", "spacing of generated candidates, metres")
