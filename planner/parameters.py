@@ -30,6 +30,8 @@ UpAxis = Literal["+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto"]
 UP_AXES: tuple[UpAxis, ...] = ("+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto")
 CoverageModel = Literal["centroid", "sampled"]
 COVERAGE_MODELS: tuple[CoverageModel, ...] = ("centroid", "sampled")
+Occluders = Literal["remeshed", "file"]
+OCCLUDERS: tuple[Occluders, ...] = ("remeshed", "file")
 
 
 @dataclass(frozen=True)
@@ -75,6 +77,9 @@ class PlanSpec:
     max_edge_m: float | None = 0.2
     unit_scale: float = 1.0
     up_axis: UpAxis | None = None  # None: the format's own (+Y glTF/GLB, +Z otherwise)
+    # visibility: rays tested against the remeshed pieces, or the file's own faces (a ray
+    # cache the size of the file; coincident faces may then break ties differently)
+    occluders: Occluders = "remeshed"
     # candidates
     candidates: tuple[tuple[float, float, float], ...] | None = None
     grid_spacing_m: float = 0.5
@@ -274,6 +279,10 @@ def _convert(name: str, value: Any) -> Any:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ParameterError(name, f"expected a whole number (1, 4, 9, 16, ...), got {value!r}")
         return value
+    if name == "occluders":
+        if value not in OCCLUDERS:
+            raise ParameterError(name, f"{value!r} is not one of {', '.join(OCCLUDERS)}")
+        return value
     if name in ("candidates", "fixed_stations"):
         return None if value is None else _points(name, value, 3)
     if name == "curve_goals":
@@ -382,6 +391,8 @@ def _validate(spec: PlanSpec) -> None:
         f"{spec.samples_per_face} is not a square number from 1 to 256 (the samples form an "
         "n x n barycentric grid); use 16",
     )
+    _check(spec.occluders in OCCLUDERS, "occluders",
+           f"{spec.occluders!r} is not one of {OCCLUDERS}")
     if spec.candidates is not None:
         _check(len(spec.candidates) > 0, "candidates",
                "is an empty list; give at least one [x, y, z] or null to generate a grid")

@@ -97,7 +97,8 @@ def plan(
     stats = Stats()
     t0 = time.perf_counter()
     limits = FaceLimits.from_spec(spec, scene)
-    occlusion = make_occlusion(scene, limits.occludes, backend)
+    occlusion = make_occlusion(scene, limits.occludes, backend,
+                               file_faces=spec.occluders == "file")
     _notify(progress, "candidates", 0.0)
     if spec.candidates is not None:
         # given in model coordinates; the planner works Z-up (up_axis, planner.orientation)
@@ -106,9 +107,9 @@ def plan(
     elif scene.metadata.get("spaces"):
         from planner import ifc
 
-        candidates = ifc.room_candidates(scene, spec, _caster(scene, limits, occlusion))
+        candidates = ifc.room_candidates(scene, spec, _caster(scene, spec, limits, occlusion))
     else:
-        candidates = generate_grid(scene, spec, _caster(scene, limits, occlusion))
+        candidates = generate_grid(scene, spec, _caster(scene, spec, limits, occlusion))
     fixed: tuple[int, ...] = ()
     if spec.fixed_stations:  # re-scan: stations already scanned are candidates too
         fixed_xyz = to_plan(scene_rotation(scene.metadata), np.asarray(spec.fixed_stations))
@@ -168,7 +169,7 @@ def plan(
         stats.seconds[f"selection_{step}"] = seconds
     station_overlap = None if overlap is None else overlap[list(chosen.stations)]
     plan_survey = survey(scene, spec, candidates.positions[list(chosen.stations)], limits,
-                         occlusion, _caster(scene, limits, occlusion), stats.seconds,
+                         occlusion, _caster(scene, spec, limits, occlusion), stats.seconds,
                          station_overlap=station_overlap, threads=threads)
     _notify(progress, "report", 0.0)
     faces = coverage_state(table, chosen.stations)
@@ -178,11 +179,12 @@ def plan(
                       selection_report=outcome.report, survey=plan_survey)
 
 
-def _caster(scene: Scene, limits: FaceLimits, occlusion: Occlusion) -> RayCaster:
+def _caster(scene: Scene, spec: PlanSpec, limits: FaceLimits, occlusion: Occlusion
+            ) -> RayCaster:
     """The Embree occlusion object casts the floor rays too; the brute force needs one."""
     if isinstance(occlusion, RayCaster):
         return occlusion
-    return make_ray_caster(scene, limits.occludes)
+    return make_ray_caster(scene, limits.occludes, file_faces=spec.occluders == "file")
 
 
 def qualify_pairs(

@@ -204,6 +204,8 @@ def _scaled(scene: Scene, unit_scale: float) -> Scene:
         face_element=scene.face_element,
         elements=scene.elements,
         metadata=scene.metadata,
+        file_vertices=None if scene.file_vertices is None else scene.file_vertices * unit_scale,
+        file_faces=scene.file_faces,
     )
 
 

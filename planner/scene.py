@@ -18,6 +18,12 @@ from planner.errors import SceneError
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
+# Per-face arrays are derived, and faces remeshed, a block at a time: the temporaries are
+# (B, 3, 3) floats, not (F, 3, 3), so a 10 M-face model needs no 720 MB scratch arrays.
+_DERIVE_BLOCK_FACES = 1 << 20
+# remesh: at most about this many pieces per call of trimesh (its scratch is ~1 kB per piece)
+_REMESH_BLOCK_PIECES = 1 << 20
+
 
 def _frozen(array: NDArray[Any]) -> NDArray[Any]:
     array = np.ascontiguousarray(array)
@@ -49,6 +55,10 @@ class Scene:
     face_element : (F,) int64, index into ``elements``, -1 when the file has no elements
     elements : BIM elements of an IFC model, empty otherwise
     metadata : plain data the reader wants to pass on (format, IFC spaces, storeys, ...)
+    file_vertices : (V0, 3) float64, the model as read before remeshing (None: ``vertices``)
+    file_faces : (F0, 3) int64, the faces ``source_face`` indexes (None: ``faces``, and
+        ``source_face`` is then the identity); occlusion rays are cast against these, so
+        the ray caster stays the size of the file however finely the targets are split
     """
 
     vertices: FloatArray
@@ -59,14 +69,20 @@ class Scene:
     face_element: IntArray
     elements: tuple[Element, ...] = ()
     metadata: dict[str, Any] = field(default_factory=dict)
+    file_vertices: FloatArray | None = None
+    file_faces: IntArray | None = None
     # derived, filled in __post_init__
     centroids: FloatArray = field(init=False, repr=False)
     normals: FloatArray = field(init=False, repr=False)
     areas: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        for name in ("vertices", "faces", "face_group", "source_face", "face_element"):
-            object.__setattr__(self, name, _frozen(getattr(self, name)))
+        for name in ("vertices", "faces", "face_group", "source_face", "face_element",
+                     "file_vertices", "file_faces"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, _frozen(getattr(self, name)))
+        if (self.file_vertices is None) != (self.file_faces is None):
+            raise ValueError("file_vertices and file_faces come together or not at all")
         if self.faces.ndim != 2 or self.faces.shape[1] != 3 or len(self.faces) == 0:
             raise SceneError("the model has no triangles; export it with its faces")
         if not np.isfinite(self.vertices).all():
@@ -77,14 +93,20 @@ class Scene:
             )
         if self.faces.min() < 0 or self.faces.max() >= len(self.vertices):
             raise SceneError("a face refers to a vertex that does not exist; the file is broken")
-        triangles = self.vertices[self.faces]
-        cross = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
-        doubled = np.linalg.norm(cross, axis=1)
-        normals = np.divide(cross, doubled[:, None], out=np.zeros_like(cross),
-                            where=doubled[:, None] > 0)
-        object.__setattr__(self, "centroids", _frozen(triangles.mean(axis=1)))
+        n = len(self.faces)
+        centroids, normals, areas = np.empty((n, 3)), np.zeros((n, 3)), np.empty(n)
+        for start in range(0, n, _DERIVE_BLOCK_FACES):
+            block = slice(start, start + _DERIVE_BLOCK_FACES)
+            triangles = self.vertices[self.faces[block]]  # (B, 3, 3)
+            cross = np.cross(triangles[:, 1] - triangles[:, 0],
+                             triangles[:, 2] - triangles[:, 0])
+            doubled = np.linalg.norm(cross, axis=1)
+            np.divide(cross, doubled[:, None], out=normals[block], where=doubled[:, None] > 0)
+            centroids[block] = triangles.mean(axis=1)
+            areas[block] = doubled / 2.0
+        object.__setattr__(self, "centroids", _frozen(centroids))
         object.__setattr__(self, "normals", _frozen(normals))
-        object.__setattr__(self, "areas", _frozen(doubled / 2.0))
+        object.__setattr__(self, "areas", _frozen(areas))
 
     @property
     def n_faces(self) -> int:
@@ -94,6 +116,17 @@ class Scene:
     def triangles(self) -> FloatArray:
         """(F, 3, 3) float64: the corners of every face."""
         return self.vertices[self.faces]
+
+    @property
+    def file_mesh(self) -> tuple[FloatArray, IntArray]:
+        """(V0, 3) vertices and (F0, 3) faces of the model before remeshing.
+
+        ``source_face`` indexes these faces; a scene that was never remeshed is its own file
+        mesh.
+        """
+        if self.file_vertices is None or self.file_faces is None:
+            return self.vertices, self.faces
+        return self.file_vertices, self.file_faces
 
     @property
     def bounds(self) -> FloatArray:
@@ -146,28 +179,67 @@ def remesh(scene: Scene, max_edge_m: float) -> Scene:
     """Split faces until no edge is longer than ``max_edge_m``.
 
     Faces already small enough keep their place; the pieces of a split face follow
-    trimesh's order. ``source_face`` maps every new face back to the face of the file, and
-    groups and elements travel along.
+    trimesh's order (:func:`trimesh.remesh.subdivide_to_size`, which halves every long edge
+    at one midpoint). ``source_face`` maps every new face back to the face of the file, and
+    groups and elements travel along; the file's own mesh is kept as ``file_vertices`` /
+    ``file_faces`` for the occlusion rays.
+
+    The faces are split in blocks of the file's faces, each block with its own copy of the
+    vertices it uses, so trimesh's scratch arrays stay bounded (about
+    ``_REMESH_BLOCK_PIECES`` pieces per call) whatever the model's size. How a face is
+    split depends only on its own edges (an edge's midpoint is the mean of its two
+    corners), so the pieces, their corners and their order are the same as splitting the
+    whole mesh at once; only vertices on a block boundary are stored twice.
     """
-    edges = scene.triangles - np.roll(scene.triangles, 1, axis=1)
-    longest = float(np.linalg.norm(edges, axis=2).max())
+    vertices, faces = scene.vertices, scene.faces
+    edge_m = np.empty(len(faces))  # (F,) longest edge of every face
+    for first in range(0, len(faces), _DERIVE_BLOCK_FACES):
+        block = faces[first:first + _DERIVE_BLOCK_FACES]
+        edges = vertices[np.roll(block, 1, axis=1)] - vertices[block]  # (B, 3, 3)
+        edge_m[first:first + len(block)] = np.linalg.norm(edges, axis=2).max(axis=1)
+    longest = float(edge_m.max())
     if longest <= max_edge_m:
         return scene
     iterations = math.ceil(math.log2(longest / max_edge_m)) + 2
-    vertices, faces, index = trimesh.remesh.subdivide_to_size(  # type: ignore[no-untyped-call]
-        scene.vertices, scene.faces, max_edge=max_edge_m, max_iter=iterations,
-        return_index=True,
-    )
-    index = np.asarray(index, dtype=np.int64)
-    # subdivide_to_size groups the unsplit faces first; restore file order (stable).
-    order = np.argsort(index, kind="stable")
+    # at most 4 pieces per halving of the longest edge: an upper bound to size the blocks
+    halvings = np.ceil(np.log2(np.maximum(edge_m / max_edge_m, 1.0)))
+    bound = np.cumsum(np.minimum(4.0 ** halvings, _REMESH_BLOCK_PIECES))
+    cuts = np.searchsorted(bound, np.arange(_REMESH_BLOCK_PIECES, bound[-1],
+                                            _REMESH_BLOCK_PIECES), side="right")
+    starts = np.unique(np.concatenate([[0], cuts]))
+    stops = np.append(starts[1:], len(faces))
+    out_vertices: list[FloatArray] = []
+    out_faces: list[IntArray] = []
+    out_source: list[IntArray] = []
+    n_vertices = 0
+    for start, stop in zip(starts.tolist(), stops.tolist(), strict=True):
+        used, local = np.unique(faces[start:stop], return_inverse=True)
+        block_vertices, block_faces, index = trimesh.remesh.subdivide_to_size(  # type: ignore[no-untyped-call]
+            vertices[used], local.reshape(-1, 3), max_edge=max_edge_m,
+            max_iter=iterations, return_index=True,
+        )
+        # subdivide_to_size groups the unsplit faces first; restore file order (stable)
+        order = np.argsort(index, kind="stable")
+        out_vertices.append(np.asarray(block_vertices, np.float64))
+        out_faces.append(np.asarray(block_faces, np.int64)[order] + n_vertices)
+        out_source.append(np.asarray(index, np.int64)[order] + start)
+        n_vertices += len(block_vertices)
+    new_vertices = np.concatenate(out_vertices)
+    del out_vertices
+    new_faces = np.concatenate(out_faces)
+    del out_faces
+    index = np.concatenate(out_source)
+    del out_source
+    file_vertices, file_faces = scene.file_mesh
     return Scene(
-        vertices=np.asarray(vertices, np.float64),
-        faces=np.asarray(faces, np.int64)[order],
-        face_group=scene.face_group[index[order]],
+        vertices=new_vertices,
+        faces=new_faces,
+        face_group=scene.face_group[index],
         groups=scene.groups,
-        source_face=scene.source_face[index[order]],
-        face_element=scene.face_element[index[order]],
+        source_face=scene.source_face[index],
+        face_element=scene.face_element[index],
         elements=scene.elements,
         metadata=scene.metadata,
+        file_vertices=file_vertices,
+        file_faces=file_faces,
     )

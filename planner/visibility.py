@@ -47,19 +47,29 @@ class RayCaster(Protocol):
         ...
 
 
-def make_ray_caster(scene: Scene, occludes: NDArray[np.bool_]) -> RayCaster:
-    """An Embree first-hit caster over the faces where ``occludes`` (F,) is true."""
+def make_ray_caster(scene: Scene, occludes: NDArray[np.bool_], *,
+                    file_faces: bool = False) -> RayCaster:
+    """An Embree first-hit caster over the faces where ``occludes`` (F,) is true.
+
+    ``file_faces``: cast against the model's faces before remeshing (``scene.file_mesh``).
+    """
     from planner._embree import EmbreeOcclusion
 
-    return EmbreeOcclusion(scene, occludes)
+    return EmbreeOcclusion(scene, occludes, file_faces=file_faces)
 
 
-def make_occlusion(scene: Scene, occludes: NDArray[np.bool_], backend: Backend) -> Occlusion:
-    """The occlusion test over the faces where ``occludes`` (F,) is true."""
+def make_occlusion(scene: Scene, occludes: NDArray[np.bool_], backend: Backend, *,
+                   file_faces: bool = False) -> Occlusion:
+    """The occlusion test over the faces where ``occludes`` (F,) is true.
+
+    ``file_faces`` (Embree only): the rays are tested against the model's faces before
+    remeshing, and a hit on the target's ``source_face`` counts as reaching the target.
+    The brute-force reference always tests the scene's own (remeshed) faces.
+    """
     if backend == "embree":
         from planner._embree import EmbreeOcclusion
 
-        return EmbreeOcclusion(scene, occludes)
+        return EmbreeOcclusion(scene, occludes, file_faces=file_faces)
     if backend == "bruteforce":
         from planner._bruteforce import BruteForceOcclusion
 

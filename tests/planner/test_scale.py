@@ -1,0 +1,175 @@
+"""Building scale: blockwise remesh, rays against the file's own faces, bounded memory."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from planner import scene as scene_module
+from planner.candidates import read_candidates_csv
+from planner.pairs import FaceLimits, PairFinder
+from planner.parameters import PlanSpec
+from planner.pipeline import plan
+from planner.readers import read_scene
+from planner.scene import build_scene, remesh
+from planner.visibility import make_occlusion
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _room_with_pillar() -> trimesh.Trimesh:
+    """A closed 8 x 6 x 3 m room (big faces) and a 0.4 x 0.4 x 2 m cabinet: occlusion.
+
+    The cabinet stands 0.2 m off the floor so that no face coincides with another (two
+    coincident faces tie, and Embree's order among ties depends on the BVH).
+    """
+    room = trimesh.creation.box(extents=(8.0, 6.0, 3.0))
+    room.invert()  # normals inward, as the walls of a room
+    pillar = trimesh.creation.box(extents=(0.4, 0.4, 2.0))
+    pillar.apply_translation((1.0, 0.5, -0.3))
+    mesh = trimesh.util.concatenate([room, pillar])
+    mesh.apply_translation((0.0, 0.0, 1.5))
+    return mesh
+
+
+def test_blockwise_remesh_gives_the_pieces_of_one_call(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    mesh = _room_with_pillar()
+    raw = build_scene(mesh.vertices, mesh.faces)
+    whole = remesh(raw, 0.25)
+    monkeypatch.setattr(scene_module, "_REMESH_BLOCK_PIECES", 64)  # many tiny blocks
+    monkeypatch.setattr(scene_module, "_DERIVE_BLOCK_FACES", 1000)
+    blocks = remesh(raw, 0.25)
+    assert blocks.n_faces == whole.n_faces > 20 * raw.n_faces
+    for name in ("centroids", "normals", "areas", "source_face", "face_group"):
+        assert np.array_equal(getattr(blocks, name), getattr(whole, name)), name
+    assert np.array_equal(blocks.triangles, whole.triangles)
+    # the file's mesh stays beside the pieces, for the rays
+    assert blocks.file_mesh[1].shape == (raw.n_faces, 3)
+    assert np.array_equal(blocks.file_mesh[0], raw.vertices)
+
+
+def test_rays_against_file_faces_find_the_same_pairs_as_against_pieces() -> None:
+    mesh = _room_with_pillar()
+    scene = remesh(build_scene(mesh.vertices, mesh.faces), 0.2)
+    # off the mesh's lattice: a ray through a cabinet's corner edge exactly may slip between
+    # two pieces but not through the watertight file faces (seen with a candidate at 0, 0)
+    spec = PlanSpec(candidates=((-2.47, -1.53, 1.5), (2.51, 2.03, 1.6), (0.03, -0.07, 1.5)))
+    limits = FaceLimits.from_spec(spec, scene)
+    pairs, _ = PairFinder(scene, limits).find(np.array(spec.candidates), 0)
+    rays = (pairs.origin, pairs.direction, pairs.distance_m, pairs.face)
+    pieces = make_occlusion(scene, limits.occludes, "embree").visible(*rays)
+    files = make_occlusion(scene, limits.occludes, "embree", file_faces=True).visible(*rays)
+    assert 0 < pieces.sum() < len(pieces)  # the cabinet hides some pieces
+    assert np.array_equal(files, pieces)
+
+
+def test_first_hit_on_file_faces_names_a_piece_of_the_face_hit() -> None:
+    mesh = _room_with_pillar()
+    scene = remesh(build_scene(mesh.vertices, mesh.faces), 0.2)
+    caster = make_occlusion(scene, np.ones(scene.n_faces, bool), "embree", file_faces=True)
+    origins = np.array([[0.0, 0.0, 1.5], [1.0, 0.5, 2.9]])
+    face, distance = caster.first_hit(origins, np.array([[0.0, 0.0, -1.0]] * 2))  # type: ignore[attr-defined]
+    assert distance.tolist() == pytest.approx([1.5, 0.7])  # the floor, the cabinet's top
+    floor, cabinet_top = face
+    assert scene.centroids[floor, 2] == pytest.approx(0.0)
+    assert scene.centroids[cabinet_top, 2] == pytest.approx(2.2)
+
+
+def test_file_faces_keep_the_hall_results(scenes_dir: Path) -> None:
+    """hall-small remeshed at 0.1 m: the same stations either way, the same areas to 1e-4.
+
+    Of 1.09 M qualified pairs, a few dozen differ: rays that pass exactly through an edge
+    or vertex of the lattice-aligned hall (a watertight file face catches a ray that can
+    slip between two pieces, and the other way round at a piece's own edge).
+    """
+    hall = scenes_dir / "hall-small"
+    scene = read_scene(hall / "hall.obj", max_edge_m=0.1)
+    assert scene.file_faces is not None and scene.n_faces > len(scene.file_faces)
+    positions = read_candidates_csv(hall / "candidates.csv")[::4]
+    spec = PlanSpec(candidates=tuple(map(tuple, positions.tolist())), max_edge_m=0.1)
+    pieces = plan(scene, spec)
+    files = plan(scene, dataclasses.replace(spec, occluders="file"))
+    assert files.chosen.stations == pieces.chosen.stations
+    assert files.table.max_achievable_area_m2 == pytest.approx(
+        pieces.table.max_achievable_area_m2, rel=1e-4)
+    differ = (files.table.by_candidate != pieces.table.by_candidate).nnz
+    assert differ < 1e-4 * pieces.table.n_pairs
+
+
+_CHILD = r"""
+import importlib.util, json, resource, sys
+spec_path, model, budget = sys.argv[1], sys.argv[2], int(sys.argv[3])
+from planner.parameters import PlanSpec
+from planner.pipeline import plan
+from planner.readers import read_scene
+from planner.scene import build_scene
+import numpy as np
+# warm up: every library imported, the kernel compiled, Embree's and the pools' threads up
+tiny = build_scene(np.array([[3.0, -1, 0], [3, 1, 0], [3, 0, 2]]), np.array([[0, 1, 2]]))
+plan(tiny, PlanSpec(candidates=((0.0, 0.0, 1.0),), min_density_pts_m2=1.0))
+def status(key):
+    for line in open("/proc/self/status"):
+        if line.startswith(key + ":"):
+            return int(line.split()[1]) * 1024
+reserved = status("VmSize") - status("VmRSS")  # mapped, not resident: stacks, code, arenas
+resource.setrlimit(resource.RLIMIT_AS, (reserved + budget, reserved + budget))
+scene = read_scene(model)
+params = json.loads(open(spec_path).read())
+result = plan(scene, PlanSpec.from_mapping(params))
+print(json.dumps({"faces": scene.n_faces, "pairs": result.table.n_pairs,
+                  "reserved": reserved, "limit": reserved + budget,
+                  "peak_rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024}))
+"""
+
+
+def _plan_scale_module() -> object:
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("plan_scale", ROOT / "benchmarks" /
+                                                  "plan_scale.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_3m_face_interior_plans_within_2_gb(tmp_path: Path) -> None:
+    """A 3 M-face plan (after remeshing) runs under an address-space cap of 2 GiB.
+
+    RLIMIT_AS caps virtual memory, not RSS: numba/LLVM, Embree's thread pool, thread stacks
+    and malloc arenas reserve address space they never touch. So the child first warms up
+    on a one-triangle plan (all of that mapped), measures what is mapped but not resident
+    (VmSize - VmRSS), and caps its address space at that plus 2 GiB. Everything it then
+    makes resident is also mapped, so reading, remeshing and planning the 3 M-face model
+    (three explicit candidates per room of the benchmark's interior, default parameters
+    otherwise) fails with MemoryError unless its resident memory stays under 2 GiB; the
+    cap is stricter than RSS, because new reservations (a pool's threads) count too.
+    """
+    plan_scale = _plan_scale_module()
+    n_rooms = 96  # about 3 M faces after remeshing at 0.2 m
+    model = tmp_path / "interior.obj"
+    plan_scale.build_interior(n_rooms).write_obj(model)  # type: ignore[attr-defined]
+    params = tmp_path / "params.json"
+    stations = plan_scale.room_stations(n_rooms)[::3]  # type: ignore[attr-defined]
+    params.write_text(json.dumps({"candidates": stations}))
+    budget = 2 * 2**30
+    done = subprocess.run(
+        [sys.executable, "-c", _CHILD, str(params), str(model), str(budget)],
+        capture_output=True, text=True, cwd=ROOT, check=False,
+        env={**os.environ, "OMP_NUM_THREADS": "2"},
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    figures = json.loads(done.stdout.strip().splitlines()[-1])
+    assert figures["faces"] > 2_900_000
+    assert figures["pairs"] > 0
+    assert figures["peak_rss"] < budget, figures
