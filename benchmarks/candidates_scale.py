@@ -17,9 +17,9 @@ import resource
 import time
 from pathlib import Path
 
+from planner.io.readers import read_scene
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from planner.readers import read_scene
 from planner.scene import build_scene
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"

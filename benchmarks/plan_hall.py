@@ -20,12 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.candidates import read_candidates_csv
 from planner.errors import PlannerError
+from planner.io.readers import read_scene
+from planner.method.candidates import read_candidates_csv
+from planner.outputs.report import write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from planner.readers import read_scene
-from planner.report import write_outputs
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 

@@ -13,10 +13,10 @@ import tempfile
 import time
 from pathlib import Path
 
+from planner.io.readers import read_scene
+from planner.outputs.report import OUTPUTS, write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from planner.readers import read_scene
-from planner.report import OUTPUTS, write_outputs
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "shared/scenes/AC20-FZK-Haus.ifc"
 
@@ -28,7 +28,7 @@ def main() -> None:
     parser.add_argument("--grid-spacing-m", type=float, default=PlanSpec.grid_spacing_m)
     args = parser.parse_args()
 
-    from planner.ifc import read_ifc
+    from planner.io.ifc import read_ifc
 
     t0 = time.perf_counter()
     raw = read_ifc(args.model)

@@ -195,8 +195,8 @@ if limit > 0:
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from planner.readers import read_scene
-from planner.report import write_outputs
+from planner.io.readers import read_scene
+from planner.outputs.report import write_outputs
 t0 = time.perf_counter()
 scene = read_scene(sys.argv[1])
 t1 = time.perf_counter()

@@ -18,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.candidates import read_candidates_csv
+from planner.io.readers import read_scene
+from planner.method.candidates import read_candidates_csv
 from planner.parameters import COVERAGE_MODELS, PlanSpec
 from planner.pipeline import plan
-from planner.readers import read_scene
-from planner.verification import verify
+from planner.truth.verification import verify
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 

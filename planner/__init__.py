@@ -12,19 +12,19 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # for type checkers and editors; at run time __getattr__ loads them
     from planner.errors import PlannerError
+    from planner.io.readers import read_scene
+    from planner.outputs.report import write_outputs
     from planner.parameters import PlanSpec
     from planner.pipeline import PlanResult, plan
-    from planner.readers import read_scene
-    from planner.report import write_outputs
 
 # public name -> the module that defines it
 _EXPORTS = {
     "plan": "planner.pipeline",
     "PlanResult": "planner.pipeline",
-    "read_scene": "planner.readers",
+    "read_scene": "planner.io.readers",
     "PlanSpec": "planner.parameters",
     "PlannerError": "planner.errors",
-    "write_outputs": "planner.report",
+    "write_outputs": "planner.outputs.report",
 }
 
 __all__ = ["PlanResult", "PlanSpec", "PlannerError", "plan", "read_scene", "write_outputs"]

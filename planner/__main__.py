@@ -64,10 +64,10 @@ def load_params(path: str | None) -> dict[str, Any]:
 def run_plan(args: argparse.Namespace) -> int:
     # imported here, not at the top: they bring numpy, scipy, trimesh and numba, which
     # ``scanplan --help`` and the service's subcommands do not need
-    from planner.candidates import read_candidates_csv
+    from planner.io.readers import read_scene
+    from planner.method.candidates import read_candidates_csv
+    from planner.outputs.report import write_outputs
     from planner.pipeline import plan
-    from planner.readers import read_scene
-    from planner.report import write_outputs
 
     values = load_params(args.params)
     if args.candidates:
@@ -97,7 +97,7 @@ def run_plan(args: argparse.Namespace) -> int:
 
 
 def run_scanners(args: argparse.Namespace) -> int:
-    from planner.scanners import scanners  # lazily: only this command reads the presets
+    from planner.survey.scanners import scanners  # lazily: only this command reads the presets
 
     if args.json:
         print(json.dumps([s.to_dict() for s in scanners().values()], indent=2))
@@ -111,8 +111,8 @@ def run_scanners(args: argparse.Namespace) -> int:
 
 
 def run_verify(args: argparse.Namespace) -> int:
-    from planner.readers import read_scene
-    from planner.verification import read_plan_dir, verify_plan_dir
+    from planner.io.readers import read_scene
+    from planner.truth.verification import read_plan_dir, verify_plan_dir
 
     files = read_plan_dir(args.plan_dir)
     progress = ProgressLine(sys.stderr)

@@ -64,7 +64,7 @@ class PlanSpec:
     min_density_pts_m2: float = 45_000.0
     coverage_goal: float = 0.8
     group_requirements: Mapping[str, GroupRequirement] = field(default_factory=dict)
-    # coverage model (planner.sampled): "centroid" is the paper's one ray per face
+    # coverage model (planner.method.sampled): "centroid" is the paper's one ray per face
     coverage_model: CoverageModel = "centroid"
     samples_per_face: int = 16
     min_sampled_fraction: float = 1.0
@@ -92,7 +92,7 @@ class PlanSpec:
     # outputs
     glb_compression: GlbCompression = "meshopt"
     # survey (issue 11): presets, registration overlap, walking route, field time
-    scanner: str | None = None  # a preset of planner/scanners.json; sets the defaults above
+    scanner: str | None = None  # a preset of planner/survey/scanners.json; sets the defaults above
     min_overlap_m2: float | None = None  # null: the paper's selection, no overlap constraint
     # a surface counts for registration at this density: 25 mm x 25 mm, the data density of
     # Level of Detail 2 in GSA BIM Guide Series 03, 3D Imaging (U.S. GSA, 2009)
@@ -139,7 +139,7 @@ class PlanSpec:
         if values.get("scanner") is not None:
             if not isinstance(values["scanner"], str):
                 raise ParameterError("scanner", f"expected a preset id, got {values['scanner']!r}")
-            from planner.scanners import preset_defaults
+            from planner.survey.scanners import preset_defaults
 
             # the preset fills the defaults; what the caller gave explicitly wins
             values = {**preset_defaults(values["scanner"]), **values}
@@ -404,7 +404,7 @@ def _validate(spec: PlanSpec) -> None:
         _check(len(spec.area_of_interest) >= 3, "area_of_interest",
                "needs at least 3 [x, y] vertices")
     if spec.scanner is not None:
-        from planner.scanners import get
+        from planner.survey.scanners import get
 
         get(spec.scanner)  # raises, naming the known presets
     for group, req in spec.group_requirements.items():

@@ -17,24 +17,24 @@ from typing import Any
 
 import numpy as np
 
-from planner.candidates import CandidateSet, explicit_candidates, generate_grid
-from planner.coverage import CoverageTable, QualifiedPairs
 from planner.errors import CancelledError, NothingVisibleError
-from planner.optimal import OptimalResult, choose_stations
-from planner.orientation import scene_rotation, to_plan
-from planner.pairs import FaceLimits, PairFinder
-from planner.parameters import PlanSpec
-from planner.registration import connected_greedy, overlap_matrix
-from planner.scene import Scene
-from planner.selection import Selection, coverage_state, fixed_candidates
-from planner.survey import Survey, survey
-from planner.visibility import (
+from planner.io.orientation import scene_rotation, to_plan
+from planner.method.candidates import CandidateSet, explicit_candidates, generate_grid
+from planner.method.coverage import CoverageTable, QualifiedPairs
+from planner.method.optimal import OptimalResult, choose_stations
+from planner.method.pairs import FaceLimits, PairFinder
+from planner.method.selection import Selection, coverage_state, fixed_candidates
+from planner.method.visibility import (
     Backend,
     Occlusion,
     RayCaster,
     make_occlusion,
     make_ray_caster,
 )
+from planner.parameters import PlanSpec
+from planner.scene import Scene
+from planner.survey.fieldwork import Survey, survey
+from planner.survey.registration import connected_greedy, overlap_matrix
 
 # progress(stage, fraction 0..1) -> True to cancel
 ProgressCallback = Callable[[str, float], bool | None]
@@ -55,7 +55,7 @@ class Stats:
 
 @dataclass(frozen=True, eq=False)
 class PlanResult:
-    """Everything a plan produced, before it is written out (see :mod:`planner.report`)."""
+    """Everything a plan produced, before it is written out (see :mod:`planner.outputs.report`)."""
 
     scene: Scene
     spec: PlanSpec
@@ -69,7 +69,7 @@ class PlanResult:
     stats: Stats
     optimal_curve: tuple[OptimalResult, ...] = ()  # per goal of curve_goals
     selection_report: dict[str, Any] = field(default_factory=dict)  # plan.json "selection"
-    survey: Survey | None = None  # registration, route, field time (planner.survey)
+    survey: Survey | None = None  # registration, route, field time (planner.survey.fieldwork)
 
 
 def _notify(progress: ProgressCallback | None, stage: str, fraction: float) -> None:
@@ -101,11 +101,11 @@ def plan(
                                file_faces=spec.occluders == "file")
     _notify(progress, "candidates", 0.0)
     if spec.candidates is not None:
-        # given in model coordinates; the planner works Z-up (up_axis, planner.orientation)
+        # given in model coordinates; the planner works Z-up (up_axis, planner.io.orientation)
         candidates = explicit_candidates(
             to_plan(scene_rotation(scene.metadata), np.asarray(spec.candidates)))
     elif scene.metadata.get("spaces"):
-        from planner import ifc
+        from planner.io import ifc
 
         candidates = ifc.room_candidates(scene, spec, _caster(scene, spec, limits, occlusion))
     else:
@@ -124,7 +124,7 @@ def plan(
 
     t1 = time.perf_counter()
     if spec.coverage_model == "sampled":
-        from planner.sampled import qualify_sampled_pairs
+        from planner.method.sampled import qualify_sampled_pairs
 
         qualified, tested, rays = qualify_sampled_pairs(
             scene, candidates.positions, limits, occlusion, spec.samples_per_face,

@@ -22,7 +22,7 @@ from typing import Any
 from sqlalchemy import Engine, delete, func, insert, select
 from sqlalchemy.exc import IntegrityError
 
-from planner.readers import file_format, read_scene
+from planner.io.readers import file_format, read_scene
 from service.database import mesh_owners, meshes
 from service.problems import PayloadTooLargeError
 

@@ -23,10 +23,10 @@ from pathlib import Path
 from typing import Any
 
 from planner.errors import CancelledError, PlannerError, SceneError
+from planner.io.readers import read_scene
+from planner.outputs.report import write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from planner.readers import read_scene
-from planner.report import write_outputs
 from service.config import Settings
 from service.database import make_engine
 from service.job_store import FAILED, SUCCESSFUL, JobRecord, JobStore

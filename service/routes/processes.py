@@ -9,9 +9,9 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Header, Path, Response, status
 from starlette.concurrency import run_in_threadpool
 
+from planner.outputs.report import OUTPUTS
 from planner.parameters import PlanSpec
-from planner.report import OUTPUTS
-from planner.scanners import scanners
+from planner.survey.scanners import scanners
 from service import guards
 from service.deps import OwnerDep, ServicesDep
 from service.problems import (

@@ -12,10 +12,10 @@ from typing import Any
 import httpx
 import pytest
 
+from planner.io.readers import read_scene
+from planner.outputs.report import write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from planner.readers import read_scene
-from planner.report import write_outputs
 from tests.e2e.service_process import Service, wait_for
 
 SCENES = Path(__file__).resolve().parents[2].parent / "shared" / "scenes"

@@ -12,12 +12,12 @@ import pytest
 from PIL import Image
 from scipy import ndimage
 
-from planner import drawing
-from planner.candidates import CandidateSet, read_candidates_csv
+from planner.io.readers import read_scene
+from planner.method.candidates import CandidateSet, read_candidates_csv
+from planner.outputs import drawing
+from planner.outputs.report import OUTPUTS, faces_npz, write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
-from planner.readers import read_scene
-from planner.report import OUTPUTS, faces_npz, write_outputs
 
 
 def plan_hall_small(scenes_dir: Path) -> PlanResult:

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planner.candidates import read_candidates_csv
-from planner.curve import GOALS
+from planner.io.readers import read_scene
+from planner.method.candidates import read_candidates_csv
+from planner.method.curve import GOALS
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
-from planner.readers import read_scene
 
 
 def run_hall(scenes_dir: Path, name: str) -> tuple[PlanResult, dict]:

@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from planner import drawing, glb
 from planner.errors import ParameterError
+from planner.outputs import drawing, glb
+from planner.outputs.report import faces_npz
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult
-from planner.report import faces_npz
 from tests.planner.test_drawing import plan_hall_small
 
 

@@ -18,18 +18,18 @@ import pytest
 import trimesh
 from shapely import Polygon, intersects_xy
 
-from planner import bim
-from planner.candidates import DROP_REASONS
 from planner.errors import NoCandidatesError, ParameterError, SceneError
-from planner.ifc import read_ifc, room_candidates
-from planner.pairs import FaceLimits
+from planner.io.ifc import read_ifc, room_candidates
+from planner.io.readers import read_scene
+from planner.method.candidates import DROP_REASONS
+from planner.method.pairs import FaceLimits
+from planner.method.rooms import inside_elements, source_triangles
+from planner.method.winding import winding_numbers
+from planner.outputs import bim
+from planner.outputs.report import plan_document, write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
-from planner.readers import read_scene
-from planner.report import plan_document, write_outputs
-from planner.rooms import inside_elements, source_triangles
 from planner.scene import Element, Scene, build_scene, remesh
-from planner.winding import winding_numbers
 
 ifcopenshell = pytest.importorskip("ifcopenshell")
 
@@ -61,7 +61,7 @@ def _spec(**changes: Any) -> PlanSpec:
 
 
 def _caster(scene: Scene, spec: PlanSpec) -> object:
-    from planner._embree import EmbreeOcclusion
+    from planner.method._embree import EmbreeOcclusion
 
     return EmbreeOcclusion(scene, FaceLimits.from_spec(spec, scene).occludes)
 

@@ -14,15 +14,15 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from planner.candidates import generate_grid
 from planner.errors import ParameterError
+from planner.io.readers import read_scene
+from planner.method.candidates import generate_grid
+from planner.method.visibility import make_ray_caster
+from planner.method.winding import _Cells, _direct
+from planner.outputs.report import plan_document, write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from planner.readers import read_scene
-from planner.report import plan_document, write_outputs
 from planner.scene import Scene, build_scene, remesh
-from planner.visibility import make_ray_caster
-from planner.winding import _Cells, _direct
 from tests.planner.scenes import scene_of
 
 EDGE_M = 0.5

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from planner.density import density_range_m, local_point_density
+from planner.method.density import density_range_m, local_point_density
 from planner.parameters import GroupRequirement, PlanSpec
 from planner.pipeline import plan
 from tests.planner.scenes import scene_of, small_triangle, square

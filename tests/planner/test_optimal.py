@@ -9,15 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import planner.optimal as optimal
-from planner.candidates import read_candidates_csv
-from planner.coverage import CoverageTable, QualifiedPairs
+import planner.method.optimal as optimal
 from planner.errors import CancelledError, ParameterError
+from planner.io.readers import read_scene
+from planner.method.candidates import read_candidates_csv
+from planner.method.coverage import CoverageTable, QualifiedPairs
+from planner.method.selection import fixed_candidates, greedy, replay
+from planner.outputs.report import plan_document
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
-from planner.readers import read_scene
-from planner.report import plan_document
-from planner.selection import fixed_candidates, greedy, replay
 
 
 def table_of(sets: list[list[int]], n_faces: int) -> CoverageTable:

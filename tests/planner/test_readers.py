@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from planner.errors import SceneError, UnsupportedFormatError
-from planner.readers import read_scene, sniff_format
+from planner.io.readers import read_scene, sniff_format
 from planner.scene import remesh
 
 OBJ = """# two groups

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from planner.errors import ParameterError
+from planner.method.sampled import sample_weights
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from planner.sampled import sample_weights
 from planner.scene import Scene
 from tests.planner.scenes import scene_of, small_triangle, square
 

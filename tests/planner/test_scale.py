@@ -14,13 +14,13 @@ import pytest
 import trimesh
 
 from planner import scene as scene_module
-from planner.candidates import read_candidates_csv
-from planner.pairs import FaceLimits, PairFinder
+from planner.io.readers import read_scene
+from planner.method.candidates import read_candidates_csv
+from planner.method.pairs import FaceLimits, PairFinder
+from planner.method.visibility import make_occlusion
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from planner.readers import read_scene
 from planner.scene import build_scene, remesh
-from planner.visibility import make_occlusion
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -111,7 +111,7 @@ import importlib.util, json, resource, sys
 spec_path, model, budget = sys.argv[1], sys.argv[2], int(sys.argv[3])
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from planner.readers import read_scene
+from planner.io.readers import read_scene
 from planner.scene import build_scene
 import numpy as np
 # warm up: every library imported, the kernel compiled, Embree's and the pools' threads up

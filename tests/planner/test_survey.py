@@ -11,13 +11,13 @@ import pytest
 
 from planner.__main__ import main
 from planner.errors import ParameterError
+from planner.method.visibility import make_occlusion, make_ray_caster
+from planner.outputs.report import plan_document, stations_csv
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
-from planner.registration import MIN_CONSTRAINT, overlap_matrix, station_registration
-from planner.report import plan_document, stations_csv
-from planner.route import exact_open_tour, open_tour, plan_route
-from planner.visibility import make_occlusion, make_ray_caster
-from planner.walkgraph import KNEE_HEIGHT_M, build_walk_graph, segment_free
+from planner.survey.registration import MIN_CONSTRAINT, overlap_matrix, station_registration
+from planner.survey.route import exact_open_tour, open_tour, plan_route
+from planner.survey.walkgraph import KNEE_HEIGHT_M, build_walk_graph, segment_free
 from tests.planner.survey_scenes import (
     MEZZANINE_Z_M,
     boxes_scene,
@@ -53,7 +53,7 @@ def test_unknown_preset_names_the_parameter_and_the_known_ones() -> None:
 
 def test_every_preset_figure_has_a_source_and_five_makers_are_listed(
         capsys: pytest.CaptureFixture[str]) -> None:
-    data = json.loads(resources.files("planner").joinpath("scanners.json").read_text())
+    data = json.loads(resources.files("planner.survey").joinpath("scanners.json").read_text())
     for scanner in data["scanners"]:
         figures = [v for v in scanner.values() if isinstance(v, dict)] + scanner["settings"]
         for figure in figures:

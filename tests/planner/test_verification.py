@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planner.pairs import FaceLimits
+from planner.method.pairs import FaceLimits
 from planner.parameters import PlanSpec
-from planner.simulation import ScanPattern, simulate_scan
+from planner.truth.simulation import ScanPattern, simulate_scan
 from tests.planner.scenes import scene_of, square
 
 

@@ -9,9 +9,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from planner.coverage import CoverageTable, QualifiedPairs
-from planner.optimal import solve_optimal
-from planner.selection import GOAL_SLACK_M2, greedy
+from planner.method.coverage import CoverageTable, QualifiedPairs
+from planner.method.optimal import solve_optimal
+from planner.method.selection import GOAL_SLACK_M2, greedy
 
 
 def table_of(sets: list[list[int]], areas: list[float]) -> CoverageTable:

@@ -8,9 +8,9 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from planner.errors import NothingVisibleError
+from planner.outputs.report import faces_npz, plan_json
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from planner.report import faces_npz, plan_json
 from planner.scene import Scene, build_scene
 
 SETTINGS = settings(max_examples=15, deadline=None,
@@ -45,7 +45,7 @@ def first_hit_is_undefined(scene: Scene, candidate: np.ndarray, face: int) -> bo
     """The ray to ``face`` has no well-defined first hit: it grazes an occluder's edge (hit
     or miss depends on a 1e-6 tolerance), or another face lies at the target's distance
     (a duplicated surface, where either may count as first)."""
-    from planner._bruteforce import ray_triangle_distance
+    from planner.method._bruteforce import ray_triangle_distance
 
     offset = scene.centroids[face] - candidate
     distance = float(np.linalg.norm(offset))

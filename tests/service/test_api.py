@@ -9,10 +9,10 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from planner.io.readers import read_scene
+from planner.outputs.report import write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from planner.readers import read_scene
-from planner.report import write_outputs
 from tests.service.conftest import InlineQueue, make_client, submit, upload
 
 PROBLEM = "application/problem+json"

@@ -2,7 +2,7 @@
 densities in ``faces.npz``.
 
 The plan promises the faces it marks ``covered``. The simulated scan of its stations
-(:mod:`planner.simulation`) delivers, per face, a density from each station. A face is
+(:mod:`planner.truth.simulation`) delivers, per face, a density from each station. A face is
 *delivered* when its best station's density meets the face's ``min_density_pts_m2`` (the
 same per-station reading as the promise; the merged density of all stations is reported
 beside it). A station counts for a face only when it sees the face at the face's
@@ -15,7 +15,7 @@ Totals compare the two sets by area:
 - ``promised_not_delivered_area_m2``: false promises;
 - ``delivered_not_promised_area_m2``: misses of the model (area the plan could count);
 - ``hole_area_m2``: bins of promised faces that no station samples at half the requirement
-  (bins defined in :mod:`planner.simulation`).
+  (bins defined in :mod:`planner.truth.simulation`).
 
 Same plan, same bytes: counts are integers and timings stay out of the file.
 """
@@ -33,11 +33,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import PlannerError
-from planner.orientation import scene_rotation, to_plan
-from planner.pairs import FaceLimits
+from planner.io.orientation import scene_rotation, to_plan
+from planner.method.pairs import FaceLimits
 from planner.parameters import PlanSpec
 from planner.scene import Scene
-from planner.simulation import (
+from planner.truth.simulation import (
     HOLE_BIN_EDGE_M,
     HOLE_DENSITY_FRACTION,
     ProgressCallback,
@@ -191,7 +191,7 @@ def verification_document(result: Verification, spec: PlanSpec) -> dict[str, Any
 
 
 def verification_json(result: Verification, spec: PlanSpec) -> bytes:
-    from planner.report import canonical_json
+    from planner.outputs.report import canonical_json
 
     return canonical_json(verification_document(result, spec))
 
@@ -213,7 +213,7 @@ def verified_face_arrays(result: Verification) -> dict[str, NDArray[Any]]:
 
 
 def _npz_bytes(arrays: dict[str, NDArray[Any]]) -> bytes:
-    """npz bytes with fixed zip timestamps, as :func:`planner.report.faces_npz` writes."""
+    """npz bytes with fixed zip timestamps, as :func:`planner.outputs.report.faces_npz` writes."""
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", compression=zipfile.ZIP_DEFLATED) as archive:
         for name, array in arrays.items():
@@ -270,7 +270,7 @@ def verify_plan_dir(
     """Verify the plan in ``plan_dir`` on ``scene`` (the model read with the plan's
     ``max_edge_m`` and ``unit_scale``); write verification.json and add the verified
     arrays to faces.npz."""
-    from planner.report import atomic_write
+    from planner.outputs.report import atomic_write
 
     if scene.n_faces != files.n_faces or (
             "source_face" in files.faces

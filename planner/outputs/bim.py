@@ -1,6 +1,6 @@
 """Results in BIM terms: coverage per IFC element, per storey and per room.
 
-Outputs (registered in :data:`planner.report.OUTPUTS`, written only for scenes with
+Outputs (registered in :data:`planner.outputs.report.OUTPUTS`, written only for scenes with
 elements, i.e. IFC models):
 
 - ``elements.csv``: one row per element, in the scene's order (IFC class, GlobalId);
@@ -16,7 +16,7 @@ site).
 Why an element cannot be covered
 --------------------------------
 For an element with target area but no coverable face, every target face is tested again
-against every candidate with the analytic limits of :mod:`planner.pairs`. Each pair fails
+against every candidate with the analytic limits of :mod:`planner.method.pairs`. Each pair fails
 some of four checks:
 
 - ``too_close``: nearer than ``dof_min_m``;
@@ -237,7 +237,7 @@ def elements_json(result: PlanResult) -> bytes | None:
     """``elements.json`` bytes, or None for a scene without elements."""
     if not result.scene.elements:
         return None
-    from planner.report import canonical_json
+    from planner.outputs.report import canonical_json
 
     return canonical_json(elements_document(result))
 

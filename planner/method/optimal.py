@@ -8,7 +8,7 @@ The selection stage (:func:`choose_stations`) runs both greedy heuristics, and f
    stations by one, and (partial goals) swap one for another where that covers more, which
    may let a later drop succeed. So even a plan stopped at the time limit is as good as it
    cheaply gets;
-3. HiGHS, in a child process killed at the deadline (:mod:`planner.highs_worker`):
+3. HiGHS, in a child process killed at the deadline (:mod:`planner.method.highs_worker`):
 
    - goal 100 %: the set cover ``min sum x_c  s.t.  sum_{c covers k} x_c >= 1`` over face
      classes (faces seen by exactly the same candidates merge into one row). Most rows are
@@ -53,9 +53,9 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from planner.coverage import CoverageTable
-from planner.highs_worker import Answer, HighsProcess, Program
-from planner.selection import GOAL_SLACK_M2, Selection, greedy, replay
+from planner.method.coverage import CoverageTable
+from planner.method.highs_worker import Answer, HighsProcess, Program
+from planner.method.selection import GOAL_SLACK_M2, Selection, greedy, replay
 
 # Above this many nonzeros HiGHS's presolve alone outlasts any sensible time limit (hall-full:
 # 10.5 M); face classes are then merged per voxel into a relaxation (see relaxed_classes).

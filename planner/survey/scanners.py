@@ -81,7 +81,7 @@ def _value(entry: dict[str, Any], key: str) -> float | None:
 @functools.cache
 def scanners() -> dict[str, Scanner]:
     """Every preset, keyed by id, in the order of the file."""
-    text = resources.files("planner").joinpath("scanners.json").read_text(encoding="utf-8")
+    text = resources.files("planner.survey").joinpath("scanners.json").read_text(encoding="utf-8")
     data = json.loads(text)
     result: dict[str, Scanner] = {}
     for entry in data["scanners"]:

@@ -35,12 +35,12 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
-from planner.coverage import CoverageTable
-from planner.pairs import FaceLimits
+from planner.method.coverage import CoverageTable
+from planner.method.pairs import FaceLimits
+from planner.method.selection import GAIN_QUANTUM_M2, GOAL_SLACK_M2, Selection
+from planner.method.visibility import Occlusion, make_occlusion
 from planner.scene import Scene
-from planner.selection import GAIN_QUANTUM_M2, GOAL_SLACK_M2, Selection
-from planner.visibility import Occlusion, make_occlusion
-from planner.walkgraph import door_faces
+from planner.survey.walkgraph import door_faces
 
 # smallest eigenvalue over trace of the normal scatter matrix for an edge to register in
 # all three directions: the weakest direction carries at least 5 % of the normal weight
@@ -113,7 +113,7 @@ def connected_greedy(table: CoverageTable, overlap: sp.csr_matrix, scene: Scene,
                      *, weighted: bool = False, goal: float = 1.0) -> Selection:
     """Greedy (or weighted greedy) whose stations form one connected overlap graph.
 
-    Gains are the same exact integers as :func:`planner.selection.greedy` (ties go to the
+    Gains are the same exact integers as :func:`planner.method.selection.greedy` (ties go to the
     lowest index); a candidate is *allowed* once it overlaps a chosen station. Stops once
     ``goal`` of the achievable area is covered (each step costs a pass over ``overlap``).
     """

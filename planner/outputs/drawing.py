@@ -21,7 +21,7 @@ elevations from ``scene.metadata["storeys"]`` when the reader gives them; otherw
 candidates' heights are split into levels wherever they jump by more than
 ``LEVEL_GAP_M``.
 
-Face classes (shared with :mod:`planner.glb`): covered by the plan (green, darker the more
+Face classes (shared with :mod:`planner.outputs.glb`): covered by the plan (green, darker the more
 the best LPD exceeds the requirement), coverable but not covered (orange), not coverable
 from any candidate (crimson), and faces with no requirement (grey).
 """
@@ -45,9 +45,9 @@ from matplotlib.patches import Circle, Patch, Rectangle
 from matplotlib.ticker import MaxNLocator
 from numpy.typing import NDArray
 
-from planner.curve import coverage_curve
-from planner.density import density_range_m
-from planner.orientation import scene_rotation, to_model
+from planner.io.orientation import scene_rotation, to_model
+from planner.method.curve import coverage_curve
+from planner.method.density import density_range_m
 from planner.pipeline import PlanResult
 
 # --- face classes and their colours (sRGB 0-255) -------------------------------------------

@@ -1,6 +1,6 @@
 """IFC models through IfcOpenShell: the scene, its storeys and rooms, and room candidates.
 
-Only :mod:`planner.readers` imports this module, and only when an IFC file comes, because
+Only :mod:`planner.io.readers` imports this module, and only when an IFC file comes, because
 IfcOpenShell is heavy.
 
 Reading (:func:`read_ifc`)
@@ -48,7 +48,7 @@ plane (union of its projected triangles), its floor the lowest point of the volu
 
 Candidates from rooms
 ---------------------
-:func:`room_candidates` lives in :mod:`planner.rooms` and is re-exported here, where the
+:func:`room_candidates` lives in :mod:`planner.method.rooms` and is re-exported here, where the
 pipeline looks for it.
 """
 
@@ -64,7 +64,7 @@ from numpy.typing import NDArray
 from shapely import MultiPolygon, Polygon
 
 from planner.errors import SceneError
-from planner.rooms import room_candidates, select_spaces
+from planner.method.rooms import room_candidates, select_spaces
 from planner.scene import Element, Scene, build_scene
 
 __all__ = ["default_requirements", "read_ifc", "room_candidates", "select_spaces"]

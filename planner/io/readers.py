@@ -20,7 +20,7 @@ import numpy as np
 import trimesh
 
 from planner.errors import ParameterError, SceneError, UnsupportedFormatError
-from planner.orientation import axis_rotation, default_up_axis, find_up
+from planner.io.orientation import axis_rotation, default_up_axis, find_up
 from planner.parameters import UP_AXES
 from planner.scene import Element, Scene, build_scene, remesh
 
@@ -92,10 +92,10 @@ def read_scene(
     max_edge_m : split faces until no edge is longer; None uses the mesh as given
     unit_scale : multiply coordinates by this (0.001 for a model in millimetres); must be
         1 for IFC, which is converted from its own length unit
-    up_axis : the model's up, one of :data:`planner.orientation.UP_AXES`; None follows the
+    up_axis : the model's up, one of :data:`planner.io.orientation.UP_AXES`; None follows the
         format (+Y for glTF/GLB, +Z otherwise). A model whose up is not +Z is rotated into
         the plan frame; ``metadata["orientation"]`` keeps the rotation so that outputs go
-        back to model coordinates (:mod:`planner.orientation`)
+        back to model coordinates (:mod:`planner.io.orientation`)
 
     Raises
     ------
@@ -119,7 +119,7 @@ def read_scene(
             raise ParameterError(
                 "unit_scale", f"is {unit_scale}, but an IFC file is converted to metres from "
                 "its own length unit; leave unit_scale at 1")
-        from planner import ifc  # IfcOpenShell is heavy: import it only for IFC files
+        from planner.io import ifc  # IfcOpenShell is heavy: import it only for IFC files
 
         scene = ifc.read_ifc(path)
     else:

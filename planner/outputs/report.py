@@ -7,14 +7,14 @@ written without timestamps. Timings never enter these files (they live in
 Outputs of :func:`write_outputs` (the names the service serves too):
 
 - ``plan.json``: totals, stations, coverage curve, parameters, candidates (+ optimal), and
-  the survey (:mod:`planner.survey`): ``registration``, ``route``, ``field_time``;
+  the survey (:mod:`planner.survey.fieldwork`): ``registration``, ``route``, ``field_time``;
 - ``faces.npz``: per face ``covered``, ``best_lpd_pts_m2``, ``n_stations``,
   ``first_station``, ``n_candidates``, ``source_face``;
 - ``stations.csv``: ``id,x,y,z,order,candidate_index,visit`` in model coordinates (``visit``:
   place on the walking route, empty when unreachable);
 - ``candidates.csv``: every candidate considered, ``x,y,z``;
 - ``elements.csv``, ``elements.json``: coverage per BIM element (IFC models only, see
-  :mod:`planner.bim`); a renderer that returns None writes no file.
+  :mod:`planner.outputs.bim`); a renderer that returns None writes no file.
 """
 
 from __future__ import annotations
@@ -33,10 +33,10 @@ from typing import Any
 
 import numpy as np
 
-from planner.curve import coverage_curve
-from planner.orientation import scene_rotation, to_model
+from planner.io.orientation import scene_rotation, to_model
+from planner.method.curve import coverage_curve
+from planner.method.selection import GOAL_SLACK_M2
 from planner.pipeline import PlanResult
-from planner.selection import GOAL_SLACK_M2
 
 FORMAT_VERSION = 1
 _AREA_DECIMALS = 6
@@ -192,7 +192,7 @@ def candidates_csv(result: PlanResult) -> bytes:
 def elements_csv(result: PlanResult) -> bytes | None:
     if not result.scene.elements:
         return None
-    from planner import bim  # only IFC scenes have elements
+    from planner.outputs import bim  # only IFC scenes have elements
 
     return bim.elements_csv(result)
 
@@ -200,15 +200,15 @@ def elements_csv(result: PlanResult) -> bytes | None:
 def elements_json(result: PlanResult) -> bytes | None:
     if not result.scene.elements:
         return None
-    from planner import bim
+    from planner.outputs import bim
 
     return bim.elements_json(result)
 
 
 def _lazy(module: str, function: str, result: PlanResult) -> bytes:
-    """Render with ``planner.<module>.<function>``, imported on first use (matplotlib)."""
+    """Render with ``planner.outputs.<module>.<function>``, imported on first use (matplotlib)."""
     render: Callable[[PlanResult], bytes] = getattr(
-        importlib.import_module(f"planner.{module}"), function)
+        importlib.import_module(f"planner.outputs.{module}"), function)
     return render(result)
 
 

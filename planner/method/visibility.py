@@ -2,8 +2,8 @@
 
 One "reverse" ray per pair that passed the analytic limits, never a fixed angular pattern,
 so no face is missed by chance. Faces are two-sided. Backends share one protocol:
-``embree`` (the fast one, :mod:`planner._embree`) and ``bruteforce`` (the reference,
-:mod:`planner._bruteforce`: every occluder tested, closest hit must be the target).
+``embree`` (the fast one, :mod:`planner.method._embree`) and ``bruteforce`` (the reference,
+:mod:`planner.method._bruteforce`: every occluder tested, closest hit must be the target).
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def make_ray_caster(scene: Scene, occludes: NDArray[np.bool_], *,
 
     ``file_faces``: cast against the model's faces before remeshing (``scene.file_mesh``).
     """
-    from planner._embree import EmbreeOcclusion
+    from planner.method._embree import EmbreeOcclusion
 
     return EmbreeOcclusion(scene, occludes, file_faces=file_faces)
 
@@ -67,11 +67,11 @@ def make_occlusion(scene: Scene, occludes: NDArray[np.bool_], backend: Backend, 
     The brute-force reference always tests the scene's own (remeshed) faces.
     """
     if backend == "embree":
-        from planner._embree import EmbreeOcclusion
+        from planner.method._embree import EmbreeOcclusion
 
         return EmbreeOcclusion(scene, occludes, file_faces=file_faces)
     if backend == "bruteforce":
-        from planner._bruteforce import BruteForceOcclusion
+        from planner.method._bruteforce import BruteForceOcclusion
 
         return BruteForceOcclusion(scene, occludes)
     raise ValueError(f"unknown visibility backend {backend!r}; use 'embree' or 'bruteforce'")

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.coverage import CoverageTable
 from planner.errors import ParameterError
+from planner.method.coverage import CoverageTable
 
 GAIN_QUANTUM_M2 = 1e-9
 # covered >= goal * max achievable, with this much slack for summation order (m^2)

@@ -35,11 +35,11 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.coverage import QualifiedPairs
 from planner.errors import CancelledError
-from planner.pairs import FaceLimits, PairFinder, Pairs
+from planner.method.coverage import QualifiedPairs
+from planner.method.pairs import FaceLimits, PairFinder, Pairs
+from planner.method.visibility import Occlusion
 from planner.scene import Scene
-from planner.visibility import Occlusion
 
 ProgressCallback = Callable[[str, float], bool | None]
 

@@ -4,7 +4,7 @@ The grid lies in the XY plane at multiples of ``grid_spacing_m`` (so a model mov
 whole number of cells gets the same points), inside the optional ``area_of_interest``
 polygon. Each point is put ``scanner_height_m`` above the floor under it, found by casting a
 ray up from below the model (the lowest surface is the floor; multi-storey IFC models use
-their rooms instead, see :mod:`planner.ifc`). A point is dropped, and counted under its
+their rooms instead, see :mod:`planner.io.ifc`). A point is dropped, and counted under its
 reason, when
 
 - ``outside_area_of_interest``: not covered by the polygon (boundary counts as inside);
@@ -33,10 +33,10 @@ from scipy.spatial import cKDTree
 from shapely import Polygon, intersects_xy
 
 from planner.errors import NoCandidatesError, ParameterError
+from planner.method.visibility import RayCaster
+from planner.method.winding import winding_numbers
 from planner.parameters import PlanSpec
 from planner.scene import Scene
-from planner.visibility import RayCaster
-from planner.winding import winding_numbers
 
 DROP_REASONS = (
     "outside_area_of_interest",

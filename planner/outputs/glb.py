@@ -11,7 +11,7 @@ Layout
 - One node and mesh per face class (``covered``, ``coverable_not_covered``,
   ``not_coverable``, ``not_target``; empty classes are left out), so a viewer toggles a
   class by hiding a node. Faces do not share vertices (3 per face, in ascending face
-  order), so ``COLOR_0`` is exactly the face colour of :func:`planner.drawing.face_rgb`
+  order), so ``COLOR_0`` is exactly the face colour of :func:`planner.outputs.drawing.face_rgb`
   (stored linear, as glTF requires). No ``NORMAL``: glTF asks viewers to shade such
   meshes flat, which is what per-face colours show.
 - Viewer-sized: positions are uint16 steps of one grid over the scene's bounds
@@ -46,7 +46,8 @@ import meshopt
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.drawing import (
+from planner.io.orientation import glb_root_rotation, scene_rotation, to_model
+from planner.outputs.drawing import (
     CLASS_NAMES,
     CLASS_RGB,
     COVERED_HIGH_RGB,
@@ -56,7 +57,6 @@ from planner.drawing import (
     face_classes,
     face_rgb,
 )
-from planner.orientation import glb_root_rotation, scene_rotation, to_model
 from planner.pipeline import PlanResult
 
 _FLOAT, _UBYTE, _USHORT, _UINT = 5126, 5121, 5123, 5125

@@ -11,8 +11,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import PlannerError
+from planner.method.visibility import FAR_LIMIT_FACTOR
 from planner.scene import Scene
-from planner.visibility import FAR_LIMIT_FACTOR
 
 try:
     from embreex import rtcore_scene
@@ -103,7 +103,7 @@ class EmbreeOcclusion:
     ) -> NDArray[np.int64]:
         """The closest face each (R, 3) ray hits, -1 for a miss; no distances (faster).
 
-        The simulated scan (:mod:`planner.simulation`) casts millions of rays and computes
+        The simulated scan (:mod:`planner.truth.simulation`) casts millions of rays and computes
         the distance from the face's plane itself, which is cheaper than Embree's output
         dictionary.
         """

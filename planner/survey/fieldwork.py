@@ -2,7 +2,7 @@
 
 :func:`survey` runs after the selection, on the chosen stations only (S of them), so with
 default parameters it adds one overlap pass over S positions and the walk graph to a plan;
-the constrained selection itself lives in :mod:`planner.registration`.
+the constrained selection itself lives in :mod:`planner.survey.registration`.
 """
 
 from __future__ import annotations
@@ -14,14 +14,14 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from planner.orientation import scene_rotation, to_plan
-from planner.pairs import FaceLimits
+from planner.io.orientation import scene_rotation, to_plan
+from planner.method.pairs import FaceLimits
+from planner.method.visibility import Occlusion, RayCaster, make_ray_caster
 from planner.parameters import PlanSpec
-from planner.registration import Registration, overlap_matrix, station_registration
-from planner.route import Route, plan_route
 from planner.scene import Scene
-from planner.visibility import Occlusion, RayCaster, make_ray_caster
-from planner.walkgraph import build_walk_graph, door_faces
+from planner.survey.registration import Registration, overlap_matrix, station_registration
+from planner.survey.route import Route, plan_route
+from planner.survey.walkgraph import build_walk_graph, door_faces
 
 DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the preset gives one
 
@@ -64,7 +64,7 @@ class Survey:
 def field_time(spec: PlanSpec, n_stations: int, route: Route) -> FieldTime:
     scan_one_s: float | None = None
     if spec.scanner is not None:
-        from planner.scanners import get
+        from planner.survey.scanners import get
 
         setting = get(spec.scanner).setting_for(spec.point_spacing_m, spec.reference_distance_m)
         scan_one_s = None if setting is None else setting.scan_duration_s

@@ -17,7 +17,7 @@ The pattern of one station (all angles in radians):
 A return counts for its face when the face is hit first and its range lies in
 ``[dof_min_m, dof_max_m]`` (the scanner records nothing outside; such faces still block
 the rays behind them). Density of a face = returns / face area (pts/m^2). The incidence
-requirement is applied by :mod:`planner.verification`, per station and face.
+requirement is applied by :mod:`planner.truth.verification`, per station and face.
 
 Holes are measured on sub-face bins: each face is split into ``n x n`` equal triangles of
 a barycentric grid (the triangles of ``n - 1`` evenly spaced lines parallel to each side),
@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import CancelledError
-from planner.pairs import FaceLimits
+from planner.method.pairs import FaceLimits
 from planner.parameters import PlanSpec
 from planner.scene import Scene
 
@@ -173,7 +173,7 @@ def simulate_scan(
     threads: int | None = None,
 ) -> ScanCounts:
     """Fire the pattern from every (S, 3) station and count the returns per face and bin."""
-    from planner._embree import EmbreeOcclusion
+    from planner.method._embree import EmbreeOcclusion
 
     caster = EmbreeOcclusion(scene, limits.occludes)
     stations = np.asarray(stations_xyz, np.float64).reshape(-1, 3)

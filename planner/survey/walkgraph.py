@@ -19,8 +19,8 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from planner.method.visibility import RayCaster
 from planner.scene import Scene
-from planner.visibility import RayCaster
 
 WALK_GRID_M = 0.25  # floor sample spacing; finer than a stair tread (~0.26-0.30 m)
 MAX_COLUMNS = 400_000  # the grid coarsens on very large models to stay within this

@@ -24,7 +24,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.density import density_range_m
+from planner.method.density import density_range_m
 from planner.parameters import GroupRequirement, PlanSpec
 from planner.scene import Scene
 
