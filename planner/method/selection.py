@@ -13,6 +13,7 @@ gains can be updated incrementally (total work: one pass over the coverage table
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -61,6 +62,40 @@ class Selection:
                          self.covered_area_m2[:n], self.max_achievable_area_m2, self.fixed)
 
 
+def gain_units(table: CoverageTable, *, weighted: bool = False
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(F,) face weights in units of GAIN_QUANTUM_M2 and the (C,) gain of every candidate.
+
+    Weighted greedy divides each face's area by the number of candidates that qualify for
+    it. Units are whole numbers held in float64 below 2**53, so sums and differences of them
+    are exact.
+    """
+    area = table.face_area_m2
+    if weighted:
+        k = table.candidates_per_face
+        weight = np.divide(area, k, out=np.zeros_like(area), where=k > 0)
+    else:
+        weight = area
+    units = np.round(weight / GAIN_QUANTUM_M2)
+    if units.sum() >= 2.0**53:
+        raise ValueError("the model's area is too large for exact gains; split the model")
+    gains = np.bincount(table.candidate_of_entry, weights=units[table.by_candidate.indices],
+                        minlength=table.n_candidates).astype(np.float64)
+    return units, gains
+
+
+def subtract_gains(table: CoverageTable, gains: NDArray[np.float64],
+                   units: NDArray[np.float64], fresh: NDArray[np.integer[Any]]) -> None:
+    """In place: every candidate that also sees a freshly covered face (``fresh``, (N,)
+    face ids) loses that face's units from its (C,) ``gains``."""
+    by_face = table.by_face
+    starts, stops = by_face.indptr[fresh], by_face.indptr[fresh + 1]
+    counts = stops - starts
+    entry = np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
+    gains -= np.bincount(by_face.indices[entry], weights=np.repeat(units[fresh], counts),
+                         minlength=table.n_candidates)
+
+
 def greedy(table: CoverageTable, *, weighted: bool = False,
            fixed: tuple[int, ...] = ()) -> Selection:
     """Order the candidates greedily until every achievable face is covered.
@@ -73,17 +108,7 @@ def greedy(table: CoverageTable, *, weighted: bool = False,
     that just got covered, which is exact, so ties are real ties and go to the lowest index.
     """
     area = table.face_area_m2
-    if weighted:
-        k = table.candidates_per_face
-        weight = np.divide(area, k, out=np.zeros_like(area), where=k > 0)
-    else:
-        weight = area
-    units = np.round(weight / GAIN_QUANTUM_M2)
-    if units.sum() >= 2.0**53:
-        raise ValueError("the model's area is too large for exact gains; split the model")
-    gains = np.bincount(table.candidate_of_entry, weights=units[table.by_candidate.indices],
-                        minlength=table.n_candidates)
-    by_face = table.by_face
+    units, gains = gain_units(table, weighted=weighted)
     uncovered = np.ones(table.n_faces, bool)
     stations: list[int] = []
     new_area: list[float] = []
@@ -105,12 +130,7 @@ def greedy(table: CoverageTable, *, weighted: bool = False,
         stations.append(candidate)
         new_area.append(added)
         covered.append(total)
-        # every candidate that also sees a freshly covered face loses that face's units
-        starts, stops = by_face.indptr[fresh], by_face.indptr[fresh + 1]
-        counts = stops - starts
-        entry = np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
-        gains -= np.bincount(by_face.indices[entry], weights=np.repeat(units[fresh], counts),
-                             minlength=table.n_candidates)
+        subtract_gains(table, gains, units, fresh)
     return Selection(
         method="weighted_greedy" if weighted else "greedy",
         stations=tuple(stations),

@@ -37,7 +37,7 @@ from scipy.sparse.csgraph import connected_components
 
 from planner.method.coverage import CoverageTable
 from planner.method.pairs import FaceLimits
-from planner.method.selection import GAIN_QUANTUM_M2, GOAL_SLACK_M2, Selection
+from planner.method.selection import GOAL_SLACK_M2, Selection, gain_units, subtract_gains
 from planner.method.visibility import Occlusion, make_occlusion
 from planner.scene import Scene
 from planner.survey.walkgraph import door_faces
@@ -119,14 +119,7 @@ def connected_greedy(table: CoverageTable, overlap: sp.csr_matrix, scene: Scene,
     """
     needed_m2 = goal * table.max_achievable_area_m2 - GOAL_SLACK_M2
     area = table.face_area_m2
-    if weighted:
-        k = table.candidates_per_face
-        weight = np.divide(area, k, out=np.zeros_like(area), where=k > 0)
-    else:
-        weight = area
-    units = np.round(weight / GAIN_QUANTUM_M2)
-    gains = np.bincount(table.candidate_of_entry, weights=units[table.by_candidate.indices],
-                        minlength=table.n_candidates)
+    units, gains = gain_units(table, weighted=weighted)
     weights6 = _scatter_weights(scene)
     uncovered = np.ones(table.n_faces, bool)
     allowed = np.ones(table.n_candidates, bool)  # the first station may be any
@@ -168,12 +161,7 @@ def connected_greedy(table: CoverageTable, overlap: sp.csr_matrix, scene: Scene,
             allowed[:] = False
         overlap_m2, constraint = overlap_with(overlap, candidate, scene, weights6)
         allowed |= (overlap_m2 >= min_overlap_m2) & (constraint >= MIN_CONSTRAINT)
-        by_face = table.by_face
-        starts, stops = by_face.indptr[fresh], by_face.indptr[fresh + 1]
-        counts = stops - starts
-        entry = np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
-        gains -= np.bincount(by_face.indices[entry], weights=np.repeat(units[fresh], counts),
-                             minlength=table.n_candidates)
+        subtract_gains(table, gains, units, fresh)
     return Selection(
         method="weighted_greedy" if weighted else "greedy",
         stations=tuple(stations),
