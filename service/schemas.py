@@ -182,6 +182,9 @@ class StatusInfo(BaseModel):
         None, description="seconds per stage (reading, candidates, visibility, ...)")
     problem: dict[str, Any] | None = Field(default=None,
                                            description="RFC 9457 problem of a failure")
+    warnings: list[str] | None = Field(
+        default=None, description="at submission: what looks wrong before any work is done "
+        "(e.g. a model size that suggests another unit_scale)")
     links: list[Link]
 
 
@@ -205,6 +208,9 @@ class MeshInfo(BaseModel):
     total_area_m2: float
     bounds: list[list[float]]
     groups: dict[str, int] = Field(..., description="faces per group")
+    warnings: list[str] = Field(
+        default_factory=list,
+        description="e.g. a size that suggests another unit: names unit_scale and the fix")
     created: str
     links: list[Link]
 

@@ -143,8 +143,12 @@ _SMALLEST_PLAUSIBLE_M = 0.5
 
 
 def _unit_warning(scene: Scene, unit_scale: float) -> str | None:
-    """A warning naming ``unit_scale`` when the model's size suggests another unit."""
-    extent_m = float(np.ptp(scene.vertices, axis=0).max())
+    return unit_warning(float(np.ptp(scene.vertices, axis=0).max()), unit_scale)
+
+
+def unit_warning(extent_m: float, unit_scale: float) -> str | None:
+    """A warning naming ``unit_scale`` when a model ``extent_m`` across (its longest side
+    after scaling) suggests another unit; None when the size is plausible in metres."""
     if extent_m > _LARGEST_PLAUSIBLE_M:
         return (f"unit_scale: the model is {extent_m:,.0f} m across with unit_scale "
                 f"{unit_scale}; if it is in millimetres use unit_scale 0.001, in inches "

@@ -53,7 +53,8 @@ def mesh_info(record: MeshRecord) -> MeshInfo:
     return MeshInfo(
         id=record.id, format=record.format, bytes=record.size_bytes, filename=record.filename,
         faces=s["faces"], vertices=s["vertices"], total_area_m2=s["total_area_m2"],
-        bounds=s["bounds"], groups=s["groups"], created=iso(record.created) or "",
+        bounds=s["bounds"], groups=s["groups"], warnings=list(s.get("warnings", [])),
+        created=iso(record.created) or "",
         links=[Link(href=f"/meshes/{record.id}", rel="self", type="application/json"),
                Link(href=f"/meshes/{record.id}/content", rel="enclosure",
                     type="application/octet-stream")],

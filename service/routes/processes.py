@@ -9,6 +9,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Header, Path, Response, status
 from starlette.concurrency import run_in_threadpool
 
+from planner.io.readers import unit_warning
 from planner.outputs.report import OUTPUTS
 from planner.parameters import PlanSpec
 from planner.survey.scanners import scanners
@@ -16,6 +17,7 @@ from service import guards
 from service.deps import OwnerDep, ServicesDep
 from service.problems import (
     IdempotencyKeyReusedError,
+    JobTooLargeError,
     NoSuchProcessError,
     NotFoundError,
     problem_responses,
@@ -131,7 +133,18 @@ def _submit(services: ServicesDep, owner: str, mesh_id: str, parameters: dict[st
     if mesh is None:
         raise MeshNotFoundError(f"inputs.mesh: no mesh {mesh_id}; upload the model with "
                                 "POST /meshes and use the id it returns")
-    guards.check(mesh.summary, spec, services.settings)  # 422 naming the parameter
+    # the mesh's bounds are in file units: scaled by this job's unit_scale they say whether
+    # the model is plausibly in metres, before a worker spends any time on it
+    low, high = mesh.summary["bounds"]
+    extent_m = max(h - lo for lo, h in zip(low, high, strict=True)) * spec.unit_scale
+    warning = unit_warning(extent_m, spec.unit_scale)
+    try:
+        guards.check(mesh.summary, spec, services.settings)  # 422 naming the parameter
+    except JobTooLargeError as exc:
+        if warning is None:
+            raise
+        # a model in millimetres is a thousand times too large: say so, not just "too large"
+        raise JobTooLargeError("unit_scale", f"{warning}. Refused as it is: {exc}") from exc
     request_hash = hashlib.sha256(json.dumps(
         {"mesh": mesh_id, "parameters": parameters}, sort_keys=True).encode()).hexdigest()
     job, created = services.jobs.create(owner, mesh_id, parameters,
@@ -146,6 +159,9 @@ def _submit(services: ServicesDep, owner: str, mesh_id: str, parameters: dict[st
     else:
         response.status_code = status.HTTP_200_OK
     response.headers["Location"] = f"/jobs/{job.id}"
-    return status_info(job)
+    info = status_info(job)
+    if warning:
+        info.warnings = [warning]
+    return info
 
 

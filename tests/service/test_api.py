@@ -231,3 +231,22 @@ def test_process_lists_the_scanner_presets(client: TestClient) -> None:
 def test_readyz(client: TestClient) -> None:
     ready = client.get("/readyz")
     assert ready.status_code == 200 and ready.json()["status"] == "ready"
+
+
+def test_a_model_in_millimetres_is_flagged_before_any_work(client: TestClient) -> None:
+    """A 30 m box written in millimetres: the upload and the submission name unit_scale."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=(30_000.0, 20_000.0, 5_000.0))
+    mesh = upload(client, box.export(file_type="ply")).json()
+    assert any("unit_scale" in w and "0.001" in w for w in mesh["warnings"]), mesh
+    # as it is, the grid alone would be billions of points: the refusal names unit_scale
+    refused = assert_problem(submit(client, mesh["id"], {"max_edge_m": None}), 422,
+                             "unit_scale", "0.001")
+    assert refused.get("parameter") == "unit_scale", refused
+    queued = submit(client, mesh["id"], {"max_edge_m": None, "candidates": [[1e4, 1e4, 1e3]]})
+    assert queued.status_code == 201
+    assert any("unit_scale" in w for w in queued.json()["warnings"])
+    fixed = submit(client, mesh["id"], {"max_edge_m": None, "unit_scale": 0.001})
+    assert fixed.status_code == 201
+    assert fixed.json()["warnings"] is None
