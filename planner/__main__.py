@@ -82,6 +82,12 @@ def run_plan(args: argparse.Namespace) -> int:
         result = plan(scene, spec, progress=progress)
         progress("writing", 1.0)
         written = write_outputs(result, args.out)
+        if spec.verify:  # as `scanplan verify` would, on the plan just written
+            from planner.truth.verification import read_plan_dir, verify_plan_dir
+
+            _, checked = verify_plan_dir(args.out, scene, read_plan_dir(args.out),
+                                         progress=progress)
+            written += [path for path in checked if path not in written]
     finally:
         progress.done()
     if not args.quiet:

@@ -91,6 +91,9 @@ class PlanSpec:
     rooms: tuple[str, ...] | None = None
     # outputs
     glb_compression: GlbCompression = "meshopt"
+    # after the outputs: a simulated scan of the stations checks the plan's promise and
+    # writes verification.json (planner.truth; as `scanplan verify` does)
+    verify: bool = False
     # survey (issue 11): presets, registration overlap, walking route, field time
     scanner: str | None = None  # a preset of planner/survey/scanners.json; sets the defaults above
     min_overlap_m2: float | None = None  # null: the paper's selection, no overlap constraint
@@ -274,6 +277,10 @@ def _convert(name: str, value: Any) -> Any:
     if name == "coverage_model":
         if value not in COVERAGE_MODELS:
             raise ParameterError(name, f"{value!r} is not one of {', '.join(COVERAGE_MODELS)}")
+        return value
+    if name == "verify":
+        if not isinstance(value, bool):
+            raise ParameterError(name, f"expected true or false, got {value!r}")
         return value
     if name == "samples_per_face":
         if isinstance(value, bool) or not isinstance(value, int):

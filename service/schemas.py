@@ -106,6 +106,8 @@ class PlanParameters(BaseModel):
     clearance_m: Number = _d("clearance_m", "least distance to any surface, metres")
     glb_compression: Literal["meshopt", "none"] = _d(
         "glb_compression", "coverage.glb: meshopt-compressed, or none for plain loaders")
+    verify: StrictBool = _d("verify", "after the outputs, check the plan by a simulated scan "
+                            "of its stations: verification.json and verified faces.npz arrays")
     area_of_interest: list[Point2] | None = _d(
         "area_of_interest", "polygon [x, y] the generated candidates stay in; null: all")
     floor_levels: Literal["lowest", "all"] = _d(

@@ -205,6 +205,15 @@ def _run_plan(ctx: WorkerContext, job: JobRecord,
         started = time.perf_counter()
         outputs = _write_outputs(result, temporary)
         timings["writing"] = time.perf_counter() - started
+        if spec.verify:  # a simulated scan of the stations (planner.truth): the plan's truth
+            from planner.truth.verification import read_plan_dir, verify_plan_dir
+
+            progress("verification", 0.0)
+            started = time.perf_counter()
+            verify_plan_dir(temporary, scene, read_plan_dir(temporary), progress=progress,
+                            threads=threads)
+            outputs = _describe(sorted(temporary.iterdir()))
+            timings["verification"] = time.perf_counter() - started
         return outputs, {name: round(seconds, 4) for name, seconds in timings.items()}
 
     def should_stop() -> bool:
@@ -230,10 +239,14 @@ def _run_plan(ctx: WorkerContext, job: JobRecord,
 
 def _write_outputs(result: Any, folder: Path) -> dict[str, dict[str, Any]]:
     """Write every output into ``folder``; name -> bytes and sha256."""
-    written = write_outputs(result, folder)
+    return _describe(write_outputs(result, folder))
+
+
+def _describe(paths: list[Path]) -> dict[str, dict[str, Any]]:
+    """File name -> its size and sha256, as the results document lists them."""
     return {path.name: {"bytes": path.stat().st_size,
                         "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
-            for path in written}
+            for path in paths}
 
 
 def worker_lost_problem(job: JobRecord) -> dict[str, Any]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 from typing import Any
@@ -250,3 +251,35 @@ def test_a_model_in_millimetres_is_flagged_before_any_work(client: TestClient) -
     fixed = submit(client, mesh["id"], {"max_edge_m": None, "unit_scale": 0.001})
     assert fixed.status_code == 201
     assert fixed.json()["warnings"] is None
+
+
+def test_verify_job_option_serves_the_simulated_scan(
+        client: TestClient, hall: Path, hall_bytes: bytes, hall_parameters: dict[str, Any],
+        tmp_path: Path) -> None:
+    """verify: true adds verification.json, the same as `scanplan verify` on that plan."""
+    import numpy as np
+
+    from planner.truth.verification import read_plan_dir, verify_plan_dir
+
+    mesh_id = upload(client, hall_bytes).json()["id"]
+    created = submit(client, mesh_id, {**hall_parameters, "verify": True})
+    assert created.status_code == 201, created.text
+    job_id = created.json()["jobID"]
+    status = client.get(f"/jobs/{job_id}").json()
+    assert status["status"] == "successful", status
+    assert "verification" in status["timings_s"]
+    results = client.get(f"/jobs/{job_id}/results").json()
+    served = client.get(results["verification.json"]["href"]).json()
+    # the plan's promise is what it covers; the scan says how much of it arrived
+    covered_m2 = results["plan"]["totals"]["covered_area_m2"]
+    assert abs(served["totals"]["promised_area_m2"] - covered_m2) < 1e-3 * covered_m2
+
+    spec = PlanSpec.from_mapping(hall_parameters)
+    scene = read_scene(hall / "hall.obj", max_edge_m=spec.max_edge_m)
+    plan_dir = tmp_path / "plan"
+    write_outputs(plan(scene, spec), plan_dir)
+    verify_plan_dir(plan_dir, scene, read_plan_dir(plan_dir))
+    expected = json.loads((plan_dir / "verification.json").read_text())
+    assert served["totals"] == expected["totals"]
+    faces = np.load(io.BytesIO(client.get(results["faces.npz"]["href"]).content))
+    assert "verified_lpd_pts_m2" in faces.files
