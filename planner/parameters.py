@@ -24,8 +24,8 @@ Method = Literal["greedy", "weighted_greedy", "optimal"]
 METHODS: tuple[Method, ...] = ("greedy", "weighted_greedy", "optimal")
 GlbCompression = Literal["meshopt", "none"]
 GLB_COMPRESSIONS: tuple[GlbCompression, ...] = ("meshopt", "none")
-FloorLevels = Literal["lowest", "all"]
-FLOOR_LEVELS: tuple[FloorLevels, ...] = ("lowest", "all")
+FloorLevels = Literal["walkable", "lowest", "all"]
+FLOOR_LEVELS: tuple[FloorLevels, ...] = ("walkable", "lowest", "all")
 UpAxis = Literal["+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto"]
 UP_AXES: tuple[UpAxis, ...] = ("+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto")
 CoverageModel = Literal["centroid", "sampled"]
@@ -86,7 +86,10 @@ class PlanSpec:
     scanner_height_m: float = 1.5
     clearance_m: float = 0.3
     area_of_interest: tuple[tuple[float, float], ...] | None = None
-    floor_levels: FloorLevels = "lowest"  # "all": every walkable surface with head room
+    # "walkable": the lowest floor and every level a person reaches from it on foot (stairs,
+    # not machine tops); "lowest": the lowest surface only; "all": every flat surface with
+    # head room
+    floor_levels: FloorLevels = "walkable"
     storeys: tuple[str, ...] | None = None
     rooms: tuple[str, ...] | None = None
     # outputs

@@ -183,6 +183,13 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
         positions = place_on_floor(scene, xy, spec, caster, dropped)
         floors = positions[:, 2] - spec.scanner_height_m
         positions = drop_unclear(scene, positions, spec.clearance_m, dropped, floors)
+        if spec.floor_levels == "walkable":
+            walkable = walkable_levels(scene, xy, spec, caster,
+                                       ground_found=len(positions) > 0)
+            if walkable is not None:
+                positions, level_of = walkable
+                levels, labels = _level_labels(positions[:, 2] - spec.scanner_height_m,
+                                               level_of)
     if len(positions) == 0:
         raise NoCandidatesError(
             f"no grid point is left out of {considered} "
@@ -192,6 +199,54 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
         )
     return CandidateSet(positions=positions, source="grid", considered=considered,
                         dropped=dropped, labels=labels, levels=levels)
+
+
+def walkable_levels(
+    scene: Scene, xy: NDArray[np.float64], spec: PlanSpec, caster: RayCaster, *,
+    ground_found: bool,
+) -> tuple[NDArray[np.float64], NDArray[np.int64]] | None:
+    """``floor_levels`` "walkable": (C, 3) candidates on the lowest level of
+    :func:`place_on_levels` and on every upper level a person reaches from it on foot, with
+    their (C,) level; None when no upper level is reachable and ``ground_found`` (the
+    lowest surface then gave the candidates, exactly as "lowest" does).
+
+    The lowest *surface* under a point is the underside of a thick ground slab in many
+    exported models, where "lowest" finds no floor at all; the lowest *level* is the first
+    flat surface with head room. Reachable means: the candidate's floor point lies on a
+    node of the walk graph (:mod:`planner.survey.walkgraph`: floor samples linked within a
+    step and free at knee height, so stairs join storeys) whose connected component also
+    holds a floor point of the lowest level. A machine or table top is a flat surface with
+    head room, but no step leads onto it.
+    """
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    from planner.survey.walkgraph import build_walk_graph
+
+    levels_dropped = dict.fromkeys(DROP_REASONS, 0)
+    positions, level_of = place_on_levels(scene, xy, spec, caster, levels_dropped)
+    floors = positions[:, 2] - spec.scanner_height_m
+    keep = unclear_mask(scene, positions, spec.clearance_m, levels_dropped, floors)
+    positions, level_of = positions[keep], level_of[keep]
+    if len(positions) == 0 or (ground_found and not (level_of > level_of.min()).any()):
+        return None
+    ground = level_of == level_of.min()
+    reachable = ground.copy()
+    if not ground.all():
+        graph = build_walk_graph(scene, caster)
+        _, component = connected_components(graph.links, directed=False)
+        tree = cKDTree(graph.floor_xyz)
+        floor_xyz = positions - np.array([0.0, 0.0, spec.scanner_height_m])
+        # a grid point lies within one walk-grid cell of some floor sample of its surface
+        distance, node = tree.query(floor_xyz, distance_upper_bound=graph.grid_m)
+        found = np.isfinite(distance)
+        node_component = np.full(len(positions), -1)
+        node_component[found] = component[node[found]]
+        ground_components = np.unique(node_component[ground & found])
+        reachable |= found & np.isin(node_component, ground_components)
+    if ground_found and reachable.sum() == ground.sum():
+        return None
+    return positions[reachable], level_of[reachable]
 
 
 def place_on_levels(

@@ -209,9 +209,13 @@ def _two_storeys() -> Scene:
     return scene_of(*parts)
 
 
-def test_a_two_storey_mesh_gets_candidates_and_stations_on_both_storeys() -> None:
+@pytest.mark.parametrize("floor_levels", ["walkable", "all"])
+def test_a_two_storey_mesh_gets_candidates_and_stations_on_both_storeys(
+        floor_levels: str) -> None:
+    """By default ("walkable") the upper storey counts because the stair reaches it."""
     scene = _two_storeys()
-    spec = PlanSpec(floor_levels="all", grid_spacing_m=1.0, max_edge_m=1.0)
+    spec = PlanSpec.from_mapping({"floor_levels": floor_levels, "grid_spacing_m": 1.0,
+                                  "max_edge_m": 1.0})
     result = plan(remesh(scene, 1.0), spec)
     levels = result.candidates.summary()["levels"]
     assert isinstance(levels, list)
