@@ -58,7 +58,7 @@ PARAMETERS_REFUSED = [
     ({"max_edge_m": 1e-9}, "max_edge_m"),  # tiny spacing: ~1e20 faces
     ({"grid_spacing_m": 1e-9}, "grid_spacing_m"),
     ({"grid_spacing_m": 5e-324}, "grid_spacing_m"),  # the smallest float: inf points
-    ({"max_edge_m": None, "unit_scale": 1e300}, "grid_spacing_m"),  # light-years wide
+    ({"max_edge_m": None, "unit_scale": 1e300}, "unit_scale"),  # light-years wide: the unit
     ({"coverage_goal": 0}, "coverage_goal"),
     ({"dof_min_m": 60}, "dof_min_m"),  # beyond dof_max_m
     ({"candidates": []}, "candidates"),
