@@ -5,12 +5,15 @@ from __future__ import annotations
 import itertools
 import json
 from importlib import resources
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from planner.__main__ import main
 from planner.errors import ParameterError
+from planner.io.readers import read_scene
+from planner.method.candidates import read_candidates_csv
 from planner.method.visibility import make_occlusion, make_ray_caster
 from planner.outputs.report import plan_document, stations_csv
 from planner.parameters import PlanSpec
@@ -110,6 +113,40 @@ def test_edge_overlap_is_the_area_of_the_faces_both_stations_qualify_for(
         ratio = np.linalg.eigvalsh(scatter)[0] / np.trace(scatter)
         assert edge["constraint"] == pytest.approx(ratio, abs=1e-5)
         assert edge["ok"] == (edge["overlap_m2"] >= 2.0 and ratio >= MIN_CONSTRAINT)
+
+
+# stations of the eager connected greedy (every candidate's overlap row computed up front,
+# as before the rows became lazy), min_overlap_m2 5, the halls' candidates.csv
+EAGER_STATIONS = {
+    ("hall-small", "greedy"): [149, 57],
+    ("hall-small", "weighted_greedy"): [35, 189, 128],
+    ("hall-full", "greedy"): [374, 924, 269, 986, 976, 754],
+}
+
+
+@pytest.mark.parametrize(("name", "method"), sorted(EAGER_STATIONS))
+def test_lazy_overlap_rows_choose_the_stations_of_the_eager_greedy(
+        scenes_dir: Path, name: str, method: str) -> None:
+    folder = scenes_dir / name
+    scene = read_scene(folder / "hall.obj", max_edge_m=None)
+    candidates = read_candidates_csv(folder / "candidates.csv")
+    spec = PlanSpec(candidates=tuple(map(tuple, candidates.tolist())), max_edge_m=None,
+                    min_overlap_m2=5.0, method=method)
+    result = plan(scene, spec)
+    assert list(result.chosen.stations) == EAGER_STATIONS[(name, method)]
+    # only the candidates the greedy considered: a few per station, not every candidate
+    assert result.stats.overlap_rows <= 4 * len(result.chosen.stations)
+    assert plan_document(result)["registration"]["connected"]
+
+
+@pytest.mark.parametrize(("method", "eager"), [("greedy", [4, 6, 8, 7, 1, 3]),
+                                             ("weighted_greedy", [13, 9, 11, 12, 10, 14, 16])])
+def test_lazy_relay_is_the_relay_of_the_eager_greedy(method: str, eager: list[int]) -> None:
+    # 30 m^2 of overlap is more than the doorway lets through: one relay (no new area)
+    result = plan(two_rooms(), PlanSpec(candidates=two_room_candidates(), max_edge_m=None,
+                                        coverage_goal=0.95, min_overlap_m2=30.0, method=method))
+    assert list(result.chosen.stations) == eager
+    assert result.chosen.new_area_m2.count(0.0) == 1
 
 
 def test_plan_json_and_stations_csv_carry_the_visit(rooms: tuple[PlanResult, PlanResult]) -> None:
