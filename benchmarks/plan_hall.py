@@ -78,6 +78,9 @@ def main() -> int:
     survey_s = best.get("overlap", 0.0) + best.get("walk graph", 0.0)
     print(f"survey stages (overlap + walk graph, best): {survey_s:.2f} s = "
           f"{100 * survey_s / (best['total'] - survey_s):.0f} % on top of the rest")
+    if args.min_overlap_m2 is not None:
+        print(f"overlap rows computed (lazy): {stats.overlap_rows} of {len(candidates)} "
+              "candidates")
     print(f"peak RSS: {peak_mb:.0f} MB")
     print(f"greedy stations at goal {spec.coverage_goal}: {list(result.chosen.stations)}")
     return 0

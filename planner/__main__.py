@@ -110,9 +110,13 @@ def run_scanners(args: argparse.Namespace) -> int:
         return 0
     for scanner in scanners().values():
         steps = ", ".join(f"{s.point_spacing_m_at_10m * 1000:g} mm" for s in scanner.settings)
-        print(f"{scanner.id:<24} {scanner.name:<24} range {scanner.dof_min_m}-"
-              f"{scanner.dof_max_m} m, elevation {scanner.elevation_min_deg}.."
-              f"{scanner.elevation_max_deg} deg, steps at 10 m: {steps or 'not stated'}")
+
+        def stated(value: float | None) -> str:
+            return "-" if value is None else f"{value:g}"  # "-": no source, default kept
+
+        print(f"{scanner.id:<24} {scanner.name:<24} range {stated(scanner.dof_min_m)} to "
+              f"{stated(scanner.dof_max_m)} m, elevation {stated(scanner.elevation_min_deg)} to "
+              f"{stated(scanner.elevation_max_deg)} deg, steps at 10 m: {steps or '-'}")
     return 0
 
 

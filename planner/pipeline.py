@@ -34,7 +34,7 @@ from planner.method.visibility import (
 from planner.parameters import PlanSpec
 from planner.scene import Scene
 from planner.survey.fieldwork import Survey, survey
-from planner.survey.registration import connected_greedy, overlap_matrix
+from planner.survey.registration import OverlapRows, connected_greedy
 
 # progress(stage, fraction 0..1) -> True to cancel
 ProgressCallback = Callable[[str, float], bool | None]
@@ -51,6 +51,7 @@ class Stats:
     pairs_tested: int = 0
     rays_cast: int = 0
     qualified_pairs: int = 0
+    overlap_rows: int = 0  # candidates whose overlap row the connected greedy computed
 
 
 @dataclass(frozen=True, eq=False)
@@ -153,21 +154,23 @@ def plan(
         curve_goals=spec.curve_goals,
         progress=lambda fraction: _notify(progress, "selection", fraction))
     selections, chosen, optimal = outcome.selections, outcome.chosen, outcome.optimal
-    overlap = None
+    station_overlap = None
     if spec.min_overlap_m2 is not None and spec.method != "optimal":
-        # registration constraint: every station after the first overlaps a chosen one
-        t_overlap = time.perf_counter()
-        overlap = overlap_matrix(scene, candidates.positions, limits, occlusion,
-                                 spec.overlap_density_pts_m2, threads=threads)
-        stats.seconds["overlap"] = time.perf_counter() - t_overlap
+        # registration constraint: every station after the first overlaps a chosen one; the
+        # overlap rows are computed only for the candidates the greedy considers
+        overlap = OverlapRows(scene, candidates.positions, limits, occlusion,
+                              spec.overlap_density_pts_m2, threads=threads)
         chosen = connected_greedy(
             table, overlap, scene, candidates.positions, spec.min_overlap_m2,
             weighted=spec.method == "weighted_greedy", goal=spec.coverage_goal,
         ).truncated(spec.coverage_goal)
-    stats.seconds["selection"] = time.perf_counter() - t2
+        station_overlap = overlap.matrix(list(chosen.stations))
+        stats.seconds["overlap"] = overlap.seconds
+        stats.overlap_rows = overlap.n_computed
+    # selection without the overlap rows computed in it
+    stats.seconds["selection"] = time.perf_counter() - t2 - stats.seconds.get("overlap", 0.0)
     for step, seconds in outcome.seconds.items():
         stats.seconds[f"selection_{step}"] = seconds
-    station_overlap = None if overlap is None else overlap[list(chosen.stations)]
     plan_survey = survey(scene, spec, candidates.positions[list(chosen.stations)], limits,
                          occlusion, _caster(scene, spec, limits, occlusion), stats.seconds,
                          station_overlap=station_overlap, threads=threads)

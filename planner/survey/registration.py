@@ -27,6 +27,10 @@ Array letters: C candidates, F faces, S stations.
 from __future__ import annotations
 
 import dataclasses
+import os
+import time
+from collections.abc import Iterable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -36,7 +40,7 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
 from planner.method.coverage import CoverageTable
-from planner.method.pairs import FaceLimits
+from planner.method.pairs import FaceLimits, PairFinder
 from planner.method.selection import GOAL_SLACK_M2, Selection, gain_units, subtract_gains
 from planner.method.visibility import Occlusion, make_occlusion
 from planner.scene import Scene
@@ -54,23 +58,80 @@ def overlap_limits(limits: FaceLimits, overlap_density_pts_m2: float) -> FaceLim
                                                 overlap_density_pts_m2))
 
 
+class OverlapRows:
+    """Which faces each candidate qualifies for at the overlap density, computed on demand.
+
+    A row is the set of faces candidate ``c`` of the (C, 3) ``positions`` qualifies for at
+    ``overlap_density_pts_m2`` (same limits and occlusion as coverage otherwise, except that
+    IFC doors are open: a crew scans with the doors open, and the route walks through them).
+    Rows are computed when first asked for (the compiled limits kernel, then the Embree
+    occlusion rays; one candidate per task on a thread pool) and cached, so the connected
+    greedy pays only for the candidates it considers.
+    """
+
+    def __init__(self, scene: Scene, positions: NDArray[np.float64], limits: FaceLimits,
+                 occlusion: Occlusion, overlap_density_pts_m2: float,
+                 threads: int | None = None) -> None:
+        doors = door_faces(scene)
+        if (doors & limits.occludes).any():
+            occlusion = make_occlusion(scene, limits.occludes & ~doors, "embree")
+        self.n_faces = scene.n_faces
+        self._positions = np.asarray(positions, np.float64)  # (C, 3)
+        self._occlusion = occlusion
+        self._finder = PairFinder(scene, overlap_limits(limits, overlap_density_pts_m2))
+        self.workers = threads or os.cpu_count() or 1
+        self._rows: dict[int, NDArray[np.int64]] = {}  # candidate -> (k,) sorted face ids
+        self.seconds = 0.0  # time spent computing rows
+        self.rays_cast = 0
+
+    def __len__(self) -> int:
+        return len(self._positions)
+
+    @property
+    def n_computed(self) -> int:
+        """How many candidates' rows have been computed."""
+        return len(self._rows)
+
+    def _row(self, candidate: int) -> tuple[NDArray[np.int64], int]:
+        pairs, _ = self._finder.find(self._positions[candidate:candidate + 1], candidate)
+        visible = self._occlusion.visible(pairs.origin, pairs.direction, pairs.distance_m,
+                                          pairs.face)
+        return np.sort(pairs.face[visible].astype(np.int64)), len(pairs)
+
+    def ensure(self, candidates: Iterable[int]) -> None:
+        """Compute the rows of ``candidates`` not computed yet."""
+        todo = [int(c) for c in dict.fromkeys(int(c) for c in candidates) if c not in self._rows]
+        if not todo:
+            return
+        started = time.perf_counter()
+        if len(todo) == 1 or self.workers == 1:
+            results = [self._row(c) for c in todo]
+        else:
+            with ThreadPoolExecutor(max_workers=min(self.workers, len(todo))) as pool:
+                results = list(pool.map(self._row, todo))
+        for c, (faces, rays) in zip(todo, results, strict=True):
+            self._rows[c] = faces
+            self.rays_cast += rays
+        self.seconds += time.perf_counter() - started
+
+    def matrix(self, candidates: Sequence[int] | NDArray[np.integer[Any]]) -> sp.csr_matrix:
+        """(len(candidates), F) CSR float64 of 1.0: the rows of ``candidates``, in order."""
+        self.ensure(candidates)
+        rows = [self._rows[int(c)] for c in candidates]
+        indptr = np.zeros(len(rows) + 1, np.int64)
+        np.cumsum([len(r) for r in rows], out=indptr[1:])
+        indices = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+        return sp.csr_matrix((np.ones(len(indices), np.float64), indices, indptr),
+                             shape=(len(rows), self.n_faces))
+
+
 def overlap_matrix(scene: Scene, positions: NDArray[np.float64], limits: FaceLimits,
                    occlusion: Occlusion, overlap_density_pts_m2: float,
                    threads: int | None = None) -> sp.csr_matrix:
     """(N, F) CSR float64 of 1.0: which face each of the (N, 3) positions qualifies for at the
-    overlap density (same limits and occlusion as coverage otherwise, except that IFC doors
-    are open: a crew scans with the doors open, and the route walks through them)."""
-    from planner.pipeline import Stats, qualify_pairs  # the pipeline imports this module
-
-    doors = door_faces(scene)
-    if (doors & limits.occludes).any():
-        occlusion = make_occlusion(scene, limits.occludes & ~doors, "embree")
-
-    qualified = qualify_pairs(scene, positions, overlap_limits(limits, overlap_density_pts_m2),
-                              occlusion, Stats(), threads=threads)
-    data = np.ones(len(qualified.face), np.float64)
-    return sp.csr_matrix((data, (qualified.candidate, qualified.face)),
-                         shape=(len(positions), scene.n_faces))
+    overlap density (every row of :class:`OverlapRows`)."""
+    rows = OverlapRows(scene, positions, limits, occlusion, overlap_density_pts_m2, threads)
+    return rows.matrix(range(len(positions)))
 
 
 def _scatter_weights(scene: Scene) -> NDArray[np.float64]:
@@ -108,42 +169,78 @@ def overlap_with(overlap: sp.csr_matrix, row: int, scene: Scene,
     return area, _constraint(scatter)
 
 
-def connected_greedy(table: CoverageTable, overlap: sp.csr_matrix, scene: Scene,
+def connected_greedy(table: CoverageTable, overlap: OverlapRows, scene: Scene,
                      positions: NDArray[np.float64], min_overlap_m2: float,
                      *, weighted: bool = False, goal: float = 1.0) -> Selection:
     """Greedy (or weighted greedy) whose stations form one connected overlap graph.
 
     Gains are the same exact integers as :func:`planner.method.selection.greedy` (ties go to the
     lowest index); a candidate is *allowed* once it overlaps a chosen station. Stops once
-    ``goal`` of the achievable area is covered (each step costs a pass over ``overlap``).
+    ``goal`` of the achievable area is covered.
+
+    Lazy: each step walks the open candidates in gain order (ties: lowest index) and tests
+    only as many as it takes to find an allowed one, a few at a time (``overlap`` computes
+    and caches their rows); a candidate found allowed stays allowed, and one that was not is
+    tested again only against the stations chosen since. A relay likewise tests candidates
+    in order of distance to its target. The stations are those of testing every candidate
+    against every station (the same sums in the same order).
     """
     needed_m2 = goal * table.max_achievable_area_m2 - GOAL_SLACK_M2
     area = table.face_area_m2
     units, gains = gain_units(table, weighted=weighted)
     weights6 = _scatter_weights(scene)
+    n = table.n_candidates
     uncovered = np.ones(table.n_faces, bool)
-    allowed = np.ones(table.n_candidates, bool)  # the first station may be any
-    chosen = np.zeros(table.n_candidates, bool)
+    allowed = np.zeros(n, bool)  # (C,) known to overlap a chosen station
+    tested = np.zeros(n, np.int64)  # (C,) how many stations each was tested against
+    # per chosen station: (F,) face area and (F, 6) scatter weights masked to its row
+    station_weights: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
+    chosen = np.zeros(n, bool)
     stations: list[int] = []
     new_area: list[float] = []
     covered: list[float] = []
     total = 0.0
+    batch = max(2, overlap.workers)  # rows computed together (one per worker)
+    index = np.arange(n)
+
+    def first_allowed(order: NDArray[np.int64]) -> int | None:
+        """The first candidate of ``order`` that overlaps a chosen station, or None."""
+        for start in range(0, len(order), batch):
+            block = order[start:start + batch]
+            todo = block[~allowed[block] & (tested[block] < len(station_weights))]
+            if len(todo):
+                rows = overlap.matrix(todo)
+                for k in range(int(tested[todo].min()), len(station_weights)):
+                    area_k, scatter_k = station_weights[k]
+                    overlap_m2 = np.asarray(rows @ area_k).reshape(-1)
+                    constraint = _constraint(np.asarray(rows @ scatter_k))
+                    allowed[todo] |= ((tested[todo] <= k) & (overlap_m2 >= min_overlap_m2)
+                                      & (constraint >= MIN_CONSTRAINT))
+                tested[todo] = len(station_weights)
+            hits = block[allowed[block]]
+            if len(hits):
+                return int(hits[0])
+        return None
+
     relay_gap_m = np.inf  # distance of the last relay to its target; a relay must get closer
     while True:
-        open_gains = np.where(allowed & ~chosen, gains, -1.0)
-        candidate = int(np.argmax(open_gains))
-        if open_gains[candidate] <= 0:
-            waiting = np.where(~allowed, gains, 0.0)
-            relays = np.flatnonzero(allowed & ~chosen)
-            if waiting.max() <= 0 or len(relays) == 0:
-                break
-            target = positions[int(np.argmax(waiting))]
-            distance = np.linalg.norm(positions[relays] - target, axis=1)
-            nearest = int(np.argmin(distance))  # first of equal minima: lowest index
-            if distance[nearest] >= relay_gap_m:
+        open_ = ~chosen & (gains > 0)
+        order = index[open_][np.lexsort((index[open_], -gains[open_]))]
+        if not stations:
+            candidate: int | None = int(order[0]) if len(order) else None  # the first: any
+        else:
+            candidate = first_allowed(order)
+        if candidate is None:
+            if not stations or not len(order):
+                break  # nothing adds area: every open candidate's gain is 0
+            # no allowed candidate adds area: relay towards the best one not allowed
+            target = positions[int(np.argmax(np.where(chosen, 0.0, gains)))]
+            distance = np.linalg.norm(positions - target, axis=1)
+            near = index[~chosen & (distance < relay_gap_m)]
+            candidate = first_allowed(near[np.lexsort((near, distance[near]))])
+            if candidate is None:
                 break  # relaying makes no progress: the rest cannot be registered
-            relay_gap_m = float(distance[nearest])
-            candidate = int(relays[nearest])
+            relay_gap_m = float(distance[candidate])
         else:
             relay_gap_m = np.inf
         faces = table.faces_of(candidate)
@@ -157,10 +254,9 @@ def connected_greedy(table: CoverageTable, overlap: sp.csr_matrix, scene: Scene,
         chosen[candidate] = True
         if total >= needed_m2:
             break
-        if len(stations) == 1:
-            allowed[:] = False
-        overlap_m2, constraint = overlap_with(overlap, candidate, scene, weights6)
-        allowed |= (overlap_m2 >= min_overlap_m2) & (constraint >= MIN_CONSTRAINT)
+        mask = np.zeros(scene.n_faces)
+        mask[overlap.matrix([candidate]).indices] = 1.0
+        station_weights.append((scene.areas * mask, weights6 * mask[:, None]))
         subtract_gains(table, gains, units, fresh)
     return Selection(
         method="weighted_greedy" if weighted else "greedy",

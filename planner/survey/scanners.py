@@ -1,11 +1,12 @@
 """Scanner presets: the limits of real instruments, from ``scanners.json``.
 
-Each preset holds, per instrument, only figures with a source (data sheet title and year,
-listed in the file): range limits, the vertical field of view (or elevation limits), the
-angular steps the instrument offers as point spacing at 10 m, and the duration of a full
-scan at each step where the sheet gives one. A preset sets the *defaults* of the plan
-parameters it knows (:func:`preset_defaults`); parameters given explicitly still win, which
-:meth:`planner.parameters.PlanSpec.from_mapping` arranges.
+Each preset holds, per instrument, only figures with a source (title, year, address and the
+quoted statement, listed in the file; a figure no source states is null with its reason, and
+the plan keeps its own default for that limit): range limits, the vertical field of view (or
+elevation limits), the angular steps the instrument offers as point spacing at 10 m, and the
+duration of a full scan at each step where the source gives one. A preset sets the
+*defaults* of the plan parameters it knows (:func:`preset_defaults`); parameters given
+explicitly still win, which :meth:`planner.parameters.PlanSpec.from_mapping` arranges.
 """
 
 from __future__ import annotations
@@ -74,8 +75,9 @@ class Scanner:
 
 
 def _value(entry: dict[str, Any], key: str) -> float | None:
+    """The figure's value; None when the file has none (a null value carries its reason)."""
     figure = entry.get(key)
-    return None if figure is None else float(figure["value"])
+    return None if figure is None or figure["value"] is None else float(figure["value"])
 
 
 @functools.cache
@@ -92,7 +94,8 @@ def scanners() -> dict[str, Scanner]:
             # a vertical field of fov degrees leaves a blind cone of (360 - fov) degrees
             # under the instrument, so the lowest beam is at 90 - fov / 2 degrees elevation
             elevation_min, elevation_max = 90.0 - fov / 2.0, 90.0
-        keys = {entry[k]["source"] for k in entry if isinstance(entry[k], dict)}
+        keys = {entry[k]["source"] for k in entry
+                if isinstance(entry[k], dict) and entry[k].get("value") is not None}
         keys |= {s["source"] for s in entry["settings"]}
         result[entry["id"]] = Scanner(
             id=entry["id"],
