@@ -20,6 +20,7 @@ import numpy as np
 from planner.errors import CancelledError, NothingVisibleError
 from planner.io.orientation import scene_rotation, to_plan
 from planner.method.candidates import CandidateSet, explicit_candidates, generate_grid
+from planner.method.connectivity import Connectivity
 from planner.method.coverage import CoverageTable, QualifiedPairs
 from planner.method.optimal import OptimalResult, choose_stations
 from planner.method.pairs import FaceLimits, PairFinder
@@ -34,7 +35,7 @@ from planner.method.visibility import (
 from planner.parameters import PlanSpec
 from planner.scene import Scene
 from planner.survey.fieldwork import Survey, survey
-from planner.survey.registration import connected_greedy, overlap_matrix
+from planner.survey.registration import connected_greedy, overlap_graph, overlap_matrix
 
 # progress(stage, fraction 0..1) -> True to cancel
 ProgressCallback = Callable[[str, float], bool | None]
@@ -147,21 +148,35 @@ def plan(
 
     t2 = time.perf_counter()
     _notify(progress, "selection", 0.0)
-    outcome = choose_stations(
-        table, method=spec.method, goal=spec.coverage_goal,
-        time_limit_s=spec.optimal_time_limit_s, centroids=scene.centroids, fixed=fixed,
-        curve_goals=spec.curve_goals,
-        progress=lambda fraction: _notify(progress, "selection", fraction))
-    selections, chosen, optimal = outcome.selections, outcome.chosen, outcome.optimal
     overlap = None
-    if spec.min_overlap_m2 is not None and spec.method != "optimal":
-        # registration constraint: every station after the first overlaps a chosen one
+    connectivity = None
+    min_overlap_m2 = spec.min_overlap_m2
+    if min_overlap_m2 is not None:
         t_overlap = time.perf_counter()
         overlap = overlap_matrix(scene, candidates.positions, limits, occlusion,
                                  spec.overlap_density_pts_m2, threads=threads)
         stats.seconds["overlap"] = time.perf_counter() - t_overlap
+        if spec.method == "optimal" and not fixed:
+            # optimal keeps the overlap graph connected: a flow MILP from connected greedy
+            t_graph = time.perf_counter()
+            top_goal = max((spec.coverage_goal, *(spec.curve_goals or ())))
+            connectivity = Connectivity(
+                overlap_graph(overlap, scene, min_overlap_m2),
+                *(connected_greedy(table, overlap, scene, candidates.positions,
+                                   min_overlap_m2, weighted=w, goal=top_goal)
+                  for w in (False, True)))
+            stats.seconds["overlap_graph"] = time.perf_counter() - t_graph
+    outcome = choose_stations(
+        table, method=spec.method, goal=spec.coverage_goal,
+        time_limit_s=spec.optimal_time_limit_s, centroids=scene.centroids, fixed=fixed,
+        curve_goals=spec.curve_goals,
+        progress=lambda fraction: _notify(progress, "selection", fraction),
+        connectivity=connectivity)
+    selections, chosen, optimal = outcome.selections, outcome.chosen, outcome.optimal
+    if overlap is not None and min_overlap_m2 is not None and spec.method != "optimal":
+        # registration constraint: every station after the first overlaps a chosen one
         chosen = connected_greedy(
-            table, overlap, scene, candidates.positions, spec.min_overlap_m2,
+            table, overlap, scene, candidates.positions, min_overlap_m2,
             weighted=spec.method == "weighted_greedy", goal=spec.coverage_goal,
         ).truncated(spec.coverage_goal)
     stats.seconds["selection"] = time.perf_counter() - t2

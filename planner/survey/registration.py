@@ -35,6 +35,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
+from planner.method.connectivity import OverlapGraph
 from planner.method.coverage import CoverageTable
 from planner.method.pairs import FaceLimits
 from planner.method.selection import GOAL_SLACK_M2, Selection, gain_units, subtract_gains
@@ -108,6 +109,29 @@ def overlap_with(overlap: sp.csr_matrix, row: int, scene: Scene,
     return area, _constraint(scatter)
 
 
+def overlaps(overlap: sp.csr_matrix, row: int, scene: Scene, weights6: NDArray[np.float64],
+             min_overlap_m2: float) -> NDArray[np.bool_]:
+    """(N,) bool: which rows of ``overlap`` row ``row`` has an edge with (overlap area and
+    constraint test, see the module docstring; ``weights6`` from :func:`_scatter_weights`)."""
+    overlap_m2, constraint = overlap_with(overlap, row, scene, weights6)
+    edge: NDArray[np.bool_] = (overlap_m2 >= min_overlap_m2) & (constraint >= MIN_CONSTRAINT)
+    return edge
+
+
+def overlap_graph(overlap: sp.csr_matrix, scene: Scene, min_overlap_m2: float
+                  ) -> OverlapGraph:
+    """The candidate overlap graph of the (C, F) ``overlap`` rows: an edge (a < b) where
+    row a overlaps row b (one pass over ``overlap`` per candidate that sees a face)."""
+    weights6 = _scatter_weights(scene)
+    n = overlap.shape[0]
+    sees = np.flatnonzero(np.diff(overlap.indptr) > 0)
+    pairs = [np.zeros((0, 2), np.int64)]
+    for a in sees:
+        b = np.flatnonzero(overlaps(overlap, int(a), scene, weights6, min_overlap_m2)[a + 1:])
+        pairs.append(np.stack([np.full(len(b), a, np.int64), b.astype(np.int64) + a + 1], 1))
+    return OverlapGraph(n, np.concatenate(pairs))
+
+
 def connected_greedy(table: CoverageTable, overlap: sp.csr_matrix, scene: Scene,
                      positions: NDArray[np.float64], min_overlap_m2: float,
                      *, weighted: bool = False, goal: float = 1.0) -> Selection:
@@ -159,8 +183,7 @@ def connected_greedy(table: CoverageTable, overlap: sp.csr_matrix, scene: Scene,
             break
         if len(stations) == 1:
             allowed[:] = False
-        overlap_m2, constraint = overlap_with(overlap, candidate, scene, weights6)
-        allowed |= (overlap_m2 >= min_overlap_m2) & (constraint >= MIN_CONSTRAINT)
+        allowed |= overlaps(overlap, candidate, scene, weights6, min_overlap_m2)
         subtract_gains(table, gains, units, fresh)
     return Selection(
         method="weighted_greedy" if weighted else "greedy",
