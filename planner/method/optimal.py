@@ -33,11 +33,15 @@ it meets the plan.
 Fixed stations (re-scan, ``fixed_stations``) are in every plan: their faces count as
 covered, the programs are solved for what is still missing, and they are never dropped.
 
-A hook for side constraints: ``constraint_hooks`` are called with every program before it
-is solved (:class:`ProgramBuilder`; the first variables are the candidates' ``x``), e.g. a
-single-commodity flow on the registration-overlap graph that keeps the chosen stations
-connected adds its arc variables and flow rows there. The heuristic plans do not know such
-constraints; a hook that needs them must check incumbents too.
+Registration connectivity (``min_overlap_m2``, a ``graph`` for :func:`solve_optimal`): the
+incumbents are the connected greedy plans, every local-search move and repair must keep the
+chosen stations connected on the overlap graph, and every program gets the single-commodity
+flow of :mod:`planner.method.connectivity` (a MIP start from the incumbent included).
+
+A hook for other side constraints: ``constraint_hooks`` are called with every program before
+it is solved (:class:`ProgramBuilder`; the first variables are the candidates' ``x``). The
+heuristic plans do not know such constraints; a hook that needs them must check incumbents
+too.
 """
 
 from __future__ import annotations
