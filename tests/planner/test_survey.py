@@ -11,6 +11,7 @@ import pytest
 
 from planner.__main__ import main
 from planner.errors import ParameterError
+from planner.method import connectivity
 from planner.method.visibility import make_occlusion, make_ray_caster
 from planner.outputs.report import plan_document, stations_csv
 from planner.parameters import PlanSpec
@@ -110,6 +111,20 @@ def test_optimal_with_the_constraint_returns_a_connected_plan_from_its_flow_milp
     assert selection["proven_optimal"] and selection["lower_bound"] == 3
     assert selection["connectivity"]["formulation"] == "flow"
     assert selection["connectivity"]["overlap_edges"] > 0
+
+
+def test_too_many_overlap_edges_leave_the_connected_greedy_plan(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(connectivity, "MAX_FLOW_EDGES", 10)
+    spec = PlanSpec(candidates=two_room_candidates(), max_edge_m=None, method="optimal",
+                    coverage_goal=0.9, min_overlap_m2=2.0)
+    document = plan_document(plan(two_rooms(), spec))
+    selection = document["selection"]
+    assert document["registration"]["connected"] and document["goal_reached"]
+    assert selection["connectivity"]["formulation"] == "connected_greedy"
+    assert "exceed 10" in selection["connectivity"]["note"]
+    assert "too many for the flow MILP" in selection["status"]
+    assert selection["stations"] == selection["heuristics"]["greedy"]
 
 
 def test_edge_overlap_is_the_area_of_the_faces_both_stations_qualify_for(
