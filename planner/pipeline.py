@@ -20,6 +20,7 @@ import numpy as np
 from planner.errors import CancelledError, NothingVisibleError
 from planner.io.orientation import scene_rotation, to_plan
 from planner.method.candidates import CandidateSet, explicit_candidates, generate_grid
+from planner.method.connectivity import Connectivity
 from planner.method.coverage import CoverageTable, QualifiedPairs
 from planner.method.optimal import OptimalResult, choose_stations
 from planner.method.pairs import FaceLimits, PairFinder
@@ -34,7 +35,7 @@ from planner.method.visibility import (
 from planner.parameters import PlanSpec
 from planner.scene import Scene
 from planner.survey.fieldwork import Survey, survey
-from planner.survey.registration import OverlapRows, connected_greedy
+from planner.survey.registration import OverlapRows, connected_greedy, overlap_graph
 
 # progress(stage, fraction 0..1) -> True to cancel
 ProgressCallback = Callable[[str, float], bool | None]
@@ -148,25 +149,43 @@ def plan(
 
     t2 = time.perf_counter()
     _notify(progress, "selection", 0.0)
+    rows = None
+    connectivity = None
+    min_overlap_m2 = spec.min_overlap_m2
+    if min_overlap_m2 is not None:
+        # the overlap rows (faces each candidate qualifies for at the overlap density) are
+        # computed when a method first needs them: the connected greedy asks for a few
+        rows = OverlapRows(scene, candidates.positions, limits, occlusion,
+                           spec.overlap_density_pts_m2, threads=threads)
+        if spec.method == "optimal" and not fixed:
+            # optimal keeps the overlap graph connected: a flow MILP from connected greedy,
+            # on the graph of every candidate's row
+            t_graph = time.perf_counter()
+            top_goal = max((spec.coverage_goal, *(spec.curve_goals or ())))
+            connectivity = Connectivity(
+                overlap_graph(rows.matrix(range(len(rows))), scene, min_overlap_m2),
+                *(connected_greedy(table, rows, scene, candidates.positions,
+                                   min_overlap_m2, weighted=w, goal=top_goal)
+                  for w in (False, True)))
+            stats.seconds["overlap_graph"] = time.perf_counter() - t_graph - rows.seconds
     outcome = choose_stations(
         table, method=spec.method, goal=spec.coverage_goal,
         time_limit_s=spec.optimal_time_limit_s, centroids=scene.centroids, fixed=fixed,
         curve_goals=spec.curve_goals,
-        progress=lambda fraction: _notify(progress, "selection", fraction))
+        progress=lambda fraction: _notify(progress, "selection", fraction),
+        connectivity=connectivity)
     selections, chosen, optimal = outcome.selections, outcome.chosen, outcome.optimal
     station_overlap = None
-    if spec.min_overlap_m2 is not None and spec.method != "optimal":
-        # registration constraint: every station after the first overlaps a chosen one; the
-        # overlap rows are computed only for the candidates the greedy considers
-        overlap = OverlapRows(scene, candidates.positions, limits, occlusion,
-                              spec.overlap_density_pts_m2, threads=threads)
-        chosen = connected_greedy(
-            table, overlap, scene, candidates.positions, spec.min_overlap_m2,
-            weighted=spec.method == "weighted_greedy", goal=spec.coverage_goal,
-        ).truncated(spec.coverage_goal)
-        station_overlap = overlap.matrix(list(chosen.stations))
-        stats.seconds["overlap"] = overlap.seconds
-        stats.overlap_rows = overlap.n_computed
+    if rows is not None and min_overlap_m2 is not None:
+        if spec.method != "optimal":
+            # registration constraint: every station after the first overlaps a chosen one
+            chosen = connected_greedy(
+                table, rows, scene, candidates.positions, min_overlap_m2,
+                weighted=spec.method == "weighted_greedy", goal=spec.coverage_goal,
+            ).truncated(spec.coverage_goal)
+        station_overlap = rows.matrix(list(chosen.stations))
+        stats.seconds["overlap"] = rows.seconds
+        stats.overlap_rows = rows.n_computed
     # selection without the overlap rows computed in it
     stats.seconds["selection"] = time.perf_counter() - t2 - stats.seconds.get("overlap", 0.0)
     for step, seconds in outcome.seconds.items():

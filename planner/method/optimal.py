@@ -33,11 +33,15 @@ it meets the plan.
 Fixed stations (re-scan, ``fixed_stations``) are in every plan: their faces count as
 covered, the programs are solved for what is still missing, and they are never dropped.
 
-A hook for side constraints: ``constraint_hooks`` are called with every program before it
-is solved (:class:`ProgramBuilder`; the first variables are the candidates' ``x``), e.g. a
-single-commodity flow on the registration-overlap graph that keeps the chosen stations
-connected adds its arc variables and flow rows there. The heuristic plans do not know such
-constraints; a hook that needs them must check incumbents too.
+Registration connectivity (``min_overlap_m2``, a ``graph`` for :func:`solve_optimal`): the
+incumbents are the connected greedy plans, every local-search move and repair must keep the
+chosen stations connected on the overlap graph, and every program gets the single-commodity
+flow of :mod:`planner.method.connectivity` (a MIP start from the incumbent included).
+
+A hook for other side constraints: ``constraint_hooks`` are called with every program before
+it is solved (:class:`ProgramBuilder`; the first variables are the candidates' ``x``). The
+heuristic plans do not know such constraints; a hook that needs them must check incumbents
+too.
 """
 
 from __future__ import annotations
@@ -53,6 +57,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from planner.method.connectivity import Connectivity, OverlapGraph, add_flow
 from planner.method.coverage import CoverageTable
 from planner.method.highs_worker import Answer, HighsProcess, Program
 from planner.method.selection import GOAL_SLACK_M2, Selection, greedy, replay
@@ -174,6 +179,8 @@ class ProgramBuilder:
 
 # builder -> None: adds side constraints (see the module docstring)
 ConstraintHook = Callable[[ProgramBuilder], None]
+# stations (candidate indices) -> whether a plan satisfies a side constraint
+Keep = Callable[[Sequence[int]], bool]
 
 
 def face_classes(table: CoverageTable, faces: NDArray[np.bool_] | None = None
@@ -244,8 +251,9 @@ class _CoverState:
     """
 
     def __init__(self, table: CoverageTable, stations: list[int], n_fixed: int,
-                 need_m2: float) -> None:
+                 need_m2: float, keep: Keep | None = None) -> None:
         self.table = table
+        self.keep = keep
         self.area = table.face_area_m2
         by_face = table.by_face
         # (C, F) 0/1 pattern sharing the table's index arrays (the values are LPDs)
@@ -277,6 +285,12 @@ class _CoverState:
             self.count[self.table.faces_of(s)] += 1
             self.stations.append(s)
 
+    def _keeps(self, removed: tuple[int, ...], added: tuple[int, ...]) -> bool:
+        """Whether the plan after the move passes ``keep`` (always without one)."""
+        if self.keep is None:
+            return True
+        return self.keep([s for s in self.stations if s not in removed] + list(added))
+
     def unique_faces(self, station: int) -> NDArray[np.int64]:
         faces = self.table.faces_of(station)
         return np.asarray(faces[self.count[faces] == 1], np.int64)
@@ -286,7 +300,7 @@ class _CoverState:
         moves = []
         for s in list(self.stations[self.n_fixed:]):
             lost = float(self.area[self.unique_faces(s)].sum())
-            if self.covered_m2 - lost >= self.need_m2:
+            if self.covered_m2 - lost >= self.need_m2 and self._keeps((s,), ()):
                 self._apply((s,), ())
                 moves.append(Move("drop", (s,), ()))
         return moves
@@ -316,10 +330,19 @@ class _CoverState:
                 gain = gain + self._gain(shared[(a, b)])
             gain[[a, b]] = -np.inf  # keeping one of them is a drop, found by drop_pass
             best = int(np.argmax(gain))  # lowest index among equals
-            if covered - lost + gain[best] >= self.need_m2:
-                move = Move("two_for_one", (a, b), (best,))
-                self._apply(move.removed, move.added)
-                return move
+            if covered - lost + gain[best] < self.need_m2:
+                continue
+            if not self._keeps((a, b), (best,)):
+                # the replacements reaching the goal, most gain first (lowest index)
+                enough = np.flatnonzero(covered - lost + gain >= self.need_m2)
+                kept = [int(c) for c in enough[np.lexsort((enough, -gain[enough]))]
+                        if self._keeps((a, b), (int(c),))]
+                if not kept:
+                    continue
+                best = kept[0]
+            move = Move("two_for_one", (a, b), (best,))
+            self._apply(move.removed, move.added)
+            return move
         return None
 
     def _shared_by_two(self, free: list[int]) -> dict[tuple[int, int], NDArray[np.int64]]:
@@ -359,7 +382,7 @@ class _CoverState:
             c = int(np.argmax(after))
             if after[c] > covered + SWAP_MIN_GAIN_M2 and (best is None or after[c] > best[0]):
                 best = (float(after[c]), a, c)
-        if best is None:
+        if best is None or not self._keeps((best[1],), (best[2],)):
             return None
         move = Move("swap", (best[1],), (best[2],))
         self._apply(move.removed, move.added)
@@ -379,13 +402,15 @@ class _CoverState:
 
 
 def local_search(table: CoverageTable, stations: Sequence[int], need_m2: float,
-                 n_fixed: int, deadline: float, *, swaps: bool) -> tuple[list[int], list[Move]]:
+                 n_fixed: int, deadline: float, *, swaps: bool, keep: Keep | None = None
+                 ) -> tuple[list[int], list[Move]]:
     """Improve a plan that reaches ``need_m2``: drops, two-for-one, then (``swaps``) swaps.
 
-    The first ``n_fixed`` stations stay. Returns the stations (fixed first) and the moves;
+    The first ``n_fixed`` stations stay; every move keeps ``keep`` true (a side constraint
+    such as registration connectivity). Returns the stations (fixed first) and the moves;
     the plan is the input again when replay does not confirm the goal (float order).
     """
-    state = _CoverState(table, list(stations), n_fixed, need_m2)
+    state = _CoverState(table, list(stations), n_fixed, need_m2, keep)
     moves = state.drop_pass()
     swaps_left = 2 * len(stations) if swaps else 0
     while time.monotonic() < deadline:
@@ -405,13 +430,18 @@ def local_search(table: CoverageTable, stations: Sequence[int], need_m2: float,
 
 
 def _repair(table: CoverageTable, stations: list[int], need_m2: float, n_fixed: int,
-            deadline: float) -> list[int]:
-    """A plan from stations that may miss the goal: greedy completion, then local search."""
+            deadline: float, keep: Keep | None = None) -> list[int]:
+    """A plan from stations that may miss the goal: greedy completion, then local search.
+
+    Empty when it misses the goal or (greedy completion knows no side constraint) fails
+    ``keep``.
+    """
     state = _CoverState(table, stations, n_fixed, need_m2)
     state.complete()
-    if state.covered_m2 < need_m2:
+    if state.covered_m2 < need_m2 or (keep is not None and not keep(state.stations)):
         return []
-    return local_search(table, state.stations, need_m2, n_fixed, deadline, swaps=False)[0]
+    return local_search(table, state.stations, need_m2, n_fixed, deadline, swaps=False,
+                        keep=keep)[0]
 
 
 # --- the solver ------------------------------------------------------------------------
@@ -422,6 +452,7 @@ def solve_optimal(
     incumbents: Sequence[Selection], centroids: np.ndarray, *,
     fixed: tuple[int, ...] = (), deadline: float | None = None,
     constraint_hooks: Sequence[ConstraintHook] = (), tick: Callable[[], None] | None = None,
+    graph: OverlapGraph | None = None,
 ) -> OptimalResult:
     """The fewest stations reaching ``goal`` of the achievable area (see module docstring).
 
@@ -430,6 +461,11 @@ def solve_optimal(
     the faces for the relaxation of programs too large to solve. Stops by ``time_limit_s``
     (or the earlier ``deadline``, ``time.monotonic()`` seconds). ``tick`` is called about
     twice a second while HiGHS works and may raise to cancel.
+
+    ``graph`` (registration overlap, :mod:`planner.method.connectivity`): every plan must be
+    connected on it. The incumbents must then be connected plans (connected greedy), the
+    local search keeps connectivity and the MILPs carry the flow rows; a graph too big for
+    them leaves the local search's plan.
     """
     start = time.monotonic()
     stop = start + time_limit_s if deadline is None else min(deadline, start + time_limit_s)
@@ -438,7 +474,9 @@ def solve_optimal(
     pick = int(np.argmin(counts))  # the first of equals: greedy before weighted greedy
     heuristic = list(incumbents[pick].stations[:counts[pick]])
     n_fixed = len(fixed)
-    best, moves = local_search(table, heuristic, need, n_fixed, stop, swaps=goal < 1.0)
+    keep = None if graph is None else graph.connected
+    best, moves = local_search(table, heuristic, need, n_fixed, stop, swaps=goal < 1.0,
+                               keep=keep)
     seconds = {"local_search": time.monotonic() - start}
     after_search = len(best)
 
@@ -451,13 +489,20 @@ def solve_optimal(
     status = "the plan meets the area bound (fewest candidates whose areas add up to the goal)"
     n_classes = 0
     t_milp = time.monotonic()
-    if len(best) > lower and need_rest > 0:
+    reached = graph is None or bool(
+        best and replay(table, best, "optimal").covered_area_m2[-1] >= need)
+    if not reached:
+        status = "the connected greedy plan does not reach the goal"
+    elif graph is not None and graph.too_big:
+        status = (f"{len(graph.edges)} overlap edges are too many for the flow MILP: the "
+                  "connected greedy plan after local search")
+    elif len(best) > lower and need_rest > 0:
         with HighsProcess(tick) as highs:
             highs.start()
             solver = _set_cover if goal >= 1.0 else _partial_cover
             best, lower, status, n_classes = solver(
                 _Problem(table, centroids, rest, need_rest, fixed, constraint_hooks, stop,
-                         highs), best, lower)
+                         highs, graph), best, lower)
     seconds["milp"] = time.monotonic() - t_milp
     found = len(best)
     lower = min(lower, found)
@@ -468,7 +513,7 @@ def solve_optimal(
         selection=replay(table, stations, "optimal", n_fixed),
         lower_bound=int(lower),
         gap=float((found - lower) / found) if found else 0.0,
-        proven_optimal=lower == found,
+        proven_optimal=lower == found and reached,
         status=status,
         face_classes=int(n_classes),
         best_heuristic=incumbents[pick].method,
@@ -491,11 +536,19 @@ class _Problem:
     hooks: Sequence[ConstraintHook]
     deadline: float
     highs: HighsProcess
+    graph: OverlapGraph | None = None  # registration connectivity: the flow rows
 
     def builder(self) -> ProgramBuilder:
         return ProgramBuilder(self.table.n_candidates)
 
-    def solve(self, builder: ProgramBuilder) -> Answer | None:
+    @property
+    def keep(self) -> Keep | None:
+        return None if self.graph is None else self.graph.connected
+
+    def solve(self, builder: ProgramBuilder, capacity: int) -> Answer | None:
+        """HiGHS's answer; ``capacity``: the most stations of a plan of interest."""
+        if self.graph is not None:
+            add_flow(builder, self.graph, capacity)
         for hook in self.hooks:
             hook(builder)
         return self.highs.solve(builder.build(), self.deadline)
@@ -523,7 +576,7 @@ def _set_cover(problem: _Problem, best: list[int], lower: int
         builder.add_rows(rows[np.flatnonzero(active)], 1.0, np.inf)
         builder.start = np.zeros(problem.table.n_candidates)
         builder.start[[c for c in best if c not in problem.fixed]] = 1.0
-        answer = problem.solve(builder)
+        answer = problem.solve(builder, len(best))
         if answer is None:
             status = f"time limit reached solving the set cover on {active.sum()} rows"
             break
@@ -543,7 +596,7 @@ def _set_cover(problem: _Problem, best: list[int], lower: int
                       f"time limit reached in the set cover ({answer.message})")
             break
         repaired = _repair(problem.table, plan, problem.need_m2 + _fixed_area(problem),
-                           n_fixed, problem.deadline)
+                           n_fixed, problem.deadline, problem.keep)
         if repaired and len(repaired) < len(best):
             best = repaired
         if len(best) <= lower:
@@ -588,7 +641,7 @@ def _partial_cover(problem: _Problem, best: list[int], lower: int
     x0 = np.zeros(n_cand)
     x0[[c for c in best if c not in problem.fixed]] = 1.0
     builder.start = np.concatenate([x0, np.minimum(1.0, cover.T @ x0)])
-    answer = problem.solve(builder)
+    answer = problem.solve(builder, len(best))
     if answer is None:
         return best, lower, f"time limit reached before HiGHS answered ({n_class} face classes)", \
             n_class
@@ -598,7 +651,7 @@ def _partial_cover(problem: _Problem, best: list[int], lower: int
     if answer.x is not None:
         plan = problem.plan_of(answer.x)
         if not exact and replay(table, plan, "optimal").covered_area_m2[-1] < need_total:
-            plan = _repair(table, plan, need_total, n_fixed, problem.deadline)
+            plan = _repair(table, plan, need_total, n_fixed, problem.deadline, problem.keep)
             status += " (relaxed answer, repaired on the exact table)"
         if plan and len(plan) < len(best):
             best = plan
@@ -664,7 +717,8 @@ def choose_stations(table: CoverageTable, *, method: str, goal: float, time_limi
                     centroids: np.ndarray, fixed: tuple[int, ...] = (),
                     curve_goals: tuple[float, ...] | None = None,
                     constraint_hooks: Sequence[ConstraintHook] = (),
-                    progress: Callable[[float], None] | None = None) -> SelectionOutcome:
+                    progress: Callable[[float], None] | None = None,
+                    connectivity: Connectivity | None = None) -> SelectionOutcome:
     """Both heuristics, then ``optimal`` for the plan's goal and for ``curve_goals``.
 
     ``curve_goals`` None means the plan's goal when ``method`` is optimal, no goal
@@ -672,6 +726,11 @@ def choose_stations(table: CoverageTable, *, method: str, goal: float, time_limi
     plan's goal first, each goal getting an equal share of what is left. ``progress`` is
     called with the share of the time limit used (0..1), about twice a second while HiGHS
     works; it may raise to cancel the plan.
+
+    ``connectivity`` (``min_overlap_m2``, no fixed stations): ``optimal`` starts from its
+    connected greedy plans and keeps every plan connected on its overlap graph
+    (:mod:`planner.method.connectivity`); the report then says how (``connectivity``) and
+    its heuristics are the connected ones.
     """
     start = time.monotonic()
     deadline = start + time_limit_s
@@ -685,19 +744,24 @@ def choose_stations(table: CoverageTable, *, method: str, goal: float, time_limi
                        else ((goal,) if method == "optimal" else ())))
     todo = ([goal] if method == "optimal" else []) + [g for g in goals if g != goal or
                                                         method != "optimal"]
+    heuristics = selections if connectivity is None else {
+        "greedy": connectivity.greedy, "weighted_greedy": connectivity.weighted_greedy}
     solved: dict[float, OptimalResult] = {}
     for i, g in enumerate(todo):
         share = (deadline - time.monotonic()) / (len(todo) - i)
         solved[g] = solve_optimal(
-            table, g, max(share, 0.0), [selections["greedy"], selections["weighted_greedy"]],
+            table, g, max(share, 0.0), [heuristics["greedy"], heuristics["weighted_greedy"]],
             centroids, fixed=fixed, deadline=deadline, constraint_hooks=constraint_hooks,
             tick=None if progress is None else lambda: progress(
-                min(1.0, (time.monotonic() - start) / time_limit_s)))
+                min(1.0, (time.monotonic() - start) / time_limit_s)),
+            graph=None if connectivity is None else connectivity.graph)
         for step, s in solved[g].seconds.items():
             seconds[step] = seconds.get(step, 0.0) + s
     optimal = solved.get(goal) if method == "optimal" else None
     chosen = optimal.selection if optimal is not None else selections[method].truncated(goal)
-    report = _selection_report(table, selections, chosen, goal, optimal, fixed)
+    report = _selection_report(table, heuristics, chosen, goal, optimal, fixed)
+    if connectivity is not None and optimal is not None:
+        report["connectivity"] = connectivity.report()
     return SelectionOutcome(selections=selections, chosen=chosen, optimal=optimal,
                             curve=tuple(solved[g] for g in goals), report=report,
                             seconds=seconds)

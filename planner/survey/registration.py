@@ -39,6 +39,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
+from planner.method.connectivity import OverlapGraph
 from planner.method.coverage import CoverageTable
 from planner.method.pairs import FaceLimits, PairFinder
 from planner.method.selection import GOAL_SLACK_M2, Selection, gain_units, subtract_gains
@@ -167,6 +168,29 @@ def overlap_with(overlap: sp.csr_matrix, row: int, scene: Scene,
     area = np.asarray(overlap @ (scene.areas * mask)).reshape(-1)
     scatter = np.asarray(overlap @ (weights6 * mask[:, None]))
     return area, _constraint(scatter)
+
+
+def overlaps(overlap: sp.csr_matrix, row: int, scene: Scene, weights6: NDArray[np.float64],
+             min_overlap_m2: float) -> NDArray[np.bool_]:
+    """(N,) bool: which rows of ``overlap`` row ``row`` has an edge with (overlap area and
+    constraint test, see the module docstring; ``weights6`` from :func:`_scatter_weights`)."""
+    overlap_m2, constraint = overlap_with(overlap, row, scene, weights6)
+    edge: NDArray[np.bool_] = (overlap_m2 >= min_overlap_m2) & (constraint >= MIN_CONSTRAINT)
+    return edge
+
+
+def overlap_graph(overlap: sp.csr_matrix, scene: Scene, min_overlap_m2: float
+                  ) -> OverlapGraph:
+    """The candidate overlap graph of the (C, F) ``overlap`` rows: an edge (a < b) where
+    row a overlaps row b (one pass over ``overlap`` per candidate that sees a face)."""
+    weights6 = _scatter_weights(scene)
+    n = overlap.shape[0]
+    sees = np.flatnonzero(np.diff(overlap.indptr) > 0)
+    pairs = [np.zeros((0, 2), np.int64)]
+    for a in sees:
+        b = np.flatnonzero(overlaps(overlap, int(a), scene, weights6, min_overlap_m2)[a + 1:])
+        pairs.append(np.stack([np.full(len(b), a, np.int64), b.astype(np.int64) + a + 1], 1))
+    return OverlapGraph(n, np.concatenate(pairs))
 
 
 def connected_greedy(table: CoverageTable, overlap: OverlapRows, scene: Scene,

@@ -13,6 +13,7 @@ import pytest
 from planner.__main__ import main
 from planner.errors import ParameterError
 from planner.io.readers import read_scene
+from planner.method import connectivity
 from planner.method.candidates import read_candidates_csv
 from planner.method.visibility import make_occlusion, make_ray_caster
 from planner.outputs.report import plan_document, stations_csv
@@ -106,6 +107,39 @@ def test_papers_plan_is_disconnected_and_the_constrained_plan_connected(
     assert document["goal_reached"]
     # the paper's selection is untouched by the constraint (only the plan changes)
     assert constrained.selections["greedy"].stations == paper.selections["greedy"].stations
+
+
+def test_optimal_with_the_constraint_returns_a_connected_plan_from_its_flow_milp() -> None:
+    # at 90 % the two rooms need one station each: unconstrained, the optimum (2) cannot
+    # register; the flow MILP adds the third station joining them and proves 3 the fewest
+    scene = two_rooms()
+    spec = PlanSpec(candidates=two_room_candidates(), max_edge_m=None, method="optimal",
+                    coverage_goal=0.9)
+    free = plan_document(plan(scene, spec))
+    assert free["selection"]["stations"] == 2 and free["selection"]["proven_optimal"]
+    assert not free["registration"]["connected"]
+    assert "connectivity" not in free["selection"]
+    joined = plan_document(plan(scene, spec.with_changes(min_overlap_m2=2.0)))
+    selection = joined["selection"]
+    assert joined["registration"]["connected"] and joined["goal_reached"]
+    assert selection["method"] == "optimal" and selection["stations"] == 3
+    assert selection["proven_optimal"] and selection["lower_bound"] == 3
+    assert selection["connectivity"]["formulation"] == "flow"
+    assert selection["connectivity"]["overlap_edges"] > 0
+
+
+def test_too_many_overlap_edges_leave_the_connected_greedy_plan(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(connectivity, "MAX_FLOW_EDGES", 10)
+    spec = PlanSpec(candidates=two_room_candidates(), max_edge_m=None, method="optimal",
+                    coverage_goal=0.9, min_overlap_m2=2.0)
+    document = plan_document(plan(two_rooms(), spec))
+    selection = document["selection"]
+    assert document["registration"]["connected"] and document["goal_reached"]
+    assert selection["connectivity"]["formulation"] == "connected_greedy"
+    assert "exceed 10" in selection["connectivity"]["note"]
+    assert "too many for the flow MILP" in selection["status"]
+    assert selection["stations"] == selection["heuristics"]["greedy"]
 
 
 def test_edge_overlap_is_the_area_of_the_faces_both_stations_qualify_for(

@@ -8,10 +8,12 @@ import itertools
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.sparse.csgraph import breadth_first_order
 
+from planner.method.connectivity import OverlapGraph
 from planner.method.coverage import CoverageTable, QualifiedPairs
 from planner.method.optimal import solve_optimal
-from planner.method.selection import GOAL_SLACK_M2, greedy
+from planner.method.selection import GOAL_SLACK_M2, greedy, replay
 
 
 def table_of(sets: list[list[int]], areas: list[float]) -> CoverageTable:
@@ -58,3 +60,40 @@ def test_optimal_equals_enumeration(instance: tuple[list[list[int]], list[float]
     assert len(result.selection.stations) == fewest
     assert result.proven_optimal and result.lower_bound == fewest
     assert result.selection.stations[:n_fixed] == fixed
+
+
+def fewest_connected_by_enumeration(table: CoverageTable, goal: float,
+                                    graph: OverlapGraph) -> int:
+    need = goal * table.max_achievable_area_m2 - GOAL_SLACK_M2
+    for size in range(1, table.n_candidates + 1):
+        for subset in itertools.combinations(range(table.n_candidates), size):
+            faces = np.zeros(table.n_faces, bool)
+            for c in subset:
+                faces[table.faces_of(c)] = True
+            if table.face_area_m2[faces].sum() >= need and graph.connected(subset):
+                return size
+    raise AssertionError("every candidate together is connected and reaches every goal")
+
+
+# a connected overlap graph: a random spanning tree (parent of c among 0..c-1) plus extra edges
+@settings(max_examples=12, deadline=None)
+@given(instance=instance, goal=st.sampled_from([0.5, 0.8, 0.95, 1.0]), data=st.data())
+def test_connected_optimal_equals_enumeration(instance: tuple[list[list[int]], list[float]],
+                                              goal: float, data: st.DataObject) -> None:
+    sets, areas = instance
+    table = table_of(sets, areas)
+    n = table.n_candidates
+    tree = [(data.draw(st.integers(0, c - 1)), c) for c in range(1, n)]
+    pairs = list(itertools.combinations(range(n), 2))
+    extra = data.draw(st.lists(st.sampled_from(pairs), max_size=n))
+    graph = OverlapGraph(n, np.array(sorted(set(tree) | set(extra)), np.int64).reshape(-1, 2))
+    # breadth-first from candidate 0: every prefix of the order is connected
+    order = [int(c) for c in breadth_first_order(graph.adjacency, 0, directed=False,
+                                                 return_predecessors=False)]
+    incumbent = replay(table, order, "greedy")
+    result = solve_optimal(table, goal, 20, [incumbent], np.zeros((table.n_faces, 3)),
+                           graph=graph)
+    fewest = fewest_connected_by_enumeration(table, goal, graph)
+    assert graph.connected(result.selection.stations)
+    assert len(result.selection.stations) == fewest
+    assert result.proven_optimal and result.lower_bound == fewest
