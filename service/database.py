@@ -71,6 +71,9 @@ jobs = Table(
 Index("jobs_owner_idempotency", jobs.c.owner, jobs.c.idempotency_key, unique=True)
 
 
+_SQLITE_POOL_SIZE = 40
+
+
 def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
     cursor = dbapi_connection.cursor()
     cursor.execute("PRAGMA journal_mode=WAL")
@@ -82,7 +85,11 @@ def _sqlite_pragmas(dbapi_connection: Any, _record: Any) -> None:
 def make_engine(url: str) -> Engine:
     """An engine for ``url`` with the tables created (idempotent)."""
     if url.startswith("sqlite"):
-        engine = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False})
+        # a pool as large as the thread pool that uses it (anyio's default: 40 threads):
+        # with SQLAlchemy's default of 5 (+10 overflow), a burst of requests opened and
+        # closed overflow connections, each with its PRAGMAs, on the request path
+        engine = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False},
+                               pool_size=_SQLITE_POOL_SIZE, max_overflow=8)
         event.listen(engine, "connect", _sqlite_pragmas)
     else:
         engine = create_engine(url, pool_pre_ping=True)

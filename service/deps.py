@@ -25,12 +25,14 @@ class Services:
     keys: KeyRing
 
 
-def get_services(request: Request) -> Services:
+# both dependencies are async although they never wait: FastAPI runs a plain ``def``
+# dependency in the thread pool, a hop per dependency per request (GIL hand-overs included)
+async def get_services(request: Request) -> Services:
     services: Services = request.app.state.services
     return services
 
 
-def get_owner(
+async def get_owner(
     services: Annotated[Services, Depends(get_services)],
     authorization: Annotated[str | None, Header(include_in_schema=False)] = None,
 ) -> str:

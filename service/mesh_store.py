@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sqlalchemy import Engine, delete, func, insert, select
+from sqlalchemy import Engine, bindparam, delete, func, insert, select
 from sqlalchemy.exc import IntegrityError
 
 from planner.io.readers import file_format, read_scene
@@ -27,6 +27,12 @@ from service.database import mesh_owners, meshes
 from service.problems import PayloadTooLargeError
 
 _CHUNK_BYTES = 1 << 20
+# built once: every submission looks its mesh up, and building the statement per call
+# (coercions, cache key) cost more than running it
+_GET_FOR_OWNER = (select(meshes, mesh_owners.c.filename)
+                  .join(mesh_owners, mesh_owners.c.mesh_id == meshes.c.id)
+                  .where(meshes.c.id == bindparam("mesh_id"),
+                         mesh_owners.c.owner == bindparam("owner")))
 _SAFE_NAME = re.compile(r"[^A-Za-z0-9._-]+")
 
 
@@ -153,11 +159,8 @@ class MeshStore:
 
     def get(self, mesh_id: str, owner: str) -> MeshRecord | None:
         """The mesh if ``owner`` uploaded it."""
-        query = (select(meshes, mesh_owners.c.filename)
-                 .join(mesh_owners, mesh_owners.c.mesh_id == meshes.c.id)
-                 .where(meshes.c.id == mesh_id, mesh_owners.c.owner == owner))
         with self.engine.connect() as conn:
-            row = conn.execute(query).first()
+            row = conn.execute(_GET_FOR_OWNER, {"mesh_id": mesh_id, "owner": owner}).first()
         if row is None:
             return None
         data = row._mapping

@@ -12,8 +12,9 @@ from service.problems import NotReadyError, problem_responses
 router = APIRouter(tags=["health"], responses=problem_responses(500))
 
 
+# async: answered on the event loop, without a thread-pool hop
 @router.get("/healthz")
-def healthz() -> dict[str, str]:
+async def healthz() -> dict[str, str]:
     """Liveness: the API process answers."""
     return {"status": "ok"}
 
