@@ -350,6 +350,17 @@ async function loadModel() {
   const info = (gltf.scene.userData && gltf.scene.userData.scanplan) || {};
   classNodes.clear();
   const box = new THREE.Box3();
+  // the root node "scanplan" holds the plan frame (Z up) and turns it into the model's own
+  // frame; a model whose up is not +Z (up_axis) would lie on its side, so turn the plan's up
+  // to the viewer's Y (labels, the cut and the camera assume Y up)
+  const frame = root.getObjectByName('scanplan') || root;
+  root.updateMatrixWorld(true);
+  const up = new THREE.Vector3(0, 0, 1)
+    .applyQuaternion(frame.getWorldQuaternion(new THREE.Quaternion()));
+  const yUp = new THREE.Vector3(0, 1, 0);
+  if (up.dot(yUp) < 1 - 1e-9) {
+    root.quaternion.premultiply(new THREE.Quaternion().setFromUnitVectors(up, yUp));
+  }
   root.updateMatrixWorld(true);
   root.traverse((object) => {
     const data = object.userData || {};
@@ -380,7 +391,7 @@ async function loadModel() {
   controls.target.copy(centre);
   controls.update();
   setupToggles(classNodes, info);
-  setupOverlays(root.getObjectByName('scanplan') || root, span);
+  setupOverlays(frame, span);
   setupColouring();
   setupCut(box);
   new ResizeObserver(resize).observe(canvas.parentElement);

@@ -105,13 +105,15 @@ def server(tmp_path_factory: pytest.TempPathFactory, scenes_dir: Path
         thread.join(10)
 
 
-def submit(base: str, scenes_dir: Path, **changes: Any) -> str:
+def submit(base: str, scenes_dir: Path, *, model: bytes | None = None, **changes: Any) -> str:
+    """Plan hall-small (or ``model``, an OBJ) with the hall's candidates unless changed."""
     hall = scenes_dir / "hall-small"
     with (hall / "candidates.csv").open() as handle:
         candidates = [[float(r["x"]), float(r["y"]), float(r["z"])]
                       for r in csv.DictReader(handle)]
     with httpx.Client(base_url=base, timeout=120) as client:
-        mesh = client.post("/meshes?filename=hall.obj", content=(hall / "hall.obj").read_bytes(),
+        mesh = client.post("/meshes?filename=hall.obj",
+                           content=model or (hall / "hall.obj").read_bytes(),
                            headers={"content-type": "application/octet-stream"})
         assert mesh.status_code in (200, 201), mesh.text
         parameters = {"max_edge_m": None, "candidates": candidates, **changes}
@@ -269,6 +271,33 @@ def check_route_and_time(page: Any, plan: dict[str, Any]) -> None:
         assert ", ".join(str(u) for u in unreachable) in note
     else:
         assert note == "every station is on the walking route"
+
+
+def test_viewer_route_of_a_model_with_another_up(
+        server: tuple[str, InlineQueue], scenes_dir: Path, browser_context: Any) -> None:
+    """plan.json holds model coordinates, the glb's markers sit under a rotated root: the
+    route and the edges still run between the markers."""
+    base, _ = server
+    # the hall turned so that its up is -Y (plan = R @ model, R of up_axis "-Y")
+    rotation = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    lines = []
+    for line in (scenes_dir / "hall-small" / "hall.obj").read_text().splitlines():
+        if line.startswith("v "):
+            x, y, z = (rotation.T @ np.array([float(v) for v in line.split()[1:4]])).tolist()
+            line = f"v {x:.6f} {y:.6f} {z:.6f}"
+        lines.append(line)
+    with (scenes_dir / "hall-small" / "candidates.csv").open() as handle:
+        candidates = [(rotation.T @ np.array([float(r["x"]), float(r["y"]), float(r["z"])])
+                       ).tolist() for r in csv.DictReader(handle)]
+    job = submit(base, scenes_dir, model="\n".join(lines).encode(), up_axis="-Y",
+                 candidates=candidates)
+    plan = httpx.get(f"{base}/jobs/{job}/results/plan.json").json()
+    assert plan["scene"]["orientation"]["rotation"] == rotation.tolist()
+    page, errors = open_page(browser_context, f"{base}/jobs/{job}/viewer")
+    page.wait_for_function("window.scanplanViewer && window.scanplanViewer.ready",
+                           timeout=60_000)
+    check_route_and_time(page, plan)
+    assert errors == []
 
 
 def test_viewer_colours_what_the_verification_delivered(
