@@ -1,6 +1,9 @@
 // The viewer of one job: status while it runs, the problem when it fails, and when it has
 // succeeded the coverage model (coverage.glb) in 3D with clickable stations, face-class
-// toggles, totals, the station list and the coverage curve.
+// toggles, the walking route and the registration overlap edges, totals, the field time,
+// the station list (with the visit order) and the coverage curve. A plan with a
+// verification (verify parameter, or scanplan verify) can be coloured by what the
+// simulated scan delivered, from the verified arrays of faces.npz.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
@@ -9,6 +12,7 @@ import { MeshoptDecoder } from 'three/addons/libs/meshopt_decoder.module.js';
 import {
   ProblemError, askForKey, authHeaders, basePath, el, fetchOk, fmt, getJSON, problemText,
 } from './api.js';
+import { readNpz } from './npz.js';
 
 const CLASSES = [
   ['covered', 'covered by the plan', '#31a354'],
@@ -16,13 +20,27 @@ const CLASSES = [
   ['not_coverable', 'not coverable from any candidate', '#be1e3c'],
   ['not_target', 'no requirement', '#c8c8c8'],
 ];
+// the delivered colouring: a target face by its promise (plan: covered) and the simulated
+// scan (faces.npz verified_delivered); faces without a requirement stay grey
+const DELIVERED = [
+  ['delivered', 'promised and delivered', '#31a354'],
+  ['promised_not_delivered', 'promised, not delivered', '#d7191c'],
+  ['delivered_not_promised', 'delivered, not promised', '#2c7bb6'],
+  ['not_delivered', 'not promised, not delivered', '#f09614'],
+  ['not_target', 'no requirement', '#c8c8c8'],
+];
+const ROUTE_COLOUR = '#7b3294';
+const EDGE_COLOURS = { ok: '#0a9396', weak: '#d7191c' };
 const $ = (id) => document.getElementById(id);
 const match = window.location.pathname.match(/\/jobs\/([^/]+)\/viewer\/?$/);
 const jobId = match ? decodeURIComponent(match[1]) : '';
 const jobPath = `/jobs/${encodeURIComponent(jobId)}`;
 
 // what tests and scripts can ask the page
-const hook = { ready: false, status: 'loading', stations: () => [], selected: null };
+const hook = {
+  ready: false, status: 'loading', stations: () => [], selected: null, colouring: 'coverage',
+  overlays: () => ({ legs: [], edges: [], stations: {} }), faceColours: () => ({}),
+};
 window.scanplanViewer = hook;
 
 $('job-id').textContent = jobId;
@@ -93,14 +111,28 @@ async function poll() {
 // --- results ---------------------------------------------------------------------------
 
 let plan = null;
+let outputs = new Set(); // names of the job's output files
+let verification = null; // verification.json, when the plan was verified
 
 async function loadResults() {
   try {
-    plan = await getJSON(`${jobPath}/results/plan.json`);
+    // the results document: plan.json inline and every output file by name
+    const results = await getJSON(`${jobPath}/results`);
+    plan = results.plan;
+    outputs = new Set(Object.keys(results).filter((name) => name !== 'plan'));
     showTotals(plan);
+    showFieldTime(plan);
     showStationTable(plan.stations || []);
   } catch (err) {
     showProblem(err.problem, 'The plan document cannot be read');
+  }
+  if (outputs.has('verification.json')) {
+    try {
+      verification = await getJSON(`${jobPath}/results/verification.json`);
+    } catch (err) {
+      verification = null;
+      $('delivered-note').textContent = `verification.json cannot be read: ${err.message}`;
+    }
   }
   showFiles();
   showCurve();
@@ -134,12 +166,74 @@ function showTotals(doc) {
   $('totals').hidden = false;
 }
 
+// 75 s -> "1 min 15 s", 4000 s -> "1 h 07 min"; null -> "unknown"
+function duration(seconds) {
+  if (seconds === null || seconds === undefined || !Number.isFinite(Number(seconds))) {
+    return 'unknown';
+  }
+  const s = Math.round(Number(seconds));
+  if (s < 60) return `${s} s`;
+  if (s < 3600) return `${Math.floor(s / 60)} min ${String(s % 60).padStart(2, '0')} s`;
+  const m = Math.round(s / 60);
+  return `${Math.floor(m / 60)} h ${String(m % 60).padStart(2, '0')} min`;
+}
+
+// why plan.json has no scan time (field_time.scan_s null)
+function scanUnknownReason(doc) {
+  const p = doc.parameters || {};
+  const scanner = doc.field_time && doc.field_time.scanner;
+  if (!scanner) {
+    return 'no scanner preset was chosen (parameter scanner), so the scan duration of a ' +
+      'station is not known';
+  }
+  return `the preset ${scanner} states no scan duration for a point spacing of ` +
+    `${fmt(1000 * Number(p.point_spacing_m), 1)} mm at ${fmt(p.reference_distance_m, 1)} m`;
+}
+
+function showFieldTime(doc) {
+  const box = $('fieldtime');
+  const ft = doc.field_time;
+  if (!ft) { box.hidden = true; return; }
+  const route = doc.route || {};
+  const n = (doc.stations || []).length;
+  const speed = (doc.parameters || {}).walking_speed_m_s;
+  const scanKnown = ft.scan_s !== null && ft.scan_s !== undefined;
+  const rows = [
+    ['total', scanKnown ? duration(ft.total_s)
+      : `unknown (setup and walk ${duration(Number(ft.setup_s) + Number(ft.walk_s))})`],
+    ['setup', `${duration(ft.setup_s)} (${n} station${n === 1 ? '' : 's'})`],
+    ['scan', scanKnown ? duration(ft.scan_s) : 'unknown'],
+    ['walk', `${duration(ft.walk_s)} (${fmt(route.length_m, 1)} m` +
+      `${speed ? ` at ${fmt(speed, 1)} m/s` : ''})`],
+    ['scanner', ft.scanner || 'none chosen'],
+  ];
+  const dl = el('dl');
+  for (const [name, value] of rows) {
+    dl.append(el('dt', { text: name }), el('dd', { text: value, 'data-time': name }));
+  }
+  box.replaceChildren(el('h2', { text: 'Field time' }), dl);
+  if (!scanKnown) {
+    box.append(el('p', { class: 'muted', 'data-note': 'scan',
+                         text: `scan time unknown: ${scanUnknownReason(doc)}` }));
+  }
+  const unreachable = Array.isArray(route.unreachable) ? route.unreachable : [];
+  box.append(el('p', { 'data-note': 'unreachable', class: unreachable.length ? 'warn' : 'muted',
+    text: unreachable.length
+      ? `not reachable on foot, left off the route: station${unreachable.length === 1 ? '' : 's'} ` +
+        `${unreachable.join(', ')}`
+      : 'every station is on the walking route' }));
+  box.hidden = false;
+}
+
 function showStationTable(stations) {
   const body = $('stations').querySelector('tbody');
   body.replaceChildren(...stations.map((s) => {
     const p = s.position || [];
+    const onRoute = s.visit !== null && s.visit !== undefined;
+    const visit = el('td', { text: onRoute ? String(s.visit) : '–', class: 'visit' });
+    if (!onRoute && 'visit' in s) visit.title = 'not reachable on foot';
     const tr = el('tr', { 'data-order': String(s.id) },
-      el('td', { text: String(s.id) }), el('td', { text: fmt(p[0]) }),
+      el('td', { text: String(s.id) }), visit, el('td', { text: fmt(p[0]) }),
       el('td', { text: fmt(p[1]) }), el('td', { text: fmt(p[2]) }),
       el('td', { text: fmt(s.new_area_m2, 1) }),
       el('td', { text: fmt(100 * Number(s.coverage_fraction), 1) }));
@@ -152,8 +246,11 @@ function showStationTable(stations) {
 function showFiles() {
   const p = $('files').querySelector('p');
   p.replaceChildren();
-  for (const name of ['preview.png', 'curve.png', 'coverage.glb', 'plan.json', 'stations.csv',
-    'faces.npz']) {
+  const first = ['preview.png', 'curve.png', 'coverage.glb', 'plan.json', 'stations.csv',
+    'faces.npz', 'verification.json'];
+  const names = outputs.size ? [...first.filter((n) => outputs.has(n)),
+    ...[...outputs].filter((n) => !first.includes(n)).sort()] : first.slice(0, -1);
+  for (const name of names) {
     p.append(el('a', { href: `${basePath()}${jobPath}/results/${name}`, text: name }), ' ');
   }
   $('files').hidden = false;
@@ -184,18 +281,24 @@ let renderer = null;
 let camera = null;
 let controls = null;
 const scene3d = new THREE.Scene();
-const stations = new Map(); // order -> {node, label, extras}
+const stations = new Map(); // order -> {node, label, extras, world}
+const classNodes = new Map(); // face class -> {node, faces}
+const routeLegs = []; // THREE.Line per leg of the walking route, in visit order
+const overlapEdges = []; // THREE.Line per registration edge
+const overlayGroups = { route: new THREE.Group(), registration: new THREE.Group() };
 const cutPlane = new THREE.Plane(new THREE.Vector3(0, -1, 0), 1e9);
 
-function labelSprite(text) {
+// a number in a disc (stations) or in a square (route legs), always drawn on top
+function labelSprite(text, fill = '#143ca0', square = false) {
   const size = 128;
   const c = document.createElement('canvas');
   c.width = size;
   c.height = size;
   const g = c.getContext('2d');
-  g.fillStyle = '#143ca0';
+  g.fillStyle = fill;
   g.beginPath();
-  g.arc(size / 2, size / 2, size / 2 - 6, 0, 2 * Math.PI);
+  if (square) g.rect(8, 8, size - 16, size - 16);
+  else g.arc(size / 2, size / 2, size / 2 - 6, 0, 2 * Math.PI);
   g.fill();
   g.lineWidth = 8;
   g.strokeStyle = '#ffffff';
@@ -245,8 +348,19 @@ async function loadModel() {
   const root = gltf.scene;
   scene3d.add(root);
   const info = (gltf.scene.userData && gltf.scene.userData.scanplan) || {};
-  const classNodes = new Map();
+  classNodes.clear();
   const box = new THREE.Box3();
+  // the root node "scanplan" holds the plan frame (Z up) and turns it into the model's own
+  // frame; a model whose up is not +Z (up_axis) would lie on its side, so turn the plan's up
+  // to the viewer's Y (labels, the cut and the camera assume Y up)
+  const frame = root.getObjectByName('scanplan') || root;
+  root.updateMatrixWorld(true);
+  const up = new THREE.Vector3(0, 0, 1)
+    .applyQuaternion(frame.getWorldQuaternion(new THREE.Quaternion()));
+  const yUp = new THREE.Vector3(0, 1, 0);
+  if (up.dot(yUp) < 1 - 1e-9) {
+    root.quaternion.premultiply(new THREE.Quaternion().setFromUnitVectors(up, yUp));
+  }
   root.updateMatrixWorld(true);
   root.traverse((object) => {
     const data = object.userData || {};
@@ -277,6 +391,8 @@ async function loadModel() {
   controls.target.copy(centre);
   controls.update();
   setupToggles(classNodes, info);
+  setupOverlays(frame, span);
+  setupColouring();
   setupCut(box);
   new ResizeObserver(resize).observe(canvas.parentElement);
   resize();
@@ -287,6 +403,7 @@ async function loadModel() {
     renderer.render(scene3d, camera);
   });
   hook.stations = () => stationScreenPositions();
+  hook.overlays = overlayState;
 }
 
 function setupToggles(classNodes, info) {
@@ -306,6 +423,244 @@ function setupToggles(classNodes, info) {
       `${label}${count}`));
   }
   $('classes').hidden = false;
+}
+
+// --- route and registration overlap edges -------------------------------------------------
+
+// plan.json holds model coordinates; the glb's root node ("scanplan") holds the plan frame
+// (the model levelled to Z-up, plan = R @ model, R in plan.scene.orientation.rotation) and
+// turns it into the viewer's Y-up world, where the station markers are
+function modelToWorld(frame) {
+  const rows = plan && plan.scene && plan.scene.orientation && plan.scene.orientation.rotation;
+  return (point) => {
+    const [x, y, z] = (point || []).map(Number);
+    const local = Array.isArray(rows)
+      ? new THREE.Vector3(...rows.map((r) => r[0] * x + r[1] * y + r[2] * z))
+      : new THREE.Vector3(x, y, z);
+    return frame.localToWorld(local);
+  };
+}
+
+function overlayLine(points, colour) {
+  const material = new THREE.LineBasicMaterial({ color: colour, depthTest: false,
+                                                 transparent: true, opacity: 0.95 });
+  const line = new THREE.Line(new THREE.BufferGeometry().setFromPoints(points), material);
+  line.renderOrder = 5; // over the faces: a route behind a machine stays visible
+  return line;
+}
+
+function setupOverlays(frame, span) {
+  const box = $('overlay-toggles');
+  box.replaceChildren();
+  routeLegs.length = 0;
+  overlapEdges.length = 0;
+  const route = plan && plan.route;
+  const registration = plan && plan.registration;
+  if (!route && !registration) { $('overlays').hidden = true; return; }
+  const toWorld = modelToWorld(frame);
+  const position = new Map((plan.stations || []).map((s) => [Number(s.id), s.position]));
+  for (const group of Object.values(overlayGroups)) {
+    group.clear();
+    scene3d.add(group);
+  }
+  const legs = (route && Array.isArray(route.legs)) ? route.legs : [];
+  legs.forEach((leg, i) => {
+    const path = Array.isArray(leg.path) && leg.path.length >= 2 ? leg.path
+      : [position.get(Number(leg.from)), position.get(Number(leg.to))];
+    const points = path.map(toWorld);
+    const line = overlayLine(points, ROUTE_COLOUR);
+    line.name = `route leg ${i + 1}`;
+    line.userData = { leg: i + 1, from: leg.from, to: leg.to, length_m: leg.length_m };
+    const label = labelSprite(String(i + 1), ROUTE_COLOUR, true);
+    label.position.copy(points[Math.floor((points.length - 1) / 2)])
+      .lerp(points[Math.ceil((points.length - 1) / 2)], 0.5);
+    label.scale.setScalar(Math.max(0.2, span * 0.03));
+    overlayGroups.route.add(line, label);
+    routeLegs.push(line);
+  });
+  const edges = (registration && Array.isArray(registration.edges)) ? registration.edges : [];
+  for (const edge of edges) {
+    const a = position.get(Number(edge.a));
+    const b = position.get(Number(edge.b));
+    if (!a || !b) continue;
+    const line = overlayLine([toWorld(a), toWorld(b)], edge.ok ? EDGE_COLOURS.ok
+      : EDGE_COLOURS.weak);
+    line.name = `overlap ${edge.a}-${edge.b}`;
+    line.userData = { ...edge };
+    overlayGroups.registration.add(line);
+    overlapEdges.push(line);
+  }
+  const unreachable = route && Array.isArray(route.unreachable) ? route.unreachable.length : 0;
+  const weak = edges.filter((e) => !e.ok).length;
+  const toggles = [
+    ['route', ROUTE_COLOUR, route ? `walking route: ${legs.length} leg${legs.length === 1 ? '' : 's'}, ` +
+      `${fmt(route.length_m, 1)} m, leg k from visit k to k + 1` +
+      (unreachable ? `; ${unreachable} station${unreachable === 1 ? '' : 's'} unreachable` : '')
+      : null],
+    ['registration', EDGE_COLOURS.ok, registration ? `registration overlaps: ${edges.length} ` +
+      `edge${edges.length === 1 ? '' : 's'}${weak ? `, ${weak} too weak (red)` : ''}` +
+      `${registration.connected === false ? '; not connected' : ''}` : null],
+  ];
+  for (const [name, colour, text] of toggles) {
+    if (!text) continue;
+    const input = el('input', { type: 'checkbox', 'data-overlay': name });
+    input.checked = true;
+    input.addEventListener('change', () => { overlayGroups[name].visible = input.checked; });
+    box.append(el('label', {}, input, el('span', { class: 'swatch', style: `background:${colour}` }),
+      text));
+  }
+  const body = $('edges').querySelector('tbody');
+  body.replaceChildren(...edges.map((e) => el('tr', { class: e.ok ? '' : 'weak' },
+    el('td', { text: `${e.a}–${e.b}` }), el('td', { text: fmt(e.overlap_m2, 1) }),
+    el('td', { text: fmt(e.constraint, 3) }), el('td', { text: e.ok ? 'yes' : 'no' }))));
+  $('edges').hidden = edges.length === 0;
+  $('overlays').hidden = false;
+}
+
+function overlayState() {
+  const ends = (line) => {
+    const p = line.geometry.getAttribute('position');
+    const at = (i) => line.localToWorld(new THREE.Vector3().fromBufferAttribute(p, i)).toArray();
+    return { start: at(0), end: at(p.count - 1), points: p.count };
+  };
+  const shown = (line) => line.visible && line.parent !== null && line.parent.visible;
+  return {
+    legs: routeLegs.map((l) => ({ ...l.userData, ...ends(l), visible: shown(l) })),
+    edges: overlapEdges.map((l) => ({ ...l.userData, ...ends(l), visible: shown(l) })),
+    stations: Object.fromEntries([...stations].map(([o, { world }]) => [o, world.toArray()])),
+  };
+}
+
+// --- colouring: plan coverage or delivered (verification) ---------------------------------
+
+let deliveredArrays = null; // {covered, verified_delivered} from faces.npz
+
+function linearBytes(css) {
+  const c = new THREE.Color(css); // sRGB in, linear (three's working space) out
+  return [c.r, c.g, c.b].map((v) => Math.round(v * 255));
+}
+
+// every class mesh: its face ids (_FEATURE_ID_0, a face = 3 vertices) and its COLOR_0
+function faceMeshes() {
+  const out = [];
+  for (const [name, { node }] of classNodes) {
+    node.traverse((object) => {
+      const g = object.isMesh ? object.geometry : null;
+      if (g && g.getAttribute('color') && g.getAttribute('_feature_id_0')) {
+        out.push({ name, mesh: object, ids: g.getAttribute('_feature_id_0'),
+                   colour: g.getAttribute('color') });
+      }
+    });
+  }
+  return out;
+}
+
+function paint(kindOf) {
+  const bytes = DELIVERED.map(([, , css]) => linearBytes(css));
+  const counts = Object.fromEntries(DELIVERED.map(([kind]) => [kind, 0]));
+  for (const { name, mesh, ids, colour } of faceMeshes()) {
+    if (!mesh.userData.planColours) mesh.userData.planColours = colour.array.slice();
+    if (!kindOf) {
+      colour.array.set(mesh.userData.planColours);
+    } else {
+      for (let v = 0; v + 2 < ids.count; v += 3) {
+        const k = kindOf(name, Math.round(ids.getX(v)));
+        counts[DELIVERED[k][0]] += 1;
+        for (let j = v; j < v + 3; j += 1) {
+          colour.setXYZW(j, bytes[k][0] / 255, bytes[k][1] / 255, bytes[k][2] / 255, 1);
+        }
+      }
+    }
+    colour.needsUpdate = true;
+  }
+  return counts;
+}
+
+function deliveredKind(className, face) {
+  if (className === 'not_target') return 4;
+  const promised = deliveredArrays.covered[face] !== 0;
+  const delivered = deliveredArrays.verified_delivered[face] !== 0;
+  if (promised) return delivered ? 0 : 1;
+  return delivered ? 2 : 3;
+}
+
+// faces per delivered kind, read back from the colours the meshes now hold
+function faceColours() {
+  const bytes = DELIVERED.map(([, , css]) => linearBytes(css).join(','));
+  const counts = { other: 0 };
+  for (const [kind] of DELIVERED) counts[kind] = 0;
+  for (const { colour, ids } of faceMeshes()) {
+    for (let v = 0; v + 2 < ids.count; v += 3) {
+      const rgb = [colour.getX(v), colour.getY(v), colour.getZ(v)]
+        .map((x) => Math.round(x * 255)).join(',');
+      const k = bytes.indexOf(rgb);
+      counts[k >= 0 ? DELIVERED[k][0] : 'other'] += 1;
+    }
+  }
+  return counts;
+}
+
+function setupColouring() {
+  const radios = document.querySelectorAll('#colouring input[name="colouring"]');
+  const deliveredRadio = document.querySelector('#colouring input[value="delivered"]');
+  const note = $('delivered-note');
+  const available = verification !== null && outputs.has('faces.npz');
+  deliveredRadio.disabled = !available;
+  deliveredRadio.parentElement.hidden = !available;
+  if (!available) {
+    if (!note.textContent) {
+      note.textContent = 'No verification for this plan: plan with the parameter verify ' +
+        '(or run scanplan verify PLAN_DIR --scene MODEL) to colour the faces by what a ' +
+        'simulated scan delivers.';
+    }
+  } else {
+    const t = verification.totals || {};
+    note.textContent = `simulated scan: promised ${fmt(t.promised_area_m2, 1)} m², delivered ` +
+      `${fmt(t.delivered_area_m2, 1)} m², promised but not delivered ` +
+      `${fmt(t.promised_not_delivered_area_m2, 2)} m² (${t.promised_not_delivered_faces} faces), ` +
+      `delivered but not promised ${fmt(t.delivered_not_promised_area_m2, 2)} m² ` +
+      `(${t.delivered_not_promised_faces} faces), holes ${fmt(t.hole_area_m2, 2)} m²`;
+  }
+  for (const radio of radios) {
+    radio.addEventListener('change', () => { if (radio.checked) setColouring(radio.value); });
+  }
+  hook.faceColours = faceColours;
+}
+
+async function setColouring(mode) {
+  const legend = $('delivered-legend');
+  if (mode !== 'delivered') {
+    paint(null);
+    legend.hidden = true;
+    hook.colouring = 'coverage';
+    return;
+  }
+  hook.colouring = 'loading';
+  try {
+    if (!deliveredArrays) {
+      legend.replaceChildren(el('p', { class: 'muted', text: 'reading faces.npz…' }));
+      legend.hidden = false;
+      const buffer = await (await fetchOk(`${jobPath}/results/faces.npz`)).arrayBuffer();
+      const arrays = await readNpz(buffer, ['covered', 'verified_delivered']);
+      if (!arrays.covered || !arrays.verified_delivered) {
+        throw new Error('faces.npz has no verified_delivered array');
+      }
+      deliveredArrays = arrays;
+    }
+  } catch (err) {
+    legend.replaceChildren(el('p', { class: 'warn',
+                                     text: `The delivered colouring failed: ${err.message}` }));
+    legend.hidden = false;
+    hook.colouring = 'failed';
+    return;
+  }
+  const counts = paint(deliveredKind);
+  legend.replaceChildren(el('h3', { text: 'Delivered by the simulated scan' }),
+    ...DELIVERED.map(([kind, label, css]) => el('p', { 'data-kind': kind },
+      el('span', { class: 'swatch', style: `background:${css}` }),
+      `${label}: `, el('span', { class: 'count', text: String(counts[kind]) }), ' faces')));
+  legend.hidden = false;
+  hook.colouring = 'delivered';
 }
 
 function setupCut(box) {
@@ -367,6 +722,7 @@ function selectStation(order) {
   box.replaceChildren(
     el('h2', { text: `Station ${order}` }),
     el('p', { text: `scan order ${order} of ${stations.size || (plan && plan.stations.length)}` }),
+    el('p', { text: visitText(data) }),
     el('p', { text: `position x ${fmt(p[0])} m, y ${fmt(p[1])} m, z ${fmt(p[2])} m` }),
     el('p', { text: `new area ${fmt(data.new_area_m2)} m²` }),
     el('p', { text: `covered after it ${fmt(data.covered_area_m2)} m² ` +
@@ -379,6 +735,15 @@ function selectStation(order) {
     tr.classList.toggle('selected', tr.dataset.order === String(order));
   }
   for (const [o, { label }] of stations) label.material.color.set(o === order ? 0xffd21f : 0xffffff);
+}
+
+function visitText(station) {
+  if (!plan || !plan.route) return 'no walking route in this plan';
+  const total = Array.isArray(plan.route.visits) ? plan.route.visits.length : 0;
+  if (station.visit === null || station.visit === undefined) {
+    return 'not reachable on foot: not on the walking route';
+  }
+  return `visit ${station.visit} of ${total} on the walking route`;
 }
 
 if (jobId) {

@@ -105,13 +105,15 @@ def server(tmp_path_factory: pytest.TempPathFactory, scenes_dir: Path
         thread.join(10)
 
 
-def submit(base: str, scenes_dir: Path, **changes: Any) -> str:
+def submit(base: str, scenes_dir: Path, *, model: bytes | None = None, **changes: Any) -> str:
+    """Plan hall-small (or ``model``, an OBJ) with the hall's candidates unless changed."""
     hall = scenes_dir / "hall-small"
     with (hall / "candidates.csv").open() as handle:
         candidates = [[float(r["x"]), float(r["y"]), float(r["z"])]
                       for r in csv.DictReader(handle)]
     with httpx.Client(base_url=base, timeout=120) as client:
-        mesh = client.post("/meshes?filename=hall.obj", content=(hall / "hall.obj").read_bytes(),
+        mesh = client.post("/meshes?filename=hall.obj",
+                           content=model or (hall / "hall.obj").read_bytes(),
                            headers={"content-type": "application/octet-stream"})
         assert mesh.status_code in (200, 201), mesh.text
         parameters = {"max_edge_m": None, "candidates": candidates, **changes}
@@ -189,6 +191,175 @@ def test_viewer_of_a_finished_job(server: tuple[str, InlineQueue], scenes_dir: P
     pixels = np.asarray(Image.open(shot).convert("RGB")).reshape(-1, 3).astype(int)
     assert ((pixels[:, 1] > pixels[:, 0] + 30) & (pixels[:, 1] > pixels[:, 2] + 20)
             ).mean() < greenish / 2
+
+    check_route_and_time(page, plan)
+    # no verification: the delivered colouring is not offered, a note says how to get it
+    assert not page.locator('#colouring input[value="delivered"]').is_visible()
+    assert page.locator('#colouring input[value="delivered"]').is_disabled()
+    assert "No verification for this plan" in page.locator("#delivered-note").inner_text()
+    assert errors == []
+
+
+def duration(seconds: float | None) -> str:
+    """A duration as the viewer writes it."""
+    if seconds is None:
+        return "unknown"
+    s = int(np.floor(seconds + 0.5))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60:02d} s"
+    m = int(np.floor(seconds / 60 + 0.5))
+    return f"{m // 60} h {m % 60:02d} min"
+
+
+def check_route_and_time(page: Any, plan: dict[str, Any]) -> None:
+    """The route legs and overlap edges are drawn at the stations; the table and the field
+    time say what plan.json says."""
+    route, edges = plan["route"], plan["registration"]["edges"]
+    overlays = page.evaluate("window.scanplanViewer.overlays()")
+    assert len(overlays["legs"]) == len(route["legs"]) == len(route["visits"]) - 1
+    assert len(overlays["edges"]) == len(edges) >= 1
+    at = {int(k): v for k, v in overlays["stations"].items()}
+    for leg, drawn in zip(route["legs"], overlays["legs"], strict=True):
+        assert (drawn["from"], drawn["to"]) == (leg["from"], leg["to"])
+        assert drawn["points"] == len(leg["path"]) and drawn["visible"]
+        # the path runs at walking height: it starts and ends under the two markers
+        # (world Y is up; x and z are the floor)
+        for end, station in ((drawn["start"], leg["from"]), (drawn["end"], leg["to"])):
+            assert abs(end[0] - at[station][0]) < 0.05 and abs(end[2] - at[station][2]) < 0.05
+    for edge, drawn in zip(edges, overlays["edges"], strict=True):
+        assert (drawn["a"], drawn["b"]) == (edge["a"], edge["b"])
+        assert np.allclose(drawn["start"], at[edge["a"]], atol=1e-3)
+        assert np.allclose(drawn["end"], at[edge["b"]], atol=1e-3)
+    # the toggles hide them
+    page.locator('#overlay-toggles input[data-overlay="route"]').uncheck()
+    page.locator('#overlay-toggles input[data-overlay="registration"]').uncheck()
+    overlays = page.evaluate("window.scanplanViewer.overlays()")
+    assert not any(x["visible"] for x in overlays["legs"] + overlays["edges"])
+    page.locator('#overlay-toggles input[data-overlay="route"]').check()
+    toggles = page.locator("#overlay-toggles").inner_text()
+    n_legs = len(route["legs"])
+    assert f"walking route: {n_legs} leg{'' if n_legs == 1 else 's'}" in toggles
+    assert f"registration overlaps: {len(edges)} edge" in toggles
+
+    rows = page.locator("#stations tbody tr")
+    assert rows.count() == len(plan["stations"])
+    for i, station in enumerate(plan["stations"]):
+        cells = rows.nth(i).locator("td")
+        assert cells.nth(0).inner_text() == str(station["id"])
+        visit = station["visit"]
+        assert cells.nth(1).inner_text() == ("\u2013" if visit is None else str(visit))
+    times = plan["field_time"]
+    box = page.locator("#fieldtime")
+    assert box.is_visible()
+    assert page.locator('#fieldtime dd[data-time="setup"]').inner_text().startswith(
+        duration(times["setup_s"]))
+    assert page.locator('#fieldtime dd[data-time="walk"]').inner_text().startswith(
+        duration(times["walk_s"]))
+    total = page.locator('#fieldtime dd[data-time="total"]').inner_text()
+    if times["scan_s"] is None:
+        assert page.locator('#fieldtime dd[data-time="scan"]').inner_text() == "unknown"
+        assert total.startswith("unknown")
+        assert "scan time unknown: no scanner preset was chosen (parameter scanner)" in (
+            box.inner_text())
+    else:
+        assert total == duration(times["total_s"])
+    unreachable = route["unreachable"]
+    note = page.locator('#fieldtime [data-note="unreachable"]').inner_text()
+    if unreachable:
+        assert ", ".join(str(u) for u in unreachable) in note
+    else:
+        assert note == "every station is on the walking route"
+
+
+def test_viewer_route_of_a_model_with_another_up(
+        server: tuple[str, InlineQueue], scenes_dir: Path, browser_context: Any) -> None:
+    """plan.json holds model coordinates, the glb's markers sit under a rotated root: the
+    route and the edges still run between the markers."""
+    base, _ = server
+    # the hall turned so that its up is -Y (plan = R @ model, R of up_axis "-Y")
+    rotation = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+    lines = []
+    for line in (scenes_dir / "hall-small" / "hall.obj").read_text().splitlines():
+        if line.startswith("v "):
+            x, y, z = (rotation.T @ np.array([float(v) for v in line.split()[1:4]])).tolist()
+            line = f"v {x:.6f} {y:.6f} {z:.6f}"
+        lines.append(line)
+    with (scenes_dir / "hall-small" / "candidates.csv").open() as handle:
+        candidates = [(rotation.T @ np.array([float(r["x"]), float(r["y"]), float(r["z"])])
+                       ).tolist() for r in csv.DictReader(handle)]
+    job = submit(base, scenes_dir, model="\n".join(lines).encode(), up_axis="-Y",
+                 candidates=candidates)
+    plan = httpx.get(f"{base}/jobs/{job}/results/plan.json").json()
+    assert plan["scene"]["orientation"]["rotation"] == rotation.tolist()
+    page, errors = open_page(browser_context, f"{base}/jobs/{job}/viewer")
+    page.wait_for_function("window.scanplanViewer && window.scanplanViewer.ready",
+                           timeout=60_000)
+    check_route_and_time(page, plan)
+    assert errors == []
+
+
+def test_viewer_colours_what_the_verification_delivered(
+        server: tuple[str, InlineQueue], scenes_dir: Path, browser_context: Any,
+        tmp_path: Path) -> None:
+    base, _ = server
+    job = submit(base, scenes_dir, verify=True)
+    verification = httpx.get(f"{base}/jobs/{job}/results/verification.json").json()
+    totals = verification["totals"]
+    npz = tmp_path / "faces.npz"
+    npz.write_bytes(httpx.get(f"{base}/jobs/{job}/results/faces.npz").content)
+    with np.load(npz) as faces:
+        covered, delivered = faces["covered"], faces["verified_delivered"]
+    plan = httpx.get(f"{base}/jobs/{job}/results/plan.json").json()
+    page, errors = open_page(browser_context, f"{base}/jobs/{job}/viewer")
+    page.wait_for_function("window.scanplanViewer && window.scanplanViewer.ready",
+                           timeout=60_000)
+    page.wait_for_timeout(500)
+    check_route_and_time(page, plan)
+    note = page.locator("#delivered-note").inner_text()
+    assert f"({totals['promised_not_delivered_faces']} faces)" in note
+    radio = page.locator('#colouring input[value="delivered"]')
+    assert radio.is_visible() and radio.is_enabled()
+    from PIL import Image
+
+    before = tmp_path / "coverage.png"
+    page.locator("#canvas").screenshot(path=str(before))
+    radio.check()
+    page.wait_for_function("window.scanplanViewer.colouring === 'delivered'", timeout=30_000)
+    page.wait_for_timeout(300)
+    after = tmp_path / "delivered.png"
+    page.locator("#canvas").screenshot(path=str(after))
+
+    def legend(kind: str) -> int:
+        text = page.locator(f'#delivered-legend [data-kind="{kind}"] .count').inner_text()
+        return int(text)
+
+    # the legend and the colours the meshes hold agree with verification.json
+    drawn = page.evaluate("window.scanplanViewer.faceColours()")
+    expected = {
+        "promised_not_delivered": totals["promised_not_delivered_faces"],
+        "delivered_not_promised": totals["delivered_not_promised_faces"],
+        "delivered": int((covered & delivered).sum()),
+    }
+    assert expected["promised_not_delivered"] > 0 and expected["delivered_not_promised"] > 0
+    for kind, count in expected.items():
+        assert legend(kind) == drawn[kind] == count, kind
+    assert drawn["other"] == 0
+    assert sum(v for k, v in drawn.items() if k != "other") == plan["totals"]["faces"]
+    # and the canvas shows it: the blue of "delivered, not promised" appears
+    old = np.asarray(Image.open(before).convert("RGB")).reshape(-1, 3).astype(int)
+    new = np.asarray(Image.open(after).convert("RGB")).reshape(-1, 3).astype(int)
+
+    def blue(p: np.ndarray) -> float:
+        return float(((p[:, 2] > p[:, 0] + 60) & (p[:, 2] > p[:, 1] + 20)).mean())
+
+    assert blue(new) > blue(old) + 0.002, (blue(old), blue(new))
+    # back to the plan's colours
+    page.locator('#colouring input[value="coverage"]').check()
+    page.wait_for_function("window.scanplanViewer.colouring === 'coverage'")
+    assert page.evaluate("window.scanplanViewer.faceColours()")["other"] > 0
+    assert page.locator("#delivered-legend").is_hidden()
     assert errors == []
 
 
