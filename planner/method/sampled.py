@@ -70,6 +70,19 @@ def sample_weights(samples_per_face: int) -> NDArray[np.float64]:
     return np.column_stack([1.0 - b.sum(axis=1), b[:, 0], b[:, 1]])
 
 
+def sample_stages(samples_per_face: int) -> tuple[NDArray[np.int64], ...]:
+    """The sample indices in the order their occlusion rays are cast: the first sample
+    (the triangle in the first corner), then those in the two other corners, then the rest.
+    A shadow that crosses a face usually covers a corner."""
+    n = math.isqrt(samples_per_face)
+    if n < 2:
+        return (np.arange(samples_per_face, dtype=np.int64),)
+    # "down" triangles (row, col) in sample_weights order: row 0 holds 2 n - 1 samples
+    corners = np.array([2 * n - 2, samples_per_face - 1], np.int64)
+    rest = np.setdiff1d(np.arange(1, samples_per_face, dtype=np.int64), corners)
+    return np.array([0], np.int64), corners, rest
+
+
 def relaxed_limits(scene: Scene, limits: FaceLimits) -> FaceLimits:
     """Centroid limits that every pair with a passing sample also passes.
 
@@ -105,6 +118,7 @@ class SampledQualifier:
         self.occlusion = occlusion
         self.finder = PairFinder(scene, relaxed_limits(scene, limits))
         self.weights = sample_weights(samples_per_face)
+        self.stages = sample_stages(samples_per_face)
         # a pair qualifies with at most this many failing samples
         n = len(self.weights)
         self.max_failures = math.floor(n * (1.0 - min_sampled_fraction) + 1e-9)
@@ -139,12 +153,13 @@ class SampledQualifier:
             self.min_sin_incidence, lim.min_density_pts_m2, lim.angular_step_rad,
             _PREFILTER_CENTROID_FRACTION, passes, lpd, direction, distance)
         alive = (n - passes.sum(axis=1)) <= self.max_failures
-        # occlusion rays only where the pair can still qualify, first sample first: a pair
-        # hidden at its first sample usually stops there
+        # occlusion rays only where the pair can still qualify, in stages (see
+        # sample_stages): a pair hidden at its first sample or at a corner usually stops
+        # there. A pair's failures only grow, so the stages decide the same pairs.
         rays = 0
-        for columns in (slice(0, 1), slice(1, n)):
+        for columns in self.stages:
             p_idx, s_idx = np.nonzero(passes[:, columns] & alive[:, None])
-            s_idx = s_idx + columns.start
+            s_idx = columns[s_idx]
             if len(p_idx):
                 visible = self.occlusion.visible(
                     pairs.origin[p_idx], direction[p_idx, s_idx], distance[p_idx, s_idx],

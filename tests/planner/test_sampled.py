@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from planner.errors import ParameterError
-from planner.method.sampled import sample_weights
+from planner.method.sampled import sample_stages, sample_weights
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
 from planner.scene import Scene
@@ -58,6 +58,18 @@ def test_samples_are_equal_area_inside_the_face() -> None:
     assert (weights > 0).all()
     assert np.allclose(weights.mean(axis=0), 1 / 3)  # equal shares: their mean is the centroid
     assert len({tuple(np.round(w, 9)) for w in weights}) == 16
+
+
+@pytest.mark.parametrize("samples", [1, 4, 16, 64])
+def test_stages_cast_every_sample_once_corners_first(samples: int) -> None:
+    stages = sample_stages(samples)
+    order = np.concatenate(stages)
+    assert sorted(order.tolist()) == list(range(samples))
+    if samples > 1:  # the first stages are the triangles in the face's three corners
+        weights = sample_weights(samples)
+        corners = weights[np.concatenate(stages[:2])]
+        assert np.allclose(corners.max(axis=1), weights.max())  # nearest to a corner
+        assert sorted(corners.argmax(axis=1).tolist()) == [0, 1, 2]
 
 
 @pytest.mark.parametrize(("key", "value"), [("coverage_model", "corners"),
