@@ -265,6 +265,9 @@ def check_route_and_time(page: Any, plan: dict[str, Any]) -> None:
             box.inner_text())
     else:
         assert total == duration(times["total_s"])
+        assert page.locator('#fieldtime dd[data-time="scan"]').inner_text() == duration(
+            times["scan_s"])
+        assert times["scanner"] in page.locator('#fieldtime dd[data-time="scanner"]').inner_text()
     unreachable = route["unreachable"]
     note = page.locator('#fieldtime [data-note="unreachable"]').inner_text()
     if unreachable:
@@ -289,10 +292,12 @@ def test_viewer_route_of_a_model_with_another_up(
     with (scenes_dir / "hall-small" / "candidates.csv").open() as handle:
         candidates = [(rotation.T @ np.array([float(r["x"]), float(r["y"]), float(r["z"])])
                        ).tolist() for r in csv.DictReader(handle)]
+    # a preset that states its scan duration: the field time has a total
     job = submit(base, scenes_dir, model="\n".join(lines).encode(), up_axis="-Y",
-                 candidates=candidates)
+                 candidates=candidates, scanner="trimble-x7")
     plan = httpx.get(f"{base}/jobs/{job}/results/plan.json").json()
     assert plan["scene"]["orientation"]["rotation"] == rotation.tolist()
+    assert plan["field_time"]["scan_s"] is not None
     page, errors = open_page(browser_context, f"{base}/jobs/{job}/viewer")
     page.wait_for_function("window.scanplanViewer && window.scanplanViewer.ready",
                            timeout=60_000)
@@ -304,7 +309,8 @@ def test_viewer_colours_what_the_verification_delivered(
         server: tuple[str, InlineQueue], scenes_dir: Path, browser_context: Any,
         tmp_path: Path) -> None:
     base, _ = server
-    job = submit(base, scenes_dir, verify=True)
+    # a re-scan whose earlier station stands on a machine, not reachable on foot
+    job = submit(base, scenes_dir, verify=True, fixed_stations=[[1.4, 1.9, 2.45]])
     verification = httpx.get(f"{base}/jobs/{job}/results/verification.json").json()
     totals = verification["totals"]
     npz = tmp_path / "faces.npz"
@@ -312,11 +318,14 @@ def test_viewer_colours_what_the_verification_delivered(
     with np.load(npz) as faces:
         covered, delivered = faces["covered"], faces["verified_delivered"]
     plan = httpx.get(f"{base}/jobs/{job}/results/plan.json").json()
+    assert plan["route"]["unreachable"] == [1] and plan["stations"][0]["visit"] is None
     page, errors = open_page(browser_context, f"{base}/jobs/{job}/viewer")
     page.wait_for_function("window.scanplanViewer && window.scanplanViewer.ready",
                            timeout=60_000)
     page.wait_for_timeout(500)
     check_route_and_time(page, plan)
+    assert page.locator('#fieldtime [data-note="unreachable"]').inner_text().endswith(
+        "station 1")
     note = page.locator("#delivered-note").inner_text()
     assert f"({totals['promised_not_delivered_faces']} faces)" in note
     radio = page.locator('#colouring input[value="delivered"]')
@@ -330,6 +339,7 @@ def test_viewer_colours_what_the_verification_delivered(
     page.wait_for_timeout(300)
     after = tmp_path / "delivered.png"
     page.locator("#canvas").screenshot(path=str(after))
+    page.screenshot(path=str(tmp_path / "delivered-page.png"), full_page=True)
 
     def legend(kind: str) -> int:
         text = page.locator(f'#delivered-legend [data-kind="{kind}"] .count').inner_text()
