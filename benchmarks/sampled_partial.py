@@ -33,9 +33,7 @@ from planner.method.candidates import read_candidates_csv
 from planner.method.coverage import CoverageTable, QualifiedPairs
 from planner.method.pairs import FaceLimits
 from planner.method.sampled import (
-    _PREFILTER_CENTROID_FRACTION,
     SampledQualifier,
-    _sample_limits,
 )
 from planner.method.selection import greedy
 from planner.method.visibility import make_occlusion
@@ -49,17 +47,7 @@ def sample_masks(q: SampledQualifier, positions: NDArray[np.float64], first: int
                  ) -> tuple[NDArray[np.int32], NDArray[np.int32], NDArray[np.bool_]]:
     """(P,) candidate, (P,) face and (P, N) passing samples of a block of candidates."""
     pairs, _ = q.finder.find(positions, first)
-    lim = q.limits
-    face = pairs.face.astype(np.int64)
-    n_pairs, n = len(face), len(q.weights)
-    passes = np.zeros((n_pairs, n), np.bool_)
-    lpd = np.zeros((n_pairs, n), np.float32)
-    direction = np.zeros((n_pairs, n, 3), np.float32)
-    distance = np.zeros((n_pairs, n), np.float32)
-    _sample_limits(pairs.origin, face, q.triangles, q.normals, q.weights, lim.dof_min_m,
-                   lim.dof_max_m, q.min_sin_elevation, q.max_sin_elevation,
-                   q.min_sin_incidence, lim.min_density_pts_m2, lim.angular_step_rad,
-                   _PREFILTER_CENTROID_FRACTION, passes, lpd, direction, distance)
+    face, passes, _lpd, direction, distance = q.sample_limits(pairs)
     p_idx, s_idx = np.nonzero(passes)
     if len(p_idx):
         visible = q.occlusion.visible(pairs.origin[p_idx], direction[p_idx, s_idx],

@@ -139,7 +139,14 @@ class SampledQualifier:
             rays += cast
         return QualifiedPairs.concatenate(parts), tested, rays
 
-    def _chunk(self, pairs: Pairs) -> tuple[QualifiedPairs, int]:
+    def sample_limits(self, pairs: Pairs) -> tuple[
+            NDArray[np.int64], NDArray[np.bool_], NDArray[np.float32], NDArray[np.float32],
+            NDArray[np.float32]]:
+        """The analytic limits of every sample of the P ``pairs`` (no occlusion yet).
+
+        Returns (P,) face, (P, N) passes, (P, N) LPD / cos(elevation), (P, N, 3) unit
+        direction and (P, N) distance in metres of each sample.
+        """
         lim = self.limits
         face = pairs.face.astype(np.int64)
         n_pairs, n = len(face), len(self.weights)
@@ -152,6 +159,11 @@ class SampledQualifier:
             lim.dof_min_m, lim.dof_max_m, self.min_sin_elevation, self.max_sin_elevation,
             self.min_sin_incidence, lim.min_density_pts_m2, lim.angular_step_rad,
             _PREFILTER_CENTROID_FRACTION, passes, lpd, direction, distance)
+        return face, passes, lpd, direction, distance
+
+    def _chunk(self, pairs: Pairs) -> tuple[QualifiedPairs, int]:
+        face, passes, lpd, direction, distance = self.sample_limits(pairs)
+        n = passes.shape[1]
         alive = (n - passes.sum(axis=1)) <= self.max_failures
         # occlusion rays only where the pair can still qualify, in stages (see
         # sample_stages): a pair hidden at its first sample or at a corner usually stops
