@@ -232,6 +232,7 @@ def qualify_pairs(
         pairs, tested = finder.find(positions[start:start + block_size], start)
         visible = occlusion.visible(
             pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
+            exact_rays=pairs.exact_rays(positions, scene.centroids),
         )
         qualified = QualifiedPairs(pairs.candidate[visible], pairs.face[visible],
                                    pairs.lpd_pts_m2[visible])

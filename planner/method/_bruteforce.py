@@ -5,12 +5,15 @@ Slow (P x F work) and exact in float64; kept to check the Embree backend pair fo
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from planner.scene import Scene
+
+if TYPE_CHECKING:
+    from planner.method.visibility import ExactRays
 
 _CHUNK_WORK = 1_000_000  # ray-triangle tests per numpy step (~200 MB of temporaries)
 
@@ -28,10 +31,14 @@ class BruteForceOcclusion:
         directions: NDArray[np.floating[Any]],
         distances_m: NDArray[np.floating[Any]],
         target_faces: NDArray[np.integer[Any]],
+        exact_rays: ExactRays | None = None,
     ) -> NDArray[np.bool_]:
         # float64 throughout: this is the reference
-        origins64 = np.asarray(origins, np.float64)
-        directions64 = np.asarray(directions, np.float64)
+        if exact_rays is not None:
+            origins64, directions64 = exact_rays(np.arange(len(origins), dtype=np.int64))
+        else:
+            origins64 = np.asarray(origins, np.float64)
+            directions64 = np.asarray(directions, np.float64)
         targets64 = np.asarray(target_faces, np.int64)
         result = np.empty(len(origins), bool)
         step = max(1, _CHUNK_WORK // max(1, len(self._occluders)))

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.method.density import density_range_m
+from planner.method.visibility import ExactRays
 from planner.parameters import GroupRequirement, PlanSpec
 from planner.scene import Scene
 
@@ -146,6 +147,16 @@ class Pairs:
 
     def subset(self, keep: NDArray[np.bool_] | slice) -> Pairs:
         return Pairs(*(getattr(self, name)[keep] for name in _PAIR_COLUMNS))
+
+    def exact_rays(self, positions_xyz: NDArray[np.float64], face_xyz: NDArray[np.float64]
+                   ) -> ExactRays:
+        """The float64 rays of any of these pairs, from the (C, 3) candidate positions the
+        pairs were found for to the (F, 3) face centroids (see :class:`ExactRays`)."""
+        def rays(index: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+            origins = np.asarray(positions_xyz, np.float64)[self.candidate[index]]
+            offset = face_xyz[self.face[index]] - origins
+            return origins, offset / np.linalg.norm(offset, axis=1)[:, None]
+        return rays
 
 
 _PAIR_COLUMNS = ("candidate", "face", "origin", "direction", "distance_m", "lpd_pts_m2")

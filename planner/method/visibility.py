@@ -8,6 +8,7 @@ so no face is missed by chance. Faces are two-sided. Backends share one protocol
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
@@ -22,6 +23,12 @@ Backend = Literal["embree", "bruteforce"]
 FAR_LIMIT_FACTOR = 1.0 + 1e-3
 
 
+# exact_rays(indices (K,) int64) -> (K, 3) float64 origins and (K, 3) float64 unit
+# directions of those rays, computed from the model's float64 geometry (the rays handed to
+# ``visible`` are often float32 copies); used where float32 cannot decide a ray
+ExactRays = Callable[[NDArray[np.int64]], tuple[NDArray[np.float64], NDArray[np.float64]]]
+
+
 class Occlusion(Protocol):
     """Answers, for P rays, whether each reaches its target face unblocked."""
 
@@ -31,8 +38,12 @@ class Occlusion(Protocol):
         directions: NDArray[np.floating[Any]],
         distances_m: NDArray[np.floating[Any]],
         target_faces: NDArray[np.integer[Any]],
+        exact_rays: ExactRays | None = None,
     ) -> NDArray[np.bool_]:
-        """(P,) bool for (P, 3) origins, (P, 3) unit directions, (P,) distances, (P,) faces."""
+        """(P,) bool for (P, 3) origins, (P, 3) unit directions, (P,) distances, (P,) faces.
+
+        ``exact_rays`` gives the float64 rays of any subset (default: the given rays).
+        """
         ...
 
 

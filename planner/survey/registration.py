@@ -78,6 +78,7 @@ class OverlapRows:
             occlusion = make_occlusion(scene, limits.occludes & ~doors, "embree")
         self.n_faces = scene.n_faces
         self._positions = np.asarray(positions, np.float64)  # (C, 3)
+        self._centroids = scene.centroids  # (F, 3), for the float64 rays
         self._occlusion = occlusion
         self._finder = PairFinder(scene, overlap_limits(limits, overlap_density_pts_m2))
         self.workers = threads or os.cpu_count() or 1
@@ -95,8 +96,9 @@ class OverlapRows:
 
     def _row(self, candidate: int) -> tuple[NDArray[np.int64], int]:
         pairs, _ = self._finder.find(self._positions[candidate:candidate + 1], candidate)
-        visible = self._occlusion.visible(pairs.origin, pairs.direction, pairs.distance_m,
-                                          pairs.face)
+        visible = self._occlusion.visible(
+            pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
+            exact_rays=pairs.exact_rays(self._positions, self._centroids))
         return np.sort(pairs.face[visible].astype(np.int64)), len(pairs)
 
     def ensure(self, candidates: Iterable[int]) -> None:
