@@ -105,8 +105,11 @@ class CoverageTable:
         start, stop = self.by_candidate.indptr[candidate], self.by_candidate.indptr[candidate + 1]
         return np.asarray(self.by_candidate.indices[start:stop], dtype=np.int32)
 
-    def area_per_candidate(self) -> NDArray[np.float64]:
-        """(C,) float64: qualified area of every candidate alone."""
-        return np.asarray(
-            (self.by_candidate != 0).astype(np.float64) @ self.face_area_m2
-        ).reshape(-1)
+    def sum_per_candidate(self, per_face: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(C,) float64: the sum of (F,) ``per_face`` over the faces each candidate qualifies for.
+
+        Summed entry by entry in (candidate, face) order, as a sparse product with the
+        table's pattern would, without building that (C, F) float64 pattern.
+        """
+        return np.bincount(self.candidate_of_entry, weights=per_face[self.by_candidate.indices],
+                           minlength=self.n_candidates).astype(np.float64)

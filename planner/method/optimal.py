@@ -666,8 +666,7 @@ def _counting_bound(table: CoverageTable, need_m2: float, faces: NDArray[np.bool
     """Fewest stations whose single areas on ``faces`` could add up to ``need_m2``."""
     if need_m2 <= 0:
         return 0
-    pattern = (table.by_candidate != 0).astype(np.float64)
-    single = np.sort(np.asarray(pattern @ (table.face_area_m2 * faces)).reshape(-1))[::-1]
+    single = np.sort(table.sum_per_candidate(table.face_area_m2 * faces))[::-1]
     reach = np.cumsum(single)
     return min(int(np.searchsorted(reach, need_m2)) + 1, len(single))
 

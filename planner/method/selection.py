@@ -79,8 +79,7 @@ def gain_units(table: CoverageTable, *, weighted: bool = False
     units = np.round(weight / GAIN_QUANTUM_M2)
     if units.sum() >= 2.0**53:
         raise ValueError("the model's area is too large for exact gains; split the model")
-    gains = np.bincount(table.candidate_of_entry, weights=units[table.by_candidate.indices],
-                        minlength=table.n_candidates).astype(np.float64)
+    gains = table.sum_per_candidate(units)
     return units, gains
 
 
