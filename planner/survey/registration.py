@@ -326,6 +326,21 @@ class Registration:
         }
 
 
+def shared_per_pair(overlap: sp.csr_matrix, per_face: NDArray[np.float64]
+                    ) -> NDArray[np.float64]:
+    """(N, N) float64: the sum of (F,) ``per_face`` over the faces rows a and b share.
+
+    ``overlap``: (N, F) CSR of 0/1 with sorted indices. One sparse product (the work is the
+    sum over faces of the square of the rows holding each face), with no (F,) mask or
+    (F, 6) temporary per row; every entry adds the same terms in the same (face) order as
+    :func:`overlap_with`, so the sums are bit for bit the same.
+    """
+    weighted = sp.csr_matrix((per_face[overlap.indices], overlap.indices, overlap.indptr),
+                             shape=overlap.shape)
+    shared: NDArray[np.float64] = (weighted @ overlap.T.tocsr()).toarray()
+    return shared
+
+
 def station_registration(scene: Scene, station_overlap: sp.csr_matrix,
                          min_overlap_m2: float | None,
                          overlap_density_pts_m2: float) -> Registration:
@@ -335,18 +350,25 @@ def station_registration(scene: Scene, station_overlap: sp.csr_matrix,
     constraint test; components are taken over the ok edges.
     """
     n = station_overlap.shape[0]
-    weights6 = _scatter_weights(scene)
+    station_overlap = station_overlap.tocsr()
+    station_overlap.sort_indices()
+    overlap_m2 = shared_per_pair(station_overlap, scene.areas)  # (S, S)
+    normals = scene.normals
+    # (S, S, 6) the shared faces' area-weighted normal scatter, packed as _scatter_weights
+    scatter6 = np.stack([
+        shared_per_pair(station_overlap, normals[:, i] * normals[:, j] * scene.areas)
+        for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))], axis=-1)
     edges: list[Edge] = []
     rows: list[int] = []
     cols: list[int] = []
     for a in range(n):
-        overlap_m2, constraint = overlap_with(station_overlap, a, scene, weights6)
+        constraint = _constraint(scatter6[a])
         for b in range(a + 1, n):
-            if overlap_m2[b] <= 0:
+            if overlap_m2[a, b] <= 0:
                 continue
-            ok = bool(overlap_m2[b] >= (min_overlap_m2 or 0.0)
+            ok = bool(overlap_m2[a, b] >= (min_overlap_m2 or 0.0)
                       and constraint[b] >= MIN_CONSTRAINT)
-            edges.append(Edge(a + 1, b + 1, float(overlap_m2[b]), float(constraint[b]), ok))
+            edges.append(Edge(a + 1, b + 1, float(overlap_m2[a, b]), float(constraint[b]), ok))
             if ok:
                 rows.append(a)
                 cols.append(b)
