@@ -242,8 +242,8 @@ def main() -> int:
     parser.add_argument("--candidates", choices=("grid", "rooms"), default="grid",
                         help="grid: generated (default parameters); rooms: three explicit "
                         "candidates per room, which leaves the candidate stage out")
-    parser.add_argument("--occluders", choices=("remeshed", "file"), default="remeshed",
-                        help="the plan parameter occluders (default: remeshed)")
+    parser.add_argument("--occluders", choices=("remeshed", "file"), default="file",
+                        help="the plan parameter occluders (default: file)")
     parser.add_argument("--keep", default=None, help="write the models here and keep them")
     args = parser.parse_args()
     sizes = [float(s) for s in args.sizes.split(",")]

@@ -30,8 +30,8 @@ UpAxis = Literal["+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto"]
 UP_AXES: tuple[UpAxis, ...] = ("+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto")
 CoverageModel = Literal["centroid", "sampled"]
 COVERAGE_MODELS: tuple[CoverageModel, ...] = ("centroid", "sampled")
-Occluders = Literal["remeshed", "file"]
-OCCLUDERS: tuple[Occluders, ...] = ("remeshed", "file")
+Occluders = Literal["file", "remeshed"]
+OCCLUDERS: tuple[Occluders, ...] = ("file", "remeshed")
 
 
 @dataclass(frozen=True)
@@ -77,9 +77,10 @@ class PlanSpec:
     max_edge_m: float | None = 0.2
     unit_scale: float = 1.0
     up_axis: UpAxis | None = None  # None: the format's own (+Y glTF/GLB, +Z otherwise)
-    # visibility: rays tested against the remeshed pieces, or the file's own faces (a ray
-    # cache the size of the file; coincident faces may then break ties differently)
-    occluders: Occluders = "remeshed"
+    # visibility: rays tested against the file's own faces (a hit counts when it is the
+    # target piece's source face; the ray cache stays the size of the file), or against
+    # the remeshed pieces (a BVH as large as the remeshed model)
+    occluders: Occluders = "file"
     # candidates
     candidates: tuple[tuple[float, float, float], ...] | None = None
     grid_spacing_m: float = 0.5

@@ -97,8 +97,8 @@ class PlanParameters(BaseModel):
     unit_scale: Number = _d("unit_scale", "model units to metres (0.001 for millimetres)")
     up_axis: Literal["+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto"] | None = _d(
         "up_axis", "the model's up axis; auto finds gravity; null: +Y for glTF/GLB, +Z else")
-    occluders: Literal["remeshed", "file"] = _d(
-        "occluders", "faces rays are tested against: the remeshed pieces or the file's own")
+    occluders: Literal["file", "remeshed"] = _d(
+        "occluders", "faces rays are tested against: the file's own or the remeshed pieces")
     candidates: list[Point3] | None = _d(
         "candidates", "scanner positions [x, y, z] in model coordinates; null: a grid")
     grid_spacing_m: Number = _d("grid_spacing_m", "spacing of generated candidates, metres")
