@@ -137,6 +137,7 @@ def plan(
         qualified = qualify_pairs(scene, candidates.positions, limits, occlusion, stats,
                                   progress=progress, threads=threads)
     table = CoverageTable.from_pairs(qualified, len(candidates), scene.areas)
+    del qualified  # the table holds its faces and densities; the candidate column goes
     stats.qualified_pairs = table.n_pairs
     stats.seconds["visibility"] = time.perf_counter() - t1
     if table.n_pairs == 0:

@@ -6,7 +6,6 @@ every qualified pair: passes the analytic limits and the occlusion ray.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,11 +30,22 @@ class QualifiedPairs:
 
     @classmethod
     def concatenate(cls, parts: list[QualifiedPairs]) -> QualifiedPairs:
+        """The parts end to end; ``parts`` is emptied as it goes, so the peak is the parts
+        and one merged column (16 bytes a pair), not the parts and the whole result (24)."""
         if not parts:
             return cls(np.zeros(0, np.int32), np.zeros(0, np.int32), np.zeros(0, np.float32))
-        return cls(np.concatenate([p.candidate for p in parts]),
-                   np.concatenate([p.face for p in parts]),
-                   np.concatenate([p.lpd_pts_m2 for p in parts]))
+        columns = [[getattr(p, name) for p in parts]
+                   for name in ("candidate", "face", "lpd_pts_m2")]
+        parts.clear()
+        merged = []
+        for column in columns:
+            merged.append(np.concatenate(column))
+            column.clear()
+        return cls(*merged)
+
+
+# pairs summed at a time by CoverageTable.sum_per_candidate (~50 MB of temporaries)
+_SUM_BLOCK_PAIRS = 1 << 22
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,12 +77,6 @@ class CoverageTable:
         )
         csr.has_sorted_indices = True
         return cls(by_candidate=csr, by_face=csr.tocsc(), face_area_m2=face_area_m2)
-
-    @functools.cached_property
-    def candidate_of_entry(self) -> NDArray[np.int64]:
-        """(P,) int64: the row (candidate) of every stored pair of ``by_candidate``."""
-        counts = np.diff(self.by_candidate.indptr)
-        return np.repeat(np.arange(self.n_candidates, dtype=np.int64), counts)
 
     @property
     def n_candidates(self) -> int:
@@ -109,7 +113,21 @@ class CoverageTable:
         """(C,) float64: the sum of (F,) ``per_face`` over the faces each candidate qualifies for.
 
         Summed entry by entry in (candidate, face) order, as a sparse product with the
-        table's pattern would, without building that (C, F) float64 pattern.
+        table's pattern would, in blocks of whole candidates: the temporaries stay at
+        ``_SUM_BLOCK_PAIRS`` pairs however large the table (a 10 M-face interior with grid
+        candidates holds 160 M pairs).
         """
-        return np.bincount(self.candidate_of_entry, weights=per_face[self.by_candidate.indices],
-                           minlength=self.n_candidates).astype(np.float64)
+        indptr = self.by_candidate.indptr
+        sums = np.zeros(self.n_candidates, np.float64)
+        first = 0
+        while first < self.n_candidates:
+            # whole candidates, at least one, up to about _SUM_BLOCK_PAIRS pairs
+            last = int(np.searchsorted(indptr, indptr[first] + _SUM_BLOCK_PAIRS, "right")) - 1
+            last = min(max(last, first + 1), self.n_candidates)
+            start, stop = int(indptr[first]), int(indptr[last])
+            rows = np.repeat(np.arange(last - first), np.diff(indptr[first:last + 1]))
+            sums[first:last] = np.bincount(
+                rows, weights=per_face[self.by_candidate.indices[start:stop]],
+                minlength=last - first)
+            first = last
+        return sums

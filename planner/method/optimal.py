@@ -733,7 +733,6 @@ def choose_stations(table: CoverageTable, *, method: str, goal: float, time_limi
     """
     start = time.monotonic()
     deadline = start + time_limit_s
-    table.candidate_of_entry  # noqa: B018 - built once here, shared by both threads
     with ThreadPoolExecutor(max_workers=2) as pool:
         weighted = pool.submit(greedy, table, weighted=True, fixed=fixed)
         selections = {"greedy": greedy(table, fixed=fixed),
