@@ -55,7 +55,8 @@ class CoverageTable:
     Attributes
     ----------
     by_candidate : (C, F) CSR float32, LPD of each qualified pair, rows = candidates
-    by_face : (C, F) CSC, the same matrix for column access
+    by_face : (C, F) CSC bool, its pattern for column access (which candidates qualify
+        for a face; 5 bytes a pair instead of 8: the densities are read by candidate)
     face_area_m2 : (F,) float64
     """
 
@@ -76,7 +77,8 @@ class CoverageTable:
             shape=shape,
         )
         csr.has_sorted_indices = True
-        return cls(by_candidate=csr, by_face=csr.tocsc(), face_area_m2=face_area_m2)
+        pattern = sp.csr_matrix((np.ones(csr.nnz, bool), csr.indices, csr.indptr), shape=shape)
+        return cls(by_candidate=csr, by_face=pattern.tocsc(), face_area_m2=face_area_m2)
 
     @property
     def n_candidates(self) -> int:
