@@ -137,12 +137,20 @@ def overlap_matrix(scene: Scene, positions: NDArray[np.float64], limits: FaceLim
     return rows.matrix(range(len(positions)))
 
 
+# the six terms of the packed symmetric normal scatter matrix: xx, yy, zz, xy, xz, yz
+_SCATTER_TERMS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
+
+
+def _scatter_term(scene: Scene, i: int, j: int) -> NDArray[np.float64]:
+    """(F,) float64: area * n_i n_j per face."""
+    n = scene.normals
+    term: NDArray[np.float64] = n[:, i] * n[:, j] * scene.areas
+    return term
+
+
 def _scatter_weights(scene: Scene) -> NDArray[np.float64]:
     """(F, 6) float64: area * (nx nx, ny ny, nz nz, nx ny, nx nz, ny nz) per face."""
-    n = scene.normals
-    products = np.stack([n[:, 0] * n[:, 0], n[:, 1] * n[:, 1], n[:, 2] * n[:, 2],
-                         n[:, 0] * n[:, 1], n[:, 0] * n[:, 2], n[:, 1] * n[:, 2]], axis=1)
-    return products * scene.areas[:, None]
+    return np.stack([_scatter_term(scene, i, j) for i, j in _SCATTER_TERMS], axis=1)
 
 
 def _constraint(scatter6: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -353,11 +361,9 @@ def station_registration(scene: Scene, station_overlap: sp.csr_matrix,
     station_overlap = station_overlap.tocsr()
     station_overlap.sort_indices()
     overlap_m2 = shared_per_pair(station_overlap, scene.areas)  # (S, S)
-    normals = scene.normals
     # (S, S, 6) the shared faces' area-weighted normal scatter, packed as _scatter_weights
-    scatter6 = np.stack([
-        shared_per_pair(station_overlap, normals[:, i] * normals[:, j] * scene.areas)
-        for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))], axis=-1)
+    scatter6 = np.stack([shared_per_pair(station_overlap, _scatter_term(scene, i, j))
+                         for i, j in _SCATTER_TERMS], axis=-1)
     edges: list[Edge] = []
     rows: list[int] = []
     cols: list[int] = []
