@@ -129,6 +129,24 @@ class Scene:
         return self.file_vertices, self.file_faces
 
     @property
+    def file_triangles(self) -> FloatArray:
+        """(F0, 3, 3) float64: the corners of every face of the file (before remeshing)."""
+        vertices, faces = self.file_mesh
+        return vertices[faces]
+
+    def on_file_faces(self, per_face: NDArray[Any]) -> NDArray[Any]:
+        """(F0,) the value of (F,) ``per_face`` on each face of the file.
+
+        For values that the pieces of a file face share (group, element): remeshing keeps
+        every face of the file, in one or more pieces.
+        """
+        if self.file_faces is None:
+            return per_face
+        on_file = np.empty(len(self.file_faces), per_face.dtype)
+        on_file[self.source_face] = per_face
+        return on_file
+
+    @property
     def bounds(self) -> FloatArray:
         """(2, 3) float64: lowest and highest corner of the axis-aligned box."""
         return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])

@@ -241,8 +241,8 @@ def inside_elements(scene: Scene, points: NDArray[np.float64]) -> NDArray[np.boo
     """(N,) bool: inside some element's closed solid (winding number above one half).
 
     Per element rather than per group (:func:`planner.method.candidates.inside_closed_groups`):
-    an element's box holds few points. And on the file's triangles, rebuilt from the
-    remeshed pieces (:func:`source_triangles`): the pieces of a triangle subtend the same
+    an element's box holds few points. And on the file's triangles
+    (:attr:`planner.scene.Scene.file_triangles`): the pieces of a triangle subtend the same
     solid angle as the triangle, so the winding number is the same at a fraction of the
     cost (FZK-Haus: 21 668 triangles instead of 1.16 M). Scenes without elements fall back
     to groups.
@@ -250,7 +250,7 @@ def inside_elements(scene: Scene, points: NDArray[np.float64]) -> NDArray[np.boo
     if not scene.elements:
         return inside_closed_groups(scene, points)
     result = np.zeros(len(points), bool)
-    triangles, owner = source_triangles(scene)
+    triangles, owner = scene.file_triangles, scene.on_file_faces(scene.face_element)
     order = np.argsort(owner, kind="stable")
     bounds = np.searchsorted(owner[order], np.arange(len(scene.elements) + 1))
     for e in range(len(scene.elements)):
@@ -261,40 +261,3 @@ def inside_elements(scene: Scene, points: NDArray[np.float64]) -> NDArray[np.boo
         boxed = np.flatnonzero(((points > lo) & (points < hi)).all(axis=1) & ~result)
         result[boxed] = winding_numbers(tri, points[boxed]) > 0.5
     return result
-
-
-def source_triangles(scene: Scene) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """(S, 3, 3) the file's triangles rebuilt from their remeshed pieces, (S,) their element.
-
-    Remeshing splits a triangle at edge midpoints, so its corners are among its pieces'
-    corners: A is the point farthest from their mean, B the one farthest from A, C the one
-    farthest from the line AB; the winding of the pieces' summed normal is kept.
-    """
-    order = np.argsort(scene.source_face, kind="stable")
-    source = scene.source_face[order]
-    first = np.flatnonzero(np.r_[True, source[1:] != source[:-1]])
-    group = np.repeat(np.arange(len(first)), np.diff(np.r_[first, len(source)]))
-    pieces = scene.triangles[order]  # (n, 3, 3)
-    corners = pieces.reshape(-1, 3)
-    corner_group = np.repeat(group, 3)
-    counts = np.bincount(corner_group).astype(np.float64)[:, None]
-    mean = np.stack([np.bincount(corner_group, weights=corners[:, k]) for k in range(3)],
-                    axis=1) / counts
-
-    starts = 3 * first  # corners are grouped contiguously, in group order
-
-    def farthest(score: NDArray[np.float64]) -> NDArray[np.float64]:
-        top = np.maximum.reduceat(score, starts)
-        hits = np.flatnonzero(score >= top[corner_group])
-        _, pick = np.unique(corner_group[hits], return_index=True)
-        return corners[hits[pick]]
-
-    a = farthest(np.linalg.norm(corners - mean[corner_group], axis=1))
-    b = farthest(np.linalg.norm(corners - a[corner_group], axis=1))
-    c = farthest(np.linalg.norm(
-        np.cross(corners - a[corner_group], (b - a)[corner_group]), axis=1))
-    cross = np.cross(pieces[:, 1] - pieces[:, 0], pieces[:, 2] - pieces[:, 0])
-    normal = np.stack([np.bincount(group, weights=cross[:, k]) for k in range(3)], axis=1)
-    flip = np.einsum("sk,sk->s", np.cross(b - a, c - a), normal) < 0
-    b, c = np.where(flip[:, None], c, b), np.where(flip[:, None], b, c)
-    return np.stack([a, b, c], axis=1), scene.face_element[order][first]
