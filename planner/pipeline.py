@@ -10,7 +10,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
@@ -125,19 +125,10 @@ def plan(
     stats.seconds["candidates"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
-    if spec.coverage_model == "sampled":
-        from planner.method.sampled import qualify_sampled_pairs
-
-        qualified, tested, rays = qualify_sampled_pairs(
-            scene, candidates.positions, limits, occlusion, spec.samples_per_face,
-            spec.min_sampled_fraction, progress=progress, threads=threads)
-        stats.pairs_tested += tested
-        stats.rays_cast += rays
-    else:
-        qualified = qualify_pairs(scene, candidates.positions, limits, occlusion, stats,
-                                  progress=progress, threads=threads)
-    table = CoverageTable.from_pairs(qualified, len(candidates), scene.areas)
-    del qualified  # the table holds its faces and densities; the candidate column goes
+    table = CoverageTable.from_blocks(
+        _qualified_blocks(scene, spec, candidates.positions, limits, occlusion, stats,
+                          progress=progress, threads=threads),
+        len(candidates), scene.areas)
     stats.qualified_pairs = table.n_pairs
     stats.seconds["visibility"] = time.perf_counter() - t1
     if table.n_pairs == 0:
@@ -195,7 +186,11 @@ def plan(
                          occlusion, _caster(scene, spec, limits, occlusion), stats.seconds,
                          station_overlap=station_overlap, threads=threads)
     _notify(progress, "report", 0.0)
-    faces = coverage_state(table, chosen.stations)
+    # the table keeps no densities: the chosen stations' pairs are qualified again, alone
+    densities = QualifiedPairs.concatenate(list(_qualified_blocks(
+        scene, spec, candidates.positions[list(chosen.stations)], limits, occlusion, stats,
+        threads=threads)))
+    faces = coverage_state(table, chosen.stations, densities)
     return PlanResult(scene=scene, spec=spec, candidates=candidates, table=table,
                       limits=limits, selections=selections, chosen=chosen, optimal=optimal,
                       faces=faces, stats=stats, optimal_curve=outcome.curve,
@@ -210,8 +205,9 @@ def _caster(scene: Scene, spec: PlanSpec, limits: FaceLimits, occlusion: Occlusi
     return make_ray_caster(scene, limits.occludes, file_faces=spec.occluders == "file")
 
 
-def qualify_pairs(
+def _qualified_blocks(
     scene: Scene,
+    spec: PlanSpec,
     positions: np.ndarray,
     limits: FaceLimits,
     occlusion: Occlusion,
@@ -219,11 +215,38 @@ def qualify_pairs(
     *,
     progress: ProgressCallback | None = None,
     threads: int | None = None,
-) -> QualifiedPairs:
-    """The qualified pairs of (C, 3) candidate positions, sorted by (candidate, face).
+) -> Iterator[QualifiedPairs]:
+    """The qualified pairs of (C, 3) candidate positions under the plan's coverage model,
+    block by block in candidate order; counts what was tested in ``stats``."""
+    if spec.coverage_model == "sampled":
+        from planner.method.sampled import qualify_sampled_pairs
+
+        blocks = qualify_sampled_pairs(
+            scene, positions, limits, occlusion, spec.samples_per_face,
+            spec.min_sampled_fraction, progress=progress, threads=threads)
+    else:
+        blocks = qualify_pairs(scene, positions, limits, occlusion,
+                               progress=progress, threads=threads)
+    for qualified, tested, rays in blocks:
+        stats.pairs_tested += tested
+        stats.rays_cast += rays
+        yield qualified
+
+
+def qualify_pairs(
+    scene: Scene,
+    positions: np.ndarray,
+    limits: FaceLimits,
+    occlusion: Occlusion,
+    *,
+    progress: ProgressCallback | None = None,
+    threads: int | None = None,
+) -> Iterator[tuple[QualifiedPairs, int, int]]:
+    """The qualified pairs of (C, 3) candidate positions, block by block in candidate order
+    (each sorted by (candidate, face)), with the pairs tested and rays cast for it.
 
     Blocks of candidates run on a thread pool (the compiled limits loop and Embree both
-    release the GIL); results are merged in block order, so they do not depend on timing.
+    release the GIL); they come out in block order, so they do not depend on timing.
     """
     finder = PairFinder(scene, limits)
     block_size = max(1, min(64, _PAIRS_PER_BLOCK // max(1, int(limits.target.sum()))))
@@ -239,19 +262,13 @@ def qualify_pairs(
                                    pairs.lpd_pts_m2[visible])
         return qualified, tested, len(pairs)
 
-    results: list[QualifiedPairs] = []
     workers = threads or os.cpu_count() or 1
     with ThreadPoolExecutor(max_workers=workers) as pool:
         futures = [pool.submit(block, start) for start in starts]
         try:
             for i, future in enumerate(futures):
-                qualified, tested, rays = future.result()
-                results.append(qualified)
-                stats.pairs_tested += tested
-                stats.rays_cast += rays
+                yield future.result()
                 _notify(progress, "visibility", (i + 1) / len(futures))
-        except BaseException:
+        finally:
             for future in futures:
                 future.cancel()
-            raise
-    return QualifiedPairs.concatenate(results)

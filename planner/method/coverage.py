@@ -1,11 +1,14 @@
-"""The coverage table: which candidate qualifies for which face, and at what density.
+"""The coverage table: which candidate qualifies for which face.
 
-A sparse candidates x faces matrix (C x F) whose stored values are the LPD (pts/m^2) of
-every qualified pair: passes the analytic limits and the occlusion ray.
+The pattern of a sparse candidates x faces matrix (C x F): a pair is in it when it passes
+the analytic limits and the occlusion ray. Pairs come from the visibility stage in blocks
+(:class:`QualifiedPairs`, with their LPD in pts/m^2).
 """
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -50,18 +53,22 @@ _SUM_BLOCK_PAIRS = 1 << 22
 
 @dataclass(frozen=True, eq=False)
 class CoverageTable:
-    """Qualified pairs, both ways round.
+    """Which candidate qualifies for which face: the pattern of the (C, F) table, by row.
+
+    Only the pattern is kept (4 bytes a qualified pair): the choice of stations needs no
+    more, and the densities of the chosen stations are computed again for the report
+    (:func:`planner.pipeline.plan`). A 10 M-face floor with grid candidates holds some
+    250 M pairs.
 
     Attributes
     ----------
-    by_candidate : (C, F) CSR float32, LPD of each qualified pair, rows = candidates
-    by_face : (C, F) CSC bool, its pattern for column access (which candidates qualify
-        for a face; 5 bytes a pair instead of 8: the densities are read by candidate)
+    indptr : (C + 1,) int64, candidate c's faces are ``faces[indptr[c]:indptr[c + 1]]``
+    faces : (P,) int32, ascending within each candidate
     face_area_m2 : (F,) float64
     """
 
-    by_candidate: sp.csr_matrix
-    by_face: sp.csc_matrix
+    indptr: NDArray[np.int64]
+    faces: NDArray[np.int32]
     face_area_m2: NDArray[np.float64]
 
     @classmethod
@@ -69,33 +76,68 @@ class CoverageTable:
         cls, qualified: QualifiedPairs, n_candidates: int, face_area_m2: NDArray[np.float64]
     ) -> CoverageTable:
         """Build from pairs sorted by (candidate, face) (the order the pipeline makes)."""
-        shape = (n_candidates, len(face_area_m2))
-        counts = np.bincount(qualified.candidate, minlength=n_candidates)
-        indptr = np.concatenate([[0], np.cumsum(counts)])
-        csr = sp.csr_matrix(
-            (qualified.lpd_pts_m2, qualified.face, indptr.astype(np.int32)),
-            shape=shape,
-        )
-        csr.has_sorted_indices = True
-        pattern = sp.csr_matrix((np.ones(csr.nnz, bool), csr.indices, csr.indptr), shape=shape)
-        return cls(by_candidate=csr, by_face=pattern.tocsc(), face_area_m2=face_area_m2)
+        return cls.from_blocks([qualified], n_candidates, face_area_m2)
+
+    @classmethod
+    def from_blocks(
+        cls, blocks: Iterable[QualifiedPairs], n_candidates: int,
+        face_area_m2: NDArray[np.float64],
+    ) -> CoverageTable:
+        """Build from blocks of pairs, each sorted by (candidate, face), that follow one
+        another in candidate order; each block can be dropped once it is read.
+
+        The faces column grows in place (``ndarray.resize``, a ``realloc``: large blocks
+        are remapped, not copied), so the peak is the table and one block, not twice the
+        table.
+        """
+        counts = np.zeros(n_candidates, np.int64)
+        faces = np.empty(1 << 16, np.int32)
+        n = 0
+        for block in blocks:
+            counts += np.bincount(block.candidate, minlength=n_candidates)
+            if n + len(block.face) > len(faces):
+                faces.resize(max(n + len(block.face), len(faces) * 3 // 2), refcheck=False)
+            faces[n:n + len(block.face)] = block.face
+            n += len(block.face)
+            del block
+        faces.resize(n, refcheck=False)
+        indptr = np.zeros(n_candidates + 1, np.int64)
+        np.cumsum(counts, out=indptr[1:])
+        return cls(indptr=indptr, faces=faces, face_area_m2=face_area_m2)
 
     @property
     def n_candidates(self) -> int:
-        return int(self.by_candidate.shape[0])
+        return len(self.indptr) - 1
 
     @property
     def n_faces(self) -> int:
-        return int(self.by_candidate.shape[1])
+        return len(self.face_area_m2)
 
     @property
     def n_pairs(self) -> int:
-        return int(self.by_candidate.nnz)
+        return len(self.faces)
 
     @property
+    def by_candidate(self) -> sp.csr_matrix:
+        """(C, F) CSR bool, the table as a sparse matrix (its data made for the call)."""
+        matrix = sp.csr_matrix((np.ones(self.n_pairs, bool), self.faces, self.indptr),
+                               shape=(self.n_candidates, self.n_faces))
+        matrix.has_sorted_indices = True
+        return matrix
+
+    @functools.cached_property
+    def by_face(self) -> sp.csc_matrix:
+        """(C, F) CSC bool, the pattern by column (which candidates qualify for a face).
+
+        Built on first use and kept (5 bytes a pair): the optimal method reads it, the
+        greedy methods do not.
+        """
+        return self.by_candidate.tocsc()
+
+    @functools.cached_property
     def candidates_per_face(self) -> NDArray[np.int64]:
         """(F,) int64: how many candidates qualify for each face (k_f)."""
-        return np.asarray(np.diff(self.by_face.indptr), dtype=np.int64)
+        return np.bincount(self.faces, minlength=self.n_faces).astype(np.int64)
 
     @property
     def achievable(self) -> NDArray[np.bool_]:
@@ -108,18 +150,16 @@ class CoverageTable:
 
     def faces_of(self, candidate: int) -> NDArray[np.int32]:
         """Faces that ``candidate`` qualifies for, ascending."""
-        start, stop = self.by_candidate.indptr[candidate], self.by_candidate.indptr[candidate + 1]
-        return np.asarray(self.by_candidate.indices[start:stop], dtype=np.int32)
+        return self.faces[self.indptr[candidate]:self.indptr[candidate + 1]]
 
     def sum_per_candidate(self, per_face: NDArray[np.float64]) -> NDArray[np.float64]:
         """(C,) float64: the sum of (F,) ``per_face`` over the faces each candidate qualifies for.
 
         Summed entry by entry in (candidate, face) order, as a sparse product with the
         table's pattern would, in blocks of whole candidates: the temporaries stay at
-        ``_SUM_BLOCK_PAIRS`` pairs however large the table (a 10 M-face interior with grid
-        candidates holds 160 M pairs).
+        ``_SUM_BLOCK_PAIRS`` pairs however large the table.
         """
-        indptr = self.by_candidate.indptr
+        indptr = self.indptr
         sums = np.zeros(self.n_candidates, np.float64)
         first = 0
         while first < self.n_candidates:
@@ -129,7 +169,6 @@ class CoverageTable:
             start, stop = int(indptr[first]), int(indptr[last])
             rows = np.repeat(np.arange(last - first), np.diff(indptr[first:last + 1]))
             sums[first:last] = np.bincount(
-                rows, weights=per_face[self.by_candidate.indices[start:stop]],
-                minlength=last - first)
+                rows, weights=per_face[self.faces[start:stop]], minlength=last - first)
             first = last
         return sums

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
@@ -257,29 +257,23 @@ def qualify_sampled_pairs(
     *,
     progress: ProgressCallback | None = None,
     threads: int | None = None,
-) -> tuple[QualifiedPairs, int, int]:
-    """The qualified pairs of (C, 3) candidates under the sampled model, sorted by
-    (candidate, face); pairs tested and rays cast. Blocks run on a thread pool and merge in
-    candidate order, so the result does not depend on timing."""
+) -> Iterator[tuple[QualifiedPairs, int, int]]:
+    """The qualified pairs of (C, 3) candidates under the sampled model, block by block in
+    candidate order (each sorted by (candidate, face)), with the pairs tested and rays cast
+    for it. Blocks run on a thread pool and come out in candidate order, so the result does
+    not depend on timing."""
     qualifier = SampledQualifier(scene, limits, occlusion, samples_per_face,
                                  min_sampled_fraction)
     starts = range(0, len(positions), _CANDIDATES_PER_BLOCK)
-    results: list[QualifiedPairs] = []
-    tested = rays = 0
     workers = threads or os.cpu_count() or 1
     with ThreadPoolExecutor(max_workers=workers) as pool:
         futures = [pool.submit(qualifier.block, positions[s:s + _CANDIDATES_PER_BLOCK], s)
                    for s in starts]
         try:
             for i, future in enumerate(futures):
-                part, block_tested, block_rays = future.result()
-                results.append(part)
-                tested += block_tested
-                rays += block_rays
+                yield future.result()
                 if progress is not None and progress("visibility", (i + 1) / len(futures)):
                     raise CancelledError("the plan was cancelled during visibility")
-        except BaseException:
+        finally:
             for future in futures:
                 future.cancel()
-            raise
-    return QualifiedPairs.concatenate(results), tested, rays

@@ -7,19 +7,22 @@ more; covered area (and so the stopping rule) stays unweighted.
 
 Ties go to the lowest candidate index. Face weights are rounded to whole units of 1e-9 m^2
 (GAIN_QUANTUM_M2) and summed exactly, so a tie never depends on summation order, and the
-gains can be updated incrementally (total work: one pass over the coverage table).
+gains can be ranked lazily (a candidate's gain is summed again only when it comes to the
+top, see :class:`GainOrder`).
 """
 
 from __future__ import annotations
 
+import contextlib
+import heapq
+from collections.abc import Generator
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import ParameterError
-from planner.method.coverage import CoverageTable
+from planner.method.coverage import CoverageTable, QualifiedPairs
 
 GAIN_QUANTUM_M2 = 1e-9
 # covered >= goal * max achievable, with this much slack for summation order (m^2)
@@ -83,16 +86,54 @@ def gain_units(table: CoverageTable, *, weighted: bool = False
     return units, gains
 
 
-def subtract_gains(table: CoverageTable, gains: NDArray[np.float64],
-                   units: NDArray[np.float64], fresh: NDArray[np.integer[Any]]) -> None:
-    """In place: every candidate that also sees a freshly covered face (``fresh``, (N,)
-    face ids) loses that face's units from its (C,) ``gains``."""
-    by_face = table.by_face
-    starts, stops = by_face.indptr[fresh], by_face.indptr[fresh + 1]
-    counts = stops - starts
-    entry = np.repeat(starts - np.cumsum(counts) + counts, counts) + np.arange(counts.sum())
-    gains -= np.bincount(by_face.indices[entry], weights=np.repeat(units[fresh], counts),
-                         minlength=table.n_candidates)
+class GainOrder:
+    """Candidates ranked by gain (largest first, ties: lowest index), kept lazily.
+
+    Gains only fall as faces get covered, so a gain computed earlier is an upper bound: a
+    heap holds those bounds, and a candidate's exact gain is computed again only when it
+    comes to the top. Once its exact gain still ranks first, it is the next in the exact
+    order (every other bound, and so every other gain, ranks after it). The ranking is the
+    one that sorting every candidate's exact gain would give, without a by-face copy of the
+    table to update all gains after every station.
+    """
+
+    def __init__(self, table: CoverageTable, units: NDArray[np.float64],
+                 gains: NDArray[np.float64], uncovered: NDArray[np.bool_]) -> None:
+        """``units`` (F,) and ``gains`` (C,) from :func:`gain_units`; ``uncovered`` (F,) is
+        read at every ranking (the caller marks faces covered in it)."""
+        self.table = table
+        self.units = units
+        self.uncovered = uncovered
+        positive = np.flatnonzero(gains > 0)
+        self._heap = list(zip((-gains[positive]).tolist(), positive.tolist(), strict=True))
+        heapq.heapify(self._heap)
+
+    def gain(self, candidate: int) -> float:
+        """The exact gain of ``candidate`` now (a sum of whole units)."""
+        faces = self.table.faces_of(candidate)
+        return float(self.units[faces[self.uncovered[faces]]].sum())
+
+    def ranked(self) -> Generator[int, None, None]:
+        """The candidates with a positive gain, best first, for the faces uncovered now.
+
+        Close the iterator (or run it out) before covering more faces.
+        """
+        ranked: list[tuple[float, int]] = []
+        try:
+            while self._heap:
+                _, candidate = heapq.heappop(self._heap)
+                gain = self.gain(candidate)
+                if gain <= 0:
+                    continue  # gains never rise again
+                key = (-gain, candidate)
+                if self._heap and self._heap[0] < key:
+                    heapq.heappush(self._heap, key)  # another may rank higher now
+                    continue
+                ranked.append(key)
+                yield candidate
+        finally:
+            for key in ranked:
+                heapq.heappush(self._heap, key)
 
 
 def greedy(table: CoverageTable, *, weighted: bool = False,
@@ -103,12 +144,14 @@ def greedy(table: CoverageTable, *, weighted: bool = False,
     they add; greedy then chooses only what is still missing.
 
     Gains are kept as exact integers (face weights in units of GAIN_QUANTUM_M2, held in
-    float64 below 2**53): the gain of every candidate is updated by subtracting the faces
-    that just got covered, which is exact, so ties are real ties and go to the lowest index.
+    float64 below 2**53) and ranked lazily (:class:`GainOrder`), so ties are real ties and
+    go to the lowest index.
     """
     area = table.face_area_m2
     units, gains = gain_units(table, weighted=weighted)
     uncovered = np.ones(table.n_faces, bool)
+    order = GainOrder(table, units, gains, uncovered)
+    del gains
     stations: list[int] = []
     new_area: list[float] = []
     covered: list[float] = []
@@ -118,9 +161,11 @@ def greedy(table: CoverageTable, *, weighted: bool = False,
         if given:
             candidate = given.pop(0)
         else:
-            candidate = int(np.argmax(gains))  # the first of equal maxima: lowest index
-            if gains[candidate] <= 0:
+            with contextlib.closing(order.ranked()) as ranking:
+                best = next(ranking, None)
+            if best is None:
                 break
+            candidate = best
         faces = table.faces_of(candidate)
         fresh = faces[uncovered[faces]]
         uncovered[fresh] = False
@@ -129,7 +174,6 @@ def greedy(table: CoverageTable, *, weighted: bool = False,
         stations.append(candidate)
         new_area.append(added)
         covered.append(total)
-        subtract_gains(table, gains, units, fresh)
     return Selection(
         method="weighted_greedy" if weighted else "greedy",
         stations=tuple(stations),
@@ -163,9 +207,13 @@ def replay(table: CoverageTable, stations: list[int] | tuple[int, ...],
 
 
 def coverage_state(
-    table: CoverageTable, stations: tuple[int, ...]
+    table: CoverageTable, stations: tuple[int, ...], densities: QualifiedPairs
 ) -> dict[str, NDArray[np.generic]]:
     """Per-face results of a plan.
+
+    ``densities`` are the qualified pairs of the chosen stations alone, numbered by their
+    place in ``stations`` (the table keeps no densities): they must be the table's rows of
+    those stations.
 
     Returns
     -------
@@ -179,11 +227,14 @@ def coverage_state(
     best = np.zeros(n, np.float64)
     count = np.zeros(n, np.int32)
     first = np.full(n, -1, np.int32)
+    bounds = np.searchsorted(densities.candidate, np.arange(len(stations) + 1))
     for order, candidate in enumerate(stations):
-        start, stop = table.by_candidate.indptr[candidate], table.by_candidate.indptr[candidate + 1]
-        faces = table.by_candidate.indices[start:stop]
-        lpd = table.by_candidate.data[start:stop]
-        np.maximum.at(best, faces, lpd)
+        faces = table.faces_of(candidate)
+        rows = slice(bounds[order], bounds[order + 1])
+        if not np.array_equal(densities.face[rows], faces):
+            raise RuntimeError(f"station {order}: the densities computed again are not of "
+                               "the faces in the coverage table")
+        np.maximum.at(best, faces, densities.lpd_pts_m2[rows])
         count[faces] += 1
         unset = faces[first[faces] < 0]
         first[unset] = order

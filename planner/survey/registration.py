@@ -26,7 +26,9 @@ Array letters: C candidates, F faces, S stations.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import itertools
 import os
 import time
 from collections.abc import Iterable, Sequence
@@ -42,7 +44,7 @@ from scipy.sparse.csgraph import connected_components
 from planner.method.connectivity import OverlapGraph
 from planner.method.coverage import CoverageTable
 from planner.method.pairs import FaceLimits, PairFinder
-from planner.method.selection import GOAL_SLACK_M2, Selection, gain_units, subtract_gains
+from planner.method.selection import GOAL_SLACK_M2, GainOrder, Selection, gain_units
 from planner.method.visibility import Occlusion, make_occlusion
 from planner.scene import Scene
 from planner.survey.walkgraph import door_faces
@@ -180,6 +182,25 @@ def overlap_with(overlap: sp.csr_matrix, row: int, scene: Scene,
     return area, _constraint(scatter)
 
 
+def _shared_with(rows: sp.csr_matrix, faces: NDArray[np.int64], area_m2: NDArray[np.float64],
+                 weights6: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, 7) float64: overlap area and the six scatter sums of every row of the (N, F)
+    0/1 ``rows`` with the (n,) ascending ``faces`` of one overlap row.
+
+    Each sum runs over the row's faces in ascending order, as ``rows`` times the dense (F,)
+    area and (F, 6) weights masked to ``faces`` would (there the other terms add 0.0), in
+    memory of the rows' size rather than the model's.
+    """
+    entry_row = np.repeat(np.arange(rows.shape[0]), np.diff(rows.indptr))
+    at = np.minimum(np.searchsorted(faces, rows.indices), max(len(faces) - 1, 0))
+    hit = np.flatnonzero(faces[at] == rows.indices) if len(faces) else np.zeros(0, np.int64)
+    shared_faces, shared_row = rows.indices[hit], entry_row[hit]
+    columns = [area_m2[shared_faces], *(weights6[shared_faces, k] for k in range(6))]
+    # (an empty bincount is int64 whatever its weights)
+    return np.stack([np.bincount(shared_row, weights=c, minlength=rows.shape[0])
+                     for c in columns], axis=1).astype(np.float64, copy=False)
+
+
 def overlaps(overlap: sp.csr_matrix, row: int, scene: Scene, weights6: NDArray[np.float64],
              min_overlap_m2: float) -> NDArray[np.bool_]:
     """(N,) bool: which rows of ``overlap`` row ``row`` has an edge with (overlap area and
@@ -225,10 +246,12 @@ def connected_greedy(table: CoverageTable, overlap: OverlapRows, scene: Scene,
     weights6 = _scatter_weights(scene)
     n = table.n_candidates
     uncovered = np.ones(table.n_faces, bool)
+    gain_order = GainOrder(table, units, gains, uncovered)
+    del gains
     allowed = np.zeros(n, bool)  # (C,) known to overlap a chosen station
     tested = np.zeros(n, np.int64)  # (C,) how many stations each was tested against
-    # per chosen station: (F,) face area and (F, 6) scatter weights masked to its row
-    station_weights: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = []
+    # per chosen station: the faces of its overlap row, ascending
+    station_faces: list[NDArray[np.int64]] = []
     chosen = np.zeros(n, bool)
     stations: list[int] = []
     new_area: list[float] = []
@@ -237,20 +260,19 @@ def connected_greedy(table: CoverageTable, overlap: OverlapRows, scene: Scene,
     batch = max(2, overlap.workers)  # rows computed together (one per worker)
     index = np.arange(n)
 
-    def first_allowed(order: NDArray[np.int64]) -> int | None:
+    def first_allowed(order: Iterable[int]) -> int | None:
         """The first candidate of ``order`` that overlaps a chosen station, or None."""
-        for start in range(0, len(order), batch):
-            block = order[start:start + batch]
-            todo = block[~allowed[block] & (tested[block] < len(station_weights))]
+        candidates = iter(order)
+        while len(block := np.fromiter(itertools.islice(candidates, batch), np.int64)):
+            todo = block[~allowed[block] & (tested[block] < len(station_faces))]
             if len(todo):
                 rows = overlap.matrix(todo)
-                for k in range(int(tested[todo].min()), len(station_weights)):
-                    area_k, scatter_k = station_weights[k]
-                    overlap_m2 = np.asarray(rows @ area_k).reshape(-1)
-                    constraint = _constraint(np.asarray(rows @ scatter_k))
+                for k in range(int(tested[todo].min()), len(station_faces)):
+                    shared = _shared_with(rows, station_faces[k], scene.areas, weights6)
+                    overlap_m2, constraint = shared[:, 0], _constraint(shared[:, 1:])
                     allowed[todo] |= ((tested[todo] <= k) & (overlap_m2 >= min_overlap_m2)
                                       & (constraint >= MIN_CONSTRAINT))
-                tested[todo] = len(station_weights)
+                tested[todo] = len(station_faces)
             hits = block[allowed[block]]
             if len(hits):
                 return int(hits[0])
@@ -258,17 +280,18 @@ def connected_greedy(table: CoverageTable, overlap: OverlapRows, scene: Scene,
 
     relay_gap_m = np.inf  # distance of the last relay to its target; a relay must get closer
     while True:
-        open_ = ~chosen & (gains > 0)
-        order = index[open_][np.lexsort((index[open_], -gains[open_]))]
-        if not stations:
-            candidate: int | None = int(order[0]) if len(order) else None  # the first: any
-        else:
-            candidate = first_allowed(order)
+        # open candidates (their gain is positive; a chosen one's is 0), best first
+        with contextlib.closing(gain_order.ranked()) as ranking:
+            best = next(ranking, None)
+            if not stations or best is None:
+                candidate = best  # the first station: any
+            else:
+                candidate = first_allowed(itertools.chain([best], ranking))
         if candidate is None:
-            if not stations or not len(order):
+            if best is None:
                 break  # nothing adds area: every open candidate's gain is 0
             # no allowed candidate adds area: relay towards the best one not allowed
-            target = positions[int(np.argmax(np.where(chosen, 0.0, gains)))]
+            target = positions[best]
             distance = np.linalg.norm(positions - target, axis=1)
             near = index[~chosen & (distance < relay_gap_m)]
             candidate = first_allowed(near[np.lexsort((near, distance[near]))])
@@ -288,10 +311,7 @@ def connected_greedy(table: CoverageTable, overlap: OverlapRows, scene: Scene,
         chosen[candidate] = True
         if total >= needed_m2:
             break
-        mask = np.zeros(scene.n_faces)
-        mask[overlap.matrix([candidate]).indices] = 1.0
-        station_weights.append((scene.areas * mask, weights6 * mask[:, None]))
-        subtract_gains(table, gains, units, fresh)
+        station_faces.append(overlap.matrix([candidate]).indices)
     return Selection(
         method="weighted_greedy" if weighted else "greedy",
         stations=tuple(stations),

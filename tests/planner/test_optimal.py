@@ -3,6 +3,7 @@ and re-scans that keep the stations already scanned."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from planner.errors import CancelledError, ParameterError
 from planner.io.readers import read_scene
 from planner.method.candidates import read_candidates_csv
 from planner.method.coverage import CoverageTable, QualifiedPairs
-from planner.method.selection import fixed_candidates, greedy, replay
+from planner.method.selection import GainOrder, fixed_candidates, gain_units, greedy, replay
 from planner.outputs.report import plan_document
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
@@ -216,3 +217,36 @@ def test_a_plan_can_be_cancelled_while_highs_works(scenes_dir: Path) -> None:
     with pytest.raises(CancelledError, match="selection"):
         plan(scene, spec, progress=progress)
     assert len(seen) == 1 and 0 < seen[0] < 1
+
+
+def test_lazy_ranking_is_the_order_of_exact_gains() -> None:
+    """GainOrder ranks as sorting every candidate's exact gain would, ties by index,
+    however many faces were covered since the gains were first summed."""
+    rng = np.random.default_rng(7)
+    n_faces = 300
+    sets = [sorted(rng.choice(n_faces, int(rng.integers(0, 40)), replace=False).tolist())
+            for _ in range(60)]
+    table = CoverageTable.from_blocks(
+        [QualifiedPairs(
+            np.array([c for c, faces in enumerate(sets[:25]) for _ in faces], np.int32),
+            np.array([f for faces in sets[:25] for f in faces], np.int32),
+            np.zeros(sum(map(len, sets[:25])), np.float32)),
+         QualifiedPairs(
+            np.array([25 + c for c, faces in enumerate(sets[25:]) for _ in faces], np.int32),
+            np.array([f for faces in sets[25:] for f in faces], np.int32),
+            np.zeros(sum(map(len, sets[25:])), np.float32))],
+        len(sets), np.round(rng.uniform(0.5, 2.0, n_faces), 1))
+    assert table.by_candidate.nnz == sum(map(len, sets))  # two blocks make one table
+    units, gains = gain_units(table, weighted=True)
+    uncovered = np.ones(n_faces, bool)
+    order = GainOrder(table, units, gains, uncovered)
+    for step in range(12):
+        exact = np.array([units[np.array(s, int)[uncovered[s]]].sum() if s else 0.0
+                          for s in sets])
+        expected = [c for c in np.lexsort((np.arange(len(sets)), -exact)) if exact[c] > 0]
+        with contextlib.closing(order.ranked()) as ranking:
+            assert list(ranking) == expected, step
+        if not expected:
+            break
+        # cover the faces of a candidate that is not the best, so bounds go stale unevenly
+        uncovered[table.faces_of(int(expected[len(expected) // 2]))] = False

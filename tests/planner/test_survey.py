@@ -315,3 +315,27 @@ def test_model_without_a_floor_leaves_every_station_unreachable() -> None:
     graph = build_walk_graph(scene, caster)
     route = plan_route(graph, caster, np.array([[0.0, 0.0, 1.5], [1.0, 0.0, 1.5]]), None)
     assert route.to_dict() == {"visits": [], "length_m": 0.0, "legs": [], "unreachable": [1, 2]}
+
+
+def test_shared_sums_equal_the_dense_masked_product() -> None:
+    """The connected greedy's overlap sums, row by row, are the dense masked product's bits,
+    also for an empty station row and rows that share nothing."""
+    import scipy.sparse as sp
+
+    from planner.survey.registration import _shared_with
+
+    rng = np.random.default_rng(3)
+    n_faces = 500
+    area = rng.uniform(0.01, 0.5, n_faces)
+    weights6 = rng.normal(size=(n_faces, 6))
+    rows = [np.sort(rng.choice(n_faces, k, replace=False)) for k in (0, 40, 200, 3)]
+    matrix = sp.csr_matrix((np.ones(sum(map(len, rows))), np.concatenate(rows),
+                            np.r_[0, np.cumsum([len(r) for r in rows])]),
+                           shape=(len(rows), n_faces))
+    for station in (np.zeros(0, np.int64), rows[2], np.setdiff1d(np.arange(n_faces), rows[1])):
+        mask = np.zeros(n_faces)
+        mask[station] = 1.0
+        dense = np.column_stack([matrix @ (area * mask), matrix @ (weights6 * mask[:, None])])
+        shared = _shared_with(matrix, station, area, weights6)
+        assert shared.dtype == np.float64
+        np.testing.assert_array_equal(shared, dense)
