@@ -7,6 +7,7 @@ order, which keeps the result independent of the number of threads.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import os
 import time
@@ -264,11 +265,13 @@ def qualify_pairs(
 
     workers = threads or os.cpu_count() or 1
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(block, start) for start in starts]
+        # a block's result is let go once read: the futures are dropped as they are read
+        futures = collections.deque(pool.submit(block, start) for start in starts)
+        n_blocks = len(futures)
         try:
-            for i, future in enumerate(futures):
-                yield future.result()
-                _notify(progress, "visibility", (i + 1) / len(futures))
+            while futures:
+                yield futures.popleft().result()
+                _notify(progress, "visibility", 1.0 - len(futures) / n_blocks)
         finally:
             for future in futures:
                 future.cancel()

@@ -25,6 +25,7 @@ Array letters: C candidates, F faces, P pairs, N samples per face.
 
 from __future__ import annotations
 
+import collections
 import math
 import os
 from collections.abc import Callable, Iterator
@@ -267,12 +268,16 @@ def qualify_sampled_pairs(
     starts = range(0, len(positions), _CANDIDATES_PER_BLOCK)
     workers = threads or os.cpu_count() or 1
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(qualifier.block, positions[s:s + _CANDIDATES_PER_BLOCK], s)
-                   for s in starts]
+        # a block's result is let go once read: the futures are dropped as they are read
+        futures = collections.deque(
+            pool.submit(qualifier.block, positions[s:s + _CANDIDATES_PER_BLOCK], s)
+            for s in starts)
+        n_blocks = len(futures)
         try:
-            for i, future in enumerate(futures):
-                yield future.result()
-                if progress is not None and progress("visibility", (i + 1) / len(futures)):
+            while futures:
+                yield futures.popleft().result()
+                if progress is not None and progress("visibility",
+                                                     1.0 - len(futures) / n_blocks):
                     raise CancelledError("the plan was cancelled during visibility")
         finally:
             for future in futures:
