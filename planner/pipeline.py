@@ -7,12 +7,9 @@ order, which keeps the result independent of the number of threads.
 
 from __future__ import annotations
 
-import collections
 import dataclasses
-import os
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -24,7 +21,7 @@ from planner.method.candidates import CandidateSet, explicit_candidates, generat
 from planner.method.connectivity import Connectivity
 from planner.method.coverage import CoverageTable, QualifiedPairs
 from planner.method.optimal import OptimalResult, choose_stations
-from planner.method.pairs import FaceLimits, PairFinder
+from planner.method.pairs import FaceLimits, PairFinder, in_block_order
 from planner.method.selection import Selection, coverage_state, fixed_candidates
 from planner.method.visibility import (
     Backend,
@@ -263,15 +260,5 @@ def qualify_pairs(
                                    pairs.lpd_pts_m2[visible])
         return qualified, tested, len(pairs)
 
-    workers = threads or os.cpu_count() or 1
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        # a block's result is let go once read: the futures are dropped as they are read
-        futures = collections.deque(pool.submit(block, start) for start in starts)
-        n_blocks = len(futures)
-        try:
-            while futures:
-                yield futures.popleft().result()
-                _notify(progress, "visibility", 1.0 - len(futures) / n_blocks)
-        finally:
-            for future in futures:
-                future.cancel()
+    return in_block_order(block, starts, threads=threads,
+                          notify=lambda fraction: _notify(progress, "visibility", fraction))

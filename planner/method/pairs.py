@@ -17,8 +17,13 @@ pass need an occlusion ray. Array letters: C candidates, F faces, P pairs.
 
 from __future__ import annotations
 
+import collections
 import math
+import os
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numba
 import numpy as np
@@ -261,3 +266,30 @@ class PairFinder:
         # views of the first n rows: the block's arrays are short-lived
         pairs = pairs.subset(slice(0, n))
         return pairs, capacity
+
+
+_Block = TypeVar("_Block")
+
+
+def in_block_order(work: Callable[[int], _Block], starts: Sequence[int], *,
+                   threads: int | None = None,
+                   notify: Callable[[float], None] | None = None) -> Iterator[_Block]:
+    """``work(start)`` of every start, run on a thread pool (``threads``, default: the
+    machine's cores) and yielded in the order of ``starts``, so nothing depends on timing.
+
+    Each result is let go once read (its future is dropped: a pool's futures would hold
+    every block to the end); ``notify`` gets the fraction read after each block and may
+    raise to stop. Blocks not read yet are cancelled when the reader stops.
+    """
+    workers = threads or os.cpu_count() or 1
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        futures = collections.deque(pool.submit(work, start) for start in starts)
+        n_blocks = len(futures)
+        try:
+            while futures:
+                yield futures.popleft().result()
+                if notify is not None:
+                    notify(1.0 - len(futures) / n_blocks)
+        finally:
+            for future in futures:
+                future.cancel()

@@ -25,11 +25,8 @@ Array letters: C candidates, F faces, P pairs, N samples per face.
 
 from __future__ import annotations
 
-import collections
 import math
-import os
 from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import numba
@@ -38,7 +35,7 @@ from numpy.typing import NDArray
 
 from planner.errors import CancelledError
 from planner.method.coverage import QualifiedPairs
-from planner.method.pairs import FaceLimits, PairFinder, Pairs
+from planner.method.pairs import FaceLimits, PairFinder, Pairs, in_block_order
 from planner.method.visibility import Occlusion
 from planner.scene import Scene
 
@@ -266,19 +263,11 @@ def qualify_sampled_pairs(
     qualifier = SampledQualifier(scene, limits, occlusion, samples_per_face,
                                  min_sampled_fraction)
     starts = range(0, len(positions), _CANDIDATES_PER_BLOCK)
-    workers = threads or os.cpu_count() or 1
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        # a block's result is let go once read: the futures are dropped as they are read
-        futures = collections.deque(
-            pool.submit(qualifier.block, positions[s:s + _CANDIDATES_PER_BLOCK], s)
-            for s in starts)
-        n_blocks = len(futures)
-        try:
-            while futures:
-                yield futures.popleft().result()
-                if progress is not None and progress("visibility",
-                                                     1.0 - len(futures) / n_blocks):
-                    raise CancelledError("the plan was cancelled during visibility")
-        finally:
-            for future in futures:
-                future.cancel()
+
+    def notify(fraction: float) -> None:
+        if progress is not None and progress("visibility", fraction):
+            raise CancelledError("the plan was cancelled during visibility")
+
+    return in_block_order(
+        lambda s: qualifier.block(positions[s:s + _CANDIDATES_PER_BLOCK], s), starts,
+        threads=threads, notify=notify)
