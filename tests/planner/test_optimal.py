@@ -250,3 +250,45 @@ def test_lazy_ranking_is_the_order_of_exact_gains() -> None:
             break
         # cover the faces of a candidate that is not the best, so bounds go stale unevenly
         uncovered[table.faces_of(int(expected[len(expected) // 2]))] = False
+
+
+def test_the_table_gives_back_every_candidates_faces(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The table keeps runs of consecutive faces; rows, counts per face and sums per
+    candidate are those of the pairs it was built from, whatever runs they make: a run
+    that ends where the next candidate's begins, runs split over two blocks, empty rows."""
+    import planner.method.coverage as coverage
+
+    monkeypatch.setattr(coverage, "_SUM_BLOCK_PAIRS", 7)  # many blocks of candidates
+    rng = np.random.default_rng(3)
+    n_faces = 200
+    sets: list[list[int]] = []
+    for _ in range(40):
+        faces: set[int] = set()
+        for _ in range(int(rng.integers(0, 5))):  # a few ranges and a few single faces
+            first = int(rng.integers(0, n_faces - 1))
+            faces.update(range(first, min(n_faces, first + int(rng.integers(1, 30)))))
+        faces.update(rng.choice(n_faces, int(rng.integers(0, 6)), replace=False).tolist())
+        sets.append(sorted(faces))
+    sets[5], sets[6] = list(range(0, 50)), list(range(50, 90))  # touching rows stay apart
+    sets[7] = []
+    pairs = [(c, f) for c, faces in enumerate(sets) for f in faces]
+    half = len(pairs) // 2 + 3  # a block boundary inside a candidate's run
+
+    def block(part: list[tuple[int, int]]) -> QualifiedPairs:
+        return QualifiedPairs(np.array([c for c, _ in part], np.int32),
+                              np.array([f for _, f in part], np.int32),
+                              np.zeros(len(part), np.float32))
+
+    area = np.round(rng.uniform(0.1, 3.0, n_faces), 3)
+    table = CoverageTable.from_blocks([block(pairs[:half]), block(pairs[half:])],
+                                      len(sets), area)
+    assert table.n_pairs == len(pairs) and table.n_runs < len(pairs) / 3
+    for c, faces in enumerate(sets):
+        assert table.faces_of(c).tolist() == faces, c
+    dense = np.zeros((len(sets), n_faces))
+    for c, f in pairs:
+        dense[c, f] = 1.0
+    assert table.candidates_per_face.tolist() == dense.sum(axis=0).astype(int).tolist()
+    expected = [float(sum(area[f] for f in faces)) for faces in sets]  # face order
+    assert table.sum_per_candidate(area).tolist() == expected
+    assert (table.by_candidate.toarray() == dense.astype(bool)).all()
