@@ -17,6 +17,9 @@ from planner.errors import SceneError
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+# face and label indices: int32 (4 bytes a face each instead of 8; a model has fewer than
+# 2**31 vertices, faces and groups, which Scene checks)
+IndexArray = NDArray[np.int32]
 
 # Per-face arrays are derived, and faces remeshed, a block at a time: the temporaries are
 # (B, 3, 3) floats, not (F, 3, 3), so a 10 M-face model needs no 720 MB scratch arrays.
@@ -48,51 +51,57 @@ class Scene:
     Attributes
     ----------
     vertices : (V, 3) float64, metres
-    faces : (F, 3) int64, indices into ``vertices``
-    face_group : (F,) int64, index into ``groups``
+    faces : (F, 3) int32, indices into ``vertices``
+    face_group : (F,) int32, index into ``groups``
     groups : tuple of G group names ("" when the file has none)
-    source_face : (F,) int64, the face of the file each face comes from (remeshing splits)
-    face_element : (F,) int64, index into ``elements``, -1 when the file has no elements
+    source_face : (F,) int32, the face of the file each face comes from (remeshing splits)
+    face_element : (F,) int32, index into ``elements``, -1 when the file has no elements
     elements : BIM elements of an IFC model, empty otherwise
     metadata : plain data the reader wants to pass on (format, IFC spaces, storeys, ...)
     file_vertices : (V0, 3) float64, the model as read before remeshing (None: ``vertices``)
-    file_faces : (F0, 3) int64, the faces ``source_face`` indexes (None: ``faces``, and
+    file_faces : (F0, 3) int32, the faces ``source_face`` indexes (None: ``faces``, and
         ``source_face`` is then the identity); occlusion rays are cast against these, so
         the ray caster stays the size of the file however finely the targets are split
     """
 
     vertices: FloatArray
-    faces: IntArray
-    face_group: IntArray
+    faces: IndexArray
+    face_group: IndexArray
     groups: tuple[str, ...]
-    source_face: IntArray
-    face_element: IntArray
+    source_face: IndexArray
+    face_element: IndexArray
     elements: tuple[Element, ...] = ()
     metadata: dict[str, Any] = field(default_factory=dict)
     file_vertices: FloatArray | None = None
-    file_faces: IntArray | None = None
+    file_faces: IndexArray | None = None
     # derived, filled in __post_init__
     centroids: FloatArray = field(init=False, repr=False)
     normals: FloatArray = field(init=False, repr=False)
     areas: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        for name in ("vertices", "faces", "face_group", "source_face", "face_element",
-                     "file_vertices", "file_faces"):
-            if getattr(self, name) is not None:
-                object.__setattr__(self, name, _frozen(getattr(self, name)))
-        if (self.file_vertices is None) != (self.file_faces is None):
-            raise ValueError("file_vertices and file_faces come together or not at all")
+        if max(len(self.vertices), len(self.faces), len(self.groups)) >= 2**31 - 1:
+            raise SceneError("the model has more than 2**31 vertices or faces; split it")
         if self.faces.ndim != 2 or self.faces.shape[1] != 3 or len(self.faces) == 0:
             raise SceneError("the model has no triangles; export it with its faces")
+        if self.faces.min() < 0 or self.faces.max() >= len(self.vertices):
+            raise SceneError("a face refers to a vertex that does not exist; the file is broken")
+        for name in ("vertices", "faces", "face_group", "source_face", "face_element",
+                     "file_vertices", "file_faces"):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            if name not in ("vertices", "file_vertices"):
+                value = np.asarray(value, np.int32)  # no copy when it is int32 already
+            object.__setattr__(self, name, _frozen(value))
+        if (self.file_vertices is None) != (self.file_faces is None):
+            raise ValueError("file_vertices and file_faces come together or not at all")
         if not np.isfinite(self.vertices).all():
             bad = int(np.flatnonzero(~np.isfinite(self.vertices).all(axis=1))[0])
             raise SceneError(
                 f"vertex {bad} has a non-finite coordinate {self.vertices[bad].tolist()}; "
                 "fix or remove it in the model"
             )
-        if self.faces.min() < 0 or self.faces.max() >= len(self.vertices):
-            raise SceneError("a face refers to a vertex that does not exist; the file is broken")
         n = len(self.faces)
         centroids, normals, areas = np.empty((n, 3)), np.zeros((n, 3)), np.empty(n)
         for start in range(0, n, _DERIVE_BLOCK_FACES):
@@ -118,7 +127,7 @@ class Scene:
         return self.vertices[self.faces]
 
     @property
-    def file_mesh(self) -> tuple[FloatArray, IntArray]:
+    def file_mesh(self) -> tuple[FloatArray, IndexArray]:
         """(V0, 3) vertices and (F0, 3) faces of the model before remeshing.
 
         ``source_face`` indexes these faces; a scene that was never remeshed is its own file
@@ -177,17 +186,17 @@ def build_scene(
     metadata: dict[str, Any] | None = None,
 ) -> Scene:
     """A scene straight from arrays, each face its own source face."""
-    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    faces = np.asarray(faces).reshape(-1, 3)  # int32 once Scene has checked its range
     n = len(faces)
     return Scene(
         vertices=np.asarray(vertices, dtype=np.float64).reshape(-1, 3),
         faces=faces,
-        face_group=np.zeros(n, np.int64) if face_group is None
-        else np.asarray(face_group, np.int64),
+        face_group=np.zeros(n, np.int32) if face_group is None
+        else np.asarray(face_group, np.int32),
         groups=groups,
-        source_face=np.arange(n, dtype=np.int64),
-        face_element=np.full(n, -1, np.int64) if face_element is None
-        else np.asarray(face_element, np.int64),
+        source_face=np.arange(n, dtype=np.int32),
+        face_element=np.full(n, -1, np.int32) if face_element is None
+        else np.asarray(face_element, np.int32),
         elements=elements,
         metadata=dict(metadata or {}),
     )
@@ -227,7 +236,7 @@ def remesh(scene: Scene, max_edge_m: float) -> Scene:
     starts = np.unique(np.concatenate([[0], cuts]))
     stops = np.append(starts[1:], len(faces))
     out_vertices: list[FloatArray] = []
-    out_faces: list[IntArray] = []
+    out_faces: list[IndexArray] = []
     out_source: list[IntArray] = []
     n_vertices = 0
     for start, stop in zip(starts.tolist(), stops.tolist(), strict=True):
@@ -239,7 +248,8 @@ def remesh(scene: Scene, max_edge_m: float) -> Scene:
         # subdivide_to_size groups the unsplit faces first; restore file order (stable)
         order = np.argsort(index, kind="stable")
         out_vertices.append(np.asarray(block_vertices, np.float64))
-        out_faces.append(np.asarray(block_faces, np.int64)[order] + n_vertices)
+        out_faces.append((np.asarray(block_faces, np.int64)[order] + n_vertices
+                          ).astype(np.int32))
         out_source.append(np.asarray(index, np.int64)[order] + start)
         n_vertices += len(block_vertices)
     new_vertices = np.concatenate(out_vertices)

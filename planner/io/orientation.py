@@ -83,7 +83,7 @@ def axis_rotation(up_axis: str) -> NDArray[np.float64]:
     return np.array(_AXIS_ROTATIONS[up_axis], np.float64)
 
 
-def find_up(vertices: NDArray[np.float64], faces: NDArray[np.int64]
+def find_up(vertices: NDArray[np.float64], faces: NDArray[np.integer[Any]]
             ) -> tuple[NDArray[np.float64], dict[str, Any]]:
     """The rotation that levels a model, and how sure it is (see the module docstring).
 

@@ -138,7 +138,7 @@ class EmbreeOcclusion:
 
     def _bvh_face(self, faces: NDArray[np.int64]) -> NDArray[np.int64]:
         """The BVH face (file face, or the face itself) of scene faces."""
-        return faces if self._source_face is None else self._source_face[faces]
+        return faces if self._source_face is None else self._source_face[faces].astype(np.int64)
 
     def _reaches(self, prim: NDArray[np.int64], target_faces: NDArray[np.int64]
                  ) -> NDArray[np.bool_]:

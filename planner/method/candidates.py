@@ -406,14 +406,21 @@ def closer_than(
     result = np.zeros(len(points), bool)
     if radius_m <= 0 or len(points) == 0:
         return result
-    # (F,) height range of every face, without an (F, 3, 3) copy of the corners
-    corner_z = [scene.vertices[scene.faces[:, k], 2] for k in range(3)]
-    z_low = np.minimum(np.minimum(corner_z[0], corner_z[1]), corner_z[2])
-    z_high = np.maximum(np.maximum(corner_z[0], corner_z[1]), corner_z[2])
-    del corner_z
-    # only faces reaching into some tripod's height span can be obstacles
-    useful = np.flatnonzero((z_high >= floor_z_m.min() + 0.01)
-                            & (z_low <= points[:, 2].max() + radius_m))
+    # Only faces reaching into some tripod's height span can be obstacles: their height
+    # range, XY centre and spread, gathered a block of faces at a time (no (F, 3, 3) copy
+    # of the corners, no (F,) array of every face's height range).
+    span_low_m = floor_z_m.min() + 0.01
+    span_high_m = points[:, 2].max() + radius_m
+    parts: list[tuple[NDArray[np.int32], NDArray[np.float64], NDArray[np.float64]]] = []
+    for start in range(0, scene.n_faces, _FOOTPRINTS_PER_BLOCK):
+        corner_z = scene.vertices[scene.faces[start:start + _FOOTPRINTS_PER_BLOCK], 2]
+        low, high = corner_z.min(axis=1), corner_z.max(axis=1)  # (B,) each
+        keep = np.flatnonzero((high >= span_low_m) & (low <= span_high_m))
+        parts.append(((keep + start).astype(np.int32), low[keep], high[keep]))
+    useful = np.concatenate([p[0] for p in parts])  # (U,) the faces kept
+    z_low = np.concatenate([p[1] for p in parts])  # (U,) their lowest corner
+    z_high = np.concatenate([p[2] for p in parts])  # (U,) and highest
+    del parts
 
     def footprints(index: NDArray[np.int64]) -> NDArray[np.float64]:
         """(n, 3, 2) XY corners of the faces ``useful[index]``."""
@@ -429,7 +436,8 @@ def closer_than(
     # Faces are searched by their centre within radius + their own spread. One search
     # radius for all (the largest spread) would pair every point with every face of a
     # model that has one huge face; classes of similar spread keep the pairs local.
-    spread_class = np.ceil(np.log2(np.maximum(spread, radius_m / 8) / (radius_m / 8)))
+    spread_class = np.ceil(np.log2(np.maximum(spread, radius_m / 8) / (radius_m / 8))
+                           ).astype(np.int16)
     for level in np.unique(spread_class):
         members = np.flatnonzero(spread_class == level)
         reach = radius_m + float(spread[members].max()) + 1e-9
@@ -445,8 +453,7 @@ def closer_than(
                                                    if x])]
             span_low = floor_z_m[point_of_pair] + 0.01
             span_high = points[point_of_pair, 2] + radius_m
-            faces = useful[face_of_pair]
-            in_span = (z_high[faces] >= span_low) & (z_low[faces] <= span_high)
+            in_span = (z_high[face_of_pair] >= span_low) & (z_low[face_of_pair] <= span_high)
             p, f = point_of_pair[in_span], face_of_pair[in_span]
             gap = _distance_to_triangles_xy(points[p, :2], footprints(f))
             np.logical_or.at(result, p, gap < radius_m)

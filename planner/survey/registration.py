@@ -84,7 +84,7 @@ class OverlapRows:
         self._occlusion = occlusion
         self._finder = PairFinder(scene, overlap_limits(limits, overlap_density_pts_m2))
         self.workers = threads or os.cpu_count() or 1
-        self._rows: dict[int, NDArray[np.int64]] = {}  # candidate -> (k,) sorted face ids
+        self._rows: dict[int, NDArray[np.int32]] = {}  # candidate -> (k,) sorted face ids
         self.seconds = 0.0  # time spent computing rows
         self.rays_cast = 0
 
@@ -96,12 +96,12 @@ class OverlapRows:
         """How many candidates' rows have been computed."""
         return len(self._rows)
 
-    def _row(self, candidate: int) -> tuple[NDArray[np.int64], int]:
+    def _row(self, candidate: int) -> tuple[NDArray[np.int32], int]:
         pairs, _ = self._finder.find(self._positions[candidate:candidate + 1], candidate)
         visible = self._occlusion.visible(
             pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
             exact_rays=pairs.exact_rays(self._positions, self._centroids))
-        return np.sort(pairs.face[visible].astype(np.int64)), len(pairs)
+        return np.sort(pairs.face[visible]), len(pairs)
 
     def ensure(self, candidates: Iterable[int]) -> None:
         """Compute the rows of ``candidates`` not computed yet."""
@@ -120,12 +120,13 @@ class OverlapRows:
         self.seconds += time.perf_counter() - started
 
     def matrix(self, candidates: Sequence[int] | NDArray[np.integer[Any]]) -> sp.csr_matrix:
-        """(len(candidates), F) CSR float64 of 1.0: the rows of ``candidates``, in order."""
+        """(len(candidates), F) CSR float64 of 1.0: the rows of ``candidates``, in order
+        (int32 face indices: 12 bytes an entry)."""
         self.ensure(candidates)
         rows = [self._rows[int(c)] for c in candidates]
         indptr = np.zeros(len(rows) + 1, np.int64)
         np.cumsum([len(r) for r in rows], out=indptr[1:])
-        indices = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+        indices = np.concatenate(rows) if rows else np.zeros(0, np.int32)
         return sp.csr_matrix((np.ones(len(indices), np.float64), indices, indptr),
                              shape=(len(rows), self.n_faces))
 
