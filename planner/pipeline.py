@@ -90,18 +90,17 @@ def _malloc_trim() -> Callable[[int], int] | None:
 
 
 def _new_stage(progress: ProgressCallback | None, stage: str) -> None:
-    """Start ``stage``: hand the memory the last one freed back to the system, then tell
-    ``progress``.
-
-    glibc keeps freed blocks below its (growing) mmap threshold in the heap for reuse; a
-    stage's temporaries would stay in the worker's RSS under the next stage's peak (about
-    0.3 GB at 8 M faces) without ``malloc_trim``.
-    """
+    """Start ``stage``: release what the last one freed, then tell ``progress``."""
     _release_freed_memory()
     _notify(progress, stage, 0.0)
 
 
 def _release_freed_memory() -> None:
+    """Hand the heap's free memory back to the system (glibc ``malloc_trim``).
+
+    glibc keeps freed blocks below its (growing) mmap threshold in the heap for reuse, so a
+    stage's temporaries would stay in the worker's RSS under the next stage's peak.
+    """
     trim = _malloc_trim()
     if trim is not None:
         trim(0)
