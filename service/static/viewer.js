@@ -39,6 +39,7 @@ const jobPath = `/jobs/${encodeURIComponent(jobId)}`;
 // what tests and scripts can ask the page
 const hook = {
   ready: false, status: 'loading', stations: () => [], selected: null, colouring: 'coverage',
+  frames: 0,  // frames drawn so far: it stays put while nothing changes
   overlays: () => ({ legs: [], edges: [], stations: {} }), faceColours: () => ({}),
 };
 window.scanplanViewer = hook;
@@ -321,6 +322,21 @@ function resize() {
   renderer.setSize(w, h, false);
   camera.aspect = w / h;
   camera.updateProjectionMatrix();
+  requestRender();
+}
+
+// Frames are drawn on demand, not in a loop: a still view costs no CPU or GPU (a site
+// laptop's battery, a headless browser's software WebGL). Whatever changes the picture (the
+// camera, a toggle, the cut, a colouring, a selection) asks for one frame.
+let frameRequested = false;
+function requestRender() {
+  if (frameRequested || !renderer) return;
+  frameRequested = true;
+  requestAnimationFrame(() => {
+    frameRequested = false;
+    renderer.render(scene3d, camera);
+    hook.frames += 1;
+  });
 }
 
 async function loadModel() {
@@ -398,10 +414,11 @@ async function loadModel() {
   resize();
   $('hint').hidden = false;
   setupPicking();
-  renderer.setAnimationLoop(() => {
-    controls.update();
-    renderer.render(scene3d, camera);
-  });
+  controls.addEventListener('change', requestRender);
+  // the page's inputs (class and overlay toggles, the cut slider, the colouring) change the
+  // scene in their own handlers; this listener runs first and the frame after them
+  for (const type of ['input', 'change']) document.addEventListener(type, requestRender, true);
+  requestRender();
   hook.stations = () => stationScreenPositions();
   hook.overlays = overlayState;
 }
@@ -573,6 +590,7 @@ function paint(kindOf) {
     }
     colour.needsUpdate = true;
   }
+  requestRender();
   return counts;
 }
 
@@ -735,6 +753,7 @@ function selectStation(order) {
     tr.classList.toggle('selected', tr.dataset.order === String(order));
   }
   for (const [o, { label }] of stations) label.material.color.set(o === order ? 0xffd21f : 0xffffff);
+  requestRender();
 }
 
 function visitText(station) {

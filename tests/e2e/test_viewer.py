@@ -155,7 +155,12 @@ def test_viewer_of_a_finished_job(server: tuple[str, InlineQueue], scenes_dir: P
     page, errors = open_page(browser_context, f"{base}/jobs/{job}/viewer")
     page.wait_for_function("window.scanplanViewer && window.scanplanViewer.ready",
                            timeout=60_000)
-    page.wait_for_timeout(500)  # a few frames
+    page.wait_for_timeout(500)
+    # a still view is drawn once, not in a loop that keeps a core busy
+    frames = page.evaluate("window.scanplanViewer.frames")
+    assert frames >= 1
+    page.wait_for_timeout(500)
+    assert page.evaluate("window.scanplanViewer.frames") == frames
     shot = tmp_path / "viewer.png"
     page.locator("#canvas").screenshot(path=str(shot))
     from PIL import Image

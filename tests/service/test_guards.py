@@ -111,13 +111,16 @@ def test_delete_frees_the_worker_within_2_s_in_every_stage(
 
 def test_a_job_past_the_memory_limit_fails_and_the_worker_goes_on(
         tmp_path: Path, hall_bytes: bytes, hall_parameters: dict[str, Any]) -> None:
-    # the child inherits this process's address space; allow it 300 MiB more, while the
-    # grid of a 1 cm spacing needs several arrays of 350 MiB
-    limit_mb = _address_space_mb() + 300
+    # The child inherits this process's address space and may map 1.5 GiB more: enough for
+    # hall-small's plan (imports, Embree's and the pools' threads, the table), not for the
+    # grid of a 0.2 mm spacing (500 M points, arrays of 4 GB at once). The grid and pair
+    # guards are raised so that the job reaches the planner and fails on memory there.
+    limit_mb = _address_space_mb() + 1536
     queue = InlineQueue()
-    with make_client(tmp_path, queue, api_keys=[], job_memory_limit_mb=limit_mb) as client:
+    with make_client(tmp_path, queue, api_keys=[], job_memory_limit_mb=limit_mb,
+                     max_grid_points=10**12, max_candidate_face_pairs=1e16) as client:
         mesh = upload(client, hall_bytes).json()["id"]
-        job_id = submit(client, mesh, {"max_edge_m": None, "grid_spacing_m": 0.01}).json()[
+        job_id = submit(client, mesh, {"max_edge_m": None, "grid_spacing_m": 0.0002}).json()[
             "jobID"]
         status = client.get(f"/jobs/{job_id}").json()
         assert status["status"] == "failed", status
