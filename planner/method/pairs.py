@@ -23,7 +23,7 @@ import os
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import Any, TypeVar
 
 import numba
 import numpy as np
@@ -45,6 +45,8 @@ class FaceLimits:
     min_density_pts_m2 : (F,) float64
     target : (F,) bool, the face needs coverage
     occludes : (F,) bool, the face blocks rays
+
+    Read-only: an array that is the same for every face is a broadcast view of one value.
     """
 
     dof_min_m: float
@@ -61,17 +63,19 @@ class FaceLimits:
     def from_spec(cls, spec: PlanSpec, scene: Scene) -> FaceLimits:
         """Resolve ``group_requirements`` by group name, then by IFC class and GlobalId."""
         n = scene.n_faces
-        incidence = np.full(n, spec.min_incidence_deg)
-        density = np.full(n, spec.min_density_pts_m2)
-        target = np.ones(n, bool)
-        occludes = np.ones(n, bool)
+        # one value for every face until a requirement says otherwise: a read-only view of
+        # it (no 18 bytes a face for a model without group requirements)
+        incidence = _uniform(spec.min_incidence_deg, n)
+        density = _uniform(spec.min_density_pts_m2, n)
+        target = _uniform(True, n)
+        occludes = _uniform(True, n)
         for mask, req in _requirement_masks(spec, scene):
             if req.min_incidence_deg is not None:
-                incidence[mask] = req.min_incidence_deg
+                incidence = _assigned(incidence, mask, req.min_incidence_deg)
             if req.min_density_pts_m2 is not None:
-                density[mask] = req.min_density_pts_m2
-            target[mask] = req.target
-            occludes[mask] = req.occludes
+                density = _assigned(density, mask, req.min_density_pts_m2)
+            target = _assigned(target, mask, req.target)
+            occludes = _assigned(occludes, mask, req.occludes)
         return cls(
             dof_min_m=spec.dof_min_m,
             dof_max_m=spec.dof_max_m,
@@ -91,6 +95,24 @@ class FaceLimits:
         if len(targets) == 0:
             return 0.0
         return min(self.dof_max_m, density_range_m(float(targets.min()), self.angular_step_rad))
+
+
+def _uniform(value: float | bool, n: int) -> NDArray[Any]:
+    """(n,) read-only view of ``value`` (float64 or bool): no memory per face."""
+    return np.broadcast_to(np.float64(value) if not isinstance(value, bool) else np.bool_(value),
+                           (n,))
+
+
+def _assigned(per_face: NDArray[Any], mask: NDArray[np.bool_], value: float | bool
+              ) -> NDArray[Any]:
+    """``per_face`` with ``value`` where ``mask``; a uniform view stays one when nothing
+    changes, and becomes an array of its own when something does."""
+    if not per_face.flags.writeable:
+        if not mask.any() or per_face[0] == value:
+            return per_face
+        per_face = per_face.copy()
+    per_face[mask] = value
+    return per_face
 
 
 def _requirement_masks(
@@ -169,8 +191,9 @@ _PAIR_COLUMNS = ("candidate", "face", "origin", "direction", "distance_m", "lpd_
 
 @numba.njit(nogil=True, cache=True)
 def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
-    points: NDArray[np.float64], first_index: int, faces: NDArray[np.int64],
+    points: NDArray[np.float64], first_index: int, faces: NDArray[np.int32],
     face_xyz: NDArray[np.float64], face_normal: NDArray[np.float64],
+    face_class: NDArray[np.integer[Any]],
     min_sin_incidence: NDArray[np.float64], min_density: NDArray[np.float64],
     dof_min_m: float, dof_max_m: float, min_sin_elevation: float, max_sin_elevation: float,
     reach_m: float, angular_step_rad: float,
@@ -182,8 +205,9 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
 
     ``face_xyz`` and ``face_normal`` are the scene's (F, 3) centroids and normals, read
     through the f face indices ``faces`` (no per-plan copy: 48 bytes a face saved);
-    ``min_sin_incidence`` and ``min_density`` are (f,) thresholds of those faces. Returns
-    the number of pairs written.
+    ``face_class`` (f,) picks each face's thresholds from the (K,) ``min_sin_incidence``
+    and ``min_density`` (K: the distinct pairs of them, 1 without group requirements).
+    Returns the number of pairs written.
     """
     n = 0
     reach2 = reach_m * reach_m * (1.0 + 1e-9)
@@ -205,11 +229,12 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
                 continue
             ux, uy = ox / d, oy / d
             s = abs(ux * face_normal[f, 0] + uy * face_normal[f, 1] + uz * face_normal[f, 2])
-            if s < min_sin_incidence[i]:
+            k = face_class[i]
+            if s < min_sin_incidence[k]:
                 continue
             spacing = angular_step_rad * d
             lpd = s / (spacing * spacing)
-            if lpd < min_density[i]:
+            if lpd < min_density[k]:
                 continue
             out_candidate[n] = first_index + b
             out_face[n] = f
@@ -235,15 +260,17 @@ class PairFinder:
     def __init__(self, scene: Scene, limits: FaceLimits) -> None:
         self.limits = limits
         self.reach_m = min(limits.reach_m, limits.dof_max_m)
-        self._faces = np.flatnonzero(limits.target).astype(np.int64)
+        self._faces = np.flatnonzero(limits.target).astype(np.int32)  # (f,) the targets
         # the scene's own (F, 3) arrays, read through self._faces: no (f, 3) copies
         self._face_xyz = scene.centroids
         self._face_normal = scene.normals
+        # (f,) class of each target's thresholds, (K,) incidence in degrees and density
+        self._face_class, incidence_deg, self._min_density = threshold_classes(
+            self._faces, limits.min_incidence_deg, limits.min_density_pts_m2)
         # angles compare as their sines (monotonic on [-90, 90] degrees): no arcsin per pair
-        self._min_sin_incidence = np.sin(np.radians(limits.min_incidence_deg[self._faces]))
+        self._min_sin_incidence = np.sin(np.radians(incidence_deg))
         self._min_sin_elevation = math.sin(math.radians(limits.elevation_min_deg))
         self._max_sin_elevation = math.sin(math.radians(limits.elevation_max_deg))
-        self._min_density = np.ascontiguousarray(limits.min_density_pts_m2[self._faces])
 
     def find(self, candidates_xyz: NDArray[np.float64], first_index: int) -> tuple[Pairs, int]:
         """Passing pairs of (B, 3) candidates numbered from ``first_index``.
@@ -258,14 +285,52 @@ class PairFinder:
                       np.empty(capacity, np.float32), np.empty(capacity, np.float32))
         n = _pass_limits(
             points, first_index, self._faces, self._face_xyz, self._face_normal,
-            self._min_sin_incidence, self._min_density, lim.dof_min_m, lim.dof_max_m,
-            self._min_sin_elevation, self._max_sin_elevation, self.reach_m,
+            self._face_class, self._min_sin_incidence, self._min_density, lim.dof_min_m,
+            lim.dof_max_m, self._min_sin_elevation, self._max_sin_elevation, self.reach_m,
             lim.angular_step_rad, pairs.candidate, pairs.face, pairs.origin, pairs.direction,
             pairs.distance_m, pairs.lpd_pts_m2,
         )
         # views of the first n rows: the block's arrays are short-lived
         pairs = pairs.subset(slice(0, n))
         return pairs, capacity
+
+
+# faces per block when the threshold classes are gathered: bounds the (b,) scratch keys
+_CLASS_BLOCK_FACES = 1 << 20
+
+
+def threshold_classes(
+    faces: NDArray[np.int32], incidence_deg: NDArray[np.float64],
+    density_pts_m2: NDArray[np.float64],
+) -> tuple[NDArray[np.integer[Any]], NDArray[np.float64], NDArray[np.float64]]:
+    """(f,) class of each of ``faces`` and the (K,) incidence and density of each class.
+
+    A model has a handful of distinct requirements (its groups, IFC classes and GlobalIds
+    with their own), so a face needs a 2-byte class instead of two float64 thresholds: 2
+    instead of 16 bytes a face. The thresholds keep their float64 values; nothing is
+    rounded. Computed a block of faces at a time (no (f,) sort).
+    """
+    blocks = [faces[s:s + _CLASS_BLOCK_FACES] for s in range(0, len(faces), _CLASS_BLOCK_FACES)]
+    incidence_values = np.unique(np.concatenate(
+        [np.unique(incidence_deg[b]) for b in blocks] or [np.zeros(0)]))
+    density_values = np.unique(np.concatenate(
+        [np.unique(density_pts_m2[b]) for b in blocks] or [np.zeros(0)]))
+
+    def keys(block: NDArray[np.int32]) -> NDArray[np.int64]:
+        """(b,) incidence rank x number of densities + density rank."""
+        return (np.searchsorted(incidence_values, incidence_deg[block]).astype(np.int64)
+                * len(density_values) + np.searchsorted(density_values, density_pts_m2[block]))
+
+    present = np.unique(np.concatenate([np.unique(keys(b)) for b in blocks]
+                                       or [np.zeros(0, np.int64)]))
+    dtype = np.uint16 if len(present) <= np.iinfo(np.uint16).max else np.int32
+    face_class: NDArray[np.integer[Any]] = np.empty(len(faces), dtype)
+    for start, block in zip(range(0, len(faces), _CLASS_BLOCK_FACES), blocks, strict=True):
+        face_class[start:start + len(block)] = np.searchsorted(present, keys(block))
+    n_density = max(1, len(density_values))
+    incidence: NDArray[np.float64] = incidence_values[present // n_density]
+    density: NDArray[np.float64] = np.ascontiguousarray(density_values[present % n_density])
+    return face_class, incidence, density
 
 
 _Block = TypeVar("_Block")

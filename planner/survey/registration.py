@@ -57,8 +57,8 @@ MIN_CONSTRAINT = 0.05
 def overlap_limits(limits: FaceLimits, overlap_density_pts_m2: float) -> FaceLimits:
     """The plan's limits with the density requirement replaced by the overlap density."""
     return dataclasses.replace(
-        limits, min_density_pts_m2=np.full_like(limits.min_density_pts_m2,
-                                                overlap_density_pts_m2))
+        limits, min_density_pts_m2=np.broadcast_to(np.float64(overlap_density_pts_m2),
+                                                   limits.min_density_pts_m2.shape))
 
 
 class OverlapRows:

@@ -125,3 +125,26 @@ def test_per_group_density_requirement() -> None:
     spec = PlanSpec.from_mapping({"candidates": [list(ORIGIN)], "max_edge_m": None,
                                   "group_requirements": {"pipes": {"min_density_pts_m2": 70_000}}})
     assert qualified_faces(scene, spec) == {1}
+
+
+def test_each_face_keeps_its_own_groups_incidence_and_density() -> None:
+    # eight faces 3 m from the scanner, seen at 20 or 40 degrees, of four groups in mixed
+    # order; at 3 m the LPD is sin(alpha) * 111 111: 38 000 at 20 deg, 71 400 at 40 deg
+    def face(angle_deg: float, bearing_deg: float) -> tuple[np.ndarray, np.ndarray]:
+        b, turn = math.radians(bearing_deg), math.radians(bearing_deg + 90 - angle_deg)
+        # the normal is (90 - angle) off the ray: sin(incidence) = sin(angle)
+        return small_triangle((3 * math.cos(b), 3 * math.sin(b), 0),
+                              (math.cos(turn), math.sin(turn), 0))
+
+    layout = [("a", 20), ("c", 40), ("b", 20), ("d", 40), ("c", 20), ("a", 40), ("d", 20),
+              ("b", 40)]
+    scene = scene_of(*(face(angle, 10 * i) for i, (_, angle) in enumerate(layout)),
+                     groups=[group for group, _ in layout])
+    spec = PlanSpec.from_mapping({
+        "candidates": [list(ORIGIN)], "max_edge_m": None,
+        "group_requirements": {
+            "a": {"min_incidence_deg": 30},  # 20 deg is too grazing
+            "b": {"min_incidence_deg": 10, "min_density_pts_m2": 50_000},  # 38 000 too few
+            "c": {"min_incidence_deg": 10, "min_density_pts_m2": 30_000},  # both pass
+        }})  # d: the defaults, 15 deg and 45 000: 38 000 too few
+    assert qualified_faces(scene, spec) == {1, 3, 4, 5, 7}
