@@ -198,16 +198,16 @@ from planner.pipeline import plan
 from planner.io.readers import read_scene
 from planner.outputs.report import write_outputs
 t0 = time.perf_counter()
-scene = read_scene(sys.argv[1])
-t1 = time.perf_counter()
 spec = PlanSpec.from_mapping(json.loads(sys.argv[3]) if len(sys.argv) > 3 else {})
+scene = read_scene(sys.argv[1], split_faces="as_needed")  # as scanplan plan reads it
+t1 = time.perf_counter()
 result = plan(scene, spec)
 t2 = time.perf_counter()
 with tempfile.TemporaryDirectory() as out:
     write_outputs(result, out, names=("plan.json", "faces.npz", "stations.csv"))
 t3 = time.perf_counter()
 seconds = {"read": t1 - t0, **result.stats.seconds, "outputs": t3 - t2, "total": t3 - t0}
-print(json.dumps({"faces": scene.n_faces, "candidates": len(result.candidates),
+print(json.dumps({"faces": result.scene.n_faces, "candidates": len(result.candidates),
                   "stations": len(result.chosen.stations), "seconds": seconds,
                   "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 """

@@ -77,7 +77,7 @@ def run_plan(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     progress("reading", 0.0)
     scene = read_scene(args.scene, max_edge_m=spec.max_edge_m, unit_scale=spec.unit_scale,
-                       up_axis=spec.up_axis)
+                       up_axis=spec.up_axis, split_faces="as_needed")
     try:
         result = plan(scene, spec, progress=progress)
         progress("writing", 1.0)
@@ -85,7 +85,7 @@ def run_plan(args: argparse.Namespace) -> int:
         if spec.verify:  # as `scanplan verify` would, on the plan just written
             from planner.truth.verification import read_plan_dir, verify_plan_dir
 
-            _, checked = verify_plan_dir(args.out, scene, read_plan_dir(args.out),
+            _, checked = verify_plan_dir(args.out, result.scene, read_plan_dir(args.out),
                                          progress=progress)
             written += [path for path in checked if path not in written]
     finally:
@@ -122,14 +122,15 @@ def run_scanners(args: argparse.Namespace) -> int:
 
 def run_verify(args: argparse.Namespace) -> int:
     from planner.io.readers import read_scene
-    from planner.truth.verification import read_plan_dir, verify_plan_dir
+    from planner.truth.verification import read_plan_dir, split_as_planned, verify_plan_dir
 
     files = read_plan_dir(args.plan_dir)
     progress = ProgressLine(sys.stderr)
     started = time.perf_counter()
     progress("reading", 0.0)
-    scene = read_scene(args.scene, max_edge_m=files.spec.max_edge_m,
-                       unit_scale=files.spec.unit_scale, up_axis=files.spec.up_axis)
+    scene = split_as_planned(read_scene(
+        args.scene, max_edge_m=files.spec.max_edge_m, unit_scale=files.spec.unit_scale,
+        up_axis=files.spec.up_axis, split_faces="as_needed"), files)
     try:
         result, written = verify_plan_dir(args.plan_dir, scene, files, progress=progress)
     finally:

@@ -1,4 +1,9 @@
-"""``plan()``: scene -> candidates -> pairs -> visibility -> coverage -> selection -> report.
+"""``plan()``: scene -> candidates -> split -> pairs -> visibility -> coverage -> selection ->
+report.
+
+The split happens here for a scene read with ``split_faces="as_needed"``: once the candidates
+are known, only the long faces one of them can qualify part of are split
+(:mod:`planner.method.splitting`).
 
 Candidates are processed in blocks by a small thread pool: the analytic limits are numpy
 work and Embree releases the GIL, so both cores stay busy. Blocks are merged in candidate
@@ -25,6 +30,7 @@ from planner.method.coverage import CoverageTable, QualifiedPairs
 from planner.method.optimal import OptimalResult, choose_stations
 from planner.method.pairs import FaceLimits, PairFinder, in_block_order
 from planner.method.selection import Selection, coverage_state, fixed_candidates
+from planner.method.splitting import faces_to_split
 from planner.method.visibility import (
     Backend,
     Occlusion,
@@ -33,7 +39,7 @@ from planner.method.visibility import (
     make_ray_caster,
 )
 from planner.parameters import PlanSpec
-from planner.scene import Scene
+from planner.scene import Scene, remesh
 from planner.survey.fieldwork import Survey, survey
 from planner.survey.registration import OverlapRows, connected_greedy, overlap_graph
 
@@ -125,6 +131,8 @@ def plan(
     """
     stats = Stats()
     t0 = time.perf_counter()
+    if scene.split_max_edge_m is not None and (spec.occluders != "file" or backend != "embree"):
+        scene = remesh(scene, scene.split_max_edge_m)  # the pieces occlude: split them all now
     limits = FaceLimits.from_spec(spec, scene)
     occlusion = make_occlusion(scene, limits.occludes, backend,
                                file_faces=spec.occluders == "file")
@@ -150,6 +158,11 @@ def plan(
                 labels=candidates.labels + ({},) * (len(positions) - len(candidates))
                 if candidates.labels else ())
     stats.seconds["candidates"] = time.perf_counter() - t0
+    if scene.split_max_edge_m is not None:
+        t_split = time.perf_counter()
+        scene, limits, occlusion = _split_as_needed(scene, spec, candidates.positions, limits,
+                                                    backend)
+        stats.seconds["split"] = time.perf_counter() - t_split
 
     t1 = time.perf_counter()
     _new_stage(progress, "visibility")
@@ -176,7 +189,8 @@ def plan(
         # the overlap rows (faces each candidate qualifies for at the overlap density) are
         # computed when a method first needs them: the connected greedy asks for a few
         rows = OverlapRows(scene, candidates.positions, limits, occlusion,
-                           spec.overlap_density_pts_m2, threads=threads)
+                           spec.overlap_density_pts_m2, threads=threads,
+                           file_faces=spec.occluders == "file")
         if spec.method == "optimal" and not fixed:
             # optimal keeps the overlap graph connected: a flow MILP from connected greedy,
             # on the graph of every candidate's row
@@ -224,6 +238,18 @@ def plan(
                       limits=limits, selections=selections, chosen=chosen, optimal=optimal,
                       faces=faces, stats=stats, optimal_curve=outcome.curve,
                       selection_report=outcome.report, survey=plan_survey)
+
+
+def _split_as_needed(scene: Scene, spec: PlanSpec, positions: np.ndarray, limits: FaceLimits,
+                     backend: Backend) -> tuple[Scene, FaceLimits, Occlusion]:
+    """Split the long faces that some of the (C, 3) candidate ``positions`` can qualify part
+    of (:mod:`planner.method.splitting`); the limits and the occlusion of the split scene."""
+    assert scene.split_max_edge_m is not None
+    split = faces_to_split(scene, positions, limits, scene.split_max_edge_m,
+                           spec.overlap_density_pts_m2)
+    scene = remesh(scene, scene.split_max_edge_m, split=split)
+    limits = FaceLimits.from_spec(spec, scene)
+    return scene, limits, make_occlusion(scene, limits.occludes, backend, file_faces=True)
 
 
 def _caster(scene: Scene, spec: PlanSpec, limits: FaceLimits, occlusion: Occlusion

@@ -5,6 +5,7 @@ Array shapes use fixed letters: V vertices, F faces, G groups.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -62,6 +63,10 @@ class Scene:
     file_faces : (F0, 3) int32, the faces ``source_face`` indexes (None: ``faces``, and
         ``source_face`` is then the identity); occlusion rays are cast against these, so
         the ray caster stays the size of the file however finely the targets are split
+    split_max_edge_m : faces longer than this are still to be split (a scene read with
+        ``split_faces="as_needed"``): :func:`planner.pipeline.plan` splits, once it knows the
+        candidates, only the faces some candidate can qualify part of
+        (:mod:`planner.method.splitting`); None: the faces are final
     """
 
     vertices: FloatArray
@@ -74,6 +79,7 @@ class Scene:
     metadata: dict[str, Any] = field(default_factory=dict)
     file_vertices: FloatArray | None = None
     file_faces: IndexArray | None = None
+    split_max_edge_m: float | None = None
     # derived, filled in __post_init__
     centroids: FloatArray = field(init=False, repr=False)
     normals: FloatArray = field(init=False, repr=False)
@@ -202,8 +208,11 @@ def build_scene(
     )
 
 
-def remesh(scene: Scene, max_edge_m: float) -> Scene:
+def remesh(scene: Scene, max_edge_m: float, split: NDArray[np.bool_] | None = None) -> Scene:
     """Split faces until no edge is longer than ``max_edge_m``.
+
+    ``split`` (F,) bool: split only these faces, keep the others whole (default: every
+    face). A face is split the same way whichever other faces are split with it.
 
     Faces already small enough keep their place; the pieces of a split face follow
     trimesh's order (:func:`trimesh.remesh.subdivide_to_size`, which halves every long edge
@@ -218,15 +227,42 @@ def remesh(scene: Scene, max_edge_m: float) -> Scene:
     corners), so the pieces, their corners and their order are the same as splitting the
     whole mesh at once; only vertices on a block boundary are stored twice.
     """
-    vertices, faces = scene.vertices, scene.faces
+    pieces = subdivide(scene.vertices, scene.faces, max_edge_m, split)
+    if pieces is None:
+        return scene if scene.split_max_edge_m is None else dataclasses.replace(
+            scene, split_max_edge_m=None)
+    new_vertices, new_faces, index = pieces
+    file_vertices, file_faces = scene.file_mesh
+    return Scene(
+        vertices=new_vertices,
+        faces=new_faces,
+        face_group=scene.face_group[index],
+        groups=scene.groups,
+        source_face=scene.source_face[index],
+        face_element=scene.face_element[index],
+        elements=scene.elements,
+        metadata=scene.metadata,
+        file_vertices=file_vertices,
+        file_faces=file_faces,
+    )
+
+
+def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
+              split: NDArray[np.bool_] | None = None
+              ) -> tuple[FloatArray, IndexArray, IntArray] | None:
+    """The pieces of :func:`remesh` as arrays: (V', 3) vertices, (F', 3) int32 faces and
+    (F',) the index of each piece's face in the (F, 3) ``faces``; None when no face of
+    ``split`` (default: every face) is longer than ``max_edge_m``."""
     edge_m = np.empty(len(faces))  # (F,) longest edge of every face
     for first in range(0, len(faces), _DERIVE_BLOCK_FACES):
         block = faces[first:first + _DERIVE_BLOCK_FACES]
         edges = vertices[np.roll(block, 1, axis=1)] - vertices[block]  # (B, 3, 3)
         edge_m[first:first + len(block)] = np.linalg.norm(edges, axis=2).max(axis=1)
+    if split is not None:
+        edge_m[~split] = 0.0  # kept whole: as if already small enough
     longest = float(edge_m.max())
     if longest <= max_edge_m:
-        return scene
+        return None
     iterations = math.ceil(math.log2(longest / max_edge_m)) + 2
     # at most 4 pieces per halving of the longest edge: an upper bound to size the blocks
     halvings = np.ceil(np.log2(np.maximum(edge_m / max_edge_m, 1.0)))
@@ -241,10 +277,23 @@ def remesh(scene: Scene, max_edge_m: float) -> Scene:
     n_vertices = 0
     for start, stop in zip(starts.tolist(), stops.tolist(), strict=True):
         used, local = np.unique(faces[start:stop], return_inverse=True)
-        block_vertices, block_faces, index = trimesh.remesh.subdivide_to_size(  # type: ignore[no-untyped-call]
-            vertices[used], local.reshape(-1, 3), max_edge=max_edge_m,
-            max_iter=iterations, return_index=True,
-        )
+        local = local.reshape(-1, 3)
+        # the block's faces to split (all, or those of ``split``); the others pass through
+        cut: slice | NDArray[np.intp] = (
+            slice(None) if split is None else np.flatnonzero(split[start:stop]))
+        if isinstance(cut, slice) or len(cut):
+            block_vertices, block_faces, index = trimesh.remesh.subdivide_to_size(  # type: ignore[no-untyped-call]
+                vertices[used], local[cut], max_edge=max_edge_m,
+                max_iter=iterations, return_index=True,
+            )
+        else:
+            block_vertices, block_faces, index = (
+                vertices[used], np.zeros((0, 3), np.int64), np.zeros(0, np.int64))
+        if split is not None:
+            # subdivide_to_size keeps the given vertices first: whole faces index them as is
+            whole = np.flatnonzero(~split[start:stop])
+            index = np.concatenate([np.asarray(cut)[index], whole])
+            block_faces = np.concatenate([block_faces, local[whole]])
         # subdivide_to_size groups the unsplit faces first; restore file order (stable)
         order = np.argsort(index, kind="stable")
         out_vertices.append(np.asarray(block_vertices, np.float64))
@@ -256,18 +305,4 @@ def remesh(scene: Scene, max_edge_m: float) -> Scene:
     del out_vertices
     new_faces = np.concatenate(out_faces)
     del out_faces
-    index = np.concatenate(out_source)
-    del out_source
-    file_vertices, file_faces = scene.file_mesh
-    return Scene(
-        vertices=new_vertices,
-        faces=new_faces,
-        face_group=scene.face_group[index],
-        groups=scene.groups,
-        source_face=scene.source_face[index],
-        face_element=scene.face_element[index],
-        elements=scene.elements,
-        metadata=scene.metadata,
-        file_vertices=file_vertices,
-        file_faces=file_faces,
-    )
+    return new_vertices, new_faces, np.concatenate(out_source)

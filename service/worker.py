@@ -197,7 +197,7 @@ def _run_plan(ctx: WorkerContext, job: JobRecord,
         progress("reading", 0.0)
         started = time.perf_counter()
         scene = read_scene(mesh_path, max_edge_m=spec.max_edge_m, unit_scale=spec.unit_scale,
-                           up_axis=spec.up_axis)
+                           up_axis=spec.up_axis, split_faces="as_needed")
         timings["reading"] = time.perf_counter() - started
         result = plan(scene, spec, progress=progress, threads=threads)
         timings.update(result.stats.seconds)
@@ -210,7 +210,7 @@ def _run_plan(ctx: WorkerContext, job: JobRecord,
 
             progress("verification", 0.0)
             started = time.perf_counter()
-            verify_plan_dir(temporary, scene, read_plan_dir(temporary), progress=progress,
+            verify_plan_dir(temporary, result.scene, read_plan_dir(temporary), progress=progress,
                             threads=threads)
             outputs = _describe(sorted(temporary.iterdir()))
             timings["verification"] = time.perf_counter() - started

@@ -11,10 +11,11 @@ Group labels per face: OBJ ``g`` (or ``o``) names, glTF node names, the PLY face
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import trimesh
@@ -82,7 +83,7 @@ def file_format(path: Path) -> str:
 
 def read_scene(
     path: str | Path, *, max_edge_m: float | None = 0.2, unit_scale: float = 1.0,
-    up_axis: str | None = None,
+    up_axis: str | None = None, split_faces: Literal["all", "as_needed"] = "all",
 ) -> Scene:
     """Read a model and prepare it for planning.
 
@@ -90,6 +91,10 @@ def read_scene(
     ----------
     path : the model file (format sniffed from its bytes)
     max_edge_m : split faces until no edge is longer; None uses the mesh as given
+    split_faces : "all" splits every face longer than ``max_edge_m`` now; "as_needed" keeps
+        the file's faces and leaves the split to :func:`planner.pipeline.plan`, which splits
+        only the faces a candidate can qualify part of (``Scene.split_max_edge_m``,
+        :mod:`planner.method.splitting`)
     unit_scale : multiply coordinates by this (0.001 for a model in millimetres); must be
         1 for IFC, which is converted from its own length unit
     up_axis : the model's up, one of :data:`planner.io.orientation.UP_AXES`; None follows the
@@ -132,7 +137,8 @@ def read_scene(
     if warning:
         scene.metadata.setdefault("warnings", []).append(warning)
     if max_edge_m is not None:
-        scene = remesh(scene, max_edge_m)
+        scene = (remesh(scene, max_edge_m) if split_faces == "all"
+                 else dataclasses.replace(scene, split_max_edge_m=max_edge_m))
     return scene
 
 

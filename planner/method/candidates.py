@@ -36,7 +36,7 @@ from planner.errors import NoCandidatesError, ParameterError
 from planner.method.visibility import RayCaster
 from planner.method.winding import winding_numbers
 from planner.parameters import PlanSpec
-from planner.scene import Scene
+from planner.scene import Scene, subdivide
 
 DROP_REASONS = (
     "outside_area_of_interest",
@@ -401,7 +401,8 @@ def closer_than(
     scanner at (N, 3) ``points``; a face counts when its height range reaches into that span
     and its footprint (XY projection) comes closer than ``radius_m`` to the axis: a tripod
     needs that much room around it at every height, whatever the obstacle's height. A
-    distance of exactly ``radius_m`` is clear.
+    distance of exactly ``radius_m`` is clear. The faces of a scene still to be split
+    (``split_max_edge_m``) count as the pieces a split gives them.
     """
     result = np.zeros(len(points), bool)
     if radius_m <= 0 or len(points) == 0:
@@ -421,10 +422,23 @@ def closer_than(
     z_low = np.concatenate([p[1] for p in parts])  # (U,) their lowest corner
     z_high = np.concatenate([p[2] for p in parts])  # (U,) and highest
     del parts
+    vertices, faces = scene.vertices, scene.faces
+    if scene.split_max_edge_m is not None:
+        # a scene still to be split: the obstacles are the pieces a full split gives (a
+        # piece reaches into the span over less than its whole face), split here for
+        # these faces only
+        pieces = subdivide(vertices, faces[useful], scene.split_max_edge_m)
+        if pieces is not None:
+            vertices, faces, _ = pieces
+            corner_z = vertices[faces, 2]  # (pieces, 3)
+            low, high = corner_z.min(axis=1), corner_z.max(axis=1)
+            keep = np.flatnonzero((high >= span_low_m) & (low <= span_high_m))
+            useful, z_low, z_high = keep.astype(np.int32), low[keep], high[keep]
+            del corner_z, low, high
 
     def footprints(index: NDArray[np.int64]) -> NDArray[np.float64]:
         """(n, 3, 2) XY corners of the faces ``useful[index]``."""
-        return np.asarray(scene.vertices[scene.faces[useful[index]], :2])
+        return np.asarray(vertices[faces[useful[index]], :2])
 
     centre_xy = np.empty((len(useful), 2))
     spread = np.empty(len(useful))

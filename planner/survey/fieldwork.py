@@ -77,13 +77,15 @@ def field_time(spec: PlanSpec, n_stations: int, route: Route) -> FieldTime:
     )
 
 
-def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster) -> RayCaster:
+def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool
+                 ) -> RayCaster:
     """Rays for walking: every face blocks (glass too, which coverage may see through)
-    except doors; the coverage caster is reused when it blocks exactly those faces."""
+    except doors; the coverage caster is reused when it blocks exactly those faces.
+    ``file_faces``: cast against the file's faces, as the plan's rays (``occluders``)."""
     blocks = ~door_faces(scene)
     if np.array_equal(blocks, limits.occludes):
         return caster
-    return make_ray_caster(scene, blocks)
+    return make_ray_caster(scene, blocks, file_faces=file_faces)
 
 
 def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceLimits,
@@ -98,12 +100,13 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     t0 = time.perf_counter()
     if station_overlap is None:
         station_overlap = overlap_matrix(scene, stations_xyz, limits, occlusion,
-                                         spec.overlap_density_pts_m2, threads=threads)
+                                         spec.overlap_density_pts_m2, threads=threads,
+                                         file_faces=spec.occluders == "file")
     registration = station_registration(scene, station_overlap, spec.min_overlap_m2,
                                         spec.overlap_density_pts_m2)
     t1 = time.perf_counter()
     seconds["overlap"] = seconds.get("overlap", 0.0) + t1 - t0
-    walk_caster = _walk_caster(scene, limits, caster)
+    walk_caster = _walk_caster(scene, limits, caster, spec.occluders == "file")
     graph = build_walk_graph(scene, walk_caster)
     start = spec.route_start
     if start is not None:  # given in model coordinates, like every position (up_axis)

@@ -67,6 +67,8 @@ class OverlapRows:
     A row is the set of faces candidate ``c`` of the (C, 3) ``positions`` qualifies for at
     ``overlap_density_pts_m2`` (same limits and occlusion as coverage otherwise, except that
     IFC doors are open: a crew scans with the doors open, and the route walks through them).
+    ``file_faces``: the rays that skip the doors are cast against the file's faces, as the
+    plan's (``occluders`` "file"), so the rows do not depend on how the faces were split.
     Rows are computed when first asked for (the compiled limits kernel, then the Embree
     occlusion rays; one candidate per task on a thread pool) and cached, so the connected
     greedy pays only for the candidates it considers.
@@ -74,10 +76,11 @@ class OverlapRows:
 
     def __init__(self, scene: Scene, positions: NDArray[np.float64], limits: FaceLimits,
                  occlusion: Occlusion, overlap_density_pts_m2: float,
-                 threads: int | None = None) -> None:
+                 threads: int | None = None, *, file_faces: bool = False) -> None:
         doors = door_faces(scene)
         if (doors & limits.occludes).any():
-            occlusion = make_occlusion(scene, limits.occludes & ~doors, "embree")
+            occlusion = make_occlusion(scene, limits.occludes & ~doors, "embree",
+                                       file_faces=file_faces)
         self.n_faces = scene.n_faces
         self._positions = np.asarray(positions, np.float64)  # (C, 3)
         self._centroids = scene.centroids  # (F, 3), for the float64 rays
@@ -133,10 +136,11 @@ class OverlapRows:
 
 def overlap_matrix(scene: Scene, positions: NDArray[np.float64], limits: FaceLimits,
                    occlusion: Occlusion, overlap_density_pts_m2: float,
-                   threads: int | None = None) -> sp.csr_matrix:
+                   threads: int | None = None, *, file_faces: bool = False) -> sp.csr_matrix:
     """(N, F) CSR float64 of 1.0: which face each of the (N, 3) positions qualifies for at the
     overlap density (every row of :class:`OverlapRows`)."""
-    rows = OverlapRows(scene, positions, limits, occlusion, overlap_density_pts_m2, threads)
+    rows = OverlapRows(scene, positions, limits, occlusion, overlap_density_pts_m2, threads,
+                       file_faces=file_faces)
     return rows.matrix(range(len(positions)))
 
 

@@ -36,7 +36,7 @@ from planner.errors import PlannerError
 from planner.io.orientation import scene_rotation, to_plan
 from planner.method.pairs import FaceLimits
 from planner.parameters import PlanSpec
-from planner.scene import Scene
+from planner.scene import Scene, remesh
 from planner.truth.simulation import (
     HOLE_BIN_EDGE_M,
     HOLE_DENSITY_FRACTION,
@@ -257,6 +257,19 @@ def read_plan_dir(plan_dir: str | Path) -> PlanFiles:
         raise PlannerError(f"PLAN_DIR: {faces_path} does not match plan.json "
                            f"({n_faces} faces); plan again with 'scanplan plan'")
     return PlanFiles(spec, stations.reshape(-1, 3), faces, n_faces)
+
+
+def split_as_planned(scene: Scene, files: PlanFiles) -> Scene:
+    """``scene`` (read with ``split_faces="as_needed"``) split as the plan in ``files`` split
+    it: a file face in more than one piece of faces.npz ``source_face`` was split, the others
+    were kept whole (:mod:`planner.method.splitting`)."""
+    if scene.split_max_edge_m is None:
+        return scene
+    source_face = files.faces.get("source_face")
+    if source_face is None or len(source_face) == 0 or source_face.max() >= scene.n_faces:
+        return remesh(scene, scene.split_max_edge_m)  # not this model's plan: split it all
+    pieces = np.bincount(source_face, minlength=scene.n_faces)
+    return remesh(scene, scene.split_max_edge_m, split=pieces > 1)
 
 
 def verify_plan_dir(

@@ -80,7 +80,8 @@ def scanplan(*args: str) -> subprocess.CompletedProcess[str]:
 
 @pytest.fixture(scope="module")
 def room_plan(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
-    """A 4 x 4 x 3 m room with a post, planned from two candidates at a coarse 4 mrad."""
+    """A 4 x 4 x 3 m room with a post, planned from two candidates at a coarse 4 mrad, and a
+    slab 20 m away that no candidate can qualify (its faces are not split)."""
     import trimesh
 
     room = trimesh.creation.box(extents=(4.0, 4.0, 3.0))
@@ -88,7 +89,9 @@ def room_plan(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     room.invert()
     post = trimesh.creation.box(extents=(0.2, 0.2, 3.0))
     post.apply_translation((2.0, 2.6, 1.5))
-    mesh = trimesh.util.concatenate([room, post])
+    far_slab = trimesh.creation.box(extents=(2.0, 2.0, 0.2))
+    far_slab.apply_translation((25.0, 2.0, 0.1))
+    mesh = trimesh.util.concatenate([room, post, far_slab])
     work = tmp_path_factory.mktemp("room")
     model = work / "room.obj"
     mesh.export(model)
@@ -121,6 +124,10 @@ def test_verify_writes_verification_and_verified_faces(room_plan: tuple[Path, Pa
     with np.load(out / "faces.npz") as faces:
         verified = faces["verified_lpd_pts_m2"]
         assert len(verified) == plan["totals"]["faces"]
+        # verify split the model as the plan did: the far slab's 12 faces (2 m edges, the
+        # last of the file) stayed whole, the room's were split
+        pieces = np.bincount(faces["source_face"])
+        assert (pieces[-12:] == 1).all() and (pieces[:-12] > 1).any()
         assert faces["covered"].shape == verified.shape  # the plan's arrays are kept
         delivered = faces["verified_delivered"]
         areas_delivered = delivered.sum()

@@ -1,0 +1,54 @@
+"""Faces that no candidate can qualify any part of are kept whole (planner.method.splitting)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import trimesh
+
+from planner.parameters import PlanSpec
+from planner.pipeline import plan
+from planner.scene import Scene, build_scene, remesh
+from tests.planner.survey_scenes import Box, room_shell
+
+MAX_EDGE_M = 0.5
+
+
+def _file_scene(boxes: list[Box]) -> Scene:
+    """Boxes as a file would hold them: two triangles a side, nothing split."""
+    parts = [trimesh.creation.box(bounds=np.array(box, float)) for box in boxes]
+    offsets = np.cumsum([0] + [len(p.vertices) for p in parts])
+    return build_scene(np.concatenate([p.vertices for p in parts]),
+                       np.concatenate([p.faces + o for p, o in zip(parts, offsets, strict=False)]))
+
+
+def test_faces_no_candidate_can_qualify_stay_whole_and_the_plan_is_the_same() -> None:
+    shelf: Box = ((0.2, 3.5, 1.49), (0.6, 3.9, 1.51))  # its top and bottom level with the scanner
+    far_slab: Box = ((30.0, 0.0, 0.0), (40.0, 4.0, 0.2))  # 26 m beyond the density range
+    boxes = [*room_shell(0.0, 4.0, 0.0, 4.0), shelf, far_slab]
+    file_scene = _file_scene(boxes)
+    spec = PlanSpec(candidates=tuple((x, y, 1.5) for x in (1.0, 2.0, 3.0) for y in (1.0, 3.0)),
+                    max_edge_m=MAX_EDGE_M)
+    every = plan(remesh(file_scene, MAX_EDGE_M), spec)
+    needed = plan(dataclasses.replace(file_scene, split_max_edge_m=MAX_EDGE_M), spec)
+
+    pieces = np.bincount(needed.scene.source_face, minlength=file_scene.n_faces)
+    every_pieces = np.bincount(every.scene.source_face, minlength=file_scene.n_faces)
+    kept_whole = (pieces == 1) & (every_pieces > 1)
+    # the far slab (12 faces, all long) and the shelf's top and bottom (4) stay whole
+    first_of = np.cumsum([0] + [12] * len(boxes))
+    assert set(np.flatnonzero(kept_whole)) == (
+        set(range(first_of[-2], first_of[-1]))  # the far slab
+        | {f for f in range(first_of[-3], first_of[-2])  # the shelf's horizontal faces
+           if abs(file_scene.normals[f, 2]) == 1.0})
+    assert needed.scene.n_faces < every.scene.n_faces
+    # no piece of a face kept whole qualified from any candidate when everything was split
+    assert (every.faces["n_candidates"][kept_whole[every.scene.source_face]] == 0).all()
+    # and nothing else changed: stations, coverage, and every split face's pieces
+    assert needed.chosen.stations == every.chosen.stations
+    assert needed.chosen.covered_area_m2 == every.chosen.covered_area_m2
+    split_every = ~kept_whole[every.scene.source_face]
+    split_needed = ~kept_whole[needed.scene.source_face]
+    for name, values in every.faces.items():
+        assert np.array_equal(values[split_every], needed.faces[name][split_needed]), name
