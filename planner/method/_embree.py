@@ -29,6 +29,15 @@ except ImportError as exc:  # pragma: no cover - depends on the installation
 # probe rays for a ray float32 cannot decide run this far beside it, on four sides: 20x the
 # float32 rounding of a point 5 m away, far below the size of any face that matters
 _PROBE_OFFSET_M = 1e-5
+# doubtful rays decided together: bounds the chunk's (ray, occluder) pairs (some 100 a ray)
+_EXACT_RAYS_PER_CHUNK = 1024
+
+
+def _ragged_ranges(starts: NDArray[np.int64], counts: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The ranges [starts[i], starts[i] + counts[i]) one after another, as one array."""
+    ends = np.cumsum(counts)
+    return np.repeat(starts - ends + counts, counts) + np.arange(int(ends[-1]) if len(ends)
+                                                                 else 0)
 
 
 class EmbreeOcclusion:
@@ -151,8 +160,9 @@ class EmbreeOcclusion:
         reached = (hit == target_in_bvh) | ((hit < 0) & ~self._occludes[target_faces])
         return reached
 
-    def _occluders_at(self, vertices: NDArray[np.int64]) -> NDArray[np.int64]:
-        """Occluders (indices into self._faces) that use any of ``vertices``."""
+    def _vertex_table(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """(V0 + 1,) starts and (3 f,) occluders (indices into self._faces) at each BVH
+        vertex: the occluders at vertex v are ``occluder[starts[v]:starts[v + 1]]``."""
         with self._lock:
             if self._vertex_occluders is None:
                 corner_vertex = self._bvh_mesh[1][self._faces].ravel()
@@ -160,8 +170,7 @@ class EmbreeOcclusion:
                 starts = np.searchsorted(corner_vertex[order],
                                          np.arange(len(self._bvh_mesh[0]) + 1))
                 self._vertex_occluders = (starts, order // 3)
-        starts, occluder = self._vertex_occluders
-        return np.concatenate([occluder[starts[v]:starts[v + 1]] for v in vertices])
+            return self._vertex_occluders
 
     def _probe_hits(self, origins: NDArray[np.float64], directions: NDArray[np.float64]
                     ) -> NDArray[np.int64]:
@@ -188,28 +197,49 @@ class EmbreeOcclusion:
         Tested: the target (its own piece) and, as occluders, the faces either cast hit,
         the faces that rays offset by ``_PROBE_OFFSET_M`` to four sides hit (a face the
         exact ray grazes but neither cast hit), and every occluder sharing a vertex with
-        any of them (the neighbour across a grazed edge).
+        any of them (the neighbour across a grazed edge). All rays' (ray, occluder) pairs
+        are tested together, ``_EXACT_RAYS_PER_CHUNK`` rays at a time.
         """
+        verdict = np.empty(len(target_faces), bool)
+        for start in range(0, len(target_faces), _EXACT_RAYS_PER_CHUNK):
+            chunk = slice(start, start + _EXACT_RAYS_PER_CHUNK)
+            verdict[chunk] = self._decide_chunk(origins[chunk], directions[chunk],
+                                                target_faces[chunk], prim[chunk], check[chunk])
+        return verdict
+
+    def _decide_chunk(
+        self, origins: NDArray[np.float64], directions: NDArray[np.float64],
+        target_faces: NDArray[np.int64], prim: NDArray[np.int64], check: NDArray[np.int64],
+    ) -> NDArray[np.bool_]:
+        """:meth:`_decide_exactly` of k rays."""
         vertices, faces = self._scene_faces
         bvh_vertices, bvh_faces = self._bvh_mesh
-        probes = self._probe_hits(origins, directions)  # (K, 8)
-        verdict = np.empty(len(target_faces), bool)
-        for k, target in enumerate(target_faces):
-            own = float(ray_triangle_distance(origins[k], directions[k],
-                                              vertices[faces[target]]))
-            if not np.isfinite(own):
-                verdict[k] = False
-                continue
-            hits = np.unique(np.concatenate([[prim[k], check[k]], probes[k]]))
-            hits = hits[hits >= 0]
-            near = (self._occluders_at(np.unique(bvh_faces[self._faces[hits]]))
-                    if len(hits) else hits)
-            near = self._faces[np.union1d(hits, near)]
-            near = near[near != self._bvh_face(np.array([target]))[0]]
-            t = ray_triangle_distance(origins[k][None], directions[k][None],
-                                      bvh_vertices[bvh_faces[near]])
-            verdict[k] = not bool((t < own).any())
-        return verdict
+        # (k,) the target's own distance; a ray that misses its target does not reach it
+        own = ray_triangle_distance(origins, directions, vertices[faces[target_faces]])
+        # (h,) the primitives the casts and the probes hit, with their ray
+        hits = np.column_stack([prim, check, self._probe_hits(origins, directions)])  # (k, 10)
+        hit_ray = np.repeat(np.arange(len(hits)), hits.shape[1])
+        hit = hits.ravel()
+        hit_ray, hit = hit_ray[hit >= 0], hit[hit >= 0]
+        # every occluder at a corner of a hit face (the neighbours across its edges)
+        starts, occluder = self._vertex_table()
+        corner = bvh_faces[self._faces[hit]].ravel()  # (3 h,) BVH vertices
+        corner_ray = np.repeat(hit_ray, 3)
+        counts = starts[corner + 1] - starts[corner]
+        neighbour_ray = np.repeat(corner_ray, counts)
+        neighbour = occluder[_ragged_ranges(starts[corner], counts)]
+        # (pairs,) distinct (ray, occluder) pairs, the target's own BVH face left out
+        pair_ray = np.concatenate([hit_ray, neighbour_ray])
+        pair_face = self._faces[np.concatenate([hit, neighbour])]  # BVH faces
+        key = np.unique(pair_ray * np.int64(len(bvh_faces)) + pair_face)
+        pair_ray, pair_face = key // len(bvh_faces), key % len(bvh_faces)
+        other = pair_face != self._bvh_face(target_faces)[pair_ray]
+        pair_ray, pair_face = pair_ray[other], pair_face[other]
+        t = ray_triangle_distance(origins[pair_ray], directions[pair_ray],
+                                  bvh_vertices[bvh_faces[pair_face]])
+        blocked = np.bincount(pair_ray[t < own[pair_ray]], minlength=len(own)) > 0
+        reached: NDArray[np.bool_] = np.isfinite(own) & ~blocked
+        return reached
 
     def first_face(
         self, origins: NDArray[np.floating[Any]], directions: NDArray[np.floating[Any]]
