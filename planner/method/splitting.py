@@ -39,6 +39,8 @@ _EDGE_BLOCK_FACES = 1 << 20
 # chunk's (p, 3, 3) triangles to about 40 MB)
 _FACES_PER_BLOCK = 256
 _PAIRS_PER_CHUNK = 1 << 19
+# candidates nearest each face's centre, tested before all candidates in reach
+_NEAREST_FIRST = 8
 # relative and absolute slack on the reach: rounding never keeps a face whole that a
 # candidate qualifies part of
 _SLACK = 1e-6
@@ -66,24 +68,43 @@ def faces_to_split(scene: Scene, positions_xyz: NDArray[np.float64], limits: Fac
     radius = np.linalg.norm(triangles - centre[:, None, :], axis=2).max(axis=1)  # (f,)
     tree = cKDTree(positions_xyz)
     step2 = limits.angular_step_rad ** 2
-    for start in range(0, len(faces), _FACES_PER_BLOCK):
-        block = np.arange(start, min(start + _FACES_PER_BLOCK, len(faces)))
+    found = np.zeros(len(faces), bool)  # (f,) some candidate qualifies part of the face
+
+    def qualifies(face: NDArray[np.intp], candidate: NDArray[np.intp]) -> NDArray[np.bool_]:
+        """(p,) the test of the module docstring for (p,) faces (into ``faces``) and
+        candidates; the bounding sphere decides most pairs, the exact distance the rest."""
+        c = positions_xyz[candidate]  # (p, 3)
+        h = np.abs(np.einsum("pk,pk->p", c - triangles[face, 0], scene.normals[faces[face]]))
+        allowed = np.minimum(reach[face], _reach_at(h, min_sin[face], density[face], step2))
+        allowed = allowed * (1 + _SLACK) + _SLACK
+        gap = np.linalg.norm(c - centre[face], axis=1)
+        ok: NDArray[np.bool_] = gap + radius[face] <= allowed  # all of the face is in reach
+        unsure = np.flatnonzero(~ok & (gap - radius[face] <= allowed))
+        if len(unsure):
+            closest = np.asarray(trimesh.triangles.closest_point(  # type: ignore[no-untyped-call]
+                triangles[face[unsure]], c[unsure]))
+            ok[unsure] = np.linalg.norm(closest - c[unsure], axis=1) <= allowed[unsure]
+        return ok
+
+    def test(face: NDArray[np.intp], candidate: NDArray[np.intp]) -> None:
+        for first in range(0, len(face), _PAIRS_PER_CHUNK):
+            chunk = slice(first, first + _PAIRS_PER_CHUNK)
+            found[face[chunk][qualifies(face[chunk], candidate[chunk])]] = True
+
+    # first the candidates nearest each face's centre: in a building one of them mostly
+    # qualifies the face, and the search of every candidate in reach is left for the rest
+    k = min(_NEAREST_FIRST, len(positions_xyz))
+    _, nearest = tree.query(centre, k=k)
+    test(np.repeat(np.arange(len(faces)), k), np.asarray(nearest).reshape(-1))
+    rest = np.flatnonzero(~found)
+    for start in range(0, len(rest), _FACES_PER_BLOCK):
+        block = rest[start:start + _FACES_PER_BLOCK]
         near = tree.query_ball_point(centre[block], reach[block] + radius[block] + _SLACK)
         counts = np.array([len(n) for n in near])
-        if counts.sum() == 0:
-            continue
-        block_face = np.repeat(block, counts)  # (P,) index into faces
-        block_candidate = np.concatenate([np.asarray(n, np.int64) for n in near if n])
-        for first in range(0, len(block_face), _PAIRS_PER_CHUNK):
-            face = block_face[first:first + _PAIRS_PER_CHUNK]
-            c = positions_xyz[block_candidate[first:first + _PAIRS_PER_CHUNK]]  # (p, 3)
-            f = faces[face]
-            h = np.abs(np.einsum("pk,pk->p", c - triangles[face, 0], scene.normals[f]))
-            allowed = np.minimum(reach[face], _reach_at(h, min_sin[face], density[face], step2))
-            allowed = allowed * (1 + _SLACK) + _SLACK
-            closest = trimesh.triangles.closest_point(triangles[face], c)  # type: ignore[no-untyped-call]
-            distance = np.linalg.norm(np.asarray(closest) - c, axis=1)
-            split[f[distance <= allowed]] = True
+        if counts.sum():
+            test(np.repeat(block, counts),
+                 np.concatenate([np.asarray(n, np.intp) for n in near if n]))
+    split[faces[found]] = True
     return split
 
 

@@ -359,19 +359,44 @@ class Registration:
         }
 
 
-def shared_per_pair(overlap: sp.csr_matrix, per_face: NDArray[np.float64]
-                    ) -> NDArray[np.float64]:
-    """(N, N) float64: the sum of (F,) ``per_face`` over the faces rows a and b share.
+def shared_per_pair(overlap: sp.csr_matrix, per_face: NDArray[np.float64], *,
+                    per_entry: bool = False) -> NDArray[np.float64]:
+    """(N, N) float64: the sum of (F,) ``per_face`` over the faces rows a and b share
+    (``per_entry``: ``per_face`` is already the (nnz,) value of each entry of ``overlap``).
 
     ``overlap``: (N, F) CSR of 0/1 with sorted indices. One sparse product (the work is the
     sum over faces of the square of the rows holding each face), with no (F,) mask or
     (F, 6) temporary per row; every entry adds the same terms in the same (face) order as
     :func:`overlap_with`, so the sums are bit for bit the same.
     """
-    weighted = sp.csr_matrix((per_face[overlap.indices], overlap.indices, overlap.indptr),
-                             shape=overlap.shape)
+    values = per_face if per_entry else per_face[overlap.indices]
+    weighted = sp.csr_matrix((values, overlap.indices, overlap.indptr), shape=overlap.shape)
     shared: NDArray[np.float64] = (weighted @ overlap.T.tocsr()).toarray()
     return shared
+
+
+def _shared_faces_only(overlap: sp.csr_matrix) -> sp.csr_matrix:
+    """(N, F) CSR of 0/1 with sorted indices: ``overlap`` without the faces only one row
+    holds. They add to a row's own total only, never to what two rows share, and the faces
+    left keep their order, so every sum between two rows is bit for bit the same. (A plan's
+    stations share a minority of their faces: the products below work on that much.)"""
+    overlap = overlap.tocsr()
+    overlap.sort_indices()
+    seen = np.zeros(overlap.shape[1], bool)  # (F,) in some row so far
+    twice = np.zeros(overlap.shape[1], bool)  # (F,) in two rows or more
+    rows = [overlap.indices[overlap.indptr[r]:overlap.indptr[r + 1]]
+            for r in range(overlap.shape[0])]
+    for row in rows:
+        twice[row] |= seen[row]
+        seen[row] = True
+    del seen
+    kept = [row[twice[row]] for row in rows]
+    indptr = np.zeros(len(kept) + 1, np.int64)
+    np.cumsum([len(row) for row in kept], out=indptr[1:])
+    indices = np.concatenate(kept) if kept else np.zeros(0, np.int32)
+    if indptr[-1] < np.iinfo(np.int32).max:  # int32 throughout: scipy keeps the indices as is
+        indptr = indptr.astype(np.int32)
+    return sp.csr_matrix((np.ones(len(indices)), indices, indptr), shape=overlap.shape)
 
 
 def station_registration(scene: Scene, station_overlap: sp.csr_matrix,
@@ -383,11 +408,14 @@ def station_registration(scene: Scene, station_overlap: sp.csr_matrix,
     constraint test; components are taken over the ok edges.
     """
     n = station_overlap.shape[0]
-    station_overlap = station_overlap.tocsr()
-    station_overlap.sort_indices()
-    overlap_m2 = shared_per_pair(station_overlap, scene.areas)  # (S, S)
+    shared = _shared_faces_only(station_overlap)
+    del station_overlap
+    faces = shared.indices  # (nnz,) the face of every entry
+    overlap_m2 = shared_per_pair(shared, scene.areas[faces], per_entry=True)  # (S, S)
     # (S, S, 6) the shared faces' area-weighted normal scatter, packed as _scatter_weights
-    scatter6 = np.stack([shared_per_pair(station_overlap, _scatter_term(scene, i, j))
+    normals = scene.normals
+    scatter6 = np.stack([shared_per_pair(shared, normals[faces, i] * normals[faces, j]
+                                         * scene.areas[faces], per_entry=True)
                          for i, j in _SCATTER_TERMS], axis=-1)
     edges: list[Edge] = []
     rows: list[int] = []
