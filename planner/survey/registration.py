@@ -375,11 +375,12 @@ def shared_per_pair(overlap: sp.csr_matrix, per_face: NDArray[np.float64], *,
     return shared
 
 
-def _shared_faces_only(overlap: sp.csr_matrix) -> sp.csr_matrix:
+def shared_faces_only(overlap: sp.csr_matrix) -> sp.csr_matrix:
     """(N, F) CSR of 0/1 with sorted indices: ``overlap`` without the faces only one row
     holds. They add to a row's own total only, never to what two rows share, and the faces
     left keep their order, so every sum between two rows is bit for bit the same. (A plan's
-    stations share a minority of their faces: the products below work on that much.)"""
+    stations share a minority of their faces: the products below work on that much.) A
+    matrix filtered already comes back with the same entries."""
     overlap = overlap.tocsr()
     overlap.sort_indices()
     seen = np.zeros(overlap.shape[1], bool)  # (F,) in some row so far
@@ -408,7 +409,7 @@ def station_registration(scene: Scene, station_overlap: sp.csr_matrix,
     constraint test; components are taken over the ok edges.
     """
     n = station_overlap.shape[0]
-    shared = _shared_faces_only(station_overlap)
+    shared = shared_faces_only(station_overlap)
     del station_overlap
     faces = shared.indices  # (nnz,) the face of every entry
     overlap_m2 = shared_per_pair(shared, scene.areas[faces], per_entry=True)  # (S, S)
