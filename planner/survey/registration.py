@@ -379,8 +379,8 @@ def shared_faces_only(overlap: sp.csr_matrix) -> sp.csr_matrix:
     """(N, F) CSR of 0/1 with sorted indices: ``overlap`` without the faces only one row
     holds. They add to a row's own total only, never to what two rows share, and the faces
     left keep their order, so every sum between two rows is bit for bit the same. (A plan's
-    stations share a minority of their faces: the products below work on that much.) A
-    matrix filtered already comes back with the same entries."""
+    stations share a minority of their faces: :func:`station_registration` then works on
+    that much.)"""
     overlap = overlap.tocsr()
     overlap.sort_indices()
     seen = np.zeros(overlap.shape[1], bool)  # (F,) in some row so far
@@ -406,11 +406,12 @@ def station_registration(scene: Scene, station_overlap: sp.csr_matrix,
     """Edges between every two stations that share area, from their (S, F) overlap rows.
 
     ``ok`` needs the overlap (``min_overlap_m2``; any shared area when it is null) and the
-    constraint test; components are taken over the ok edges.
+    constraint test; components are taken over the ok edges. The rows may be cut to the
+    faces two stations share (:func:`shared_faces_only`): the result is the same.
     """
     n = station_overlap.shape[0]
-    shared = shared_faces_only(station_overlap)
-    del station_overlap
+    shared = station_overlap.tocsr()  # rows the survey may have cut to shared faces already
+    shared.sort_indices()
     faces = shared.indices  # (nnz,) the face of every entry
     overlap_m2 = shared_per_pair(shared, scene.areas[faces], per_entry=True)  # (S, S)
     # (S, S, 6) the shared faces' area-weighted normal scatter, packed as _scatter_weights

@@ -19,7 +19,12 @@ from planner.method.visibility import make_occlusion, make_ray_caster
 from planner.outputs.report import plan_document, stations_csv
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
-from planner.survey.registration import MIN_CONSTRAINT, overlap_matrix, station_registration
+from planner.survey.registration import (
+    MIN_CONSTRAINT,
+    overlap_matrix,
+    shared_faces_only,
+    station_registration,
+)
 from planner.survey.route import exact_open_tour, open_tour, plan_route
 from planner.survey.walkgraph import KNEE_HEIGHT_M, build_walk_graph, segment_free
 from tests.planner.survey_scenes import (
@@ -100,6 +105,11 @@ def test_papers_plan_is_disconnected_and_the_constrained_plan_connected(
                           paper.limits, make_occlusion(paper.scene, paper.limits.occludes,
                                                        "embree"), 1600.0)
     assert not station_registration(paper.scene, rows, 2.0, 1600.0).connected
+    # the rows cut to the faces two stations share register the same, to the last bit
+    cut = shared_faces_only(rows)
+    assert cut.nnz < rows.nnz
+    assert (station_registration(paper.scene, cut, 2.0, 1600.0)
+            == station_registration(paper.scene, rows, 2.0, 1600.0))
     document = plan_document(constrained)
     registration = document["registration"]
     assert registration["connected"] and registration["min_overlap_m2"] == 2.0
