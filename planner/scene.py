@@ -247,17 +247,23 @@ def remesh(scene: Scene, max_edge_m: float, split: NDArray[np.bool_] | None = No
     )
 
 
+def longest_edges_m(vertices: FloatArray, faces: IndexArray) -> FloatArray:
+    """(F,) the longest edge of each of the (F, 3) ``faces``, a block of faces at a time."""
+    edge_m = np.empty(len(faces))
+    for first in range(0, len(faces), _DERIVE_BLOCK_FACES):
+        block = faces[first:first + _DERIVE_BLOCK_FACES]
+        edges = vertices[np.roll(block, 1, axis=1)] - vertices[block]  # (B, 3, 3)
+        edge_m[first:first + len(block)] = np.linalg.norm(edges, axis=2).max(axis=1)
+    return edge_m
+
+
 def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
               split: NDArray[np.bool_] | None = None
               ) -> tuple[FloatArray, IndexArray, IntArray] | None:
     """The pieces of :func:`remesh` as arrays: (V', 3) vertices, (F', 3) int32 faces and
     (F',) the index of each piece's face in the (F, 3) ``faces``; None when no face of
     ``split`` (default: every face) is longer than ``max_edge_m``."""
-    edge_m = np.empty(len(faces))  # (F,) longest edge of every face
-    for first in range(0, len(faces), _DERIVE_BLOCK_FACES):
-        block = faces[first:first + _DERIVE_BLOCK_FACES]
-        edges = vertices[np.roll(block, 1, axis=1)] - vertices[block]  # (B, 3, 3)
-        edge_m[first:first + len(block)] = np.linalg.norm(edges, axis=2).max(axis=1)
+    edge_m = longest_edges_m(vertices, faces)
     if split is not None:
         edge_m[~split] = 0.0  # kept whole: as if already small enough
     longest = float(edge_m.max())

@@ -31,10 +31,8 @@ from scipy.spatial import cKDTree
 
 from planner.method.density import density_range_m
 from planner.method.pairs import FaceLimits
-from planner.scene import Scene
+from planner.scene import Scene, longest_edges_m
 
-# faces per block of the edge lengths
-_EDGE_BLOCK_FACES = 1 << 20
 # long faces per k-d tree query, and face-candidate pairs per chunk of the test (bounds the
 # chunk's (p, 3, 3) triangles to about 40 MB)
 _FACES_PER_BLOCK = 256
@@ -50,11 +48,7 @@ def faces_to_split(scene: Scene, positions_xyz: NDArray[np.float64], limits: Fac
                    max_edge_m: float, overlap_density_pts_m2: float) -> NDArray[np.bool_]:
     """(F,) bool: the faces of ``scene`` longer than ``max_edge_m`` that some of the (C, 3)
     candidates can qualify part of (see the module docstring)."""
-    long = np.zeros(scene.n_faces, bool)
-    for start in range(0, scene.n_faces, _EDGE_BLOCK_FACES):
-        corners = scene.vertices[scene.faces[start:start + _EDGE_BLOCK_FACES]]  # (B, 3, 3)
-        edges_m = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
-        long[start:start + len(corners)] = edges_m.max(axis=1) > max_edge_m
+    long = longest_edges_m(scene.vertices, scene.faces) > max_edge_m  # (F,) as remesh sees it
     split = np.zeros(scene.n_faces, bool)
     faces = np.flatnonzero(long & limits.target)  # (f,) the faces the test is for
     if len(faces) == 0 or len(positions_xyz) == 0:
