@@ -229,11 +229,11 @@ def plan(
                          occlusion, _caster(scene, spec, limits, occlusion), stats.seconds,
                          station_overlap=station_overlap, threads=threads)
     _new_stage(progress, "report")
-    # the table keeps no densities: the chosen stations' pairs are qualified again, alone
-    densities = QualifiedPairs.concatenate(list(_qualified_blocks(
+    # the table keeps no densities: the chosen stations' pairs are qualified again, alone,
+    # and read block by block
+    faces = coverage_state(table, chosen.stations, _qualified_blocks(
         scene, spec, candidates.positions[list(chosen.stations)], limits, occlusion, stats,
-        threads=threads)))
-    faces = coverage_state(table, chosen.stations, densities)
+        threads=threads))
     return PlanResult(scene=scene, spec=spec, candidates=candidates, table=table,
                       limits=limits, selections=selections, chosen=chosen, optimal=optimal,
                       faces=faces, stats=stats, optimal_curve=outcome.curve,

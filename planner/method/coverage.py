@@ -199,19 +199,21 @@ class CoverageTable:
         return self.by_candidate.tocsc()
 
     @functools.cached_property
-    def candidates_per_face(self) -> NDArray[np.int64]:
-        """(F,) int64: how many candidates qualify for each face (k_f).
+    def candidates_per_face(self) -> NDArray[np.int32]:
+        """(F,) int32: how many candidates qualify for each face (k_f), kept once made
+        (4 bytes a face: there are fewer than 2**31 candidates).
 
-        Every run adds 1 from its first face on and takes it off after its last; counted
-        ``_SUM_BLOCK_PAIRS`` runs at a time (``np.bincount`` copies int32 input to int64).
+        Every run adds 1 from its first face on and takes it off after its last; the steps
+        are added ``_SUM_BLOCK_PAIRS`` runs at a time, in place (``np.add.at``: no (F,)
+        int64 ``np.bincount`` per block).
         """
-        steps = np.zeros(self.n_faces + 1, np.int64)
+        steps = np.zeros(self.n_faces + 1, np.int32)
         for at in range(0, self.n_runs, _SUM_BLOCK_PAIRS):
             start = self.run_start[at:at + _SUM_BLOCK_PAIRS]
-            steps += np.bincount(start, minlength=self.n_faces + 1)
-            steps -= np.bincount(start + self.run_length[at:at + _SUM_BLOCK_PAIRS],
-                                 minlength=self.n_faces + 1)
-        counts: NDArray[np.int64] = np.cumsum(steps[:-1])
+            np.add.at(steps, start, 1)
+            np.subtract.at(steps, start + self.run_length[at:at + _SUM_BLOCK_PAIRS], 1)
+        counts: NDArray[np.int32] = np.cumsum(steps[:-1], dtype=np.int32)
+        counts.flags.writeable = False  # shared: the plan's faces.npz holds it as is
         return counts
 
     @property

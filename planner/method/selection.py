@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import heapq
-from collections.abc import Generator
+from collections.abc import Generator, Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -74,12 +74,15 @@ def gain_units(table: CoverageTable, *, weighted: bool = False
     are exact.
     """
     area = table.face_area_m2
+    # one (F,) array, divided and rounded in place: the same values as
+    # np.round(area / k / GAIN_QUANTUM_M2) without two more (F,) temporaries
     if weighted:
         k = table.candidates_per_face
-        weight = np.divide(area, k, out=np.zeros_like(area), where=k > 0)
+        units = np.divide(area, k, out=np.zeros_like(area), where=k > 0)
+        units /= GAIN_QUANTUM_M2
     else:
-        weight = area
-    units = np.round(weight / GAIN_QUANTUM_M2)
+        units = area / GAIN_QUANTUM_M2
+    np.round(units, out=units)
     if units.sum() >= 2.0**53:
         raise ValueError("the model's area is too large for exact gains; split the model")
     gains = table.sum_per_candidate(units)
@@ -207,13 +210,14 @@ def replay(table: CoverageTable, stations: list[int] | tuple[int, ...],
 
 
 def coverage_state(
-    table: CoverageTable, stations: tuple[int, ...], densities: QualifiedPairs
+    table: CoverageTable, stations: tuple[int, ...], densities: Iterable[QualifiedPairs]
 ) -> dict[str, NDArray[np.generic]]:
     """Per-face results of a plan.
 
     ``densities`` are the qualified pairs of the chosen stations alone, numbered by their
-    place in ``stations`` (the table keeps no densities): they must be the table's rows of
-    those stations.
+    place in ``stations`` (the table keeps no densities), in blocks of whole stations in
+    that order; each block is let go once read. They must be the table's rows of those
+    stations.
 
     Returns
     -------
@@ -224,26 +228,39 @@ def coverage_state(
     n_candidates : (F,) int32, all candidates that qualify
     """
     n = table.n_faces
-    best = np.zeros(n, np.float64)
+    best = np.zeros(n, np.float32)  # the LPDs are float32: their maximum is one of them
     count = np.zeros(n, np.int32)
     first = np.full(n, -1, np.int32)
-    bounds = np.searchsorted(densities.candidate, np.arange(len(stations) + 1))
-    for order, candidate in enumerate(stations):
-        faces = table.faces_of(candidate)
-        rows = slice(bounds[order], bounds[order + 1])
-        if not np.array_equal(densities.face[rows], faces):
+
+    def add(order: int, faces: NDArray[np.int32], lpd_pts_m2: NDArray[np.float32]) -> None:
+        if not np.array_equal(faces, table.faces_of(stations[order])):
             raise RuntimeError(f"station {order}: the densities computed again are not of "
                                "the faces in the coverage table")
-        np.maximum.at(best, faces, densities.lpd_pts_m2[rows])
+        np.maximum.at(best, faces, lpd_pts_m2)
         count[faces] += 1
         unset = faces[first[faces] < 0]
         first[unset] = order
+
+    done = 0  # stations read so far
+    for block in densities:
+        if not len(block.candidate):
+            continue
+        if block.candidate[0] < done:
+            raise RuntimeError("the densities do not come in blocks of whole stations")
+        last = int(block.candidate[-1]) + 1
+        bounds = np.searchsorted(block.candidate, np.arange(done, last + 1))
+        for order in range(done, last):
+            rows = slice(bounds[order - done], bounds[order - done + 1])
+            add(order, block.face[rows], block.lpd_pts_m2[rows])
+        done = last
+    for order in range(done, len(stations)):  # stations that qualify for no face
+        add(order, np.zeros(0, np.int32), np.zeros(0, np.float32))
     return {
         "covered": count > 0,
-        "best_lpd_pts_m2": best.astype(np.float32),
+        "best_lpd_pts_m2": best,
         "n_stations": count,
         "first_station": first,
-        "n_candidates": table.candidates_per_face.astype(np.int32),
+        "n_candidates": table.candidates_per_face,
     }
 
 

@@ -20,8 +20,8 @@ from planner.method.visibility import Occlusion, RayCaster, make_ray_caster
 from planner.parameters import PlanSpec
 from planner.scene import Scene
 from planner.survey.registration import (
+    OverlapRows,
     Registration,
-    overlap_matrix,
     shared_faces_only,
     station_registration,
 )
@@ -103,16 +103,20 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     them; ``seconds`` gains the stages "overlap" and "walk graph".
     """
     t0 = time.perf_counter()
+    # only what two stations share counts: the rows are cut to it before the registration's
+    # products and the walk graph (10.7 M faces, 496 stations: 240 MB), and the rows the
+    # survey computes itself are cut as they are, never made into one whole matrix
     if station_overlap is None:
-        station_overlap = overlap_matrix(scene, stations_xyz, limits, occlusion,
-                                         spec.overlap_density_pts_m2, threads=threads,
-                                         file_faces=spec.occluders == "file")
-    # only what two stations share counts; the rest of the rows is let go here, before the
-    # registration's products and the walk graph (10.7 M faces, 496 stations: 240 MB)
-    station_overlap = shared_faces_only(station_overlap)
-    registration = station_registration(scene, station_overlap, spec.min_overlap_m2,
-                                        spec.overlap_density_pts_m2)
+        shared = OverlapRows(scene, stations_xyz, limits, occlusion,
+                             spec.overlap_density_pts_m2, threads=threads,
+                             file_faces=spec.occluders == "file"
+                             ).shared_matrix(range(len(stations_xyz)))
+    else:
+        shared = shared_faces_only(station_overlap)
     del station_overlap
+    registration = station_registration(scene, shared, spec.min_overlap_m2,
+                                        spec.overlap_density_pts_m2)
+    del shared
     t1 = time.perf_counter()
     seconds["overlap"] = seconds.get("overlap", 0.0) + t1 - t0
     walk_caster = _walk_caster(scene, limits, caster, spec.occluders == "file")

@@ -122,6 +122,13 @@ class OverlapRows:
             self.rays_cast += rays
         self.seconds += time.perf_counter() - started
 
+    def shared_matrix(self, candidates: Sequence[int] | NDArray[np.integer[Any]]
+                      ) -> sp.csr_matrix:
+        """:meth:`matrix` cut to the faces two of the rows share (:func:`shared_faces_only`),
+        made from the cached rows without the whole matrix."""
+        self.ensure(candidates)
+        return _shared_only([self._rows[int(c)] for c in candidates], self.n_faces)
+
     def matrix(self, candidates: Sequence[int] | NDArray[np.integer[Any]]) -> sp.csr_matrix:
         """(len(candidates), F) CSR float64 of 1.0: the rows of ``candidates``, in order
         (int32 face indices: 12 bytes an entry)."""
@@ -360,9 +367,11 @@ class Registration:
 
 
 def shared_per_pair(overlap: sp.csr_matrix, per_face: NDArray[np.float64], *,
-                    per_entry: bool = False) -> NDArray[np.float64]:
+                    per_entry: bool = False,
+                    transposed: sp.csr_matrix | None = None) -> NDArray[np.float64]:
     """(N, N) float64: the sum of (F,) ``per_face`` over the faces rows a and b share
-    (``per_entry``: ``per_face`` is already the (nnz,) value of each entry of ``overlap``).
+    (``per_entry``: ``per_face`` is already the (nnz,) value of each entry of ``overlap``;
+    ``transposed``: ``overlap.T`` as CSR, when the caller makes several sums).
 
     ``overlap``: (N, F) CSR of 0/1 with sorted indices. One sparse product (the work is the
     sum over faces of the square of the rows holding each face), with no (F,) mask or
@@ -371,7 +380,9 @@ def shared_per_pair(overlap: sp.csr_matrix, per_face: NDArray[np.float64], *,
     """
     values = per_face if per_entry else per_face[overlap.indices]
     weighted = sp.csr_matrix((values, overlap.indices, overlap.indptr), shape=overlap.shape)
-    shared: NDArray[np.float64] = (weighted @ overlap.T.tocsr()).toarray()
+    if transposed is None:
+        transposed = overlap.T.tocsr()
+    shared: NDArray[np.float64] = (weighted @ transposed).toarray()
     return shared
 
 
@@ -383,10 +394,14 @@ def shared_faces_only(overlap: sp.csr_matrix) -> sp.csr_matrix:
     that much.)"""
     overlap = overlap.tocsr()
     overlap.sort_indices()
-    seen = np.zeros(overlap.shape[1], bool)  # (F,) in some row so far
-    twice = np.zeros(overlap.shape[1], bool)  # (F,) in two rows or more
-    rows = [overlap.indices[overlap.indptr[r]:overlap.indptr[r + 1]]
-            for r in range(overlap.shape[0])]
+    return _shared_only([overlap.indices[overlap.indptr[r]:overlap.indptr[r + 1]]
+                         for r in range(overlap.shape[0])], overlap.shape[1])
+
+
+def _shared_only(rows: list[NDArray[np.int32]], n_faces: int) -> sp.csr_matrix:
+    """:func:`shared_faces_only` of the rows given as ascending face ids, one array each."""
+    seen = np.zeros(n_faces, bool)  # (F,) in some row so far
+    twice = np.zeros(n_faces, bool)  # (F,) in two rows or more
     for row in rows:
         twice[row] |= seen[row]
         seen[row] = True
@@ -397,7 +412,7 @@ def shared_faces_only(overlap: sp.csr_matrix) -> sp.csr_matrix:
     indices = np.concatenate(kept) if kept else np.zeros(0, np.int32)
     if indptr[-1] < np.iinfo(np.int32).max:  # int32 throughout: scipy keeps the indices as is
         indptr = indptr.astype(np.int32)
-    return sp.csr_matrix((np.ones(len(indices)), indices, indptr), shape=overlap.shape)
+    return sp.csr_matrix((np.ones(len(indices)), indices, indptr), shape=(len(rows), n_faces))
 
 
 def station_registration(scene: Scene, station_overlap: sp.csr_matrix,
@@ -413,12 +428,23 @@ def station_registration(scene: Scene, station_overlap: sp.csr_matrix,
     shared = station_overlap.tocsr()  # rows the survey may have cut to shared faces already
     shared.sort_indices()
     faces = shared.indices  # (nnz,) the face of every entry
-    overlap_m2 = shared_per_pair(shared, scene.areas[faces], per_entry=True)  # (S, S)
-    # (S, S, 6) the shared faces' area-weighted normal scatter, packed as _scatter_weights
+    # the products run over the faces the rows hold, renumbered in order (the sums keep
+    # their face order): the transposed rows have an entry per such face, not per model face
+    held, column = np.unique(faces, return_inverse=True)
+    compact = sp.csr_matrix((shared.data, column.astype(np.int32), shared.indptr),
+                            shape=(n, len(held)))
+    del held, column
+    transposed = compact.T.tocsr()
+    area_m2 = scene.areas[faces]  # (nnz,)
     normals = scene.normals
-    scatter6 = np.stack([shared_per_pair(shared, normals[faces, i] * normals[faces, j]
-                                         * scene.areas[faces], per_entry=True)
-                         for i, j in _SCATTER_TERMS], axis=-1)
+    # (S, S) the shared area, then (S, S, 6) the shared faces' area-weighted normal scatter,
+    # packed as _scatter_weights
+    overlap_m2, *terms = (
+        shared_per_pair(compact, per_entry, per_entry=True, transposed=transposed)
+        for per_entry in (area_m2, *(normals[faces, i] * normals[faces, j] * area_m2
+                                     for i, j in _SCATTER_TERMS)))
+    scatter6 = np.stack(terms, axis=-1)
+    del compact, transposed, area_m2, terms
     edges: list[Edge] = []
     rows: list[int] = []
     cols: list[int] = []
