@@ -12,9 +12,7 @@ order, which keeps the result independent of the number of threads.
 
 from __future__ import annotations
 
-import ctypes
 import dataclasses
-import functools
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -24,6 +22,7 @@ import numpy as np
 
 from planner.errors import CancelledError, NothingVisibleError
 from planner.io.orientation import scene_rotation, to_plan
+from planner.memory import release_freed_memory
 from planner.method.candidates import CandidateSet, explicit_candidates, generate_grid
 from planner.method.connectivity import Connectivity
 from planner.method.coverage import CoverageTable, QualifiedPairs
@@ -85,31 +84,10 @@ def _notify(progress: ProgressCallback | None, stage: str, fraction: float) -> N
         raise CancelledError(f"the plan was cancelled during {stage}")
 
 
-@functools.cache
-def _malloc_trim() -> Callable[[int], int] | None:
-    """glibc's ``malloc_trim``, or None on another C library (musl, macOS)."""
-    try:
-        trim: Callable[[int], int] = ctypes.CDLL("libc.so.6").malloc_trim
-    except (OSError, AttributeError):
-        return None
-    return trim
-
-
 def _new_stage(progress: ProgressCallback | None, stage: str) -> None:
     """Start ``stage``: release what the last one freed, then tell ``progress``."""
-    _release_freed_memory()
+    release_freed_memory()
     _notify(progress, stage, 0.0)
-
-
-def _release_freed_memory() -> None:
-    """Hand the heap's free memory back to the system (glibc ``malloc_trim``).
-
-    glibc keeps freed blocks below its (growing) mmap threshold in the heap for reuse, so a
-    stage's temporaries would stay in the worker's RSS under the next stage's peak.
-    """
-    trim = _malloc_trim()
-    if trim is not None:
-        trim(0)
 
 
 def plan(
@@ -160,6 +138,7 @@ def plan(
     stats.seconds["candidates"] = time.perf_counter() - t0
     if scene.split_max_edge_m is not None:
         t_split = time.perf_counter()
+        release_freed_memory()  # the candidate stage's scratch, before the pieces are made
         scene, limits, occlusion = _split_as_needed(scene, spec, candidates.positions, limits,
                                                     backend)
         stats.seconds["split"] = time.perf_counter() - t_split
@@ -224,7 +203,7 @@ def plan(
     stats.seconds["selection"] = time.perf_counter() - t2 - stats.seconds.get("overlap", 0.0)
     for step, seconds in outcome.seconds.items():
         stats.seconds[f"selection_{step}"] = seconds
-    _release_freed_memory()
+    release_freed_memory()
     plan_survey = survey(scene, spec, candidates.positions[list(chosen.stations)], limits,
                          occlusion, _caster(scene, spec, limits, occlusion), stats.seconds,
                          station_overlap=station_overlap, threads=threads)

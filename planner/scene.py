@@ -15,9 +15,9 @@ import trimesh
 from numpy.typing import NDArray
 
 from planner.errors import SceneError
+from planner.memory import GrowingArray
 
 FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 # face and label indices: int32 (4 bytes a face each instead of 8; a model has fewer than
 # 2**31 vertices, faces and groups, which Scene checks)
 IndexArray = NDArray[np.int32]
@@ -259,9 +259,9 @@ def longest_edges_m(vertices: FloatArray, faces: IndexArray) -> FloatArray:
 
 def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
               split: NDArray[np.bool_] | None = None
-              ) -> tuple[FloatArray, IndexArray, IntArray] | None:
+              ) -> tuple[FloatArray, IndexArray, IndexArray] | None:
     """The pieces of :func:`remesh` as arrays: (V', 3) vertices, (F', 3) int32 faces and
-    (F',) the index of each piece's face in the (F, 3) ``faces``; None when no face of
+    (F',) int32 the index of each piece's face in the (F, 3) ``faces``; None when no face of
     ``split`` (default: every face) is longer than ``max_edge_m``."""
     edge_m = longest_edges_m(vertices, faces)
     if split is not None:
@@ -277,9 +277,10 @@ def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
                                             _REMESH_BLOCK_PIECES), side="right")
     starts = np.unique(np.concatenate([[0], cuts]))
     stops = np.append(starts[1:], len(faces))
-    out_vertices: list[FloatArray] = []
-    out_faces: list[IndexArray] = []
-    out_source: list[IntArray] = []
+    # grown in place block by block: no list of blocks and concatenated copy side by side
+    out_vertices = GrowingArray(np.float64)  # (3 V',) flat
+    out_faces = GrowingArray(np.int32)  # (3 F',) flat
+    out_source = GrowingArray(np.int32)  # (F',)
     n_vertices = 0
     for start, stop in zip(starts.tolist(), stops.tolist(), strict=True):
         used, local = np.unique(faces[start:stop], return_inverse=True)
@@ -302,13 +303,10 @@ def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
             block_faces = np.concatenate([block_faces, local[whole]])
         # subdivide_to_size groups the unsplit faces first; restore file order (stable)
         order = np.argsort(index, kind="stable")
-        out_vertices.append(np.asarray(block_vertices, np.float64))
-        out_faces.append((np.asarray(block_faces, np.int64)[order] + n_vertices
-                          ).astype(np.int32))
+        out_vertices.append(np.asarray(block_vertices, np.float64).reshape(-1))
+        out_faces.append(((np.asarray(block_faces, np.int64)[order] + n_vertices
+                           ).astype(np.int32)).reshape(-1))
         out_source.append(np.asarray(index, np.int64)[order] + start)
         n_vertices += len(block_vertices)
-    new_vertices = np.concatenate(out_vertices)
-    del out_vertices
-    new_faces = np.concatenate(out_faces)
-    del out_faces
-    return new_vertices, new_faces, np.concatenate(out_source)
+    return (out_vertices.done().reshape(-1, 3), out_faces.done().reshape(-1, 3),
+            out_source.done())

@@ -10,11 +10,12 @@ from __future__ import annotations
 import functools
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
+
+from planner.memory import GrowingArray
 
 
 @dataclass(frozen=True, eq=False)
@@ -60,26 +61,6 @@ def _expand_runs(start: NDArray[np.int32], length: NDArray[np.int32]) -> NDArray
     shift = np.repeat(start.astype(np.int64) - (ends - length), length)  # (P,) face - pair
     shift += np.arange(total, dtype=np.int64)
     return shift.astype(np.int32)
-
-
-class _Growing:
-    """A 1-D array appended to in place (``ndarray.resize``, a ``realloc``: large arrays
-    are remapped, not copied), so building it needs no second copy."""
-
-    def __init__(self, dtype: type[np.generic]) -> None:
-        self.array = np.empty(1 << 16, dtype)
-        self.n = 0
-
-    def append(self, values: NDArray[Any]) -> None:
-        if self.n + len(values) > len(self.array):
-            self.array.resize(max(self.n + len(values), len(self.array) * 3 // 2),
-                              refcheck=False)
-        self.array[self.n:self.n + len(values)] = values
-        self.n += len(values)
-
-    def done(self) -> NDArray[Any]:
-        self.array.resize(self.n, refcheck=False)
-        return self.array
 
 
 @dataclass(frozen=True, eq=False)
@@ -128,7 +109,7 @@ class CoverageTable:
         """
         pairs = np.zeros(n_candidates, np.int64)
         runs = np.zeros(n_candidates, np.int64)
-        run_start, run_length = _Growing(np.int32), _Growing(np.int32)
+        run_start, run_length = GrowingArray(np.int32), GrowingArray(np.int32)
         for block in blocks:
             candidate, face = block.candidate, block.face
             del block
@@ -221,8 +202,10 @@ class CoverageTable:
         """(F,) bool: qualified from at least one candidate."""
         return self.candidates_per_face > 0
 
-    @property
+    @functools.cached_property
     def max_achievable_area_m2(self) -> float:
+        """The area of the faces some candidate qualifies for (kept: every selection reads
+        it, and its (F,) temporaries would come back each time)."""
         return float(self.face_area_m2[self.achievable].sum())
 
     def faces_of(self, candidate: int) -> NDArray[np.int32]:

@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from planner.io.orientation import scene_rotation, to_plan
+from planner.memory import release_freed_memory
 from planner.method.pairs import FaceLimits
 from planner.method.visibility import Occlusion, RayCaster, make_ray_caster
 from planner.parameters import PlanSpec
@@ -114,6 +115,7 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     else:
         shared = shared_faces_only(station_overlap)
     del station_overlap
+    release_freed_memory()  # the whole rows: hundreds of mid-sized arrays, freed in the heap
     registration = station_registration(scene, shared, spec.min_overlap_m2,
                                         spec.overlap_density_pts_m2)
     del shared

@@ -430,21 +430,29 @@ def station_registration(scene: Scene, station_overlap: sp.csr_matrix,
     faces = shared.indices  # (nnz,) the face of every entry
     # the products run over the faces the rows hold, renumbered in order (the sums keep
     # their face order): the transposed rows have an entry per such face, not per model face
-    held, column = np.unique(faces, return_inverse=True)
-    compact = sp.csr_matrix((shared.data, column.astype(np.int32), shared.indptr),
-                            shape=(n, len(held)))
+    held = np.zeros(scene.n_faces, bool)
+    held[faces] = True
+    column = np.cumsum(held, dtype=np.int32)[faces] - 1  # (nnz,) int32
+    compact = sp.csr_matrix((shared.data, column, shared.indptr),
+                            shape=(n, int(np.count_nonzero(held))))
     del held, column
     transposed = compact.T.tocsr()
     area_m2 = scene.areas[faces]  # (nnz,)
     normals = scene.normals
+
     # (S, S) the shared area, then (S, S, 6) the shared faces' area-weighted normal scatter,
-    # packed as _scatter_weights
-    overlap_m2, *terms = (
-        shared_per_pair(compact, per_entry, per_entry=True, transposed=transposed)
-        for per_entry in (area_m2, *(normals[faces, i] * normals[faces, j] * area_m2
-                                     for i, j in _SCATTER_TERMS)))
+    # packed as _scatter_weights; one (nnz,) weight at a time, made in place (the same
+    # products as _scatter_term, in the same order)
+    overlap_m2 = shared_per_pair(compact, area_m2, per_entry=True, transposed=transposed)
+    terms = []
+    for i, j in _SCATTER_TERMS:
+        term = normals[faces, i]
+        term *= normals[faces, j]
+        term *= area_m2
+        terms.append(shared_per_pair(compact, term, per_entry=True, transposed=transposed))
+        del term
     scatter6 = np.stack(terms, axis=-1)
-    del compact, transposed, area_m2, terms
+    del compact, transposed, area_m2
     edges: list[Edge] = []
     rows: list[int] = []
     cols: list[int] = []

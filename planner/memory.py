@@ -1,0 +1,57 @@
+"""Keeping a plan's peak memory down: arrays grown in place, freed memory given back.
+
+:class:`GrowingArray` builds an array of unknown final length without a second copy at
+the end. :func:`release_freed_memory` runs between the stages of a plan: glibc keeps
+freed blocks below its (growing, up to 32 MB) mmap threshold in the heap for reuse, so
+the many mid-sized arrays a stage frees (a block of pairs, a station's overlap row) would
+stay in the worker's RSS under the next stage's peak. ``malloc_trim`` hands back every
+whole free page. Elsewhere (musl, macOS) it does nothing.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@functools.cache
+def _malloc_trim() -> Callable[[int], int] | None:
+    """glibc's ``malloc_trim``, or None on another C library (musl, macOS)."""
+    try:
+        trim: Callable[[int], int] = ctypes.CDLL("libc.so.6").malloc_trim
+    except (OSError, AttributeError):
+        return None
+    return trim
+
+
+def release_freed_memory() -> None:
+    """Hand the heap's free pages back to the system (glibc ``malloc_trim``)."""
+    trim = _malloc_trim()
+    if trim is not None:
+        trim(0)
+
+
+class GrowingArray:
+    """A 1-D array appended to in place (``ndarray.resize``, a ``realloc``: large arrays
+    are remapped, not copied), so building it needs no second copy."""
+
+    def __init__(self, dtype: type[np.generic]) -> None:
+        self.array = np.empty(1 << 16, dtype)
+        self.n = 0
+
+    def append(self, values: NDArray[Any]) -> None:
+        if self.n + len(values) > len(self.array):
+            self.array.resize(max(self.n + len(values), len(self.array) * 3 // 2),
+                              refcheck=False)
+        self.array[self.n:self.n + len(values)] = values
+        self.n += len(values)
+
+    def done(self) -> NDArray[Any]:
+        """The array of what was appended (the object is used up)."""
+        self.array.resize(self.n, refcheck=False)
+        return self.array
