@@ -31,11 +31,12 @@ import dataclasses
 import itertools
 import os
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
@@ -167,6 +168,14 @@ def _scatter_weights(scene: Scene) -> NDArray[np.float64]:
     return np.stack([_scatter_term(scene, i, j) for i, j in _SCATTER_TERMS], axis=1)
 
 
+def _scatter_weights_of(scene: Scene, faces: NDArray[np.integer[Any]]
+                        ) -> NDArray[np.float64]:
+    """(n, 6) float64: the rows ``faces`` of :func:`_scatter_weights`, the same products,
+    without the (F, 6) array (48 bytes a face)."""
+    n, area_m2 = scene.normals[faces], scene.areas[faces]
+    return np.stack([n[:, i] * n[:, j] * area_m2 for i, j in _SCATTER_TERMS], axis=1)
+
+
 def _constraint(scatter6: NDArray[np.float64]) -> NDArray[np.float64]:
     """(N,) smallest eigenvalue / trace of the (N, 6) packed symmetric 3x3 matrices."""
     xx, yy, zz, xy, xz, yz = scatter6.T
@@ -195,9 +204,11 @@ def overlap_with(overlap: sp.csr_matrix, row: int, scene: Scene,
 
 
 def _shared_with(rows: sp.csr_matrix, faces: NDArray[np.int64], area_m2: NDArray[np.float64],
-                 weights6: NDArray[np.float64]) -> NDArray[np.float64]:
+                 weights6: Callable[[NDArray[np.int32]], NDArray[np.float64]]
+                 ) -> NDArray[np.float64]:
     """(N, 7) float64: overlap area and the six scatter sums of every row of the (N, F)
-    0/1 ``rows`` with the (n,) ascending ``faces`` of one overlap row.
+    0/1 ``rows`` with the (n,) ascending ``faces`` of one overlap row; ``weights6`` gives
+    the (k, 6) scatter weights of k faces (:func:`_scatter_weights_of`).
 
     Each sum runs over the row's faces in ascending order, as ``rows`` times the dense (F,)
     area and (F, 6) weights masked to ``faces`` would (there the other terms add 0.0), in
@@ -207,7 +218,7 @@ def _shared_with(rows: sp.csr_matrix, faces: NDArray[np.int64], area_m2: NDArray
     at = np.minimum(np.searchsorted(faces, rows.indices), max(len(faces) - 1, 0))
     hit = np.flatnonzero(faces[at] == rows.indices) if len(faces) else np.zeros(0, np.int64)
     shared_faces, shared_row = rows.indices[hit], entry_row[hit]
-    columns = [area_m2[shared_faces], *(weights6[shared_faces, k] for k in range(6))]
+    columns = [area_m2[shared_faces], *weights6(shared_faces).T]
     # (an empty bincount is int64 whatever its weights)
     return np.stack([np.bincount(shared_row, weights=c, minlength=rows.shape[0])
                      for c in columns], axis=1).astype(np.float64, copy=False)
@@ -255,7 +266,9 @@ def connected_greedy(table: CoverageTable, overlap: OverlapRows, scene: Scene,
     needed_m2 = goal * table.max_achievable_area_m2 - GOAL_SLACK_M2
     area = table.face_area_m2
     units, gains = gain_units(table, weighted=weighted)
-    weights6 = _scatter_weights(scene)
+    def weights6(faces: NDArray[np.int32]) -> NDArray[np.float64]:
+        return _scatter_weights_of(scene, faces)
+
     n = table.n_candidates
     uncovered = np.ones(table.n_faces, bool)
     gain_order = GainOrder(table, units, gains, uncovered)
@@ -366,24 +379,57 @@ class Registration:
         }
 
 
-def shared_per_pair(overlap: sp.csr_matrix, per_face: NDArray[np.float64], *,
-                    per_entry: bool = False,
-                    transposed: sp.csr_matrix | None = None) -> NDArray[np.float64]:
-    """(N, N) float64: the sum of (F,) ``per_face`` over the faces rows a and b share
-    (``per_entry``: ``per_face`` is already the (nnz,) value of each entry of ``overlap``;
-    ``transposed``: ``overlap.T`` as CSR, when the caller makes several sums).
-
-    ``overlap``: (N, F) CSR of 0/1 with sorted indices. One sparse product (the work is the
-    sum over faces of the square of the rows holding each face), with no (F,) mask or
-    (F, 6) temporary per row; every entry adds the same terms in the same (face) order as
-    :func:`overlap_with`, so the sums are bit for bit the same.
+@numba.njit(nogil=True, cache=True)
+def _shared_sums(indptr: NDArray[np.int32], faces: NDArray[np.int32], n_faces: int,
+                 areas: NDArray[np.float64], normals: NDArray[np.float64]
+                 ) -> NDArray[np.float64]:  # compiled; compared bit for bit in test_survey
+    """(N, N, 7) float64: for every two of the N rows (``indptr``, ascending ``faces``: a
+    CSR pattern over ``n_faces`` faces), the area of the faces both hold and the six
+    area-weighted normal products of :func:`_scatter_weights`, each summed over those faces
+    in ascending order. That is the order of the sparse product ``rows @ rows.T`` with the
+    weights on the left (and of :func:`overlap_with`), so the sums are the same bits,
+    without the transposed copy and (nnz,) weights a product needs: only the rows holding
+    each face, 4 bytes an entry and a face.
     """
-    values = per_face if per_entry else per_face[overlap.indices]
-    weighted = sp.csr_matrix((values, overlap.indices, overlap.indptr), shape=overlap.shape)
-    if transposed is None:
-        transposed = overlap.T.tocsr()
-    shared: NDArray[np.float64] = (weighted @ transposed).toarray()
-    return shared
+    n = len(indptr) - 1
+    # the rows holding each face, by a counting sort of the entries (rows stay ascending)
+    first = np.zeros(n_faces + 1, np.int32)  # first[f] .. first[f + 1] - 1: f's holders
+    for entry in range(len(faces)):
+        first[faces[entry] + 1] += 1
+    for face in range(n_faces):
+        first[face + 1] += first[face]
+    holder = np.empty(len(faces), np.int32)
+    for row in range(n):
+        for entry in range(indptr[row], indptr[row + 1]):
+            face = faces[entry]
+            holder[first[face]] = row
+            first[face] += 1
+    for face in range(n_faces, 0, -1):  # the filling moved every start to the next one
+        first[face] = first[face - 1]
+    first[0] = 0
+    sums = np.zeros((n, n, 7))
+    weight = np.empty(7)
+    for row in range(n):
+        for entry in range(indptr[row], indptr[row + 1]):
+            face = faces[entry]
+            area = areas[face]
+            nx, ny, nz = normals[face, 0], normals[face, 1], normals[face, 2]
+            weight[0] = area
+            weight[1] = nx * nx * area  # _SCATTER_TERMS: xx, yy, zz, xy, xz, yz
+            weight[2] = ny * ny * area
+            weight[3] = nz * nz * area
+            weight[4] = nx * ny * area
+            weight[5] = nx * nz * area
+            weight[6] = ny * nz * area
+            for at in range(first[face], first[face + 1]):
+                other = holder[at]
+                for k in range(7):
+                    sums[row, other, k] += weight[k]
+    flat = sums.reshape(-1)
+    for at in range(len(flat)):  # a zero sum is +0.0, as in a dense or sparse product
+        if flat[at] == 0.0:
+            flat[at] = 0.0
+    return sums
 
 
 def shared_faces_only(overlap: sp.csr_matrix) -> sp.csr_matrix:
@@ -427,32 +473,11 @@ def station_registration(scene: Scene, station_overlap: sp.csr_matrix,
     n = station_overlap.shape[0]
     shared = station_overlap.tocsr()  # rows the survey may have cut to shared faces already
     shared.sort_indices()
-    faces = shared.indices  # (nnz,) the face of every entry
-    # the products run over the faces the rows hold, renumbered in order (the sums keep
-    # their face order): the transposed rows have an entry per such face, not per model face
-    held = np.zeros(scene.n_faces, bool)
-    held[faces] = True
-    column = np.cumsum(held, dtype=np.int32)[faces] - 1  # (nnz,) int32
-    compact = sp.csr_matrix((shared.data, column, shared.indptr),
-                            shape=(n, int(np.count_nonzero(held))))
-    del held, column
-    transposed = compact.T.tocsr()
-    area_m2 = scene.areas[faces]  # (nnz,)
-    normals = scene.normals
-
-    # (S, S) the shared area, then (S, S, 6) the shared faces' area-weighted normal scatter,
-    # packed as _scatter_weights; one (nnz,) weight at a time, made in place (the same
-    # products as _scatter_term, in the same order)
-    overlap_m2 = shared_per_pair(compact, area_m2, per_entry=True, transposed=transposed)
-    terms = []
-    for i, j in _SCATTER_TERMS:
-        term = normals[faces, i]
-        term *= normals[faces, j]
-        term *= area_m2
-        terms.append(shared_per_pair(compact, term, per_entry=True, transposed=transposed))
-        del term
-    scatter6 = np.stack(terms, axis=-1)
-    del compact, transposed, area_m2
+    # (S, S) the shared area, (S, S, 6) the shared faces' area-weighted normal scatter
+    sums = _shared_sums(np.asarray(shared.indptr, np.int32),
+                        np.asarray(shared.indices, np.int32), scene.n_faces, scene.areas,
+                        np.ascontiguousarray(scene.normals))
+    overlap_m2, scatter6 = sums[:, :, 0], sums[:, :, 1:]
     edges: list[Edge] = []
     rows: list[int] = []
     cols: list[int] = []

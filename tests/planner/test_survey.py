@@ -346,6 +346,38 @@ def test_shared_sums_equal_the_dense_masked_product() -> None:
         mask = np.zeros(n_faces)
         mask[station] = 1.0
         dense = np.column_stack([matrix @ (area * mask), matrix @ (weights6 * mask[:, None])])
-        shared = _shared_with(matrix, station, area, weights6)
+        shared = _shared_with(matrix, station, area, lambda faces: weights6[faces])
         assert shared.dtype == np.float64
         np.testing.assert_array_equal(shared, dense)
+
+
+def test_station_pair_sums_equal_the_dense_masked_products() -> None:
+    """The registration's compiled sums over the faces two stations share are the bits of
+    the dense masked products (:func:`overlap_with`'s), for every pair: rows that share
+    nothing, a row with no face, normals whose products cancel."""
+    import scipy.sparse as sp
+
+    from planner.survey.registration import _SCATTER_TERMS, _shared_sums
+
+    rng = np.random.default_rng(5)
+    n_faces = 400
+    area = rng.uniform(0.01, 0.5, n_faces)
+    normals = rng.normal(size=(n_faces, 3))
+    normals[::7, 0] = 0.0  # x products of exactly zero, some sums of +-0.0
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    weights6 = np.stack([normals[:, i] * normals[:, j] * area for i, j in _SCATTER_TERMS], 1)
+    rows = [np.sort(rng.choice(n_faces, k, replace=False)) for k in (120, 0, 300, 5, 200)]
+    rows.append(np.setdiff1d(np.arange(n_faces), rows[0]))  # shares nothing with row 0
+    matrix = sp.csr_matrix((np.ones(sum(map(len, rows))), np.concatenate(rows),
+                            np.r_[0, np.cumsum([len(r) for r in rows])]),
+                           shape=(len(rows), n_faces))
+    sums = _shared_sums(matrix.indptr.astype(np.int32), matrix.indices.astype(np.int32),
+                        n_faces, area, normals)
+    assert sums.shape == (len(rows), len(rows), 7)
+    for a, faces in enumerate(rows):
+        mask = np.zeros(n_faces)
+        mask[faces] = 1.0
+        dense = np.column_stack([matrix @ (area * mask), matrix @ (weights6 * mask[:, None])])
+        np.testing.assert_array_equal(sums[a], dense)
+        assert not np.signbit(sums[a][dense == 0.0]).any()
+    assert (sums[0, 5] == 0.0).all() and (sums[1] == 0.0).all()
