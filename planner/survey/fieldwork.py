@@ -105,7 +105,7 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     """
     t0 = time.perf_counter()
     # only what two stations share counts: the rows are cut to it before the registration's
-    # products and the walk graph (10.7 M faces, 496 stations: 240 MB), and the rows the
+    # sums and the walk graph (10.7 M faces, 496 stations: 240 MB), and the rows the
     # survey computes itself are cut as they are, never made into one whole matrix
     if station_overlap is None:
         shared = OverlapRows(scene, stations_xyz, limits, occlusion,

@@ -30,6 +30,7 @@ KNEE_HEIGHT_M = 0.5  # the link must be free at this height above the floor
 STEP_M = 0.4
 HEADROOM_M = 1.8  # free height a person needs above a floor sample
 _MIN_FLOOR_NZ = math.cos(math.radians(35.0))  # steeper than 35 deg is a wall, not a floor
+_LINKS_PER_BLOCK = 1 << 18
 _MAX_LEVELS = 8  # floors stacked over one grid column (storeys, stairs, roofs)
 _EPS_M = 1e-3
 
@@ -146,8 +147,13 @@ def build_walk_graph(scene: Scene, caster: RayCaster) -> WalkGraph:
     a = np.concatenate(rows) if rows else np.zeros(0, np.int64)
     b = np.concatenate(cols) if cols else np.zeros(0, np.int64)
     knee = np.array([0.0, 0.0, KNEE_HEIGHT_M])
-    free = segment_free(caster, floor_xyz[a] + knee, floor_xyz[b] + knee)
-    free &= segment_free(caster, floor_xyz[b] + knee, floor_xyz[a] + knee)
+    # the links' knee-high segments, both ways, a block at a time: Embree's hit record is
+    # some 50 bytes a ray, and a large floor has millions of links
+    free = np.ones(len(a), bool)
+    for first in range(0, len(a), _LINKS_PER_BLOCK):
+        block = slice(first, first + _LINKS_PER_BLOCK)
+        from_a, from_b = floor_xyz[a[block]] + knee, floor_xyz[b[block]] + knee
+        free[block] = segment_free(caster, from_a, from_b) & segment_free(caster, from_b, from_a)
     a, b = a[free], b[free]
     length = np.linalg.norm(floor_xyz[a] - floor_xyz[b], axis=1)
     links = sp.coo_matrix((np.concatenate([length, length]),
