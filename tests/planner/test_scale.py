@@ -123,10 +123,13 @@ def status(key):
             return int(line.split()[1]) * 1024
 reserved = status("VmSize") - status("VmRSS")  # mapped, not resident: stacks, code, arenas
 resource.setrlimit(resource.RLIMIT_AS, (reserved + budget, reserved + budget))
-scene = read_scene(model)
+scene = read_scene(model, split_faces="as_needed")  # as scanplan plan reads it
 params = json.loads(open(spec_path).read())
 result = plan(scene, PlanSpec.from_mapping(params))
-print(json.dumps({"faces": scene.n_faces, "pairs": result.table.n_pairs,
+print(json.dumps({"faces": result.scene.n_faces, "pairs": result.table.n_pairs,
+                  "candidates": len(result.candidates),
+                  "stations": len(result.chosen.stations),
+                  "edges": len(result.survey.registration.edges),
                   "reserved": reserved, "limit": reserved + budget,
                   "peak_rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024}))
 """
@@ -144,24 +147,24 @@ def _plan_scale_module() -> object:
 
 
 def test_a_3m_face_interior_plans_within_2_gb(tmp_path: Path) -> None:
-    """A 3 M-face plan (after remeshing) runs under an address-space cap of 2 GiB.
+    """A 3 M-face plan (after remeshing) runs under an address-space cap of 2 GiB, the way
+    ``scanplan plan`` runs it: faces split as needed, grid candidates, default parameters,
+    the survey included.
 
     RLIMIT_AS caps virtual memory, not RSS: numba/LLVM, Embree's thread pool, thread stacks
     and malloc arenas reserve address space they never touch. So the child first warms up
     on a one-triangle plan (all of that mapped), measures what is mapped but not resident
     (VmSize - VmRSS), and caps its address space at that plus 2 GiB. Everything it then
-    makes resident is also mapped, so reading, remeshing and planning the 3 M-face model
-    (three explicit candidates per room of the benchmark's interior, default parameters
-    otherwise) fails with MemoryError unless its resident memory stays under 2 GiB; the
-    cap is stricter than RSS, because new reservations (a pool's threads) count too.
+    makes resident is also mapped, so reading, remeshing and planning the benchmark's
+    3 M-face interior fails with MemoryError unless its resident memory stays under 2 GiB;
+    the cap is stricter than RSS, because new reservations (a pool's threads) count too.
     """
     plan_scale = _plan_scale_module()
     n_rooms = 96  # about 3 M faces after remeshing at 0.2 m
     model = tmp_path / "interior.obj"
     plan_scale.build_interior(n_rooms).write_obj(model)  # type: ignore[attr-defined]
     params = tmp_path / "params.json"
-    stations = plan_scale.room_stations(n_rooms)[::3]  # type: ignore[attr-defined]
-    params.write_text(json.dumps({"candidates": stations}))
+    params.write_text(json.dumps({}))
     budget = 2 * 2**30
     done = subprocess.run(
         [sys.executable, "-c", _CHILD, str(params), str(model), str(budget)],
@@ -170,6 +173,9 @@ def test_a_3m_face_interior_plans_within_2_gb(tmp_path: Path) -> None:
     )
     assert done.returncode == 0, done.stderr[-2000:]
     figures = json.loads(done.stdout.strip().splitlines()[-1])
-    assert figures["faces"] > 2_900_000
+    assert figures["faces"] > 2_700_000
+    assert figures["candidates"] > 5_000  # a candidate a square metre of floor
     assert figures["pairs"] > 0
+    assert figures["stations"] > 96  # more than one a room, each registered to another
+    assert figures["edges"] > 0
     assert figures["peak_rss"] < budget, figures
