@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import itertools
 import os
 import time
@@ -156,22 +157,15 @@ def overlap_matrix(scene: Scene, positions: NDArray[np.float64], limits: FaceLim
 _SCATTER_TERMS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))
 
 
-def _scatter_term(scene: Scene, i: int, j: int) -> NDArray[np.float64]:
-    """(F,) float64: area * n_i n_j per face."""
-    n = scene.normals
-    term: NDArray[np.float64] = n[:, i] * n[:, j] * scene.areas
-    return term
-
-
 def _scatter_weights(scene: Scene) -> NDArray[np.float64]:
     """(F, 6) float64: area * (nx nx, ny ny, nz nz, nx ny, nx nz, ny nz) per face."""
-    return np.stack([_scatter_term(scene, i, j) for i, j in _SCATTER_TERMS], axis=1)
+    return _scatter_weights_of(scene, slice(None))
 
 
-def _scatter_weights_of(scene: Scene, faces: NDArray[np.integer[Any]]
+def _scatter_weights_of(scene: Scene, faces: NDArray[np.integer[Any]] | slice
                         ) -> NDArray[np.float64]:
-    """(n, 6) float64: the rows ``faces`` of :func:`_scatter_weights`, the same products,
-    without the (F, 6) array (48 bytes a face)."""
+    """(n, 6) float64: the rows ``faces`` of :func:`_scatter_weights`, without the (F, 6)
+    array (48 bytes a face) when only some faces are wanted."""
     n, area_m2 = scene.normals[faces], scene.areas[faces]
     return np.stack([n[:, i] * n[:, j] * area_m2 for i, j in _SCATTER_TERMS], axis=1)
 
@@ -266,9 +260,7 @@ def connected_greedy(table: CoverageTable, overlap: OverlapRows, scene: Scene,
     needed_m2 = goal * table.max_achievable_area_m2 - GOAL_SLACK_M2
     area = table.face_area_m2
     units, gains = gain_units(table, weighted=weighted)
-    def weights6(faces: NDArray[np.int32]) -> NDArray[np.float64]:
-        return _scatter_weights_of(scene, faces)
-
+    weights6 = functools.partial(_scatter_weights_of, scene)
     n = table.n_candidates
     uncovered = np.ones(table.n_faces, bool)
     gain_order = GainOrder(table, units, gains, uncovered)
@@ -381,11 +373,12 @@ class Registration:
 
 @numba.njit(nogil=True, cache=True)
 def _shared_sums(indptr: NDArray[np.int32], faces: NDArray[np.int32], n_faces: int,
-                 areas: NDArray[np.float64], normals: NDArray[np.float64]
-                 ) -> NDArray[np.float64]:  # compiled; compared bit for bit in test_survey
-    """(N, N, 7) float64: for every two of the N rows (``indptr``, ascending ``faces``: a
-    CSR pattern over ``n_faces`` faces), the area of the faces both hold and the six
-    area-weighted normal products of :func:`_scatter_weights`, each summed over those faces
+                 areas: NDArray[np.float64], normals: NDArray[np.float64],
+                 terms: NDArray[np.int64]) -> NDArray[np.float64]:  # compiled; see test_survey
+    """(N, N, 1 + T) float64: for every two of the N rows (``indptr``, ascending ``faces``:
+    a CSR pattern over ``n_faces`` faces), the area of the faces both hold and the T
+    area-weighted normal products n_i n_j area of the (T, 2) ``terms`` (``_SCATTER_TERMS``,
+    as :func:`_scatter_weights`), each summed over those faces
     in ascending order. That is the order of the sparse product ``rows @ rows.T`` with the
     weights on the left (and of :func:`overlap_with`), so the sums are the same bits,
     without the transposed copy and (nnz,) weights a product needs: only the rows holding
@@ -407,23 +400,19 @@ def _shared_sums(indptr: NDArray[np.int32], faces: NDArray[np.int32], n_faces: i
     for face in range(n_faces, 0, -1):  # the filling moved every start to the next one
         first[face] = first[face - 1]
     first[0] = 0
-    sums = np.zeros((n, n, 7))
-    weight = np.empty(7)
+    width = 1 + len(terms)
+    sums = np.zeros((n, n, width))
+    weight = np.empty(width)
     for row in range(n):
         for entry in range(indptr[row], indptr[row + 1]):
             face = faces[entry]
             area = areas[face]
-            nx, ny, nz = normals[face, 0], normals[face, 1], normals[face, 2]
             weight[0] = area
-            weight[1] = nx * nx * area  # _SCATTER_TERMS: xx, yy, zz, xy, xz, yz
-            weight[2] = ny * ny * area
-            weight[3] = nz * nz * area
-            weight[4] = nx * ny * area
-            weight[5] = nx * nz * area
-            weight[6] = ny * nz * area
+            for k in range(len(terms)):
+                weight[1 + k] = normals[face, terms[k, 0]] * normals[face, terms[k, 1]] * area
             for at in range(first[face], first[face + 1]):
                 other = holder[at]
-                for k in range(7):
+                for k in range(width):
                     sums[row, other, k] += weight[k]
     flat = sums.reshape(-1)
     for at in range(len(flat)):  # a zero sum is +0.0, as in a dense or sparse product
@@ -478,7 +467,7 @@ def station_registration(scene: Scene, station_overlap: sp.csr_matrix,
     # (S, S) the shared area, (S, S, 6) the shared faces' area-weighted normal scatter
     sums = _shared_sums(np.asarray(shared.indptr, np.int32),
                         np.asarray(shared.indices, np.int32), scene.n_faces, scene.areas,
-                        np.ascontiguousarray(scene.normals))
+                        np.ascontiguousarray(scene.normals), np.array(_SCATTER_TERMS))
     overlap_m2, scatter6 = sums[:, :, 0], sums[:, :, 1:]
     edges: list[Edge] = []
     rows: list[int] = []

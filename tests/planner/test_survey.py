@@ -372,7 +372,7 @@ def test_station_pair_sums_equal_the_dense_masked_products() -> None:
                             np.r_[0, np.cumsum([len(r) for r in rows])]),
                            shape=(len(rows), n_faces))
     sums = _shared_sums(matrix.indptr.astype(np.int32), matrix.indices.astype(np.int32),
-                        n_faces, area, normals)
+                        n_faces, area, normals, np.array(_SCATTER_TERMS))
     assert sums.shape == (len(rows), len(rows), 7)
     for a, faces in enumerate(rows):
         mask = np.zeros(n_faces)
