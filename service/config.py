@@ -9,7 +9,7 @@ from __future__ import annotations
 import contextlib
 import os
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
@@ -50,6 +50,12 @@ class Settings(BaseSettings):
         default=None, description="SQLAlchemy URL of the job table; default SQLite in data_dir")
     queue_url: str | None = Field(
         default=None, description="redis://host:port/db for scale-out; default SQLite in data_dir")
+    store_url: str | None = Field(
+        default=None, description="s3://bucket/prefix: meshes and results in an S3-compatible "
+                                  "store (AWS_ENDPOINT_URL, AWS_ACCESS_KEY_ID...); default: "
+                                  "files in data_dir")
+    store_addressing_style: Literal["auto", "path", "virtual"] | None = Field(
+        default=None, description="S3 addressing; default: path with AWS_ENDPOINT_URL, else auto")
     api_keys: Annotated[list[str], NoDecode] = Field(
         default_factory=list,
         description="comma-separated bearer keys, or sha256:<hex> of a key; empty = no auth")
@@ -96,6 +102,15 @@ class Settings(BaseSettings):
         if isinstance(value, str):
             return [key.strip() for key in value.split(",") if key.strip()]
         return value
+
+    @field_validator("store_url")
+    @classmethod
+    def _check_store_url(cls, value: str | None) -> str | None:
+        if value:
+            from service.store import parse_store_url
+
+            parse_store_url(value)  # ValueError naming the expected form
+        return value or None
 
     @property
     def auth_enabled(self) -> bool:

@@ -41,6 +41,7 @@ from service.problems import (
 )
 from service.queue import HueyQueue, JobQueue, make_huey
 from service.routes import health, jobs, landing, meshes, processes
+from service.store import open_store
 from service.worker import Reaper
 
 log = logging.getLogger("scanplan.service")
@@ -138,7 +139,8 @@ def open_services(settings: Settings, queue: JobQueue | None = None) -> Services
     return Services(
         settings=settings,
         jobs=JobStore(engine),
-        meshes=MeshStore(settings.data_dir / "meshes", engine, settings.max_upload_bytes),
+        meshes=MeshStore(settings.data_dir / "meshes", engine, settings.max_upload_bytes,
+                         open_store(settings)),
         queue=queue or HueyQueue(make_huey(settings)),
         keys=KeyRing.from_settings(settings.api_keys),
     )

@@ -41,6 +41,7 @@ from service.plan_process import (
 )
 from service.problems import OutOfMemoryError, WorkerLostError, problem_for
 from service.queue import HueyQueue, JobQueue, make_huey
+from service.store import open_store, results_prefix
 
 log = logging.getLogger("scanplan.worker")
 
@@ -69,12 +70,14 @@ def build_context(settings: Settings, queue: JobQueue) -> WorkerContext:
     """Open the database and stores for ``settings`` (call it in the process that uses it)."""
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     engine = make_engine(settings.job_db_url)
-    meshes = MeshStore(settings.data_dir / "meshes", engine, settings.max_upload_bytes)
+    meshes = MeshStore(settings.data_dir / "meshes", engine, settings.max_upload_bytes,
+                       open_store(settings))
     return WorkerContext(settings, JobStore(engine), meshes, queue)
 
 
 def results_dir(settings: Settings, job_id: str) -> Path:
-    """Where the outputs of ``job_id`` live once it succeeded."""
+    """Where the outputs of ``job_id`` live once it succeeded, in the embedded store (the
+    data directory; with ``SCANPLAN_STORE_URL`` they are at ``results_prefix`` in S3)."""
     return settings.data_dir / "jobs" / job_id
 
 
@@ -177,19 +180,20 @@ def execute_job(ctx: WorkerContext, job_id: str) -> None:
                            outputs=outputs):
             log.info("job %s: successful", job_id)
         else:  # dismissed while the files were moved into place
-            shutil.rmtree(results_dir(ctx.settings, job_id), ignore_errors=True)
+            ctx.meshes.store.delete_prefix(results_prefix(job_id))
 
 
 def _run_plan(ctx: WorkerContext, job: JobRecord,
               reporter: ProgressReporter) -> tuple[dict[str, dict[str, Any]], dict[str, float]]:
     """Plan ``job`` in a child process (see :mod:`service.plan_process`), then move the
-    outputs it wrote into place."""
+    outputs it wrote into place (upload them, with an object store)."""
     spec = PlanSpec.from_mapping(job.parameters)
-    mesh_path = ctx.meshes.path(job.mesh_id)
-    if mesh_path is None:
-        raise SceneError(f"mesh {job.mesh_id} is no longer stored; upload it again")
     ctx.results_root.mkdir(parents=True, exist_ok=True)
     temporary = ctx.results_root / f".tmp-{job.id}-{reporter.token}"
+    downloads = ctx.results_root / f".mesh-{job.id}-{reporter.token}"  # from an object store
+    mesh_path = ctx.meshes.fetch(job.mesh_id, downloads)
+    if mesh_path is None:
+        raise SceneError(f"mesh {job.mesh_id} is no longer stored; upload it again")
     threads = ctx.settings.threads_per_job
 
     def work(progress: Progress) -> tuple[dict[str, dict[str, Any]], dict[str, float]]:
@@ -228,12 +232,10 @@ def _run_plan(ctx: WorkerContext, job: JobRecord,
             describe_error=lambda exc: problem_for(exc))
         if reporter("writing", 1.0):
             raise CancelledError("the plan was cancelled before its outputs were in place")
-        final = results_dir(ctx.settings, job.id)
-        if final.exists():  # left by an earlier attempt that could not finish
-            shutil.rmtree(final)
-        temporary.rename(final)
+        ctx.meshes.store.publish_folder(temporary, results_prefix(job.id))
     finally:
         shutil.rmtree(temporary, ignore_errors=True)
+        shutil.rmtree(downloads, ignore_errors=True)
     return outputs, timings
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import shutil
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response, status
@@ -13,8 +12,8 @@ from service.deps import OwnerDep, ServicesDep
 from service.job_store import ACTIVE, FAILED, SUCCESSFUL, JobRecord
 from service.problems import MEDIA_TYPE, NoSuchJobError, ResultNotReadyError, problem_responses
 from service.schemas import JobList, JobResults, JobStatus, Link, OutputRef, StatusInfo
+from service.store import result_key, results_prefix
 from service.timefmt import iso
-from service.worker import results_dir
 
 router = APIRouter(prefix="/jobs", tags=["jobs"],
                    responses=problem_responses(401, 404, 422, 500))
@@ -97,7 +96,7 @@ def delete_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInf
         return status_info(_job(services, owner, job_id))
     job = _job(services, owner, job_id)  # it may have finished meanwhile
     if services.jobs.delete(job_id):
-        shutil.rmtree(results_dir(services.settings, job_id), ignore_errors=True)
+        services.store.delete_prefix(results_prefix(job_id))
     document = status_info(job)
     document.status = "dismissed"
     document.message = "deleted with its results"
@@ -115,9 +114,8 @@ def get_results(job_id: str, services: ServicesDep, owner: OwnerDep) -> JobResul
     if job.status != SUCCESSFUL or job.outputs is None:
         raise ResultNotReadyError(f"job {job_id} is {job.status}; results come once it is "
                                   "successful")
-    folder = results_dir(services.settings, job_id)
-    document: dict[str, dict[str, Any]] = {
-        PLAN_OUTPUT: json.loads((folder / "plan.json").read_text(encoding="utf-8"))}
+    plan = services.store.read_bytes(result_key(job_id, "plan.json"))
+    document: dict[str, dict[str, Any]] = {PLAN_OUTPUT: json.loads(plan.decode("utf-8"))}
     for name, meta in sorted(job.outputs.items()):
         document[name] = OutputRef(href=f"/jobs/{job_id}/results/{name}",
                                    type=media_type(name), bytes=meta["bytes"],
@@ -135,12 +133,20 @@ def get_output(job_id: str, output: str, request: Request, services: ServicesDep
         raise ResultNotReadyError(f"job {job_id} is {job.status}; results come once it is "
                                   "successful")
     meta = job.outputs.get(output)
-    path = results_dir(services.settings, job_id) / output
-    if meta is None or not path.is_file():
-        raise ResultNotReadyError(
-            f"job {job_id} has no output {output!r}; it has {', '.join(sorted(job.outputs))}")
+    if meta is None:
+        raise _no_output(job, output)
     etag = f'"{meta["sha256"]}"'
     if etag in [t.strip() for t in request.headers.get("if-none-match", "").split(",")]:
         return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers={"ETag": etag})
-    return FileResponse(path, media_type=media_type(output), headers={"ETag": etag},
-                        content_disposition_type="inline", filename=output)
+    answer = services.store.response(
+        result_key(job_id, output), media_type=media_type(output), etag=etag, filename=output,
+        disposition="inline", request_headers=dict(request.headers),
+        head=request.method == "HEAD")
+    if answer is None:
+        raise _no_output(job, output)
+    return answer
+
+
+def _no_output(job: JobRecord, output: str) -> ResultNotReadyError:
+    return ResultNotReadyError(f"job {job.id} has no output {output!r}; it has "
+                               f"{', '.join(sorted(job.outputs or {}))}")
