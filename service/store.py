@@ -91,8 +91,7 @@ class ObjectStore(Protocol):
         """The whole object (a small one). Raises FileNotFoundError."""
 
     def response(self, key: str, *, media_type: str, etag: str, filename: str,
-                 disposition: str, request_headers: dict[str, str],
-                 head: bool = False) -> Response | None:
+                 disposition: str, request_headers: dict[str, str]) -> Response | None:
         """The object as an HTTP response with ``ETag`` and Range support; None if absent."""
 
     def delete_prefix(self, prefix: str) -> None:
@@ -130,6 +129,7 @@ class LocalStore:
 
     def publish_folder(self, folder: Path, prefix: str) -> None:
         final = self._path(prefix)
+        final.parent.mkdir(parents=True, exist_ok=True)
         if final.exists():  # left by an earlier attempt that could not finish
             shutil.rmtree(final)
         folder.rename(final)
@@ -144,12 +144,11 @@ class LocalStore:
         return self._path(key).read_bytes()
 
     def response(self, key: str, *, media_type: str, etag: str, filename: str,
-                 disposition: str, request_headers: dict[str, str],
-                 head: bool = False) -> Response | None:
+                 disposition: str, request_headers: dict[str, str]) -> Response | None:
         path = self._path(key)
         if not path.is_file():
             return None
-        # Starlette serves ranges (and HEAD) itself, with sendfile where it can
+        # Starlette serves ranges itself, with sendfile where it can
         return FileResponse(path, media_type=media_type, headers={"ETag": etag},
                             content_disposition_type=disposition, filename=filename)
 
@@ -219,8 +218,7 @@ class S3Store:
             return body.read()
 
     def response(self, key: str, *, media_type: str, etag: str, filename: str,
-                 disposition: str, request_headers: dict[str, str],
-                 head: bool = False) -> Response | None:
+                 disposition: str, request_headers: dict[str, str]) -> Response | None:
         """The object streamed from the store; one range is forwarded to the store."""
         headers = {"ETag": etag, "Accept-Ranges": "bytes",
                    "Content-Disposition": content_disposition(disposition, filename)}
@@ -229,10 +227,6 @@ class S3Store:
         if not _SINGLE_RANGE.fullmatch(wanted) or (if_range is not None and if_range != etag):
             wanted = ""
         try:
-            if head:
-                meta = self.client.head_object(Bucket=self.bucket, Key=self._key(key))
-                headers["Content-Length"] = str(meta["ContentLength"])
-                return Response(status_code=200, headers=headers, media_type=media_type)
             if wanted:
                 answer = self.client.get_object(Bucket=self.bucket, Key=self._key(key),
                                                 Range=wanted)

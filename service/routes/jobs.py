@@ -140,8 +140,7 @@ def get_output(job_id: str, output: str, request: Request, services: ServicesDep
         return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers={"ETag": etag})
     answer = services.store.response(
         result_key(job_id, output), media_type=media_type(output), etag=etag, filename=output,
-        disposition="inline", request_headers=dict(request.headers),
-        head=request.method == "HEAD")
+        disposition="inline", request_headers=dict(request.headers))
     if answer is None:
         raise _no_output(job, output)
     return answer

@@ -120,8 +120,7 @@ def get_mesh_content(mesh_id: str, request: Request, services: ServicesDep,
     answer = services.store.response(
         mesh_key(record.id, record.format), media_type="application/octet-stream",
         etag=f'"{record.id}"', filename=record.filename or f"mesh.{record.format}",
-        disposition="attachment", request_headers=dict(request.headers),
-        head=request.method == "HEAD")
+        disposition="attachment", request_headers=dict(request.headers))
     if answer is None:
         raise _not_found(mesh_id)
     return answer
