@@ -75,12 +75,6 @@ def build_context(settings: Settings, queue: JobQueue) -> WorkerContext:
     return WorkerContext(settings, JobStore(engine), meshes, queue)
 
 
-def results_dir(settings: Settings, job_id: str) -> Path:
-    """Where the outputs of ``job_id`` live once it succeeded, in the embedded store (the
-    data directory; with ``SCANPLAN_STORE_URL`` they are at ``results_prefix`` in S3)."""
-    return settings.data_dir / "jobs" / job_id
-
-
 @dataclass
 class ProgressReporter:
     """The planner's progress callback: writes progress, returns True once cancelled."""
