@@ -43,7 +43,9 @@ class Settings(BaseSettings):
 
     host: str = Field(default="127.0.0.1", description="address the API binds to")
     port: int = Field(default=8000, ge=0, le=65535, description="TCP port of the API")
-    data_dir: Path = Field(default=Path("data"), description="meshes, results, SQLite files")
+    data_dir: Path = Field(default=Path("data"),
+                           description="meshes, results, SQLite files (scratch only with "
+                                       "store_url)")
     workers: int = Field(default_factory=_cores, ge=0,
                          description="worker processes (default: the number of cores)")
     database_url: str | None = Field(
