@@ -8,6 +8,7 @@ from typing import Annotated
 from fastapi import Depends, Header, Request
 
 from service.auth import KeyRing
+from service.callbacks import CallbackStore
 from service.config import Settings
 from service.job_store import JobStore
 from service.mesh_store import MeshStore
@@ -23,6 +24,7 @@ class Services:
     meshes: MeshStore
     queue: JobQueue
     keys: KeyRing
+    callbacks: CallbackStore
 
 
 # both dependencies are async although they never wait: FastAPI runs a plain ``def``
