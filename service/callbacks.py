@@ -62,6 +62,7 @@ from sqlalchemy import (
     Text,
     and_,
     delete,
+    exists,
     insert,
     or_,
     select,
@@ -83,6 +84,8 @@ PENDING, SENDING, DELIVERED, GAVE_UP, SUPERSEDED = (
     "pending", "sending", "delivered", "failed", "superseded")
 HISTORY_KEPT = 20  # attempts remembered per delivery (the count is kept in full)
 RETRY_CAP_S = 300.0  # longest wait between two attempts
+ERROR_BYTES = 200  # of a failed answer's body, kept as its error
+PURGE_INTERVAL_S = 60.0  # how often the rows of deleted jobs are dropped
 
 Address = ipaddress.IPv4Address | ipaddress.IPv6Address
 Network = ipaddress.IPv4Network | ipaddress.IPv6Network
@@ -328,6 +331,14 @@ class CallbackStore:
             conn.execute(delete(deliveries).where(deliveries.c.job_id == job_id,
                                                   deliveries.c.state != SENDING))
 
+    def purge_deleted(self) -> None:
+        """Drop the rows of jobs no longer in the job table (deleted once finished)."""
+        with self.engine.begin() as conn:
+            for table in (subscriptions, deliveries):
+                gone = ~exists(select(jobs.c.id).where(jobs.c.id == table.c.job_id))
+                where = [gone, deliveries.c.state != SENDING] if table is deliveries else [gone]
+                conn.execute(delete(table).where(*where))
+
     def claim_due(self, now: float, limit: int, lease_s: float) -> list[Delivery]:
         """Up to ``limit`` deliveries due now (or whose sender died), claimed for
         ``lease_s`` seconds."""
@@ -530,17 +541,23 @@ class CallbackDispatcher:
         extensions = {"sni_hostname": target.host} if url.scheme == "https" else {}
         for ip in target.addresses:
             attempt["address"] = str(ip)
+            request = self._client.build_request(
+                "POST", url.copy_with(host=str(ip)), content=delivery.body, headers=headers,
+                extensions=extensions)
             try:
-                response = self._client.post(url.copy_with(host=str(ip)), content=delivery.body,
-                                             headers=headers, extensions=extensions)
+                # streamed: of the answer only the status and a few bytes of an error are read
+                response = self._client.send(request, stream=True)
             except httpx.ConnectError as exc:
                 attempt["error"] = f"cannot connect to {ip}: {exc}"
                 continue  # the next address the name resolved to
             except httpx.HTTPError as exc:
                 attempt["error"] = f"{type(exc).__name__}: {exc}"
                 return attempt
-            attempt["status_code"] = response.status_code
-            attempt["error"] = None if response.is_success else _response_error(response)
+            try:
+                attempt["status_code"] = response.status_code
+                attempt["error"] = None if response.is_success else _response_error(response)
+            finally:
+                response.close()
             return attempt
         return attempt
 
@@ -563,18 +580,31 @@ class CallbackDispatcher:
         self._client.close()
 
     def _loop(self) -> None:
+        purged = 0.0
         while not self._stop.wait(self.settings.callback_poll_interval_s):
             try:
                 self.run_once()
+                if time.monotonic() - purged > PURGE_INTERVAL_S:
+                    self.store.purge_deleted()
+                    purged = time.monotonic()
             except Exception:  # the database may be briefly away: try again next time
                 log.exception("callback pass failed")
 
 
 def _response_error(response: httpx.Response) -> str:
+    """What a non-2xx answer said: its status and the start of its body."""
     if response.is_redirect:
         return (f"HTTP {response.status_code} redirect to "
-                f"{response.headers.get('location', '?')!r}: redirects are not followed")
-    return f"HTTP {response.status_code}: {response.text[:200]}"
+                f"{response.headers.get('location', '?')[:200]!r}: redirects are not followed")
+    start = b""
+    try:
+        for chunk in response.iter_raw(ERROR_BYTES):
+            start = chunk[:ERROR_BYTES]
+            break
+    except httpx.HTTPError:
+        pass
+    text = start.decode("utf-8", "replace").strip()
+    return f"HTTP {response.status_code}" + (f": {text}" if text else "")
 
 
 def check_subscriber(settings: Settings, subscriber: dict[str, Any]) -> dict[str, str | None]:

@@ -196,6 +196,12 @@ def test_failure_is_posted_with_its_problem_and_retried(
         assert [a["status_code"] for a in delivery["history"]] == [503, 204]
         assert delivery["history"][0]["error"].startswith("HTTP 503")
 
+        # deleting the finished job drops its callback records with it
+        assert client.delete(f"/jobs/{job_id}").status_code == 200
+        store: CallbackStore = client.app.state.services.callbacks  # type: ignore[attr-defined]
+        store.purge_deleted()
+        assert store.deliveries_of(job_id) == [] and store.subscription(job_id) is None
+
 
 REFUSED = ["http://10.0.0.1/hook", "http://localhost/hook", "http://127.0.0.1:9/hook",
            "http://[::1]/hook", "http://169.254.169.254/latest/meta-data/",
