@@ -5,9 +5,9 @@ See :mod:`service.callbacks` for how deliveries are queued, signed and retried.
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Header
 from pydantic import BaseModel, Field
 
 from service.callbacks import URI_FIELDS
@@ -15,7 +15,7 @@ from service.deps import OwnerDep, ServicesDep
 from service.job_store import SUCCESSFUL, JobRecord
 from service.problems import NoSuchJobError, problem_responses
 from service.routes.jobs import media_type, status_info
-from service.schemas import Link
+from service.schemas import Link, StatusInfo
 
 router = APIRouter(prefix="/jobs", tags=["jobs"], responses=problem_responses(401, 404, 422,
                                                                               500))
@@ -80,3 +80,37 @@ def get_callbacks(job_id: str, services: ServicesDep, owner: OwnerDep) -> Callba
     deliveries = [CallbackDelivery.model_validate(d)
                   for d in services.callbacks.deliveries_of(job_id)]
     return CallbackRecord(subscriber=subscriber, deliveries=deliveries)
+
+
+# the callbacks as OpenAPI describes them on the execute operation (never routes of the app)
+callback_router = APIRouter()
+_SIGNATURE_DOC = ("sha256=<hex HMAC-SHA256 of the raw body keyed with "
+                  "SCANPLAN_CALLBACK_SECRET>; check it before parsing")
+
+
+def _described(event: str, expression: str, summary: str) -> None:
+    def receive(
+        body: StatusInfo,
+        x_scanplan_signature: Annotated[str, Header(description=_SIGNATURE_DOC)],
+        x_scanplan_event: Annotated[Literal["inProgress", "success", "failed"],
+                                    Header(description="which URI of the subscriber")],
+        x_scanplan_delivery: Annotated[str, Header(
+            description="the same on every retry of one callback")],
+        x_scanplan_job: Annotated[str, Header(description="the job's id")],
+    ) -> None:
+        """Documentation only: what the receiver gets."""
+
+    callback_router.add_api_route(
+        expression, receive, methods=["POST"], name=f"{event}_callback", summary=summary,
+        status_code=204, description="Any 2xx counts as delivered.",
+        responses={"default": {"description": "any other answer, a redirect included (never "
+                                              "followed): tried again with backoff, up to "
+                                              "SCANPLAN_CALLBACK_MAX_ATTEMPTS times"}})
+
+
+_described("success", "{$request.body#/subscriber/successUri}",
+           "the status document of the successful job, with a link to every output")
+_described("in_progress", "{$request.body#/subscriber/inProgressUri}",
+           "the status document when the status or stage changed")
+_described("failed", "{$request.body#/subscriber/failedUri}",
+           "the status document of the failed job, with its problem")

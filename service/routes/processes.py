@@ -23,6 +23,7 @@ from service.problems import (
     NotFoundError,
     problem_responses,
 )
+from service.routes.callbacks import callback_router
 from service.routes.jobs import PLAN_OUTPUT, media_type, status_info
 from service.schemas import ExecuteRequest, PlanParameters, StatusInfo
 
@@ -106,7 +107,8 @@ def _check_process(process_id: str) -> None:
              response_model=StatusInfo,
              responses={201: {"links": _JOB_LINKS},
                         200: {"model": StatusInfo, "description": "Idempotency-Key replay"},
-                        **problem_responses(400, 413)})
+                        **problem_responses(400, 413)},
+             callbacks=callback_router.routes)
 async def execute(
     process_id: ProcessIdPath, body: ExecuteRequest, request: Request, response: Response,
     services: ServicesDep, owner: OwnerDep,
