@@ -36,6 +36,7 @@ CALLBACK_SETTINGS: dict[str, Any] = {
     "callback_secret": SECRET, "callback_allow": ["127.0.0.0/8"],
     "callback_poll_interval_s": 0.05, "callback_progress_interval_s": 0.3,
     "callback_retry_base_s": 0.1, "callback_timeout_s": 5.0,
+    "worker_nice": 0,  # the plan need not yield to the API here
 }
 
 
