@@ -7,11 +7,12 @@ overrides the environment, which overrides the defaults.
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import os
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 LOOPBACK_HOSTS = ("127.0.0.1", "::1", "localhost")
@@ -97,8 +98,25 @@ class Settings(BaseSettings):
         default=2e11, gt=0, description="refuse plans above this many candidate x face pairs")
     max_request_bytes: int = Field(default=8 * 1024 * 1024, gt=0,
                                    description="largest JSON request body (not uploads)")
+    # callbacks (service/callbacks.py)
+    callback_secret: SecretStr | None = Field(
+        default=None, description="HMAC-SHA256 key of X-Scanplan-Signature; unset: execute "
+                                  "requests with a subscriber are refused")
+    callback_allow: Annotated[list[str], NoDecode] = Field(
+        default_factory=list, description="comma-separated CIDRs callbacks may reach besides "
+                                          "public addresses (e.g. 10.0.0.0/8)")
+    callback_progress_interval_s: float = Field(
+        default=5.0, ge=0, description="least time between two inProgress callbacks of a job")
+    callback_timeout_s: float = Field(default=10.0, gt=0, description="timeout of one POST")
+    callback_max_attempts: int = Field(default=8, ge=1,
+                                       description="POSTs of one callback before giving up")
+    callback_retry_base_s: float = Field(
+        default=5.0, gt=0, description="wait after the first failed POST; doubles each time, "
+                                       "at most 300 s")
+    callback_poll_interval_s: float = Field(
+        default=1.0, gt=0, description="how often the API looks for job changes to announce")
 
-    @field_validator("api_keys", mode="before")
+    @field_validator("api_keys", "callback_allow", mode="before")
     @classmethod
     def _split_keys(cls, value: object) -> object:
         if isinstance(value, str):
@@ -113,6 +131,16 @@ class Settings(BaseSettings):
 
             parse_store_url(value)  # ValueError naming the expected form
         return value or None
+    @field_validator("callback_allow")
+    @classmethod
+    def _check_networks(cls, value: list[str]) -> list[str]:
+        for cidr in value:
+            try:
+                ipaddress.ip_network(cidr, strict=False)
+            except ValueError as exc:
+                raise ValueError(f"SCANPLAN_CALLBACK_ALLOW: {cidr!r} is not a network "
+                                 "(write 10.0.0.0/8 or 127.0.0.1)") from exc
+        return value
 
     @property
     def auth_enabled(self) -> bool:

@@ -8,6 +8,7 @@ from typing import Annotated
 from fastapi import Depends, Header, Request
 
 from service.auth import KeyRing
+from service.callbacks import CallbackStore
 from service.config import Settings
 from service.job_store import JobStore
 from service.mesh_store import MeshStore
@@ -24,6 +25,7 @@ class Services:
     meshes: MeshStore
     queue: JobQueue
     keys: KeyRing
+    callbacks: CallbackStore
 
     @property
     def store(self) -> ObjectStore:

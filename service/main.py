@@ -26,6 +26,7 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from planner.errors import ParameterError, PlannerError
 from planner.parameters import GROUP_RANGES, RANGES, check_range
 from service.auth import KeyRing
+from service.callbacks import CallbackDispatcher, CallbackStore
 from service.config import Settings
 from service.database import make_engine
 from service.deps import Services
@@ -40,7 +41,8 @@ from service.problems import (
     problem_for,
 )
 from service.queue import HueyQueue, JobQueue, make_huey
-from service.routes import health, jobs, landing, meshes, processes
+from service.routes import callbacks, health, jobs, landing, meshes, processes
+from service.routes.callbacks import callback_document
 from service.store import open_store
 from service.worker import Reaper
 
@@ -75,9 +77,12 @@ def create_app(settings: Settings | None = None, *, queue: JobQueue | None = Non
             if requeued:
                 log.info("re-enqueued %d accepted job(s) from before the start", requeued)
             keeper.start()
+        dispatcher = CallbackDispatcher(services.callbacks, settings, callback_document)
+        dispatcher.start()
         try:
             yield
         finally:
+            dispatcher.stop()
             if keeper is not None:
                 keeper.stop()
             services.jobs.engine.dispose()
@@ -88,7 +93,7 @@ def create_app(settings: Settings | None = None, *, queue: JobQueue | None = Non
     _add_problem_component(app)
     app.add_middleware(RequestSizeLimit, max_bytes=settings.max_request_bytes)
     _add_problem_handlers(app)
-    for module in (landing, meshes, processes, jobs, health):
+    for module in (landing, meshes, processes, jobs, callbacks, health):
         app.include_router(module.router)
     _add_pages(app)
     return app
@@ -143,6 +148,7 @@ def open_services(settings: Settings, queue: JobQueue | None = None) -> Services
                          open_store(settings)),
         queue=queue or HueyQueue(make_huey(settings)),
         keys=KeyRing.from_settings(settings.api_keys),
+        callbacks=CallbackStore(engine),
     )
 
 

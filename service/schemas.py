@@ -138,6 +138,28 @@ class ExecuteInputs(BaseModel):
     parameters: PlanParameters = Field(default_factory=PlanParameters)
 
 
+class Subscriber(BaseModel):
+    """OGC ``subscriber``: where the job's status document is POSTed (callbacks).
+
+    http(s) only, to a public address unless the operator allows more
+    (``SCANPLAN_CALLBACK_ALLOW``); each POST is signed (``X-Scanplan-Signature``).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    successUri: str = Field(  # noqa: N815 - OGC's name
+        ..., min_length=1, max_length=2048, json_schema_extra={"format": "uri"},
+        description="gets the status document with a link to every output once the job "
+                    "succeeded")
+    inProgressUri: str | None = Field(  # noqa: N815
+        default=None, min_length=1, max_length=2048, json_schema_extra={"format": "uri"},
+        description="gets the status document when the status or stage changes (at most "
+                    "one every few seconds, SCANPLAN_CALLBACK_PROGRESS_INTERVAL_S)")
+    failedUri: str | None = Field(  # noqa: N815
+        default=None, min_length=1, max_length=2048, json_schema_extra={"format": "uri"},
+        description="gets the status document with the problem once the job failed")
+
+
 class ExecuteRequest(BaseModel):
     """``POST /processes/scan-plan/execution`` body (OGC API - Processes ``execute.yaml``).
 
@@ -152,6 +174,8 @@ class ExecuteRequest(BaseModel):
         default=None, description="OGC: outputs wanted; every output is kept")
     response: Literal["raw", "document"] = Field(
         default="document", description="OGC: results as a document (the only form here)")
+    subscriber: Subscriber | None = Field(
+        default=None, description="OGC callbacks: URIs the status document is POSTed to")
 
 
 class Link(BaseModel):
