@@ -20,6 +20,8 @@ Reading (:func:`read_ifc`)
   aggregates; "" for the site), and its group is the element's IFC class, except glazing.
 - Triangulation uses IfcOpenShell's hybrid CGAL/OpenCASCADE kernel when it has one, on one
   thread (see ``_GEOMETRY_LIBRARY``).
+- ``metadata["source_path"]`` and ``metadata["source_sha256"]`` name the file read, for
+  ``plan.ifc`` (:mod:`planner.outputs.ifc_plan`), which is this file with the plan added.
 
 Glass
 -----

@@ -27,6 +27,7 @@ that owner history names the application ``scanplan``.
 from __future__ import annotations
 
 import hashlib
+import importlib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -101,9 +102,11 @@ class _Writer:
         self.station_entities: dict[int, int] = {}  # STEP id -> station id
 
     def api(self, call: str, **arguments: Any) -> Any:
-        import ifcopenshell.api
-
-        return ifcopenshell.api.run(call, self.model, **arguments)
+        """``ifcopenshell.api.<module>.<function>(model, **arguments)`` for ``call`` =
+        ``"<module>.<function>"``."""
+        module, function = call.split(".")
+        api_module = importlib.import_module(f"ifcopenshell.api.{module}")
+        return getattr(api_module, function)(self.model, **arguments)
 
     def length(self, metres: float) -> Any:
         return self.model.create_entity("IfcLengthMeasure", metres / self.length_scale)
@@ -213,9 +216,9 @@ class _Writer:
             storey = _by_guid(self.model, station.storey_global_id)
             if storey is not None:
                 return storey
-        for ifc_class in ("IfcBuildingStorey", "IfcBuilding", "IfcSite"):
+        for ifc_class in ("IfcBuilding", "IfcSite"):
             found = sorted(self.model.by_type(ifc_class), key=lambda e: e.id())
-            if found and ifc_class != "IfcBuildingStorey":
+            if found:
                 return found[0]
         return None
 
