@@ -21,7 +21,8 @@ Reading (:func:`read_ifc`)
 - Triangulation uses IfcOpenShell's hybrid CGAL/OpenCASCADE kernel when it has one, on one
   thread (see ``_GEOMETRY_LIBRARY``).
 - ``metadata["source_path"]`` and ``metadata["source_sha256"]`` name the file read, for
-  ``plan.ifc`` (:mod:`planner.outputs.ifc_plan`), which is this file with the plan added.
+  ``plan.ifc`` (:mod:`planner.outputs.ifc_plan`), which is this file with the plan added;
+  ``metadata["project_global_id"]`` is its IfcProject's, which ``plan.bcf`` refers to.
 
 Glass
 -----
@@ -143,6 +144,8 @@ def read_ifc(path: str | Path) -> Scene:
     # plan.ifc is this file with the plan added (planner.outputs.ifc_plan)
     scene.metadata["source_path"] = str(path.resolve())
     scene.metadata["source_sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    projects = model.by_type("IfcProject")
+    scene.metadata["project_global_id"] = str(projects[0].GlobalId) if projects else ""
     return scene
 
 

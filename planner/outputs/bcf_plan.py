@@ -6,7 +6,8 @@ xsdata); the zip is assembled here so that its entries carry a fixed date. Conte
 
 - ``bcf.version`` (3.0), ``project.bcfp`` (the project id is the plan's UUID namespace,
   see :mod:`planner.outputs.stations`), ``extensions.xml`` (the topic types, statuses and
-  labels used);
+  labels used); for an IFC model each topic's header names ``plan.ifc`` and its
+  IfcProject;
 - one topic per station (type :data:`STATION_TYPE`, title ``Station <id>``, its visit,
   storey, room, areas and registration neighbours in the description) with one
   perspective viewpoint: the eye at the station, i.e. the scanner's axis at instrument
@@ -31,7 +32,6 @@ from __future__ import annotations
 import io
 import re
 import zipfile
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -48,6 +48,7 @@ UNCOVERABLE_TYPE = "Not coverable"
 STATUS = "Open"
 AUTHOR = "scanplan"
 LABEL = "scanplan"
+PROJECT_NAME = "scanplan plan"
 FIELD_OF_VIEW_DEG = 60.0  # vertical, a normal lens; BCF allows (0, 180)
 ASPECT_RATIO = 16 / 9
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # the earliest a zip entry can carry
@@ -65,12 +66,16 @@ def plan_bcf(result: PlanResult) -> bytes:
     space = station_facts.namespace(result)
     date = XmlDateTime.from_datetime(station_facts.FIXED_EPOCH)
     is_ifc = result.scene.metadata.get("format") == "ifc"
-    source = result.scene.metadata.get("source_path")
-    project_name = Path(str(source)).name if source else "scanplan plan"
+    header = None
+    project = str(result.scene.metadata.get("project_global_id", ""))
+    if is_ifc and _IFC_GUID.fullmatch(project):  # the topics are about plan.ifc
+        header = bcf.Header(files=bcf.HeaderFiles(file=[bcf.File(
+            ifc_project=project, filename="plan.ifc", reference="plan.ifc", is_external=True,
+            date=date)]))
     files: list[tuple[str, str]] = [
         ("bcf.version", xml.serialize(bcf.Version(version_id="3.0"))),
         ("project.bcfp", xml.serialize(bcf.ProjectInfo(
-            project=bcf.Project(name=project_name, project_id=str(space))))),
+            project=bcf.Project(name=PROJECT_NAME, project_id=str(space))))),
         ("extensions.xml", xml.serialize(bcf.Extensions(
             topic_types=bcf.ExtensionsTopicTypes(topic_type=[STATION_TYPE, UNCOVERABLE_TYPE]),
             topic_statuses=bcf.ExtensionsTopicStatuses(topic_status=[STATUS]),
@@ -94,7 +99,7 @@ def plan_bcf(result: PlanResult) -> bytes:
                 camera_direction=bcf.Direction(**_xyz(direction)),
                 camera_up_vector=bcf.Direction(**_xyz(up)),
                 field_of_view=FIELD_OF_VIEW_DEG, aspect_ratio=round(ASPECT_RATIO, _DECIMALS)))
-        markup = bcf.Markup(topic=bcf.Topic(
+        markup = bcf.Markup(header=header, topic=bcf.Topic(
             guid=topic_guid, topic_type=topic_type, topic_status=STATUS, title=title,
             labels=bcf.TopicLabels(label=[LABEL]), creation_date=date,
             creation_author=AUTHOR, description=description,
@@ -103,14 +108,12 @@ def plan_bcf(result: PlanResult) -> bytes:
         files.append((f"{topic_guid}/markup.bcf", xml.serialize(markup)))
         files.append((f"{topic_guid}/viewpoint.bcfv", xml.serialize(viewpoint)))
 
-    import ifcopenshell.guid
-
     for station in station_facts.stations(result):
         component = None
         if is_ifc:  # the station's IfcAnnotation in plan.ifc
-            component = bcf.Component(ifc_guid=ifcopenshell.guid.compress(
-                station_facts.stable_uuid(space, f"station/{station.id}").hex))
-        topic(f"station/{station.id}", f"Station {station.id}", STATION_TYPE,
+            component = bcf.Component(ifc_guid=station_facts.ifc_global_id(
+                space, station_facts.station_name(station.id)))
+        topic(station_facts.station_name(station.id), f"Station {station.id}", STATION_TYPE,
               _station_text(station),
               (np.asarray(station.position_m), np.asarray(station.view_direction),
                np.asarray(station.up)),

@@ -238,8 +238,6 @@ class _Writer:
 
     def fix_identities(self) -> None:
         """Fixed GlobalIds for everything added, one owner history with the fixed date."""
-        import ifcopenshell.guid
-
         model = self.model
         added = [e for e in model if e.id() >= self.first_new_id]
         added.sort(key=lambda e: e.id())
@@ -262,9 +260,9 @@ class _Writer:
                 if history is not None:
                     entity.OwnerHistory = history
                 station = self.station_entities.get(entity.id())
-                name = f"station/{station}" if station is not None else f"entity/{entity.id()}"
-                entity.GlobalId = ifcopenshell.guid.compress(
-                    station_facts.stable_uuid(self.namespace, name).hex)
+                name = (station_facts.station_name(station) if station is not None
+                        else f"entity/{entity.id()}")
+                entity.GlobalId = station_facts.ifc_global_id(self.namespace, name)
         for extra in histories[1:]:
             model.remove(extra)
 

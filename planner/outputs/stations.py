@@ -85,6 +85,18 @@ def stable_uuid(space: uuid.UUID, name: str) -> uuid.UUID:
     return uuid.uuid5(space, name)
 
 
+def ifc_global_id(space: uuid.UUID, name: str) -> str:
+    """The 22-character IFC GlobalId of ``name`` in ``space`` (the UUID compressed)."""
+    import ifcopenshell.guid  # only for IFC models: IfcOpenShell is heavy
+
+    return str(ifcopenshell.guid.compress(stable_uuid(space, name).hex))
+
+
+def station_name(station_id: int) -> str:
+    """A station's name in the plan's namespace."""
+    return f"station/{station_id}"
+
+
 def stations(result: PlanResult) -> list[Station]:
     """The plan's stations in selection order (see :class:`Station`)."""
     chosen = result.chosen

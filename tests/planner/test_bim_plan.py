@@ -284,6 +284,14 @@ def test_plan_bcf_has_a_topic_per_station_with_the_camera_at_it(
     after = ifcopenshell.open(str(written["plan.ifc"]))
     stations = {t.title: (t, v) for t, v in _topics(members) if t.topic_type == STATION_TYPE}
     assert len(stations) == len(document["stations"])
+    from bcf.v3 import model
+    from bcf.xml_parser import XmlParserSerializer
+
+    (project,) = after.by_type("IfcProject")
+    for name in members:
+        if name.endswith("/markup.bcf"):  # every topic is about plan.ifc
+            (file,) = XmlParserSerializer().parse(members[name], model.Markup).header.files.file
+            assert (file.filename, file.ifc_project) == ("plan.ifc", project.GlobalId)
     position = {s["id"]: np.asarray(s["position"]) for s in document["stations"]}
     legs = {leg["from"]: leg for leg in document["route"]["legs"]}
     for station in document["stations"]:
