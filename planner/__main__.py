@@ -66,7 +66,7 @@ def run_plan(args: argparse.Namespace) -> int:
     # ``scanplan --help`` and the service's subcommands do not need
     from planner.io.readers import read_scene
     from planner.method.candidates import read_candidates_csv
-    from planner.outputs.report import write_outputs
+    from planner.outputs.report import absent_outputs, write_outputs
     from planner.pipeline import plan
 
     values = load_params(args.params)
@@ -99,6 +99,8 @@ def run_plan(args: argparse.Namespace) -> int:
             f"candidates in {time.perf_counter() - started:.1f} s; wrote "
             f"{', '.join(p.name for p in written)} to {args.out}"
         )
+        for name, reason in absent_outputs(result).items():
+            print(f"no {name}: {reason}")
     return 0
 
 

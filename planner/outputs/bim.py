@@ -42,6 +42,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from planner.outputs.canonical import canonical_json
+
 if TYPE_CHECKING:
     from planner.pipeline import PlanResult
 
@@ -237,8 +239,6 @@ def elements_json(result: PlanResult) -> bytes | None:
     """``elements.json`` bytes, or None for a scene without elements."""
     if not result.scene.elements:
         return None
-    from planner.outputs.report import canonical_json
-
     return canonical_json(elements_document(result))
 
 

@@ -14,7 +14,10 @@ Outputs of :func:`write_outputs` (the names the service serves too):
   place on the walking route, empty when unreachable);
 - ``candidates.csv``: every candidate considered, ``x,y,z``;
 - ``elements.csv``, ``elements.json``: coverage per BIM element (IFC models only, see
-  :mod:`planner.outputs.bim`); a renderer that returns None writes no file.
+  :mod:`planner.outputs.bim`); a renderer that returns None writes no file;
+- ``plan.ifc`` (IFC models only, :mod:`planner.outputs.ifc_plan`; :func:`absent_outputs`
+  says why it is missing) and ``plan.bcf`` (:mod:`planner.outputs.bcf_plan`): the plan
+  back in the BIM.
 """
 
 from __future__ import annotations
@@ -22,7 +25,6 @@ from __future__ import annotations
 import csv
 import importlib
 import io
-import json
 import os
 import tempfile
 import zipfile
@@ -36,6 +38,7 @@ import numpy as np
 from planner.io.orientation import scene_rotation, to_model
 from planner.method.curve import coverage_curve
 from planner.method.selection import GOAL_SLACK_M2
+from planner.outputs.canonical import canonical_json as canonical_json  # re-exported
 from planner.pipeline import PlanResult
 
 FORMAT_VERSION = 1
@@ -136,12 +139,6 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
     return document
 
 
-def canonical_json(data: Any) -> bytes:
-    """Deterministic JSON bytes: sorted keys, two-space indent, UTF-8, final newline."""
-    return (json.dumps(data, sort_keys=True, indent=2, ensure_ascii=False,
-                       allow_nan=False) + "\n").encode("utf-8")
-
-
 def plan_json(result: PlanResult) -> bytes:
     return canonical_json(plan_document(result))
 
@@ -223,7 +220,17 @@ OUTPUTS: dict[str, Callable[[PlanResult], bytes | None]] = {
     "preview.png": lambda result: _lazy("drawing", "preview_png", result),
     "curve.png": lambda result: _lazy("drawing", "curve_png", result),
     "coverage.glb": lambda result: _lazy("glb", "coverage_glb", result),
+    "plan.ifc": lambda result: _lazy("ifc_plan", "plan_ifc", result),
+    "plan.bcf": lambda result: _lazy("bcf_plan", "plan_bcf", result),
 }
+
+
+def absent_outputs(result: PlanResult) -> dict[str, str]:
+    """Outputs of :data:`OUTPUTS` this plan has none of that a user may look for, with why."""
+    from planner.outputs.ifc_plan import absent_reason
+
+    reason = absent_reason(result)
+    return {} if reason is None else {"plan.ifc": reason}
 
 
 # Pictures: slow to render and not what a BIM platform waits for, so they are drawn in
