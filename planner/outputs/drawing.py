@@ -469,15 +469,23 @@ def _totals(result: PlanResult) -> dict[str, float]:
 def _station_table(fig: Figure, result: PlanResult, top: float) -> None:
     chosen = result.chosen
     max_area = chosen.max_achievable_area_m2
-    rows = ["  no.      x       y       z   new m²  cum. %"]
+    # with a scanner: the setting each station is scanned at and its scan time
+    scans = () if result.survey is None else result.survey.scans
+    rows = ["  no.      x       y       z   new m²  cum. %"
+            + ("  setting      scan" if scans else "")]
     limit = 14
     # the plan view is drawn levelled (up_axis); the table gives the model's coordinates
     positions = to_model(scene_rotation(result.scene.metadata), result.candidates.positions)
     for order, candidate in enumerate(chosen.stations[:limit]):
         x, y, z = positions[candidate]
         fraction = chosen.covered_area_m2[order] / max_area * 100 if max_area else 0.0
-        rows.append(f"{order + 1:5d} {x:7.2f} {y:7.2f} {z:6.2f} {chosen.new_area_m2[order]:8.2f}"
-                    f" {fraction:7.1f}")
+        row = (f"{order + 1:5d} {x:7.2f} {y:7.2f} {z:6.2f} {chosen.new_area_m2[order]:8.2f}"
+               f" {fraction:7.1f}")
+        if scans:
+            scan = scans[order]
+            seconds = "?" if scan.scan_s is None else f"{scan.scan_s:.0f} s"
+            row += f"  {(scan.setting or 'plan step')[:10]:<10} {seconds:>6}"
+        rows.append(row)
     if len(chosen.stations) > limit:
         rows.append(f"  ... {len(chosen.stations) - limit} more in stations.csv")
     fig.text(0.755, top, "Stations (model coordinates, m)", fontsize=8, fontweight="bold",
