@@ -162,7 +162,9 @@ class PlanSpec:
         if values.get("scanner") is not None:
             # the profile fills the defaults; what the caller gave explicitly wins (the
             # step as a pair: point_spacing_m with its reference_distance_m)
-            defaults = plan_defaults(resolve(_scanner(values["scanner"])))
+            scanner = _scanner(values["scanner"])
+            assert scanner is not None
+            defaults = plan_defaults(resolve(scanner))
             if any(values.get(k) is not None for k in ("point_spacing_m", "reference_distance_m")):
                 defaults.pop("point_spacing_m", None)
                 defaults.pop("reference_distance_m", None)

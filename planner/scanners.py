@@ -125,8 +125,8 @@ def presets() -> dict[str, Preset]:
     result: dict[str, Preset] = {}
     for entry in data["scanners"]:
         figures = {k: entry[k] for k in FIGURES if isinstance(entry.get(k), dict)}
-        values = {k: None if v["value"] is None else float(v["value"])
-                  for k, v in figures.items()}
+        values: dict[str, Any] = {k: None if v["value"] is None else float(v["value"])
+                                  for k, v in figures.items()}
         settings = tuple(ScanSetting(**s) for s in entry["settings"]["values"])
         note = {k: v for k, v in entry["settings"].items() if k != "values"}
         keys = {v["source"] for v in figures.values() if v["value"] is not None}
