@@ -243,3 +243,15 @@ def test_without_settings_every_station_uses_the_plans_step(scenes_dir: Path) ->
     assert document["field_time"]["scan_s"] == pytest.approx(one * len(document["stations"]),
                                                              abs=0.1)
     assert document["field_time"]["scanner"] == "riegl-vz-400"
+
+
+def test_preview_lists_each_stations_setting_and_scan_time(hall_full: PlanResult) -> None:
+    from planner.outputs.drawing import draw_preview
+
+    texts = "\n".join(t.get_text() for t in draw_preview(hall_full).figure.texts)
+    table = texts[texts.index("no.      x"):].splitlines()
+    assert table[0].split()[-2:] == ["setting", "scan"]
+    assert hall_full.survey is not None
+    for row, scan in zip(table[1:15], hall_full.survey.scans, strict=False):
+        assert row.split()[-3:] == [*(scan.setting or "").split(), f"{scan.scan_s:.0f}s"]
+    assert "crew scanner: scans" in texts
