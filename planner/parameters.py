@@ -257,17 +257,20 @@ SCANNER_RANGES: dict[str, Range] = {
     "max_range_m": RANGES["dof_max_m"],
     "elevation_min_deg": RANGES["elevation_min_deg"],
     "elevation_max_deg": RANGES["elevation_max_deg"],
-    "measurement_rate_pts_s": Range(gt=0, hint="points recorded per second, e.g. 2000000"),
+    "measurement_rate_pts_s": Range(ge=1, hint="points recorded per second, e.g. 2000000"),
     "setup_time_s": RANGES["setup_time_s"],
-    "overhead_s": Range(ge=0, hint="imaging, tilt and any other constant per scan"),
+    "overhead_s": Range(ge=0, le=86_400, hint="imaging, tilt and any other constant per scan"),
 }
 # ... and of each of its settings (planner.scanners.ScanSetting)
 SETTING_RANGES: dict[str, Range] = {
     "point_spacing_m": RANGES["point_spacing_m"],
     "reference_distance_m": RANGES["reference_distance_m"],
-    "duration_s": Range(gt=0, hint="or leave it out to compute it from measurement_rate_pts_s"),
+    "duration_s": Range(gt=0, le=86_400,
+                        hint="or leave it out to compute it from measurement_rate_pts_s"),
 }
 MAX_SETTINGS = 32
+# the finest angular step a setting may have: 0.01 mm at 10 m, far below any instrument's
+MIN_STEP_RAD = 1e-6
 # the same for the per-group overrides (GroupRequirement)
 GROUP_RANGES: dict[str, Range] = {
     "min_density_pts_m2": RANGES["min_density_pts_m2"],
@@ -472,6 +475,11 @@ def _check_scanner(spec: PlanSpec) -> None:
         for i, setting in enumerate(spec.scanner.settings):
             for key, bounds in SETTING_RANGES.items():
                 check_range(f"scanner.settings[{i}].{key}", getattr(setting, key), bounds)
+            step = setting.angular_step_rad
+            _check(MIN_STEP_RAD <= step < math.pi, f"scanner.settings[{i}].point_spacing_m",
+                   f"{setting.point_spacing_m} m at {setting.reference_distance_m} m is an "
+                   f"angular step of {step:g} rad; a scanner's step lies between "
+                   f"{MIN_STEP_RAD:g} rad (0.01 mm at 10 m) and pi")
         _check(len(spec.scanner.settings) <= MAX_SETTINGS, "scanner.settings",
                f"has {len(spec.scanner.settings)} settings; at most {MAX_SETTINGS}")
         names = [s.name for s in spec.scanner.settings]

@@ -129,13 +129,13 @@ def test_oversized_upload(tmp_path: Path, hall_bytes: bytes) -> None:
     ({"scanner": 42}, "scanner", "preset id or an object"),
     ({"scanner": "leica-x"}, "scanner", "not a known preset"),
     ({"scanner": {"name": "x", "measurement_rate_pts_s": 0}}, "scanner.measurement_rate_pts_s",
-     "greater than 0"),
-    ({"scanner": {"name": "x", "overhead_s": -3}}, "scanner.overhead_s", "negative"),
+     "1 or more"),
+    ({"scanner": {"name": "x", "overhead_s": -3}}, "scanner.overhead_s", "in [0, 86400]"),
     ({"scanner": {"name": "x", "settings": [{"name": "a", "point_spacing_m": 0.01}]}},
      "scanner.settings.0.reference_distance_m", "required"),
     ({"scanner": {"name": "x", "settings": [
         {"name": "a", "point_spacing_m": 0.01, "reference_distance_m": 10, "duration_s": 0}]}},
-     "scanner.settings.0.duration_s", "greater than 0"),
+     "scanner.settings.0.duration_s", "in (0, 86400]"),
     ({"scanner": {"name": "x", "min_range_m": 4, "max_range_m": 2}}, "scanner.min_range_m",
      "less than scanner.max_range_m"),
 ])
@@ -244,7 +244,7 @@ def test_process_lists_the_scanner_presets(client: TestClient) -> None:
     profile = schema["$defs"]["ScannerProfileModel"]["properties"]
     assert {"name", "measurement_rate_pts_s", "settings", "overhead_s"} <= set(profile)
     rate = next(s for s in profile["measurement_rate_pts_s"]["anyOf"] if s["type"] == "number")
-    assert rate["exclusiveMinimum"] == 0
+    assert rate["minimum"] == 1
 
 
 def test_a_scanner_object_is_accepted(client: TestClient, hall_bytes: bytes) -> None:
