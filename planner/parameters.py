@@ -22,8 +22,10 @@ from planner.errors import ParameterError
 from planner.scanners import (
     PROFILE_FIELDS,
     SETTING_FIELDS,
+    STEP_TOLERANCE,
     ScannerProfile,
     ScanSetting,
+    fallback_step,
     plan_defaults,
     preset,
     resolve,
@@ -160,14 +162,19 @@ class PlanSpec:
                 unknown[0], f"unknown parameter; known ones are {', '.join(sorted(known))}"
             )
         if values.get("scanner") is not None:
-            # the profile fills the defaults; what the caller gave explicitly wins (the
-            # step as a pair: point_spacing_m with its reference_distance_m)
+            # the profile fills the defaults; what the caller gave explicitly wins. The
+            # step stays the plan's (given as a pair: point_spacing_m with its
+            # reference_distance_m, else the default) unless no setting is that fine
             scanner = _scanner(values["scanner"])
             assert scanner is not None
-            defaults = plan_defaults(resolve(scanner))
-            if any(values.get(k) is not None for k in ("point_spacing_m", "reference_distance_m")):
-                defaults.pop("point_spacing_m", None)
-                defaults.pop("reference_distance_m", None)
+            profile = resolve(scanner)
+            defaults: dict[str, float] = plan_defaults(profile)
+            finest = None if any(values.get(k) is not None for k in (
+                "point_spacing_m", "reference_distance_m")) else fallback_step(
+                profile, DEFAULT_ANGULAR_STEP_RAD)
+            if finest is not None:
+                defaults["point_spacing_m"] = finest.point_spacing_m
+                defaults["reference_distance_m"] = finest.reference_distance_m
             values = {**defaults, **{k: v for k, v in values.items()
                                      if v is not None or k in _NULLABLE}}
         kwargs: dict[str, Any] = {}
@@ -191,6 +198,10 @@ class PlanSpec:
                 list(p) if isinstance(p, tuple) else p for p in value
             ]
         return data
+
+
+# the paper's step (Table 2: 10 mm at 10 m); a scanner keeps it unless no setting is as fine
+DEFAULT_ANGULAR_STEP_RAD = PlanSpec.point_spacing_m / PlanSpec.reference_distance_m
 
 
 @dataclass(frozen=True)
@@ -495,11 +506,13 @@ def _check_scanner(spec: PlanSpec) -> None:
     if finest is not None:
         # every station must be scannable at some setting: the plan's promise may not need
         # a finer step than the finest the instrument has
-        _check(spec.angular_step_rad >= finest.angular_step_rad * (1 - 1e-9), "point_spacing_m",
+        _check(spec.angular_step_rad >= finest.angular_step_rad * (1 - STEP_TOLERANCE),
+               "point_spacing_m",
                f"{spec.point_spacing_m} m at {spec.reference_distance_m} m is finer than the "
                f"finest setting of scanner {profile.name!r} ({finest.name}: "
-               f"{finest.point_spacing_m} m at {finest.reference_distance_m} m); leave "
-               "point_spacing_m out to plan at the finest setting, or give a coarser one")
+               f"{finest.point_spacing_m} m at {finest.reference_distance_m} m); give a "
+               "coarser one, or leave point_spacing_m and reference_distance_m out (the plan "
+               "then keeps 0.01 m at 10 m, or the finest setting when none is that fine)")
 
 
 def _check(ok: bool, name: str, message: str) -> None:

@@ -39,6 +39,8 @@ from planner.errors import ParameterError
 # a setting qualifies when its density reaches the requirement within this share: the
 # densities a plan keeps are float32 (6e-8 relative), and no crew measures a density closer
 DENSITY_TOLERANCE = 1e-6
+# two angular steps within this share are the same step (a spacing at another distance)
+STEP_TOLERANCE = 1e-9
 
 
 @dataclass(frozen=True)
@@ -167,20 +169,43 @@ def resolve(scanner: str | ScannerProfile) -> ScannerProfile:
 def plan_defaults(profile: ScannerProfile) -> dict[str, float]:
     """The plan parameters the profile sets, by their PlanSpec names.
 
-    The finest setting sets ``point_spacing_m`` and ``reference_distance_m``: the plan
-    promises what the instrument can deliver, and each station is then scanned at the
-    coarsest setting that still delivers its share (:func:`coarsest_setting`).
+    The plan's step (``point_spacing_m`` at ``reference_distance_m``) is not among them: it
+    stays the plan's own, and each station is scanned at the coarsest setting that still
+    delivers its share (:func:`coarsest_setting`); see :func:`fallback_step` for the one
+    exception.
     """
     values: dict[str, float] = {}
     for figure, parameter in PLAN_PARAMETER_OF.items():
         value = getattr(profile, figure)
         if value is not None:
             values[parameter] = value
-    finest = profile.finest()
-    if finest is not None:
-        values["point_spacing_m"] = finest.point_spacing_m
-        values["reference_distance_m"] = finest.reference_distance_m
     return values
+
+
+def fallback_step(profile: ScannerProfile, plan_step_rad: float) -> ScanSetting | None:
+    """The setting whose step the plan takes instead of its default ``plan_step_rad``.
+
+    A plan promises coverage at its step, and a station keeps that coverage under a
+    setting at least as fine. When every setting is coarser than the default step, none
+    could keep it: the plan then promises what the instrument delivers, the finest
+    setting's step. None when some setting is at least as fine (or there are none).
+    """
+    finest = profile.finest()
+    if finest is None or finest.angular_step_rad <= plan_step_rad * (1 + STEP_TOLERANCE):
+        return None
+    return finest
+
+
+def step_note(profile: ScannerProfile, plan_step_rad: float, default_step_rad: float
+              ) -> str | None:
+    """Why the plan's step is not the default one (:func:`fallback_step`), or None."""
+    finest = fallback_step(profile, default_step_rad)
+    if finest is None or not math.isclose(finest.angular_step_rad, plan_step_rad,
+                                          rel_tol=STEP_TOLERANCE):
+        return None
+    return (f"no setting of {profile.name} is as fine as the default step "
+            f"({default_step_rad * 10:g} m at 10 m), so the plan's step is its finest setting, "
+            f"{finest.name} ({finest.point_spacing_m:g} m at {finest.reference_distance_m:g} m)")
 
 
 def full_dome_points(angular_step_rad: float, elevation_min_deg: float,
@@ -211,8 +236,10 @@ def coarsest_setting(profile: ScannerProfile, plan_step_rad: float, density_marg
     ``density_margin``: the least ratio, over the faces the station is credited with, of
     their density at the plan's step ``plan_step_rad`` to their requirement (inf: no face
     needs a density). The density LPD = sin(alpha) / (SPS d)² scales with 1 / SPS², so a
-    setting qualifies when margin · (plan step / its step)² >= 1. None without settings;
-    the finest setting when none qualifies (a margin rounded a hair under 1).
+    setting qualifies when margin · (plan step / its step)² >= 1. Settings finer than the
+    plan's step qualify too: a station whose faces need the plan's full step gets the
+    coarsest setting at least that fine. None without settings; the finest setting when
+    none qualifies (a margin rounded a hair under 1 with every setting coarser).
     """
     if not profile.settings:
         return None

@@ -115,8 +115,9 @@ class ScannerProfileModel(BaseModel):
         SCANNER_RANGES["measurement_rate_pts_s"])
     settings: list[ScanSettingModel] = Field(
         default_factory=list, max_length=MAX_SETTINGS,
-        description="angular steps offered; the finest sets point_spacing_m, each station is "
-                    "scanned at the coarsest that still qualifies its faces")
+        description="angular steps offered; each station is scanned at the coarsest that "
+                    "still qualifies its faces at the plan's point_spacing_m (kept, unless no "
+                    "setting is as fine as the default: then the finest sets it)")
     setup_time_s: Number | None = _ranged(None, "setup per station, seconds",
                                           SCANNER_RANGES["setup_time_s"])
     overhead_s: Number | None = _ranged(None, "imaging, tilt and any constant per scan, "

@@ -18,8 +18,8 @@ from planner.io.orientation import scene_rotation, to_plan
 from planner.memory import release_freed_memory
 from planner.method.pairs import FaceLimits
 from planner.method.visibility import Occlusion, RayCaster, make_ray_caster
-from planner.parameters import PlanSpec
-from planner.scanners import StationScan, missing_duration_reason, station_scans
+from planner.parameters import DEFAULT_ANGULAR_STEP_RAD, PlanSpec
+from planner.scanners import StationScan, missing_duration_reason, station_scans, step_note
 from planner.scene import Scene
 from planner.survey.registration import (
     OverlapRows,
@@ -41,6 +41,9 @@ class FieldTime:
     scanner: str | None  # the preset id or the profile's name
     # with a scanner whose durations are unknown: the missing figure and the field for it
     scan_unknown_reason: str | None = None
+    # with a scanner none of whose settings is as fine as the default step: why the plan's
+    # step is its finest setting (planner.scanners.fallback_step)
+    step_note: str | None = None
 
     @property
     def total_s(self) -> float | None:
@@ -57,6 +60,8 @@ class FieldTime:
             "walk_s": r(self.walk_s), "scanner": self.scanner}
         if self.scan_unknown_reason is not None:
             data["scan_unknown_reason"] = self.scan_unknown_reason
+        if self.step_note is not None:
+            data["step_note"] = self.step_note
         return data
 
 
@@ -99,6 +104,8 @@ def field_time(spec: PlanSpec, n_stations: int, route: Route,
         scanner=None if profile is None else
         spec.scanner if isinstance(spec.scanner, str) else profile.name,
         scan_unknown_reason=reason,
+        step_note=None if profile is None else step_note(profile, spec.angular_step_rad,
+                                                         DEFAULT_ANGULAR_STEP_RAD),
     )
 
 

@@ -19,7 +19,13 @@ from planner.method.candidates import read_candidates_csv
 from planner.outputs.report import plan_document, stations_csv
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
-from planner.scanners import ScannerProfile, ScanSetting, presets, scan_duration_s
+from planner.scanners import (
+    ScannerProfile,
+    ScanSetting,
+    coarsest_setting,
+    presets,
+    scan_duration_s,
+)
 
 # --- the duration model ----------------------------------------------------------------
 
@@ -102,7 +108,8 @@ def test_explicit_parameter_wins_over_the_profile_which_wins_over_its_preset() -
     spec = PlanSpec.from_mapping({"scanner": based})
     assert spec.dof_max_m == 120.0  # the profile over the preset
     assert spec.elevation_min_deg == -70.0  # the preset fills what the profile leaves out
-    assert (spec.point_spacing_m, spec.reference_distance_m) == (0.003, 10.0)  # the finest
+    # the step stays the plan's: a setting (3 mm) is at least as fine as the default
+    assert (spec.point_spacing_m, spec.reference_distance_m) == (0.010, 10.0)
     assert spec.setup_time_s == 90.0
     explicit = PlanSpec.from_mapping({"scanner": based, "dof_max_m": 40.0,
                                       "point_spacing_m": 0.006, "setup_time_s": 30})
@@ -136,10 +143,11 @@ def test_every_preset_figure_has_a_source_a_reader_can_open_or_a_reason() -> Non
 # --- the coarsest setting per station on hall-full --------------------------------------
 
 SETTINGS = [
+    {"name": "6 mm", "point_spacing_m": 0.006, "reference_distance_m": 10.0},
     {"name": "10 mm", "point_spacing_m": 0.010, "reference_distance_m": 10.0},
-    {"name": "14 mm", "point_spacing_m": 0.014, "reference_distance_m": 10.0},
     {"name": "20 mm", "point_spacing_m": 0.020, "reference_distance_m": 10.0},
 ]
+FINEST_STEP_RAD = 0.0006
 PROFILE = {"name": "crew scanner", "measurement_rate_pts_s": 2e6, "elevation_min_deg": -60.0,
            "elevation_max_deg": 90.0, "settings": SETTINGS, "overhead_s": 30.0}
 
@@ -154,10 +162,8 @@ def _hall_spec(scenes_dir: Path, name: str, **more: Any) -> tuple[Any, PlanSpec]
 
 @pytest.fixture(scope="module")
 def hall_full(scenes_dir: Path) -> PlanResult:
-    # at the default goal (0.8) every one of the 6 stations is credited with faces at the
-    # density limit (least margins 1.00000 to 1.00076), so all six need the finest step;
-    # the complete survey's gap-filling stations are credited with near faces only
-    scene, spec = _hall_spec(scenes_dir, "hall-full", scanner=PROFILE, coverage_goal=1.0)
+    # the check: the default goal (0.8) and the plan's own (default) step
+    scene, spec = _hall_spec(scenes_dir, "hall-full", scanner=PROFILE)
     return plan(scene, spec)
 
 
@@ -190,11 +196,14 @@ def test_field_time_is_the_sum_of_the_formula_over_the_stations_settings(
     assert total["total_s"] == pytest.approx(total["setup_s"] + total["scan_s"] + total["walk_s"],
                                              abs=0.2)
     # cheaper than scanning every station at the finest step
-    assert total["scan_s"] < len(stations) * _hand_duration_s(0.001) - 1.0
-    # the finest setting is the paper's step: the stations are the paper's (expected.json)
+    assert total["scan_s"] < len(stations) * _hand_duration_s(FINEST_STEP_RAD) - 1.0
+    # the plan keeps the paper's step: its stations are the paper's (expected.json)
+    assert (document["parameters"]["point_spacing_m"],
+            document["parameters"]["reference_distance_m"]) == (0.010, 10.0)
+    assert "step_note" not in document["field_time"]
     expected = json.loads((scenes_dir / "hall-full" / "expected.json").read_text())
-    paper = expected["goal_0.8"]["greedy"]["stations"]
-    assert [s["candidate_index"] for s in stations[:len(paper)]] == paper
+    assert [s["candidate_index"] for s in stations] == (
+        expected["goal_0.8"]["greedy"]["stations"])
     # stations.csv carries the same setting and seconds
     rows = list(csv.DictReader(io.StringIO(stations_csv(hall_full).decode())))
     assert [r["setting"] for r in rows] == [s["setting"] for s in stations]
@@ -220,7 +229,47 @@ def test_each_station_is_scanned_at_the_coarsest_setting_its_credited_faces_allo
         chosen_steps.append(max(qualifying))
     assert [names[s] for s in chosen_steps] == [s["setting"] for s in
                                                  plan_document(result)["stations"]]
-    assert len(set(chosen_steps)) > 1  # the settings differ from station to station
+    assert max(chosen_steps) > steps[0]  # not every station needs the finest setting
+
+
+def test_the_coarsest_qualifying_setting_may_be_finer_than_the_plans_step() -> None:
+    # LPD scales with 1 / SPS^2: a setting qualifies when margin * (plan / its step)^2 >= 1
+    settings = (ScanSetting("6 mm", 0.006, 10.0), ScanSetting("8 mm", 0.008, 10.0),
+                ScanSetting("20 mm", 0.02, 10.0))
+    profile = ScannerProfile(name="no 10 mm", settings=settings)
+
+    def name(margin: float) -> str | None:
+        chosen = coarsest_setting(profile, 0.001, margin)
+        return None if chosen is None else chosen.name
+
+    assert name(1.0) == "8 mm"  # faces at the plan's full reach: the coarsest at least as fine
+    assert name(1.0 - 1e-7) == "8 mm"  # a float32 density a hair under the requirement
+    assert name(0.5) == "6 mm"  # (10/8)^2 = 1.5625 is too little, (10/6)^2 = 2.78 enough
+    assert name(3.99) == "8 mm" and name(4.0) == "20 mm"
+    assert name(math.inf) == "20 mm"  # no credited face needs a density
+    assert coarsest_setting(ScannerProfile(name="bare"), 0.001, 1.0) is None
+
+
+def test_settings_all_coarser_than_the_default_step_set_the_plans_step_and_say_so(
+        scenes_dir: Path) -> None:
+    coarse = [{"name": "12 mm", "point_spacing_m": 0.012, "reference_distance_m": 10.0},
+              {"name": "24 mm", "point_spacing_m": 0.024, "reference_distance_m": 10.0}]
+    profile = {**PROFILE, "settings": coarse}
+    # an explicit step wins, coarser or between the settings; finer than all is refused
+    explicit = PlanSpec.from_mapping({"scanner": profile, "point_spacing_m": 0.015})
+    assert (explicit.point_spacing_m, explicit.reference_distance_m) == (0.015, 10.0)
+    with pytest.raises(ParameterError, match=r"^point_spacing_m: .*finer than the finest"):
+        PlanSpec.from_mapping({"scanner": profile, "point_spacing_m": 0.010})
+    # left out: no setting keeps the default 10 mm, so the plan takes the finest, 12 mm
+    scene, spec = _hall_spec(scenes_dir, "hall-small", scanner=profile)
+    assert (spec.point_spacing_m, spec.reference_distance_m) == (0.012, 10.0)
+    document = plan_document(plan(scene, spec))
+    assert document["parameters"]["point_spacing_m"] == 0.012
+    note = document["field_time"]["step_note"]
+    assert "as fine as the default step" in note and "12 mm" in note
+    assert [s["setting"] for s in document["stations"]] == ["12 mm"] * len(document["stations"])
+    # plan.json read back gives the same plan (the step now explicit, the same step)
+    assert PlanSpec.from_mapping(document["parameters"]) == spec
 
 
 def test_without_durations_the_reason_names_the_missing_figure_and_field(
@@ -233,7 +282,7 @@ def test_without_durations_the_reason_names_the_missing_figure_and_field(
     assert field_time["scanner"] == "no rate"
     assert "measurement_rate_pts_s" in field_time["scan_unknown_reason"]
     assert "scanner.settings[].duration_s" in field_time["scan_unknown_reason"]
-    assert all(s["scan_s"] is None and s["setting"] in ("10 mm", "14 mm")
+    assert all(s["scan_s"] is None and s["setting"] in ("6 mm", "10 mm")
                for s in document["stations"])
 
 
