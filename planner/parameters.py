@@ -19,6 +19,17 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, Literal
 
 from planner.errors import ParameterError
+from planner.scanners import (
+    PROFILE_FIELDS,
+    SETTING_FIELDS,
+    STEP_TOLERANCE,
+    ScannerProfile,
+    ScanSetting,
+    fallback_step,
+    plan_defaults,
+    preset,
+    resolve,
+)
 
 Method = Literal["greedy", "weighted_greedy", "optimal"]
 METHODS: tuple[Method, ...] = ("greedy", "weighted_greedy", "optimal")
@@ -99,7 +110,8 @@ class PlanSpec:
     # writes verification.json (planner.truth; as `scanplan verify` does)
     verify: bool = False
     # survey (issue 11): presets, registration overlap, walking route, field time
-    scanner: str | None = None  # a preset of planner/survey/scanners.json; sets the defaults above
+    # a preset id (planner/scanners.json) or an instrument profile; sets the defaults above
+    scanner: str | ScannerProfile | None = None
     min_overlap_m2: float | None = None  # null: the paper's selection, no overlap constraint
     # a surface counts for registration at this density: 25 mm x 25 mm, the data density of
     # Level of Detail 2 in GSA BIM Guide Series 03, 3D Imaging (U.S. GSA, 2009)
@@ -119,7 +131,13 @@ class PlanSpec:
         if self.route_start is not None:
             object.__setattr__(self, "route_start",
                                _points("route_start", [self.route_start], 3)[0])
+        object.__setattr__(self, "scanner", _scanner(self.scanner))
         _validate(self)
+
+    @property
+    def scanner_profile(self) -> ScannerProfile | None:
+        """The instrument ``scanner`` stands for (a preset's figures filled in), or None."""
+        return None if self.scanner is None else resolve(self.scanner)
 
     @property
     def angular_step_rad(self) -> float:
@@ -144,12 +162,21 @@ class PlanSpec:
                 unknown[0], f"unknown parameter; known ones are {', '.join(sorted(known))}"
             )
         if values.get("scanner") is not None:
-            if not isinstance(values["scanner"], str):
-                raise ParameterError("scanner", f"expected a preset id, got {values['scanner']!r}")
-            from planner.survey.scanners import preset_defaults
-
-            # the preset fills the defaults; what the caller gave explicitly wins
-            values = {**preset_defaults(values["scanner"]), **values}
+            # the profile fills the defaults; what the caller gave explicitly wins. The
+            # step stays the plan's (given as a pair: point_spacing_m with its
+            # reference_distance_m, else the default) unless no setting is that fine
+            scanner = _scanner(values["scanner"])
+            assert scanner is not None
+            profile = resolve(scanner)
+            defaults: dict[str, float] = plan_defaults(profile)
+            finest = None if any(values.get(k) is not None for k in (
+                "point_spacing_m", "reference_distance_m")) else fallback_step(
+                profile, DEFAULT_ANGULAR_STEP_RAD)
+            if finest is not None:
+                defaults["point_spacing_m"] = finest.point_spacing_m
+                defaults["reference_distance_m"] = finest.reference_distance_m
+            values = {**defaults, **{k: v for k, v in values.items()
+                                     if v is not None or k in _NULLABLE}}
         kwargs: dict[str, Any] = {}
         for name, value in values.items():
             if value is None and name not in _NULLABLE:
@@ -171,6 +198,10 @@ class PlanSpec:
                 list(p) if isinstance(p, tuple) else p for p in value
             ]
         return data
+
+
+# the paper's step (Table 2: 10 mm at 10 m); a scanner keeps it unless no setting is as fine
+DEFAULT_ANGULAR_STEP_RAD = PlanSpec.point_spacing_m / PlanSpec.reference_distance_m
 
 
 @dataclass(frozen=True)
@@ -231,6 +262,26 @@ RANGES: dict[str, Range] = {
     "samples_per_face": Range(ge=1, le=256, hint="a square number; use 16"),
     "min_sampled_fraction": Range(gt=0, le=1, hint="1 means the whole face"),
 }
+# the same for the figures of a scanner profile (planner.scanners.ScannerProfile) ...
+SCANNER_RANGES: dict[str, Range] = {
+    "min_range_m": RANGES["dof_min_m"],
+    "max_range_m": RANGES["dof_max_m"],
+    "elevation_min_deg": RANGES["elevation_min_deg"],
+    "elevation_max_deg": RANGES["elevation_max_deg"],
+    "measurement_rate_pts_s": Range(ge=1, hint="points recorded per second, e.g. 2000000"),
+    "setup_time_s": RANGES["setup_time_s"],
+    "overhead_s": Range(ge=0, le=86_400, hint="imaging, tilt and any other constant per scan"),
+}
+# ... and of each of its settings (planner.scanners.ScanSetting)
+SETTING_RANGES: dict[str, Range] = {
+    "point_spacing_m": RANGES["point_spacing_m"],
+    "reference_distance_m": RANGES["reference_distance_m"],
+    "duration_s": Range(gt=0, le=86_400,
+                        hint="or leave it out to compute it from measurement_rate_pts_s"),
+}
+MAX_SETTINGS = 32
+# the finest angular step a setting may have: 0.01 mm at 10 m, far below any instrument's
+MIN_STEP_RAD = 1e-6
 # the same for the per-group overrides (GroupRequirement)
 GROUP_RANGES: dict[str, Range] = {
     "min_density_pts_m2": RANGES["min_density_pts_m2"],
@@ -314,6 +365,8 @@ def _convert(name: str, value: Any) -> Any:
         return tuple(value)
     if name == "group_requirements":
         return _group_requirements(value)
+    if name == "scanner":
+        return _scanner(value)
     return value
 
 
@@ -357,6 +410,111 @@ def _group_requirements(value: Any) -> dict[str, GroupRequirement]:
     return result
 
 
+def _scanner(value: Any) -> str | ScannerProfile | None:
+    """A preset id or a :class:`ScannerProfile` from plain data (ranges: :func:`_validate`)."""
+    if value is None or isinstance(value, ScannerProfile):
+        return value
+    if isinstance(value, str):
+        preset(value)  # raises, naming the known presets
+        return value
+    if not isinstance(value, Mapping):
+        raise ParameterError("scanner", "expected a preset id (scanplan scanners lists them) or "
+                                        "an object {name, measurement_rate_pts_s, settings, ...}")
+    _known_keys("scanner", value, PROFILE_FIELDS)
+    kwargs: dict[str, Any] = {"name": _text("scanner.name", value.get("name"))}
+    if value.get("preset") is not None:
+        kwargs["preset"] = _text("scanner.preset", value["preset"])
+        if kwargs["preset"] not in _preset_ids():
+            raise ParameterError("scanner.preset", f"{kwargs['preset']!r} is not a known preset; "
+                                 f"use one of {', '.join(_preset_ids())} or leave it out")
+    for key in SCANNER_RANGES:
+        if value.get(key) is not None:
+            kwargs[key] = _number(f"scanner.{key}", value[key])
+    settings = value.get("settings") or []
+    if not isinstance(settings, list | tuple):
+        raise ParameterError("scanner.settings", "expected a list of {name, point_spacing_m, "
+                                                 "reference_distance_m, duration_s?}")
+    kwargs["settings"] = tuple(_setting(f"scanner.settings[{i}]", s)
+                               for i, s in enumerate(settings))
+    return ScannerProfile(**kwargs)
+
+
+def _preset_ids() -> list[str]:
+    from planner.scanners import presets
+
+    return list(presets())
+
+
+def _setting(where: str, value: Any) -> ScanSetting:
+    if isinstance(value, ScanSetting):
+        return value
+    if not isinstance(value, Mapping):
+        raise ParameterError(where, "expected an object {name, point_spacing_m, "
+                                    "reference_distance_m, duration_s?}")
+    _known_keys(where, value, SETTING_FIELDS)
+    kwargs: dict[str, Any] = {"name": _text(f"{where}.name", value.get("name"))}
+    for key in ("point_spacing_m", "reference_distance_m"):
+        if value.get(key) is None:
+            raise ParameterError(f"{where}.{key}", "is missing; a setting is a point spacing at "
+                                 "a distance, e.g. point_spacing_m 0.006, reference_distance_m 10")
+        kwargs[key] = _number(f"{where}.{key}", value[key])
+    if value.get("duration_s") is not None:
+        kwargs["duration_s"] = _number(f"{where}.duration_s", value["duration_s"])
+    return ScanSetting(**kwargs)
+
+
+def _known_keys(where: str, value: Mapping[str, Any], known: tuple[str, ...]) -> None:
+    unknown = sorted(set(value) - set(known))
+    if unknown:
+        raise ParameterError(f"{where}.{unknown[0]}", f"unknown key; use {', '.join(known)}")
+
+
+def _text(name: str, value: Any) -> str:
+    if not isinstance(value, str) or not value.strip() or len(value) > 100:
+        raise ParameterError(name, f"expected a name of 1 to 100 characters, got {value!r}")
+    return value
+
+
+def _check_scanner(spec: PlanSpec) -> None:
+    """The ranges of the scanner object's figures, and the plan's step against its settings."""
+    profile = spec.scanner_profile
+    if profile is None:
+        return
+    if isinstance(spec.scanner, ScannerProfile):  # a preset's figures are checked by its tests
+        for key, bounds in SCANNER_RANGES.items():
+            check_range(f"scanner.{key}", getattr(spec.scanner, key), bounds)
+        for i, setting in enumerate(spec.scanner.settings):
+            for key, bounds in SETTING_RANGES.items():
+                check_range(f"scanner.settings[{i}].{key}", getattr(setting, key), bounds)
+            step = setting.angular_step_rad
+            _check(MIN_STEP_RAD <= step < math.pi, f"scanner.settings[{i}].point_spacing_m",
+                   f"{setting.point_spacing_m} m at {setting.reference_distance_m} m is an "
+                   f"angular step of {step:g} rad; a scanner's step lies between "
+                   f"{MIN_STEP_RAD:g} rad (0.01 mm at 10 m) and pi")
+        _check(len(spec.scanner.settings) <= MAX_SETTINGS, "scanner.settings",
+               f"has {len(spec.scanner.settings)} settings; at most {MAX_SETTINGS}")
+        names = [s.name for s in spec.scanner.settings]
+        _check(len(set(names)) == len(names), "scanner.settings",
+               f"names must differ, got {names}")
+    low, high = profile.min_range_m, profile.max_range_m
+    _check(low is None or high is None or low < high, "scanner.min_range_m",
+           f"{low} must be less than scanner.max_range_m ({high})")
+    low, high = profile.elevation_min_deg, profile.elevation_max_deg
+    _check(low is None or high is None or low < high, "scanner.elevation_min_deg",
+           f"{low} must be less than scanner.elevation_max_deg ({high})")
+    finest = profile.finest()
+    if finest is not None:
+        # every station must be scannable at some setting: the plan's promise may not need
+        # a finer step than the finest the instrument has
+        _check(spec.angular_step_rad >= finest.angular_step_rad * (1 - STEP_TOLERANCE),
+               "point_spacing_m",
+               f"{spec.point_spacing_m} m at {spec.reference_distance_m} m is finer than the "
+               f"finest setting of scanner {profile.name!r} ({finest.name}: "
+               f"{finest.point_spacing_m} m at {finest.reference_distance_m} m); give a "
+               "coarser one, or leave point_spacing_m and reference_distance_m out (the plan "
+               "then keeps 0.01 m at 10 m, or the finest setting when none is that fine)")
+
+
 def _check(ok: bool, name: str, message: str) -> None:
     if not ok:
         raise ParameterError(name, message)
@@ -373,6 +531,7 @@ def check_range(name: str, value: float | None, bounds: Range) -> None:
 
 
 def _validate(spec: PlanSpec) -> None:
+    _check_scanner(spec)  # first: the profile's figures are the defaults checked below
     for name, bounds in RANGES.items():
         check_range(name, getattr(spec, name), bounds)
     _check(
@@ -414,10 +573,6 @@ def _validate(spec: PlanSpec) -> None:
     if spec.area_of_interest is not None:
         _check(len(spec.area_of_interest) >= 3, "area_of_interest",
                "needs at least 3 [x, y] vertices")
-    if spec.scanner is not None:
-        from planner.survey.scanners import get
-
-        get(spec.scanner)  # raises, naming the known presets
     for group, req in spec.group_requirements.items():
         for name, bounds in GROUP_RANGES.items():
             check_range(f"group_requirements.{group}.{name}", getattr(req, name), bounds)

@@ -204,15 +204,18 @@ def plan(
     for step, seconds in outcome.seconds.items():
         stats.seconds[f"selection_{step}"] = seconds
     release_freed_memory()
-    plan_survey = survey(scene, spec, candidates.positions[list(chosen.stations)], limits,
-                         occlusion, _caster(scene, spec, limits, occlusion), stats.seconds,
-                         station_overlap=station_overlap, threads=threads)
-    _new_stage(progress, "report")
     # the table keeps no densities: the chosen stations' pairs are qualified again, alone,
-    # and read block by block
+    # and read block by block; with a scanner, each station's least density margin over
+    # the faces it is credited with chooses its setting (planner.scanners)
     faces = coverage_state(table, chosen.stations, _qualified_blocks(
         scene, spec, candidates.positions[list(chosen.stations)], limits, occlusion, stats,
-        threads=threads))
+        threads=threads), None if spec.scanner is None else limits.min_density_pts_m2)
+    margins = faces.pop("density_margin", None)
+    plan_survey = survey(scene, spec, candidates.positions[list(chosen.stations)], limits,
+                         occlusion, _caster(scene, spec, limits, occlusion), stats.seconds,
+                         station_overlap=station_overlap, threads=threads,
+                         density_margins=None if margins is None else margins.tolist())
+    _new_stage(progress, "report")
     return PlanResult(scene=scene, spec=spec, candidates=candidates, table=table,
                       limits=limits, selections=selections, chosen=chosen, optimal=optimal,
                       faces=faces, stats=stats, optimal_curve=outcome.curve,

@@ -24,7 +24,13 @@ from starlette.routing import compile_path
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from planner.errors import ParameterError, PlannerError
-from planner.parameters import GROUP_RANGES, RANGES, check_range
+from planner.parameters import (
+    GROUP_RANGES,
+    RANGES,
+    SCANNER_RANGES,
+    SETTING_RANGES,
+    check_range,
+)
 from service.auth import KeyRing
 from service.callbacks import CallbackDispatcher, CallbackStore
 from service.config import Settings
@@ -43,6 +49,7 @@ from service.problems import (
 from service.queue import HueyQueue, JobQueue, make_huey
 from service.routes import callbacks, health, jobs, landing, meshes, processes
 from service.routes.callbacks import callback_document
+from service.schemas import OBJECT_TAG, PRESET_TAG
 from service.store import open_store
 from service.worker import Reaper
 
@@ -205,6 +212,8 @@ def _add_problem_handlers(app: FastAPI) -> None:
 
 
 _RANGE_ERRORS = {"greater_than", "greater_than_equal", "less_than", "less_than_equal"}
+# parts of a validation error's location that name no field: the body, a union's form
+_NOT_NAMES = {"body", PRESET_TAG, OBJECT_TAG}
 
 
 def _allowed_methods(app: Any, path: str) -> list[str]:
@@ -222,7 +231,7 @@ def _describe_validation(error: Any) -> str:
     range_message = _range_message(error)
     if range_message is not None:
         return range_message
-    where = ".".join(str(p) for p in error.get("loc", ()) if p != "body")
+    where = ".".join(str(p) for p in error.get("loc", ()) if p not in _NOT_NAMES)
     message = error.get("msg", "invalid")
     if "input" in error and error.get("type") != "missing":
         value = repr(error["input"])
@@ -236,7 +245,10 @@ def _range_message(error: Any) -> str | None:
     if error.get("type") not in _RANGE_ERRORS or parameter is None:
         return None
     name = parameter.rsplit(".", 1)[-1]
-    bounds = (GROUP_RANGES if parameter.startswith("group_requirements.") else RANGES).get(name)
+    table = (GROUP_RANGES if parameter.startswith("group_requirements.")
+             else SETTING_RANGES if parameter.startswith("scanner.settings.")
+             else SCANNER_RANGES if parameter.startswith("scanner.") else RANGES)
+    bounds = table.get(name)
     if bounds is None or not isinstance(error.get("input"), int | float):
         return None
     try:
@@ -247,7 +259,7 @@ def _range_message(error: Any) -> str | None:
 
 
 def _parameter_of(error: Any) -> str | None:
-    loc = [str(p) for p in error.get("loc", ())]
+    loc = [str(p) for p in error.get("loc", ()) if p not in _NOT_NAMES]
     if "parameters" in loc:
         rest = loc[loc.index("parameters") + 1:]
         return ".".join(rest) or None

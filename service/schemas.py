@@ -12,9 +12,26 @@ from __future__ import annotations
 from dataclasses import MISSING, fields
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, RootModel, Strict, StrictBool
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    RootModel,
+    Strict,
+    StrictBool,
+    Tag,
+)
 
-from planner.parameters import GROUP_RANGES, RANGES, PlanSpec, Range
+from planner.parameters import (
+    GROUP_RANGES,
+    MAX_SETTINGS,
+    RANGES,
+    SCANNER_RANGES,
+    SETTING_RANGES,
+    PlanSpec,
+    Range,
+)
 
 
 def _defaults() -> dict[str, Any]:
@@ -57,6 +74,71 @@ class GroupRequirementModel(BaseModel):
                                                GROUP_RANGES["min_incidence_deg"])
     target: StrictBool = Field(default=True, description="false: blocks rays, needs no coverage")
     occludes: StrictBool = Field(default=True, description="false: rays pass through (glass)")
+
+
+Name = Annotated[str, Strict(), Field(min_length=1, max_length=100)]
+
+
+class ScanSettingModel(BaseModel):
+    """One angular step of the instrument: a point spacing at a distance."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: Name = Field(..., description="as the crew calls it, e.g. 6 mm @ 10 m")
+    point_spacing_m: Number = _ranged(..., "point spacing at reference_distance_m, metres",
+                                      SETTING_RANGES["point_spacing_m"])
+    reference_distance_m: Number = _ranged(..., "distance at which the spacing holds, metres",
+                                           SETTING_RANGES["reference_distance_m"])
+    duration_s: Number | None = _ranged(
+        None, "seconds of one scan at this setting; null: from measurement_rate_pts_s",
+        SETTING_RANGES["duration_s"])
+
+
+class ScannerProfileModel(BaseModel):
+    """The instrument, described by the crew; null figures keep the plan's (or the preset's)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: Name = Field(..., description="the instrument's name, as plan.json will show it")
+    preset: str | None = Field(default=None, description="a preset id whose figures fill what "
+                               "this object leaves out (GET /processes/scan-plan lists them)")
+    min_range_m: Number | None = _ranged(None, "nearest range, metres (sets dof_min_m)",
+                                         SCANNER_RANGES["min_range_m"])
+    max_range_m: Number | None = _ranged(None, "farthest range, metres (sets dof_max_m)",
+                                         SCANNER_RANGES["max_range_m"])
+    elevation_min_deg: Number | None = _ranged(None, "lowest beam elevation, degrees",
+                                               SCANNER_RANGES["elevation_min_deg"])
+    elevation_max_deg: Number | None = _ranged(None, "highest beam elevation, degrees",
+                                               SCANNER_RANGES["elevation_max_deg"])
+    measurement_rate_pts_s: Number | None = _ranged(
+        None, "points recorded per second (scan duration = points / rate + overhead_s)",
+        SCANNER_RANGES["measurement_rate_pts_s"])
+    settings: list[ScanSettingModel] = Field(
+        default_factory=list, max_length=MAX_SETTINGS,
+        description="angular steps offered; each station is scanned at the coarsest that "
+                    "still qualifies its faces at the plan's point_spacing_m (kept, unless no "
+                    "setting is as fine as the default: then the finest sets it)")
+    setup_time_s: Number | None = _ranged(None, "setup per station, seconds",
+                                          SCANNER_RANGES["setup_time_s"])
+    overhead_s: Number | None = _ranged(None, "imaging, tilt and any constant per scan, "
+                                        "seconds", SCANNER_RANGES["overhead_s"])
+
+
+def _scanner_kind(value: Any) -> str | None:
+    if isinstance(value, str):
+        return PRESET_TAG
+    return OBJECT_TAG if isinstance(value, dict | ScannerProfileModel) else None
+
+
+# the two forms of ``scanner``; an error in one names only that form, and the tags (never a
+# field name) are left out of the parameter a problem names (service.main)
+PRESET_TAG, OBJECT_TAG = "preset id", "object"
+ScannerParameter = Annotated[
+    Annotated[str, Strict(), Tag(PRESET_TAG)] | Annotated[ScannerProfileModel, Tag(OBJECT_TAG)],
+    Discriminator(_scanner_kind, custom_error_type="scanner_type",
+                  custom_error_message="expected a preset id or an object {name, "
+                                       "measurement_rate_pts_s, settings, ...}"),
+]
 
 
 class PlanParameters(BaseModel):
@@ -115,8 +197,9 @@ class PlanParameters(BaseModel):
         "on the lowest surface only, or on every flat surface with head room (meshes)")
     storeys: list[str] | None = _d("storeys", "IFC storeys to plan for; null: all")
     rooms: list[str] | None = _d("rooms", "IFC spaces to plan for; null: all")
-    scanner: str | None = _d("scanner", "scanner preset id (GET /processes/scan-plan lists "
-                             "them); sets the defaults of the limits it knows; null: Table 2")
+    scanner: ScannerParameter | None = _d(
+        "scanner", "scanner preset id (GET /processes/scan-plan lists them) or the instrument "
+        "as an object; sets the defaults of the limits it knows; null: Table 2")
     min_overlap_m2: Number | None = _d(
         "min_overlap_m2", "least shared area for a registration edge, m²; null: no constraint")
     overlap_density_pts_m2: Number = _d(

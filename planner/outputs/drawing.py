@@ -453,7 +453,15 @@ def _key(fig: Figure, result: PlanResult, scale: int) -> None:
         f"Scanner step {spec.point_spacing_m * 1000:g} mm at {spec.reference_distance_m:g} m, "
         f"range {spec.dof_min_m:g} to {spec.dof_max_m:g} m",
     ]
-    fig.text(0.755, 0.47, "\n".join(lines), fontsize=7.5, va="top", linespacing=1.5)
+    field_time = None if result.survey is None else result.survey.field_time
+    if field_time is not None and field_time.scanner is not None:  # a scanner was given
+        scan = "unknown" if field_time.scan_s is None else f"{field_time.scan_s / 60:.1f} min"
+        lines.append(f"{field_time.scanner}: scans {scan}, field time "
+                     + ("unknown" if field_time.total_s is None
+                        else f"{field_time.total_s / 60:.1f} min"))
+    # a sixth line (the scanner's field time) starts the block a line higher
+    fig.text(0.755, 0.47 + 0.022 * (len(lines) - 5), "\n".join(lines), fontsize=7.5, va="top",
+             linespacing=1.5)
     _station_table(fig, result, top=0.355)
 
 
@@ -469,21 +477,30 @@ def _totals(result: PlanResult) -> dict[str, float]:
 def _station_table(fig: Figure, result: PlanResult, top: float) -> None:
     chosen = result.chosen
     max_area = chosen.max_achievable_area_m2
-    rows = ["  no.      x       y       z   new m²  cum. %"]
+    # with a scanner: the setting each station is scanned at and its scan time
+    scans = () if result.survey is None else result.survey.scans
+    rows = ["  no.      x       y       z   new m²  cum. %"
+            + (" setting   scan" if scans else "")]
     limit = 14
     # the plan view is drawn levelled (up_axis); the table gives the model's coordinates
     positions = to_model(scene_rotation(result.scene.metadata), result.candidates.positions)
     for order, candidate in enumerate(chosen.stations[:limit]):
         x, y, z = positions[candidate]
         fraction = chosen.covered_area_m2[order] / max_area * 100 if max_area else 0.0
-        rows.append(f"{order + 1:5d} {x:7.2f} {y:7.2f} {z:6.2f} {chosen.new_area_m2[order]:8.2f}"
-                    f" {fraction:7.1f}")
+        row = (f"{order + 1:5d} {x:7.2f} {y:7.2f} {z:6.2f} {chosen.new_area_m2[order]:8.2f}"
+               f" {fraction:7.1f}")
+        if scans:
+            scan = scans[order]
+            seconds = "?" if scan.scan_s is None else f"{scan.scan_s:.0f}s"
+            row += f" {(scan.setting or 'plan')[:8]:<8}{seconds:>6}"
+        rows.append(row)
     if len(chosen.stations) > limit:
         rows.append(f"  ... {len(chosen.stations) - limit} more in stations.csv")
     fig.text(0.755, top, "Stations (model coordinates, m)", fontsize=8, fontweight="bold",
              va="bottom")
-    fig.text(0.752, top - 0.006, "\n".join(rows), fontsize=6.8, family="monospace", va="top",
-             linespacing=1.35)
+    # the two scan columns take a smaller type to stay on the page
+    fig.text(0.752, top - 0.006, "\n".join(rows), fontsize=5.8 if scans else 6.8,
+             family="monospace", va="top", linespacing=1.35)
 
 
 # --- curve.png ------------------------------------------------------------------------

@@ -13,7 +13,7 @@ attributes: scanplan adds relationships of its own instead of editing the model'
   station's room's storey, else the one whose elevation matches its floor, see
   :mod:`planner.outputs.stations`) and referenced by the ``IfcSpace`` that holds it;
 - per station the property set :data:`STATION_PSET` (id, visit, instrument height, the
-  setting, scan time where a preset gives it, areas, registration neighbours);
+  setting and scan time where the scanner profile gives them, areas, registration neighbours);
 - per element scanplan reports on (``elements.csv``) the property set
   :data:`COVERAGE_PSET`: target, target / coverable / covered area, covered fraction and,
   where it cannot be covered, the reason (see :mod:`planner.outputs.bim`).
@@ -178,12 +178,14 @@ class _Writer:
         }
         if station.visit is not None:
             properties["VisitOrder"] = model.create_entity("IfcInteger", station.visit)
-        if spec.scanner:
-            properties["Scanner"] = model.create_entity("IfcLabel", spec.scanner)
-        n_stations = len(self.result.chosen.stations)
-        if survey is not None and survey.field_time.scan_s is not None and n_stations:
-            per_station = survey.field_time.scan_s / n_stations  # a preset's scan duration
-            properties["ScanTime"] = model.create_entity("IfcTimeMeasure", per_station)
+        if survey is not None and survey.field_time.scanner is not None:
+            properties["Scanner"] = model.create_entity("IfcLabel", survey.field_time.scanner)
+        if survey is not None and survey.scans:
+            scan = survey.scans[station.id - 1]  # selection order
+            if scan.setting is not None:
+                properties["Setting"] = model.create_entity("IfcLabel", scan.setting)
+            if scan.scan_s is not None:
+                properties["ScanTime"] = model.create_entity("IfcTimeMeasure", scan.scan_s)
         return properties
 
     def add_coverage(self) -> None:

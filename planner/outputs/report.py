@@ -11,7 +11,7 @@ Outputs of :func:`write_outputs` (the names the service serves too):
 - ``faces.npz``: per face ``covered``, ``best_lpd_pts_m2``, ``n_stations``,
   ``first_station``, ``n_candidates``, ``source_face``;
 - ``stations.csv``: ``id,x,y,z,order,candidate_index,visit`` in model coordinates (``visit``:
-  place on the walking route, empty when unreachable);
+  place on the walking route, empty when unreachable), with a scanner also ``setting,scan_s``;
 - ``candidates.csv``: every candidate considered, ``x,y,z``;
 - ``elements.csv``, ``elements.json``: coverage per BIM element (IFC models only, see
   :mod:`planner.outputs.bim`); a renderer that returns None writes no file;
@@ -97,6 +97,10 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
             station["fixed"] = True  # re-scan: scanned before (fixed_stations)
         if result.survey is not None:
             station["visit"] = result.survey.visit_of(order + 1)
+            if result.survey.scans:  # a scanner was given: its setting and scan time
+                scan = result.survey.scans[order]
+                station["setting"] = scan.setting
+                station["scan_s"] = None if scan.scan_s is None else round(scan.scan_s, 1)
         stations.append(station)
     document: dict[str, Any] = {
         "format_version": FORMAT_VERSION,
@@ -166,14 +170,20 @@ def faces_npz(result: PlanResult) -> bytes:
 def stations_csv(result: PlanResult) -> bytes:
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(["id", "x", "y", "z", "order", "candidate_index", "visit"])
+    scans = () if result.survey is None else result.survey.scans
+    # with a scanner: each station's setting and scan seconds (empty when unknown)
+    writer.writerow(["id", "x", "y", "z", "order", "candidate_index", "visit"]
+                    + (["setting", "scan_s"] if scans else []))
     positions = model_positions(result)
     for order, candidate in enumerate(result.chosen.stations):
         x, y, z = (f"{v:.6f}" for v in positions[candidate])
         visit = None if result.survey is None else result.survey.visit_of(order + 1)
         # an unreachable station has no place on the route: an empty cell
-        writer.writerow([order + 1, x, y, z, order + 1, int(candidate),
-                         "" if visit is None else visit])
+        row = [order + 1, x, y, z, order + 1, int(candidate), "" if visit is None else visit]
+        if scans:
+            scan = scans[order]
+            row += [scan.setting or "", "" if scan.scan_s is None else f"{scan.scan_s:.1f}"]
+        writer.writerow(row)
     return out.getvalue().encode("utf-8")
 
 

@@ -12,7 +12,7 @@ from starlette.concurrency import run_in_threadpool
 from planner.io.readers import unit_warning
 from planner.outputs.report import OUTPUTS
 from planner.parameters import PlanSpec
-from planner.survey.scanners import scanners
+from planner.scanners import presets
 from service import guards
 from service.callbacks import check_subscriber
 from service.deps import OwnerDep, ServicesDep
@@ -73,7 +73,7 @@ def _description() -> dict[str, Any]:
                            "schema": PlanParameters.model_json_schema(),
                            "minOccurs": 0, "maxOccurs": 1},
         },
-        "scanners": [scanner.to_dict() for scanner in scanners().values()],
+        "scanners": [preset.to_dict() for preset in presets().values()],
         "outputs": {
             PLAN_OUTPUT: {"title": "the plan inline", "description": "the content of plan.json",
                           "schema": {"type": "object"}},

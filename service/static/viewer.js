@@ -181,14 +181,13 @@ function duration(seconds) {
 
 // why plan.json has no scan time (field_time.scan_s null)
 function scanUnknownReason(doc) {
-  const p = doc.parameters || {};
-  const scanner = doc.field_time && doc.field_time.scanner;
-  if (!scanner) {
-    return 'no scanner preset was chosen (parameter scanner), so the scan duration of a ' +
-      'station is not known';
+  const ft = doc.field_time || {};
+  if (ft.scan_unknown_reason) return ft.scan_unknown_reason;
+  if (!ft.scanner) {
+    return 'no scanner was given (parameter scanner: a preset or an object with ' +
+      'measurement_rate_pts_s), so the scan duration of a station is not known';
   }
-  return `the preset ${scanner} states no scan duration for a point spacing of ` +
-    `${fmt(1000 * Number(p.point_spacing_m), 1)} mm at ${fmt(p.reference_distance_m, 1)} m`;
+  return `the scanner ${ft.scanner} gives no measurement rate or scan durations`;
 }
 
 function showFieldTime(doc) {
@@ -228,6 +227,14 @@ function showFieldTime(doc) {
 
 function showStationTable(stations) {
   const body = $('stations').querySelector('tbody');
+  // with a scanner, plan.json gives each station's setting and scan time
+  const scans = stations.some((s) => 'scan_s' in s);
+  const head = $('stations').querySelector('thead tr');
+  for (const th of head.querySelectorAll('th.scan')) th.remove();
+  if (scans) {
+    head.append(el('th', { text: 'setting', class: 'scan' }),
+      el('th', { text: 'scan', class: 'scan' }));
+  }
   body.replaceChildren(...stations.map((s) => {
     const p = s.position || [];
     const onRoute = s.visit !== null && s.visit !== undefined;
@@ -238,6 +245,11 @@ function showStationTable(stations) {
       el('td', { text: fmt(p[1]) }), el('td', { text: fmt(p[2]) }),
       el('td', { text: fmt(s.new_area_m2, 1) }),
       el('td', { text: fmt(100 * Number(s.coverage_fraction), 1) }));
+    if (scans) {
+      tr.append(el('td', { text: s.setting ?? 'plan step', 'data-col': 'setting' }),
+        el('td', { text: s.scan_s === null || s.scan_s === undefined ? 'unknown'
+          : duration(s.scan_s), 'data-col': 'scan' }));
+    }
     tr.addEventListener('click', () => selectStation(Number(s.id)));
     return tr;
   }));

@@ -126,6 +126,18 @@ def test_oversized_upload(tmp_path: Path, hall_bytes: bytes) -> None:
     ({"method": "best"}, "method", "greedy"),
     ({"no_such": 1}, "no_such", "Extra inputs"),
     ({"candidates": [[0, 0]]}, "candidates.0", "3"),
+    ({"scanner": 42}, "scanner", "preset id or an object"),
+    ({"scanner": "leica-x"}, "scanner", "not a known preset"),
+    ({"scanner": {"name": "x", "measurement_rate_pts_s": 0}}, "scanner.measurement_rate_pts_s",
+     "1 or more"),
+    ({"scanner": {"name": "x", "overhead_s": -3}}, "scanner.overhead_s", "in [0, 86400]"),
+    ({"scanner": {"name": "x", "settings": [{"name": "a", "point_spacing_m": 0.01}]}},
+     "scanner.settings.0.reference_distance_m", "required"),
+    ({"scanner": {"name": "x", "settings": [
+        {"name": "a", "point_spacing_m": 0.01, "reference_distance_m": 10, "duration_s": 0}]}},
+     "scanner.settings.0.duration_s", "in (0, 86400]"),
+    ({"scanner": {"name": "x", "min_range_m": 4, "max_range_m": 2}}, "scanner.min_range_m",
+     "less than scanner.max_range_m"),
 ])
 def test_bad_parameters(client: TestClient, hall_bytes: bytes, parameters: dict[str, Any],
                         parameter: str, word: str) -> None:
@@ -227,6 +239,20 @@ def test_process_lists_the_scanner_presets(client: TestClient) -> None:
     rtc360 = next(s for s in scanners if s["id"] == "leica-rtc360")
     assert rtc360["defaults"]["dof_max_m"] == 130.0
     assert all(s["sources"] or not s["defaults"] for s in scanners)  # no default unsourced
+    # the parameter's schema describes the instrument object, with its ranges
+    schema = client.get("/processes/scan-plan").json()["inputs"]["parameters"]["schema"]
+    profile = schema["$defs"]["ScannerProfileModel"]["properties"]
+    assert {"name", "measurement_rate_pts_s", "settings", "overhead_s"} <= set(profile)
+    rate = next(s for s in profile["measurement_rate_pts_s"]["anyOf"] if s["type"] == "number")
+    assert rate["minimum"] == 1
+
+
+def test_a_scanner_object_is_accepted(client: TestClient, hall_bytes: bytes) -> None:
+    mesh_id = upload(client, hall_bytes).json()["id"]
+    scanner = {"name": "crew", "measurement_rate_pts_s": 2e6, "overhead_s": 30, "settings": [
+        {"name": "fine", "point_spacing_m": 0.01, "reference_distance_m": 10}]}
+    response = submit(client, mesh_id, {"scanner": scanner})
+    assert response.status_code == 201, response.text
 
 
 def test_readyz(client: TestClient) -> None:

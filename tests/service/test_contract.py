@@ -8,7 +8,13 @@ from pathlib import Path
 from planner.parameters import GroupRequirement, PlanSpec
 from service.openapi_export import render, spec
 from service.problems import PROBLEMS, kind_of
-from service.schemas import DEFAULTS, GroupRequirementModel, PlanParameters
+from service.schemas import (
+    DEFAULTS,
+    GroupRequirementModel,
+    PlanParameters,
+    ScannerProfileModel,
+    ScanSettingModel,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -18,6 +24,23 @@ def test_parameter_fields_match_planspec() -> None:
     assert set(GroupRequirementModel.model_fields) == {f.name for f in fields(GroupRequirement)}
     for name, info in PlanParameters.model_fields.items():
         assert info.default == DEFAULTS[name], name
+
+
+def test_scanner_object_matches_the_profile_and_its_ranges() -> None:
+    from planner.parameters import SCANNER_RANGES, SETTING_RANGES
+    from planner.scanners import PROFILE_FIELDS, SETTING_FIELDS
+
+    assert tuple(ScannerProfileModel.model_fields) == PROFILE_FIELDS
+    assert tuple(ScanSettingModel.model_fields) == SETTING_FIELDS
+    keywords = {"ge": "minimum", "gt": "exclusiveMinimum", "le": "maximum",
+                "lt": "exclusiveMaximum"}
+    for model, table in ((ScannerProfileModel, SCANNER_RANGES), (ScanSettingModel, SETTING_RANGES)):
+        properties = model.model_json_schema()["properties"]
+        for name, bounds in table.items():
+            schema = properties[name]
+            number = next(s for s in schema.get("anyOf", [schema]) if s.get("type") == "number")
+            for attribute, keyword in keywords.items():
+                assert number.get(keyword) == getattr(bounds, attribute), (name, keyword)
 
 
 def test_openapi_json_is_current() -> None:
