@@ -94,6 +94,11 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
             station["fixed"] = True  # re-scan: scanned before (fixed_stations)
         if result.survey is not None:
             station["visit"] = result.survey.visit_of(order + 1)
+        heights = result.candidates.heights_m
+        if heights is not None and np.isfinite(heights[candidate]):
+            station["scanner_height_m"] = _r(heights[candidate])
+        if result.tolerance is not None:
+            station["tolerance"] = result.tolerance.stations[order].to_dict()
         stations.append(station)
     document: dict[str, Any] = {
         "format_version": FORMAT_VERSION,
@@ -129,6 +134,14 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
         document["registration"] = result.survey.registration.to_dict()
         document["route"] = _route_in_model(result)
         document["field_time"] = result.survey.field_time.to_dict()
+    if result.tolerance is not None:
+        document["tolerance"] = result.tolerance.to_dict()
+    if result.spec.scanner_heights_m is not None and result.candidates.heights_m is not None:
+        heights, counts = np.unique(result.candidates.heights_m[
+            np.isfinite(result.candidates.heights_m)], return_counts=True)
+        document["candidates"]["per_height"] = [
+            {"scanner_height_m": _r(h), "candidates": int(n)}
+            for h, n in zip(heights, counts, strict=True)]
     if result.optimal is not None:
         document["optimal"] = result.optimal.to_dict()
         document["optimal"]["greedy_stations"] = result.selections["greedy"].count_for_goal(
