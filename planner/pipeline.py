@@ -170,7 +170,9 @@ def plan(
             scene, table, displaced_positions(
                 scene, candidates.positions, spec.placement_tolerance_m, spec.clearance_m,
                 _caster(scene, spec, limits, occlusion)),
-            limits, _qualifier(scene, spec, occlusion), threads=threads),
+            limits, _qualifier(scene, spec, occlusion), threads=threads,
+            disc_radius_m=spec.placement_tolerance_m if spec.coverage_model == "centroid"
+            else None),
             len(candidates), scene.areas)
         stats.seconds["robust"] = time.perf_counter() - t_robust
     if table.n_pairs == 0:

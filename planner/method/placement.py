@@ -170,16 +170,59 @@ def kept_faces(scene: Scene, displaced: Displaced,
 
 
 def robust_blocks(scene: Scene, table: CoverageTable, displaced: Displaced,
-                  limits: FaceLimits, qualify: Qualify, *, threads: int | None = None,
-                  ) -> Iterator[QualifiedPairs]:
+                  limits: FaceLimits, qualify: Qualify, *, disc_radius_m: float | None,
+                  threads: int | None = None) -> Iterator[QualifiedPairs]:
     """The rows of the robust coverage table, a candidate at a time: the faces of
-    ``table`` (each candidate's own) that qualify from every displaced setup of it too.
-    The densities are not kept (the table keeps only the pattern)."""
+    ``table`` (each candidate's own) that qualify from every displaced setup of it too,
+    and (``disc_radius_m``, the centroid model) pass the analytic limits from every point
+    of the disc of that radius around it (:func:`disc_limits_hold`). The densities are not
+    kept (the table keeps only the pattern)."""
     for candidate, (faces, kept) in enumerate(
             kept_faces(scene, displaced, table.faces_of, limits, qualify, threads=threads)):
-        robust = faces[kept.all(axis=0)]
+        keep = kept.all(axis=0)
+        if disc_radius_m is not None:
+            keep &= disc_limits_hold(scene, limits, displaced.positions[candidate, 0], faces,
+                                     disc_radius_m)
+        robust = faces[keep]
         yield QualifiedPairs(np.full(len(robust), candidate, np.int32), robust,
                              np.zeros(len(robust), np.float32))
+
+
+def disc_limits_hold(scene: Scene, limits: FaceLimits, position: NDArray[np.float64],
+                     faces: NDArray[np.int32], radius_m: float) -> NDArray[np.bool_]:
+    """(f,) bool: the centroid of each of ``faces`` passes the analytic limits (range,
+    elevation, incidence, density) from every point of the horizontal disc of ``radius_m``
+    around ``position`` (the head at the same height), by bounds that hold over the disc:
+
+    - the horizontal distance h to the centroid lies in [h - r, h + r] (not below 0), so the
+      range in [hypot(h - r, dz), hypot(h + r, dz)], and the elevation's sine dz / range is
+      extreme at the two ends;
+    - the beam turns by at most asin(r / d) (d the distance from the disc's centre), so the
+      incidence is at least the centre's minus that angle, and the density at least
+      sin(that incidence) / (SPS * farthest range)^2.
+
+    The occlusion ray cannot be bounded this way: it is tested at the setups only.
+    """
+    offset = scene.centroids[faces] - position  # (f, 3)
+    dz = offset[:, 2]
+    horizontal = np.hypot(offset[:, 0], offset[:, 1])
+    distance = np.linalg.norm(offset, axis=1)
+    near = np.hypot(np.maximum(horizontal - radius_m, 0.0), dz)
+    far = np.hypot(horizontal + radius_m, dz)
+    ok = (near >= limits.dof_min_m) & (far <= limits.dof_max_m) & (distance > radius_m)
+    low = math.sin(math.radians(limits.elevation_min_deg))
+    high = math.sin(math.radians(limits.elevation_max_deg))
+    for reach in (near, far):
+        sine = np.divide(dz, reach, out=np.zeros_like(dz), where=reach > 0)
+        ok &= (sine >= low) & (sine <= high)
+    unit = offset / np.maximum(distance, 1e-12)[:, None]
+    incidence = np.arcsin(np.clip(np.abs(np.einsum("ij,ij->i", unit, scene.normals[faces])),
+                                  0.0, 1.0))
+    turn = np.arcsin(np.clip(radius_m / np.maximum(distance, 1e-12), 0.0, 1.0))
+    worst = np.sin(np.maximum(incidence - turn, 0.0))
+    ok &= worst >= np.sin(np.radians(limits.min_incidence_deg[faces]))
+    ok &= worst / (limits.angular_step_rad * far) ** 2 >= limits.min_density_pts_m2[faces]
+    return np.asarray(ok)
 
 
 def within_table(blocks: Iterable[QualifiedPairs], table: CoverageTable,
