@@ -172,7 +172,9 @@ def plan(
                 _caster(scene, spec, limits, occlusion)),
             limits, _qualifier(scene, spec, occlusion), threads=threads,
             disc_radius_m=spec.placement_tolerance_m if spec.coverage_model == "centroid"
-            else None),
+            else None,
+            # part of the coverage table: a cancel is heard, the percentage stays put
+            notify=lambda _: _notify(progress, "visibility", 1.0)),
             len(candidates), scene.areas)
         stats.seconds["robust"] = time.perf_counter() - t_robust
     if table.n_pairs == 0:

@@ -144,13 +144,15 @@ def displaced_positions(scene: Scene, positions: NDArray[np.float64], tolerance_
 def kept_faces(scene: Scene, displaced: Displaced,
                faces_of: Callable[[int], NDArray[np.int32]], limits: FaceLimits,
                qualify: Qualify, *, threads: int | None = None,
+               notify: Callable[[float], None] | None = None,
                ) -> Iterator[tuple[NDArray[np.int32], NDArray[np.bool_]]]:
     """Per position, in order: its faces to test (``faces_of(n)``, ascending) and (K, f)
     bool, which of them qualify from each displaced setup. Setups that cannot stand
     (``displaced.valid`` false) and the position itself keep every face.
 
     Only the faces given are tested (the limits' targets are cut to them), so the cost is
-    K - 1 rays per face of the position, not per face of the model.
+    K - 1 rays per face of the position, not per face of the model. ``notify`` gets the
+    fraction done after each position and may raise to stop.
     """
     def work(n: int) -> tuple[NDArray[np.int32], NDArray[np.bool_]]:
         faces = np.asarray(faces_of(n), np.int32)
@@ -166,19 +168,22 @@ def kept_faces(scene: Scene, displaced: Displaced,
             kept[setups[block.candidate], np.searchsorted(faces, block.face)] = True
         return faces, kept
 
-    return in_block_order(work, range(len(displaced.positions)), threads=threads)
+    return in_block_order(work, range(len(displaced.positions)), threads=threads,
+                          notify=notify)
 
 
 def robust_blocks(scene: Scene, table: CoverageTable, displaced: Displaced,
                   limits: FaceLimits, qualify: Qualify, *, disc_radius_m: float | None,
-                  threads: int | None = None) -> Iterator[QualifiedPairs]:
+                  threads: int | None = None, notify: Callable[[float], None] | None = None,
+                  ) -> Iterator[QualifiedPairs]:
     """The rows of the robust coverage table, a candidate at a time: the faces of
     ``table`` (each candidate's own) that qualify from every displaced setup of it too,
     and (``disc_radius_m``, the centroid model) pass the analytic limits from every point
     of the disc of that radius around it (:func:`disc_limits_hold`). The densities are not
     kept (the table keeps only the pattern)."""
     for candidate, (faces, kept) in enumerate(
-            kept_faces(scene, displaced, table.faces_of, limits, qualify, threads=threads)):
+            kept_faces(scene, displaced, table.faces_of, limits, qualify, threads=threads,
+                       notify=notify)):
         keep = kept.all(axis=0)
         if disc_radius_m is not None:
             keep &= disc_limits_hold(scene, limits, displaced.positions[candidate, 0], faces,
