@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
+from scipy.sparse.csgraph import minimum_spanning_tree
 
 from planner.method.coverage import CoverageTable, QualifiedPairs
 from planner.method.pairs import FaceLimits, PairFinder
@@ -39,6 +40,7 @@ from planner.method.selection import GOAL_SLACK_M2
 from planner.method.visibility import Occlusion, make_occlusion
 from planner.scene import Scene
 from planner.survey.registration import (
+    Registration,
     overlap_limits,
     shared_faces_only,
     station_registration,
@@ -136,16 +138,21 @@ def _worst_case_network(
     file_faces: bool, threads: int | None,
 ) -> tuple[tuple[int, ...], ...]:
     """Components (station ids) of the registration network when every station keeps only
-    the shared overlap faces it qualifies for from all its setups."""
+    the shared overlap faces it qualifies for from all its setups.
+
+    Connectivity needs a spanning tree only: the faces each station shares with its
+    neighbours on the strongest spanning tree of the nominal network (most overlap) are
+    tested first; when every tree edge survives, the network holds. Otherwise every shared
+    face is tested and the components are those of the whole worst-case network.
+    """
     doors = door_faces(scene)
     overlap = overlap_limits(limits, overlap_density_pts_m2)
     if (doors & limits.occludes).any():  # doors are open for the overlap rays, as the survey's
         overlap = dataclasses.replace(overlap, occludes=limits.occludes & ~doors)
         occlusion = make_occlusion(scene, overlap.occludes, "embree", file_faces=file_faces)
     shared = shared_faces_only(station_overlap)
-
-    def row(n: int) -> NDArray[np.int32]:
-        return np.asarray(shared.indices[shared.indptr[n]:shared.indptr[n + 1]], np.int32)
+    rows = [np.asarray(shared.indices[shared.indptr[n]:shared.indptr[n + 1]], np.int32)
+            for n in range(shared.shape[0])]
 
     def qualify(positions: NDArray[np.float64], cut: FaceLimits) -> list[QualifiedPairs]:
         pairs, _ = PairFinder(scene, cut).find(positions, 0)
@@ -155,12 +162,39 @@ def _worst_case_network(
         return [QualifiedPairs(pairs.candidate[visible], pairs.face[visible],
                                pairs.lpd_pts_m2[visible])]
 
-    kept_rows = [faces[kept.all(axis=0)] for faces, kept in
-                 kept_faces(scene, displaced, row, overlap, qualify, threads=threads)]
-    indptr = np.zeros(len(kept_rows) + 1, np.int64)
-    np.cumsum([len(r) for r in kept_rows], out=indptr[1:])
-    indices = np.concatenate(kept_rows) if kept_rows else np.zeros(0, np.int32)
-    worst = sp.csr_matrix((np.ones(len(indices), bool), indices, indptr),
-                          shape=(len(kept_rows), scene.n_faces))
-    return station_registration(scene, worst, min_overlap_m2,
-                                overlap_density_pts_m2).components
+    def components(tested: list[NDArray[np.int32]]) -> tuple[tuple[int, ...], ...]:
+        kept_rows = [faces[kept.all(axis=0)] for faces, kept in
+                     kept_faces(scene, displaced, tested.__getitem__, overlap, qualify,
+                                threads=threads)]
+        indptr = np.zeros(len(kept_rows) + 1, np.int64)
+        np.cumsum([len(r) for r in kept_rows], out=indptr[1:])
+        indices = np.concatenate(kept_rows) if kept_rows else np.zeros(0, np.int32)
+        worst = sp.csr_matrix((np.ones(len(indices), bool), indices, indptr),
+                              shape=(len(kept_rows), scene.n_faces))
+        return station_registration(scene, worst, min_overlap_m2,
+                                    overlap_density_pts_m2).components
+
+    nominal = station_registration(scene, shared, min_overlap_m2, overlap_density_pts_m2)
+    if len(rows) > 1 and len(nominal.components) == 1:
+        neighbours = _strongest_tree(nominal, len(rows))
+        tree_rows = [np.intersect1d(rows[n], np.concatenate([rows[m] for m in neighbours[n]]),
+                                    assume_unique=False) for n in range(len(rows))]
+        found = components(tree_rows)
+        if len(found) == 1:
+            return found
+    return components(rows)
+
+
+def _strongest_tree(registration: Registration, n: int) -> list[list[int]]:
+    """Per station (0-based), its neighbours on a spanning tree of the ok edges that keeps
+    the largest overlaps (a minimum spanning tree of the reversed overlaps)."""
+    ok = [e for e in registration.edges if e.ok]
+    top = max(e.overlap_m2 for e in ok)
+    weights = sp.coo_matrix(([top + 1.0 - e.overlap_m2 for e in ok],
+                             ([e.a - 1 for e in ok], [e.b - 1 for e in ok])), shape=(n, n))
+    tree = minimum_spanning_tree(weights.tocsr()).tocoo()
+    neighbours: list[list[int]] = [[] for _ in range(n)]
+    for a, b in zip(tree.row.tolist(), tree.col.tolist(), strict=True):
+        neighbours[a].append(b)
+        neighbours[b].append(a)
+    return neighbours
