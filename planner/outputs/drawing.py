@@ -452,7 +452,7 @@ def _key(fig: Figure, result: PlanResult, scale: int) -> None:
     if result.tolerance is not None and any(s.critical for s in result.tolerance.stations):
         handles.append(Line2D([], [], marker="o", color="none", markerfacecolor="none",
                               markeredgecolor=CRITICAL_RGB, markeredgewidth=2.0, markersize=13,
-                              label=f"critical: goal breaks if set up "
+                              label=f"critical (crit.): goal breaks if set up "
                                     f"{result.spec.placement_tolerance_m:g} m off"))
     if math.isfinite(reach):
         handles.append(Line2D([], [], color=_rgb(STATION_RGB), linestyle=(0, (4, 3)),
@@ -493,7 +493,7 @@ def _station_table(fig: Figure, result: PlanResult, top: float) -> None:
         x, y, z = positions[candidate]
         fraction = chosen.covered_area_m2[order] / max_area * 100 if max_area else 0.0
         rows.append(f"{order + 1:5d} {x:7.2f} {y:7.2f} {z:6.2f} {chosen.new_area_m2[order]:8.2f}"
-                    f" {fraction:7.1f}" + (" critical" if _critical(result, order) else ""))
+                    f" {fraction:7.1f}" + (" crit." if _critical(result, order) else ""))
     if len(chosen.stations) > limit:
         rows.append(f"  ... {len(chosen.stations) - limit} more in stations.csv")
     fig.text(0.755, top, "Stations (model coordinates, m)", fontsize=8, fontweight="bold",

@@ -216,7 +216,7 @@ def _office() -> object:
         boxes.append(((x0 + 0.025, 3.475, 0.0), (x0 + 2.0, 3.525, 1.6)))
         boxes.append(((x0 + 0.3, 0.0, 0.72), (x0 + 2.7, 0.7, 0.75)))
         boxes.append(((x0 + 0.3, 6.3, 0.72), (x0 + 2.7, 7.0, 0.75)))
-    return boxes_scene(boxes, max_edge_m=0.25)
+    return boxes_scene(boxes, max_edge_m=0.4)
 
 
 def test_several_heights_reach_the_goal_with_no_more_stations() -> None:
