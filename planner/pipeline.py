@@ -232,12 +232,13 @@ def plan(
     release_freed_memory()
     tolerance = None
     if spec.placement_tolerance_m > 0:
-        if station_overlap is None:  # the survey's rows, made once for both (its "overlap")
+        if station_overlap is None:  # the survey's rows, made once for both (its "overlap"),
+            # cut to the faces two stations share as the survey cuts them (no whole matrix)
             t_rows = time.perf_counter()
             station_overlap = OverlapRows(
                 scene, candidates.positions[list(chosen.stations)], limits, occlusion,
                 spec.overlap_density_pts_m2, threads=threads,
-                file_faces=spec.occluders == "file").matrix(range(len(chosen.stations)))
+                file_faces=spec.occluders == "file").shared_matrix(range(len(chosen.stations)))
             stats.seconds["overlap"] = time.perf_counter() - t_rows
         t_tolerance, cpu_tolerance = time.perf_counter(), time.process_time()
         tolerance = placement_tolerance(
