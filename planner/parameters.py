@@ -96,6 +96,9 @@ class PlanSpec:
     candidates: tuple[tuple[float, float, float], ...] | None = None
     grid_spacing_m: float = 0.5
     scanner_height_m: float = 1.5
+    # several instrument heights: candidates at each over the same floor points (null: only
+    # scanner_height_m, the paper's single height)
+    scanner_heights_m: tuple[float, ...] | None = None
     clearance_m: float = 0.3
     area_of_interest: tuple[tuple[float, float], ...] | None = None
     # "walkable": the lowest floor and every level a person reaches from it on foot (stairs,
@@ -119,6 +122,11 @@ class PlanSpec:
     route_start: tuple[float, float, float] | None = None  # null: the route chooses
     setup_time_s: float | None = None  # per station; null: the preset's, else 60 s
     walking_speed_m_s: float = 0.8
+    # placement tolerance (planner.method.placement): the report of what each station keeps
+    # when set up anywhere within this radius (0: no report), and robust planning (a face
+    # counts for a candidate only when it qualifies from every displaced position)
+    placement_tolerance_m: float = 0.25
+    robust: bool = False
 
     def __post_init__(self) -> None:
         # accept plain data too (dicts, lists), as from_mapping does
@@ -132,12 +140,21 @@ class PlanSpec:
             object.__setattr__(self, "route_start",
                                _points("route_start", [self.route_start], 3)[0])
         object.__setattr__(self, "scanner", _scanner(self.scanner))
+        if self.scanner_heights_m is not None:
+            object.__setattr__(self, "scanner_heights_m",
+                               _convert("scanner_heights_m", self.scanner_heights_m))
         _validate(self)
 
     @property
     def scanner_profile(self) -> ScannerProfile | None:
         """The instrument ``scanner`` stands for (a preset's figures filled in), or None."""
         return None if self.scanner is None else resolve(self.scanner)
+
+    @property
+    def heights_m(self) -> tuple[float, ...]:
+        """The instrument heights of generated candidates: ``scanner_heights_m``, or
+        ``scanner_height_m`` alone when that is null."""
+        return self.scanner_heights_m or (self.scanner_height_m,)
 
     @property
     def angular_step_rad(self) -> float:
@@ -192,7 +209,7 @@ class PlanSpec:
         }
         data["route_start"] = None if self.route_start is None else list(self.route_start)
         for key in ("candidates", "area_of_interest", "storeys", "rooms", "curve_goals",
-                    "fixed_stations"):
+                    "fixed_stations", "scanner_heights_m"):
             value = getattr(self, key)
             data[key] = None if value is None else [
                 list(p) if isinstance(p, tuple) else p for p in value
@@ -254,6 +271,7 @@ RANGES: dict[str, Range] = {
     "unit_scale": Range(gt=0, hint="0.001 for a model in millimetres"),
     "grid_spacing_m": Range(gt=0),
     "scanner_height_m": Range(gt=0),
+    "placement_tolerance_m": Range(ge=0, le=5, hint="0 turns the tolerance report off"),
     "clearance_m": Range(ge=0),
     "min_overlap_m2": Range(gt=0, hint="or null for no overlap constraint"),
     "overlap_density_pts_m2": Range(gt=0),
@@ -291,7 +309,7 @@ GROUP_RANGES: dict[str, Range] = {
 
 _NULLABLE = {"max_edge_m", "candidates", "area_of_interest", "storeys", "rooms",
              "curve_goals", "fixed_stations", "scanner", "min_overlap_m2", "route_start",
-             "setup_time_s", "up_axis"}
+             "setup_time_s", "up_axis", "scanner_heights_m"}
 _FLOATS = {
     f.name
     for f in fields(PlanSpec)
@@ -333,7 +351,7 @@ def _convert(name: str, value: Any) -> Any:
         if value not in COVERAGE_MODELS:
             raise ParameterError(name, f"{value!r} is not one of {', '.join(COVERAGE_MODELS)}")
         return value
-    if name == "verify":
+    if name in ("verify", "robust"):
         if not isinstance(value, bool):
             raise ParameterError(name, f"expected true or false, got {value!r}")
         return value
@@ -347,6 +365,12 @@ def _convert(name: str, value: Any) -> Any:
         return value
     if name in ("candidates", "fixed_stations"):
         return None if value is None else _points(name, value, 3)
+    if name == "scanner_heights_m":
+        if value is None:
+            return None
+        if not isinstance(value, list | tuple):
+            raise ParameterError(name, "expected a list of heights in metres, e.g. [1.2, 1.5, 1.8]")
+        return tuple(_number(f"{name}[{i}]", v) for i, v in enumerate(value))
     if name == "curve_goals":
         if value is None:
             return None
@@ -570,6 +594,18 @@ def _validate(spec: PlanSpec) -> None:
         for i, goal in enumerate(spec.curve_goals):
             _check(0 < goal <= 1, f"curve_goals[{i}]",
                    f"{goal} is outside (0, 1]; 0.8 means 80 % of the achievable area")
+    if spec.scanner_heights_m is not None:
+        _check(len(spec.scanner_heights_m) > 0, "scanner_heights_m",
+               "is an empty list; give at least one height or null for scanner_height_m")
+        _check(len(set(spec.scanner_heights_m)) == len(spec.scanner_heights_m),
+               "scanner_heights_m", f"{list(spec.scanner_heights_m)} repeats a height")
+        for i, height in enumerate(spec.scanner_heights_m):
+            check_range(f"scanner_heights_m[{i}]", height, RANGES["scanner_height_m"])
+        _check(spec.candidates is None, "scanner_heights_m",
+               "applies to generated candidates; explicit candidates carry their own z "
+               "(leave scanner_heights_m null or drop candidates)")
+    _check(not spec.robust or spec.placement_tolerance_m > 0, "robust",
+           "needs placement_tolerance_m greater than 0 (the radius a setup may be off)")
     if spec.area_of_interest is not None:
         _check(len(spec.area_of_interest) >= 3, "area_of_interest",
                "needs at least 3 [x, y] vertices")

@@ -185,6 +185,9 @@ class PlanParameters(BaseModel):
         "candidates", "scanner positions [x, y, z] in model coordinates; null: a grid")
     grid_spacing_m: Number = _d("grid_spacing_m", "spacing of generated candidates, metres")
     scanner_height_m: Number = _d("scanner_height_m", "height above the floor, metres")
+    scanner_heights_m: list[Annotated[float, Strict(), Field(gt=0)]] | None = _d(
+        "scanner_heights_m", "instrument heights above the floor for generated candidates, "
+        "metres, each a separate candidate; null: scanner_height_m alone")
     clearance_m: Number = _d("clearance_m", "least distance to any surface, metres")
     glb_compression: Literal["meshopt", "none"] = _d(
         "glb_compression", "coverage.glb: meshopt-compressed, or none for plain loaders")
@@ -209,6 +212,11 @@ class PlanParameters(BaseModel):
     setup_time_s: Number | None = _d("setup_time_s",
                                      "per-station setup, seconds; null: the preset's or 60")
     walking_speed_m_s: Number = _d("walking_speed_m_s", "walking speed with the kit, m/s")
+    placement_tolerance_m: Number = _d(
+        "placement_tolerance_m", "radius a tripod may land off its planned position, metres; "
+        "the plan reports what each station keeps within it (0: no report)")
+    robust: StrictBool = _d("robust", "credit a face to a candidate only when it qualifies from "
+                            "every position within placement_tolerance_m")
 
 
 class ExecuteInputs(BaseModel):

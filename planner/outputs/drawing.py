@@ -65,6 +65,8 @@ COVERED_HIGH_RGB = (0, 90, 50)  # best LPD >= COVERED_SATURATION x the requireme
 COVERED_SATURATION = 8.0
 CLASS_RGB = ((49, 163, 84), (240, 150, 20), (190, 30, 60), (200, 200, 200))
 STATION_RGB = (20, 60, 160)
+# ring around a critical station (its worst setup within placement_tolerance_m breaks the goal)
+CRITICAL_RGB = (0.85, 0.1, 0.1)
 
 DPI = 150
 PREVIEW_SIZE_IN = (11.69, 8.27)  # A4 landscape
@@ -339,10 +341,19 @@ def _draw_level(ax: Axes, result: PlanResult, level: Level, mesh: Any,
                                 zorder=6))
         label = str(order + 1)
         size = 15 if len(label) < 3 else 19
+        if _critical(result, order):  # the goal breaks without it in place: a red ring
+            ax.plot([x], [y], marker="o", markersize=size + 7, markerfacecolor="none",
+                    markeredgecolor=CRITICAL_RGB, markeredgewidth=2.2, linestyle="none",
+                    zorder=8)
         ax.plot([x], [y], marker="o", markersize=size, markerfacecolor=station_colour,
                 markeredgecolor="white", markeredgewidth=1.2, linestyle="none", zorder=8)
         ax.text(x, y, label, ha="center", va="center_baseline", color="white",
                 fontsize=8 if len(label) < 3 else 7, fontweight="bold", zorder=9)
+
+
+def _critical(result: PlanResult, order: int) -> bool:
+    """The station's worst setup within the placement tolerance alone breaks the goal."""
+    return result.tolerance is not None and result.tolerance.stations[order].critical
 
 
 def _draw_survey(ax: Axes, result: PlanResult, level: Level, members: set[int]) -> None:
@@ -438,6 +449,11 @@ def _key(fig: Figure, result: PlanResult, scale: int) -> None:
         Line2D([], [], marker="o", color="none", markerfacecolor=_rgb(STATION_RGB),
                markeredgecolor="white", markersize=11, label="station, in scan order"),
     ]
+    if result.tolerance is not None and any(s.critical for s in result.tolerance.stations):
+        handles.append(Line2D([], [], marker="o", color="none", markerfacecolor="none",
+                              markeredgecolor=CRITICAL_RGB, markeredgewidth=2.0, markersize=13,
+                              label=f"critical (crit.): goal breaks if set up "
+                                    f"{result.spec.placement_tolerance_m:g} m off"))
     if math.isfinite(reach):
         handles.append(Line2D([], [], color=_rgb(STATION_RGB), linestyle=(0, (4, 3)),
                               alpha=0.7, label=f"head-on density range {reach:.2f} m"))
@@ -493,6 +509,8 @@ def _station_table(fig: Figure, result: PlanResult, top: float) -> None:
             scan = scans[order]
             seconds = "?" if scan.scan_s is None else f"{scan.scan_s:.0f}s"
             row += f" {(scan.setting or 'plan')[:8]:<8}{seconds:>6}"
+        if _critical(result, order):
+            row += " crit."
         rows.append(row)
     if len(chosen.stations) > limit:
         rows.append(f"  ... {len(chosen.stations) - limit} more in stations.csv")

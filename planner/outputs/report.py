@@ -101,6 +101,11 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
                 scan = result.survey.scans[order]
                 station["setting"] = scan.setting
                 station["scan_s"] = None if scan.scan_s is None else round(scan.scan_s, 1)
+        heights = result.candidates.heights_m
+        if heights is not None and np.isfinite(heights[candidate]):
+            station["scanner_height_m"] = _r(heights[candidate])
+        if result.tolerance is not None:
+            station["tolerance"] = result.tolerance.stations[order].to_dict()
         stations.append(station)
     document: dict[str, Any] = {
         "format_version": FORMAT_VERSION,
@@ -136,6 +141,14 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
         document["registration"] = result.survey.registration.to_dict()
         document["route"] = _route_in_model(result)
         document["field_time"] = result.survey.field_time.to_dict()
+    if result.tolerance is not None:
+        document["tolerance"] = result.tolerance.to_dict()
+    if result.spec.scanner_heights_m is not None and result.candidates.heights_m is not None:
+        heights, counts = np.unique(result.candidates.heights_m[
+            np.isfinite(result.candidates.heights_m)], return_counts=True)
+        document["candidates"]["per_height"] = [
+            {"scanner_height_m": _r(h), "candidates": int(n)}
+            for h, n in zip(heights, counts, strict=True)]
     if result.optimal is not None:
         document["optimal"] = result.optimal.to_dict()
         document["optimal"]["greedy_stations"] = result.selections["greedy"].count_for_goal(

@@ -161,6 +161,14 @@ function showTotals(doc) {
     ['faces', String(t.faces ?? '–')],
   ];
   if (doc.optimal) rows.push(['optimal (MILP)', `${doc.optimal.stations}, proven ≥ ${doc.optimal.lower_bound}`]);
+  const tol = doc.tolerance;
+  if (tol) {
+    const critical = tol.critical_stations || [];
+    rows.push([`set up ${fmt(tol.placement_tolerance_m, 2)} m off`,
+      `goal ${tol.goal_holds ? 'holds' : 'may break'} (≥ ${fmt(tol.worst_case_covered_area_m2, 1)} m²), ` +
+      `network ${tol.network_holds ? 'holds' : 'may break'}` +
+      (critical.length ? `; critical: ${critical.join(', ')}` : '')]);
+  }
   const dl = el('dl');
   for (const [name, value] of rows) dl.append(el('dt', { text: name }), el('dd', { text: value }));
   $('totals').replaceChildren(el('h2', { text: 'Totals' }), dl);
@@ -240,7 +248,7 @@ function showStationTable(stations) {
     const onRoute = s.visit !== null && s.visit !== undefined;
     const visit = el('td', { text: onRoute ? String(s.visit) : '–', class: 'visit' });
     if (!onRoute && 'visit' in s) visit.title = 'not reachable on foot';
-    const tr = el('tr', { 'data-order': String(s.id) },
+    const tr = el('tr', { 'data-order': String(s.id), class: isCritical(s) ? 'critical' : '' },
       el('td', { text: String(s.id) }), visit, el('td', { text: fmt(p[0]) }),
       el('td', { text: fmt(p[1]) }), el('td', { text: fmt(p[2]) }),
       el('td', { text: fmt(s.new_area_m2, 1) }),
@@ -250,10 +258,22 @@ function showStationTable(stations) {
         el('td', { text: s.scan_s === null || s.scan_s === undefined ? 'unknown'
           : duration(s.scan_s), 'data-col': 'scan' }));
     }
+    if (isCritical(s)) tr.title = 'critical: the goal breaks if this station is set up ' +
+      `${fmt(s.tolerance.worst_offset_m[0], 2)}, ${fmt(s.tolerance.worst_offset_m[1], 2)} m off`;
     tr.addEventListener('click', () => selectStation(Number(s.id)));
     return tr;
   }));
   $('stations').hidden = stations.length === 0;
+}
+
+// the goal breaks when this station alone lands at its worst setup (plan.json tolerance)
+function isCritical(station) {
+  return Boolean(station && station.tolerance && station.tolerance.critical);
+}
+
+function criticalOrder(order) {
+  return Boolean(plan && Array.isArray(plan.stations)
+    && isCritical(plan.stations.find((s) => Number(s.id) === order)));
 }
 
 function showFiles() {
@@ -399,7 +419,7 @@ async function loadModel() {
       box.expandByObject(object);
     }
     if (Number.isInteger(data.order) && Number.isInteger(data.station)) {
-      const label = labelSprite(String(data.order));
+      const label = labelSprite(String(data.order), criticalOrder(data.order) ? '#c81e1e' : undefined);
       const world = new THREE.Vector3();
       object.getWorldPosition(world);
       label.position.copy(world).add(new THREE.Vector3(0, 0.75, 0));
@@ -755,6 +775,14 @@ function selectStation(order) {
     el('p', { text: visitText(data) }),
     el('p', { text: `position x ${fmt(p[0])} m, y ${fmt(p[1])} m, z ${fmt(p[2])} m` }),
     el('p', { text: `new area ${fmt(data.new_area_m2)} m²` }),
+    ...(data.scanner_height_m !== undefined
+      ? [el('p', { text: `instrument height ${fmt(data.scanner_height_m, 2)} m` })] : []),
+    ...(data.tolerance ? [el('p', {
+      class: data.tolerance.critical ? 'critical' : '',
+      text: `set up off by up to ${fmt(plan.tolerance.placement_tolerance_m, 2)} m: loses at most ` +
+            `${fmt(data.tolerance.worst_loss_m2, 2)} m² (worst offset ` +
+            `${fmt(data.tolerance.worst_offset_m[0], 2)}, ${fmt(data.tolerance.worst_offset_m[1], 2)} m)` +
+            (data.tolerance.critical ? '; critical: the goal breaks' : '') })] : []),
     el('p', { text: `covered after it ${fmt(data.covered_area_m2)} m² ` +
                     `(${fmt(100 * Number(data.coverage_fraction), 1)} % of coverable)` }),
     el('p', { class: 'muted', text: `candidate ${data.candidate_index ?? '–'}` }));
