@@ -67,7 +67,8 @@ class EmbreeOcclusion:
     hit an occluder clearly (well inside its edges and in front of the target, a hit every
     mode finds, so the verdicts cannot differ), again in its fast mode; it decides the rays
     where the two disagree in float64 as the brute-force reference does, against the
-    faces either cast hit and every face sharing a vertex with them. Measured: 150 of hall-small's 3.0 M rays and 2,296 of hall-full's 17.6 M disagree;
+    faces either cast hit and every face sharing a vertex with them. Measured: 150 of
+    hall-small's 3.0 M rays and 2,296 of hall-full's 17.6 M disagree;
     the robust cast alone was wrong on 21 and 35 of them, enough to change the stations
     the coverage curve needs at 100 % on hall-small (37 instead of the reference's 36) on
     an AVX2 machine. The second cast costs a second BVH and ray time: hall-full's
