@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, RootModel, Strict, StrictBool
 
-from planner.parameters import GROUP_RANGES, RANGES, PlanSpec, Range
+from planner.parameters import COORDINATE_RANGE, GROUP_RANGES, MAX_ITEMS, RANGES, PlanSpec, Range
 
 
 def _defaults() -> dict[str, Any]:
@@ -29,21 +29,23 @@ def _defaults() -> dict[str, Any]:
 
 DEFAULTS = _defaults()
 Number = Annotated[float, Strict()]
-Point3 = Annotated[list[Number], Field(min_length=3, max_length=3)]
-Point2 = Annotated[list[Number], Field(min_length=2, max_length=2)]
+Coordinate = Annotated[float, Strict(), Field(ge=COORDINATE_RANGE.ge, le=COORDINATE_RANGE.le)]
+Point3 = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
+Point2 = Annotated[list[Coordinate], Field(min_length=2, max_length=2)]
 Goal = Annotated[float, Strict(), Field(gt=0, le=1)]  # as PlanSpec checks curve_goals[i]
 
 
-def _ranged(default: Any, description: str, bounds: Range | None) -> Any:
+def _ranged(default: Any, description: str, bounds: Range | None,
+            max_items: int | None = None) -> Any:
     """A field with the bounds of the planner's range table (None: no bound)."""
     bounds = bounds or Range()
     return Field(default=default, description=description, ge=bounds.ge, gt=bounds.gt,
-                 le=bounds.le, lt=bounds.lt)
+                 le=bounds.le, lt=bounds.lt, max_length=max_items)
 
 
 def _d(name: str, description: str) -> Any:
-    """A field whose default is PlanSpec's and whose range is the planner's."""
-    return _ranged(DEFAULTS[name], description, RANGES.get(name))
+    """A field whose default is PlanSpec's, whose range and most items are the planner's."""
+    return _ranged(DEFAULTS[name], description, RANGES.get(name), MAX_ITEMS.get(name))
 
 
 class GroupRequirementModel(BaseModel):
@@ -149,7 +151,7 @@ class ExecuteRequest(BaseModel):
 
     inputs: ExecuteInputs
     outputs: dict[str, dict[str, Any]] | None = Field(
-        default=None, description="OGC: outputs wanted; every output is kept")
+        default=None, max_length=100, description="OGC: outputs wanted; every output is kept")
     response: Literal["raw", "document"] = Field(
         default="document", description="OGC: results as a document (the only form here)")
 
