@@ -195,3 +195,11 @@ PROBLEMS[OutOfMemoryError] = ProblemKind(422, "urn:scanplan:problem:out-of-memor
                                          "Out of memory")
 PROBLEMS[JobTooLargeError] = ProblemKind(422, "urn:scanplan:problem:job-too-large",
                                          "The plan would be too large for this service")
+
+
+class PlanKilledError(ServiceError):
+    """The planning process was ended by a signal from outside on the job's last attempt."""
+
+
+PROBLEMS[PlanKilledError] = ProblemKind(500, "urn:scanplan:problem:plan-killed",
+                                        "The planning process was killed")

@@ -168,6 +168,27 @@ class Link(BaseModel):
 JobStatus = Literal["accepted", "running", "successful", "failed", "dismissed"]
 
 
+class AttemptInfo(BaseModel):
+    """One ended attempt of a job: where and how it ended, and the figures of a death."""
+
+    attempt: int = Field(..., description="1 for the first run")
+    worker: str | None = Field(None, description="host:pid of the worker that ran it")
+    started: str | None = None
+    finished: str | None = None
+    outcome: Literal["successful", "failed", "out of memory", "killed", "worker lost"] = Field(
+        ..., description="killed: the planning process was ended by a signal from outside, "
+        "its memory far below the limit (queued again until the last attempt); worker lost: "
+        "the worker stopped heartbeating")
+    stage: str | None = Field(None, description="the last stage the attempt reached")
+    signal: str | None = Field(None, description="the signal that ended the planning process")
+    exit_code: int | None = None
+    peak_rss_mib: float | None = Field(None, description="resident peak of the planning "
+                                       "process, MiB (wait4 ru_maxrss)")
+    peak_address_space_mib: float | None = Field(None, description="its address space peak, "
+                                                 "MiB, as last read")
+    memory_limit_mib: float | None = Field(None, description="its address-space limit, MiB")
+
+
 class StatusInfo(BaseModel):
     """A job's status document (OGC ``statusInfo`` plus a few fields of ours)."""
 
@@ -187,6 +208,8 @@ class StatusInfo(BaseModel):
         None, description="seconds per stage (reading, candidates, visibility, ...)")
     problem: dict[str, Any] | None = Field(default=None,
                                            description="RFC 9457 problem of a failure")
+    attempt_log: list[AttemptInfo] = Field(default_factory=list,
+                                           description="each ended attempt, oldest first")
     warnings: list[str] | None = Field(
         default=None, description="at submission: what looks wrong before any work is done "
         "(e.g. a model size that suggests another unit_scale)")

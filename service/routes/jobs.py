@@ -12,7 +12,7 @@ from fastapi.responses import FileResponse, JSONResponse
 from service.deps import OwnerDep, ServicesDep
 from service.job_store import ACTIVE, DISMISSED, FAILED, STATUSES, SUCCESSFUL, JobRecord
 from service.problems import MEDIA_TYPE, NoSuchJobError, ResultNotReadyError, problem_responses
-from service.schemas import JobList, JobResults, JobStatus, Link, OutputRef, StatusInfo
+from service.schemas import AttemptInfo, JobList, JobResults, JobStatus, Link, OutputRef, StatusInfo
 from service.timefmt import iso
 from service.worker import results_dir
 
@@ -55,6 +55,9 @@ def status_info(job: JobRecord) -> StatusInfo:
         message=job.message, progress=job.progress, created=iso(job.created) or "",
         started=iso(job.started), finished=iso(job.finished), updated=iso(job.updated) or "",
         mesh=job.mesh_id, attempts=job.attempts, timings_s=job.timings, problem=job.problem,
+        attempt_log=[AttemptInfo(**{**entry, "started": iso(entry.get("started")),
+                                    "finished": iso(entry.get("finished"))})
+                     for entry in job.attempt_log or []],
         links=links,
     )
 

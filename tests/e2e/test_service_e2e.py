@@ -132,6 +132,39 @@ def test_sigkilled_worker_job_still_finishes(service: Service) -> None:
     assert status["attempts"] >= 2, "the job should have run again after the kill"
 
 
+def _children(pid: int) -> list[int]:
+    """Live child processes of ``pid`` (the worker's planning process), from /proc."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid and fields[0] != "Z":
+                found.append(int(entry.name))
+    return found
+
+
+def test_sigkilled_planning_process_is_run_again_not_called_out_of_memory(
+        service: Service) -> None:
+    """What an operator, a container runtime or the host's OOM killer does to the plan."""
+    hall = _scene("hall-full")
+    with service.client() as client:
+        job_id = _submit(client, hall)
+        worker = _wait_running(service, client, job_id)
+        [child] = _children(worker)
+        os.kill(child, signal.SIGKILL)
+        status = wait_for(client, job_id, FINISHED, timeout_s=300)
+    assert status["status"] == "successful", status
+    assert status["attempts"] == 2, status
+    killed, succeeded = status["attempt_log"]
+    assert killed["outcome"] == "killed" and killed["signal"] == "SIGKILL", killed
+    assert killed["stage"] in ("reading", "candidates", "visibility", "selection"), killed
+    assert killed["peak_rss_mib"] < 0.9 * killed["memory_limit_mib"], killed
+    assert succeeded["outcome"] == "successful"
+
+
 def test_delete_cancels_a_running_job(service: Service) -> None:
     hall = _scene("hall-full")
     with service.client() as client:

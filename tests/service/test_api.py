@@ -300,3 +300,14 @@ def test_verify_job_option_serves_the_simulated_scan(
     assert served["totals"] == expected["totals"]
     faces = np.load(io.BytesIO(client.get(results["faces.npz"]["href"]).content))
     assert "verified_lpd_pts_m2" in faces.files
+
+
+def test_a_query_parameter_given_twice_is_refused_unless_it_is_a_list(
+        client: TestClient) -> None:
+    # FastAPI would keep the last value silently; the schema says one value
+    answer = client.post("/meshes?filename=a.obj&filename=b.obj", content=b"v 0 0 0",
+                         headers={"content-type": "application/octet-stream"})
+    assert_problem(answer, 422, "filename", "more than once")
+    assert_problem(client.get("/jobs?limit=2&limit=3"), 422, "limit")
+    assert client.get("/jobs?status=accepted&status=running").status_code == 200
+    assert_problem(client.get("/jobs?offset=2703897329755260715008&limit=353"), 422, "offset")

@@ -126,7 +126,14 @@ def test_a_job_past_the_memory_limit_fails_and_the_worker_goes_on(
         assert status["status"] == "failed", status
         assert status["message"].startswith("out of memory"), status["message"]
         assert status["problem"]["type"].endswith("out-of-memory")
-        assert "SCANPLAN_JOB_MEMORY_LIMIT_MB" in status["problem"]["detail"]
+        detail = status["problem"]["detail"]
+        assert "SCANPLAN_JOB_MEMORY_LIMIT_MB" in detail
+        assert f"limit of {limit_mb:,} MiB" in detail and "MiB resident" in detail, detail
+        # out of memory is not retried: a re-run would end the same
+        [attempt] = status["attempt_log"]
+        assert status["attempts"] == 1 and attempt["outcome"] == "out of memory"
+        assert attempt["memory_limit_mib"] == limit_mb and attempt["peak_rss_mib"] > 0
+        assert queue.enqueued == [job_id]
         results = client.get(f"/jobs/{job_id}/results")
         assert results.status_code == 422
         assert results.headers["content-type"] == "application/problem+json"
