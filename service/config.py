@@ -89,6 +89,12 @@ class Settings(BaseSettings):
         default=2e11, gt=0, description="refuse plans above this many candidate x face pairs")
     max_request_bytes: int = Field(default=8 * 1024 * 1024, gt=0,
                                    description="largest JSON request body (not uploads)")
+    # fair tenants (service/tenants.py)
+    max_active_jobs_per_key: int = Field(
+        default=100, ge=0, description="jobs one API key may have queued or running; a "
+        "submission past it answers 429 with Retry-After; 0: no limit")
+    busy_retry_after_s: int = Field(default=30, ge=1,
+                                    description="Retry-After of that 429, seconds")
 
     @field_validator("api_keys", mode="before")
     @classmethod

@@ -180,6 +180,19 @@ class JobStore:
         with self.engine.connect() as conn:
             return int(conn.execute(query).scalar_one())
 
+    def active_count(self, owner: str) -> int:
+        """How many jobs of ``owner`` are accepted or running."""
+        query = select(func.count()).select_from(jobs).where(
+            jobs.c.owner == owner, jobs.c.status.in_(ACTIVE))
+        with self.engine.connect() as conn:
+            return int(conn.execute(query).scalar_one())
+
+    def withdraw(self, job_id: str) -> bool:
+        """Remove a job refused right after its insert (still accepted, never enqueued)."""
+        statement = delete(jobs).where(jobs.c.id == job_id, jobs.c.status == ACCEPTED)
+        with self._write_lock, self.engine.begin() as conn:
+            return bool(conn.execute(statement).rowcount == 1)
+
     def _update(self, job_id: str, where: Sequence[Any], *,
                 attempt: dict[str, Any] | None = None, **values: Any) -> bool:
         """The conditional UPDATE; ``attempt``: an entry appended to the attempt log."""

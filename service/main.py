@@ -175,7 +175,8 @@ def _problem_response(document: dict[str, Any], headers: dict[str, str] | None =
 
 def _add_problem_handlers(app: FastAPI) -> None:
     async def domain_error(request: Request, exc: Exception) -> JSONResponse:
-        headers = {"WWW-Authenticate": "Bearer"} if isinstance(exc, UnauthorizedError) else None
+        headers = ({"WWW-Authenticate": "Bearer"} if isinstance(exc, UnauthorizedError)
+                   else getattr(exc, "headers", None))  # Retry-After of a 429
         return _problem_response(problem_for(exc, instance=request.url.path), headers)
 
     async def validation_error(request: Request, exc: Exception) -> JSONResponse:

@@ -155,6 +155,8 @@ _WHEN = {
     413: "request body over the configured cap",
     415: "not a model format the planner reads",
     422: "invalid input, named in `parameter`",
+    429: "this API key has as many jobs queued or running as it may; retry after "
+         "`Retry-After` seconds",
     500: "unexpected error",
     503: "a dependency is unreachable",
 }
@@ -203,3 +205,15 @@ class PlanKilledError(ServiceError):
 
 PROBLEMS[PlanKilledError] = ProblemKind(500, "urn:scanplan:problem:plan-killed",
                                         "The planning process was killed")
+
+
+class TooManyJobsError(ServiceError):
+    """The API key has as many jobs queued or running as it may (service.tenants)."""
+
+    def __init__(self, message: str, *, retry_after_s: int) -> None:
+        super().__init__(message)
+        self.headers = {"Retry-After": str(retry_after_s)}
+
+
+PROBLEMS[TooManyJobsError] = ProblemKind(429, "urn:scanplan:problem:too-many-jobs",
+                                         "Too many jobs queued or running for this key")

@@ -13,7 +13,7 @@ from planner.io.readers import unit_warning
 from planner.outputs.report import OUTPUTS
 from planner.parameters import PlanSpec
 from planner.survey.scanners import scanners
-from service import guards
+from service import guards, tenants
 from service.deps import OwnerDep, ServicesDep
 from service.problems import (
     IdempotencyKeyReusedError,
@@ -49,6 +49,11 @@ _JOB_LINKS = {
     operation: {"operationId": operation, "parameters": {"job_id": "$response.body#/jobID"}}
     for operation in ("get_job", "get_results", "delete_job")
 }
+
+
+# past the key's cap of jobs queued or running (service.tenants)
+_BUSY = {**problem_responses(429)[429], "headers": {"Retry-After": {
+    "description": "seconds to wait before submitting again", "schema": {"type": "integer"}}}}
 
 
 # the schema lists the one process; another id is still a 404 no-such-process (OGC), not a 422
@@ -105,7 +110,7 @@ def _check_process(process_id: str) -> None:
              response_model=StatusInfo,
              responses={201: {"links": _JOB_LINKS},
                         200: {"model": StatusInfo, "description": "Idempotency-Key replay"},
-                        **problem_responses(400, 413)})
+                        **problem_responses(400, 413), 429: _BUSY})
 async def execute(
     process_id: ProcessIdPath, body: ExecuteRequest, response: Response, services: ServicesDep,
     owner: OwnerDep,
@@ -151,6 +156,7 @@ def _submit(services: ServicesDep, owner: str, mesh_id: str, parameters: dict[st
                                         idempotency_key=idempotency_key,
                                         request_hash=request_hash)
     if created:
+        tenants.admit(services.jobs, job, services.settings)  # 429 past the key's cap
         services.queue.enqueue(job.id)
     elif job.request_hash != request_hash:
         raise IdempotencyKeyReusedError(
