@@ -42,6 +42,9 @@ def test_reaper_requeues_then_fails_as_worker_lost(tmp_path: Path) -> None:
     assert queue.enqueued == [job.id]
     assert final.status == "failed" and "worker lost" in final.message
     assert final.problem is not None and final.problem["type"].endswith("worker-lost")
+    assert final.attempt_log is not None
+    assert [(a["attempt"], a["outcome"]) for a in final.attempt_log] == [
+        (1, "worker lost"), (2, "worker lost")]
 
 
 def test_release_returns_the_job_without_using_an_attempt(tmp_path: Path) -> None:
