@@ -79,7 +79,7 @@ class ChildEnd:
         return self.signal is not None and not self.out_of_memory
 
     def figures(self) -> str:
-        """"stage visibility, peak 412 MiB resident (1,830 MiB address space)"."""
+        """Words for a message: stage, peak resident and (when read) address space."""
         parts = [f"stage {self.stage or 'starting'}"]
         if self.peak_rss_mib is not None:
             peak = f"peak {self.peak_rss_mib:,.0f} MiB resident"
