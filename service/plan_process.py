@@ -128,7 +128,8 @@ class ChildLimits:
 def run_in_child(work: Work, *, limits: ChildLimits,
                  on_progress: Callable[[str, float], bool],
                  should_stop: Callable[[], bool], poll_interval_s: float,
-                 describe_error: Callable[[BaseException], dict[str, Any]]) -> Any:
+                 describe_error: Callable[[BaseException], dict[str, Any]],
+                 measured: dict[str, float] | None = None) -> Any:
     """Run ``work`` in a forked child and return its result.
 
     Parameters
@@ -136,6 +137,8 @@ def run_in_child(work: Work, *, limits: ChildLimits,
     on_progress : called in this process for each progress message; True stops the child
     should_stop : called every ``poll_interval_s``; True stops the child
     describe_error : the problem document of an exception raised by ``work`` (in the child)
+    measured : when given, receives the child's ``peak_rss_mib`` (and
+        ``peak_address_space_mib`` when read) once it is gone, whatever the outcome
 
     Raises
     ------
@@ -155,9 +158,16 @@ def run_in_child(work: Work, *, limits: ChildLimits,
     try:
         return _wait_for_child(child, receiver, on_progress, should_stop, poll_interval_s)
     finally:
-        if not child.reaped:
-            _kill(pid)
+        if not child.reaped:  # SIGKILL (it may be exiting by itself already) and reap
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+            with contextlib.suppress(ChildProcessError):
+                child.reap()
         receiver.close()
+        if measured is not None and child.peak_rss_mib is not None:
+            measured["peak_rss_mib"] = round(child.peak_rss_mib, 1)
+            if child.address_space_mib is not None:
+                measured["peak_address_space_mib"] = round(child.address_space_mib, 1)
 
 
 @dataclass
@@ -168,6 +178,7 @@ class _Child:
     limits: ChildLimits
     stage: str | None = None
     address_space_mib: float | None = None
+    peak_rss_mib: float | None = None  # once reaped
     reaped: bool = False
 
     def sample(self) -> None:
@@ -182,7 +193,8 @@ class _Child:
         """Wait for the child's end: its wait status and resident peak in MiB."""
         _, status, usage = os.wait4(self.pid, 0)
         self.reaped = True
-        return status, usage.ru_maxrss / 1024  # Linux: ru_maxrss in KiB
+        self.peak_rss_mib = usage.ru_maxrss / 1024  # Linux: ru_maxrss in KiB
+        return status, self.peak_rss_mib
 
     def end(self, *, signal_name: str | None, exit_code: int | None, peak_rss_mib: float,
             out_of_memory: bool | None = None) -> ChildEnd:
@@ -258,14 +270,6 @@ def _oom_message(end: ChildEnd, what: str) -> str:
     return (f"out of memory: the plan needs more than the worker's memory limit{limit} "
             f"({what} in {end.figures()}); use a larger max_edge_m or grid_spacing_m, fewer "
             "candidates, or a smaller model")
-
-
-def _kill(pid: int) -> None:
-    """SIGKILL and reap the child (a no-op when it was reaped already)."""
-    with contextlib.suppress(ProcessLookupError):
-        os.kill(pid, signal.SIGKILL)
-    with contextlib.suppress(ChildProcessError):
-        os.waitpid(pid, 0)
 
 
 def _child_main(work: Work, sender: Connection, parent_pid: int, limits: ChildLimits,

@@ -144,18 +144,19 @@ def execute_job(ctx: WorkerContext, job_id: str) -> None:
     job = ctx.jobs.get(job_id)
     assert job is not None
     reporter = ProgressReporter(ctx, job_id, token)
+    measured: dict[str, float] = {}  # the planning process's peak memory, once it is gone
     log.info("job %s: running (attempt %d)", job_id, job.attempts)
     instance = f"/jobs/{job_id}"
     try:
         with Heartbeat(reporter, ctx.settings.heartbeat_interval_s):
-            outputs, timings = _run_plan(ctx, job, reporter)
+            outputs, timings = _run_plan(ctx, job, reporter, measured)
     except (CancelledError, StoppedError):
         log.info("job %s: stopped (dismissed or reassigned)", job_id)
     except ChildFailedError as exc:
         log.info("job %s: failed: %s", job_id, exc)
         ctx.jobs.finish(job_id, token, FAILED, message=str(exc),
                         problem={**exc.problem, "instance": instance},
-                        attempt=attempt_entry(job, FAILED))
+                        attempt=attempt_entry(job, FAILED, **measured))
     except PlanProcessError as exc:
         log.warning("job %s: %s", job_id, exc)
         _child_ended(ctx, job, token, exc)
@@ -163,7 +164,7 @@ def execute_job(ctx: WorkerContext, job_id: str) -> None:
         log.info("job %s: failed: %s", job_id, exc)
         ctx.jobs.finish(job_id, token, FAILED, message=str(exc),
                         problem=problem_for(exc, instance=instance),
-                        attempt=attempt_entry(job, FAILED))
+                        attempt=attempt_entry(job, FAILED, **measured))
     except KeyboardInterrupt:  # huey stops the worker: hand the job back, it is not lost
         if ctx.jobs.release(job_id, token):
             ctx.queue.enqueue(job_id)
@@ -172,10 +173,10 @@ def execute_job(ctx: WorkerContext, job_id: str) -> None:
         log.exception("job %s: unexpected error", job_id)
         ctx.jobs.finish(job_id, token, FAILED, message="internal error",
                         problem=problem_for(exc, instance=instance),
-                        attempt=attempt_entry(job, FAILED))
+                        attempt=attempt_entry(job, FAILED, **measured))
     else:
         if ctx.jobs.finish(job_id, token, SUCCESSFUL, message="done", timings=timings,
-                           outputs=outputs, attempt=attempt_entry(job, SUCCESSFUL)):
+                           outputs=outputs, attempt=attempt_entry(job, SUCCESSFUL, **measured)):
             log.info("job %s: successful", job_id)
         else:  # dismissed while the files were moved into place
             shutil.rmtree(results_dir(ctx.settings, job_id), ignore_errors=True)
@@ -207,10 +208,10 @@ def _child_ended(ctx: WorkerContext, job: JobRecord, token: str,
                     problem=problem_for(error, instance=f"/jobs/{job.id}"))
 
 
-def _run_plan(ctx: WorkerContext, job: JobRecord,
-              reporter: ProgressReporter) -> tuple[dict[str, dict[str, Any]], dict[str, float]]:
+def _run_plan(ctx: WorkerContext, job: JobRecord, reporter: ProgressReporter,
+              measured: dict[str, float]) -> tuple[dict[str, dict[str, Any]], dict[str, float]]:
     """Plan ``job`` in a child process (see :mod:`service.plan_process`), then move the
-    outputs it wrote into place."""
+    outputs it wrote into place; ``measured`` receives the child's peak memory."""
     spec = PlanSpec.from_mapping(job.parameters)
     mesh_path = ctx.meshes.path(job.mesh_id)
     if mesh_path is None:
@@ -248,8 +249,9 @@ def _run_plan(ctx: WorkerContext, job: JobRecord,
 
     try:
         outputs, timings = run_in_child(
-            work, limits=ChildLimits(memory_bytes=ctx.settings.job_memory_limit_bytes,
-                                     nice=ctx.settings.worker_nice),
+            work, measured=measured, limits=ChildLimits(
+                memory_bytes=ctx.settings.job_memory_limit_bytes,
+                nice=ctx.settings.worker_nice),
             on_progress=reporter, should_stop=should_stop,
             poll_interval_s=ctx.settings.cancel_poll_interval_s,
             describe_error=lambda exc: problem_for(exc))

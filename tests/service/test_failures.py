@@ -130,6 +130,7 @@ def test_a_killed_plan_runs_again_and_succeeds(held: Any) -> None:
     status = client.get(f"/jobs/{job_id}").json()
     assert status["status"] == "successful" and status["attempts"] == 2, status
     assert [a["outcome"] for a in status["attempt_log"]] == ["killed", "successful"]
+    assert status["attempt_log"][1]["peak_rss_mib"] > 0  # for sizing the memory limit
     client.__exit__(None, None, None)
 
 
