@@ -16,7 +16,7 @@ from planner.io.readers import read_scene
 from planner.outputs.report import write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from tests.e2e.service_process import Service, wait_for
+from tests.e2e.service_process import Service, child_pids, wait_for
 
 SCENES = Path(__file__).resolve().parents[2].parent / "shared" / "scenes"
 FINISHED = ("successful", "failed", "dismissed")
@@ -132,20 +132,6 @@ def test_sigkilled_worker_job_still_finishes(service: Service) -> None:
     assert status["attempts"] >= 2, "the job should have run again after the kill"
 
 
-def _children(pid: int) -> list[int]:
-    """Live child processes of ``pid`` (the worker's planning process), from /proc."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid and fields[0] != "Z":
-                found.append(int(entry.name))
-    return found
-
-
 def test_sigkilled_planning_process_is_run_again_not_called_out_of_memory(
         service: Service) -> None:
     """What an operator, a container runtime or the host's OOM killer does to the plan."""
@@ -153,7 +139,7 @@ def test_sigkilled_planning_process_is_run_again_not_called_out_of_memory(
     with service.client() as client:
         job_id = _submit(client, hall)
         worker = _wait_running(service, client, job_id)
-        [child] = _children(worker)
+        [child] = child_pids(worker)
         os.kill(child, signal.SIGKILL)
         status = wait_for(client, job_id, FINISHED, timeout_s=300)
     assert status["status"] == "successful", status

@@ -18,6 +18,7 @@ import pytest
 
 from service.plan_process import ChildLimits, PlanProcessError, Progress, run_in_child
 from service.worker import execute_job
+from tests.e2e.service_process import child_pids
 from tests.service.conftest import InlineQueue, make_client, submit, upload
 
 
@@ -91,28 +92,15 @@ def _run_and_kill_its_child(queue: InlineQueue) -> None:
     assert queue.ctx is not None
     job_id = queue.enqueued[-1]
     worker = threading.Thread(target=execute_job, args=(queue.ctx, job_id))
-    before = set(_children())
+    before = set(child_pids(os.getpid()))
     worker.start()
     deadline = time.monotonic() + 60
-    while not (child := set(_children()) - before):
+    while not (child := set(child_pids(os.getpid())) - before):
         assert worker.is_alive() and time.monotonic() < deadline, "no planning process"
         time.sleep(0.005)
     os.kill(child.pop(), signal.SIGKILL)
     worker.join(60)
     assert not worker.is_alive()
-
-
-def _children() -> list[int]:
-    found = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == os.getpid() and fields[0] != "Z":
-                found.append(int(entry.name))
-    return found
 
 
 def test_a_killed_plan_runs_again_and_succeeds(held: Any) -> None:

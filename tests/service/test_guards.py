@@ -14,24 +14,10 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from tests.e2e.service_process import child_pids
 from tests.service.conftest import InlineQueue, make_client, submit, upload
 
 SCENES = Path(__file__).resolve().parents[2].parent / "shared" / "scenes"
-
-
-def _children(pid: int) -> list[int]:
-    """Live (non-zombie) child processes of ``pid``, from /proc."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid and fields[0] != "Z":
-            found.append(int(entry.name))
-    return found
 
 
 @pytest.fixture
@@ -95,13 +81,13 @@ def test_delete_frees_the_worker_within_2_s_in_every_stage(
             assert worker.is_alive(), client.get(f"/jobs/{job_id}").json()
             assert time.monotonic() < deadline, f"the job never reached {stage}"
             time.sleep(0.02)
-        children = _children(_pid())
+        children = child_pids(_pid())
         assert len(children) == 1, "the plan should run in one child process"
         assert _address_space_limit_mb(children[0]) == 4096, "the child runs unlimited"
         assert client.delete(f"/jobs/{job_id}").json()["status"] == "dismissed"
         worker.join(2.0)
         assert not worker.is_alive(), f"the worker was still busy 2 s after DELETE in {stage}"
-        assert _children(_pid()) == [], "the planning process outlived the DELETE"
+        assert child_pids(_pid()) == [], "the planning process outlived the DELETE"
     finally:
         worker.join()
     assert client.get(f"/jobs/{job_id}").status_code == 404  # dismissed: gone
