@@ -256,29 +256,41 @@ def _g(number: float | None) -> str:
 
 
 # The one table of ranges: the validator below and the service's OpenAPI schema read it.
+# Every bound is finite, so no value the schema accepts overflows the arithmetic after it;
+# the upper bounds are generous ceilings (no instrument or site comes near them), not
+# instrument figures.
 RANGES: dict[str, Range] = {
-    "dof_min_m": Range(ge=0),
-    "dof_max_m": Range(gt=0),
-    "point_spacing_m": Range(gt=0),
-    "reference_distance_m": Range(gt=0),
+    "dof_min_m": Range(ge=0, le=10_000),
+    "dof_max_m": Range(gt=0, le=10_000),
+    "point_spacing_m": Range(gt=0, le=10),
+    "reference_distance_m": Range(gt=0, le=10_000),
     "elevation_min_deg": Range(ge=-90, le=90),
     "elevation_max_deg": Range(ge=-90, le=90),
     "min_incidence_deg": Range(ge=0, le=90),
-    "min_density_pts_m2": Range(ge=0),
+    "min_density_pts_m2": Range(ge=0, le=1e9),
     "coverage_goal": Range(gt=0, le=1, hint="0.8 means 80 % of the achievable area"),
-    "optimal_time_limit_s": Range(gt=0),
-    "max_edge_m": Range(gt=0, hint="or null to use the mesh as given"),
-    "unit_scale": Range(gt=0, hint="0.001 for a model in millimetres"),
-    "grid_spacing_m": Range(gt=0),
-    "scanner_height_m": Range(gt=0),
+    "optimal_time_limit_s": Range(gt=0, le=86_400, hint="86400 is one day"),
+    "max_edge_m": Range(gt=0, le=10_000, hint="or null to use the mesh as given"),
+    "unit_scale": Range(gt=0, le=1e6, hint="0.001 for a model in millimetres"),
+    "grid_spacing_m": Range(gt=0, le=10_000),
+    "scanner_height_m": Range(gt=0, le=1_000),
     "placement_tolerance_m": Range(ge=0, le=5, hint="0 turns the tolerance report off"),
-    "clearance_m": Range(ge=0),
-    "min_overlap_m2": Range(gt=0, hint="or null for no overlap constraint"),
-    "overlap_density_pts_m2": Range(gt=0),
-    "setup_time_s": Range(ge=0, hint="or null for the preset's"),
-    "walking_speed_m_s": Range(gt=0, hint="0.8 is a slow walk with a tripod"),
+    "clearance_m": Range(ge=0, le=1_000),
+    "min_overlap_m2": Range(gt=0, le=1e9, hint="or null for no overlap constraint"),
+    "overlap_density_pts_m2": Range(gt=0, le=1e9),
+    "setup_time_s": Range(ge=0, le=86_400, hint="or null for the preset's"),
+    "walking_speed_m_s": Range(gt=0, le=100, hint="0.8 is a slow walk with a tripod"),
     "samples_per_face": Range(ge=1, le=256, hint="a square number; use 16"),
     "min_sampled_fraction": Range(gt=0, le=1, hint="1 means the whole face"),
+}
+# each coordinate of candidates, fixed_stations, area_of_interest and route_start, in model
+# units (a georeferenced model in millimetres has northings near 1e10)
+COORDINATE_RANGE = Range(ge=-1e12, le=1e12, hint="coordinates are in model units")
+# the most items a list (or, for group_requirements, keys an object) parameter may have
+MAX_ITEMS: dict[str, int] = {
+    "candidates": 1_000_000, "fixed_stations": 10_000, "area_of_interest": 100_000,
+    "curve_goals": 100, "storeys": 10_000, "rooms": 100_000, "group_requirements": 100_000,
+    "scanner_heights_m": 16,
 }
 # the same for the figures of a scanner profile (planner.scanners.ScannerProfile) ...
 SCANNER_RANGES: dict[str, Range] = {
@@ -286,7 +298,8 @@ SCANNER_RANGES: dict[str, Range] = {
     "max_range_m": RANGES["dof_max_m"],
     "elevation_min_deg": RANGES["elevation_min_deg"],
     "elevation_max_deg": RANGES["elevation_max_deg"],
-    "measurement_rate_pts_s": Range(ge=1, hint="points recorded per second, e.g. 2000000"),
+    "measurement_rate_pts_s": Range(ge=1, le=1e9,
+                                    hint="points recorded per second, e.g. 2000000"),
     "setup_time_s": RANGES["setup_time_s"],
     "overhead_s": Range(ge=0, le=86_400, hint="imaging, tilt and any other constant per scan"),
 }
@@ -403,7 +416,10 @@ def _points(name: str, value: Any, dims: int) -> tuple[tuple[float, ...], ...]:
             raise ParameterError(
                 name, f"point {i} is {point!r}; each point needs exactly {dims} coordinates"
             )
-        points.append(tuple(_number(f"{name}[{i}]", c) for c in point))
+        coordinates = tuple(_number(f"{name}[{i}]", c) for c in point)
+        for c in coordinates:
+            check_range(f"{name}[{i}]", c, COORDINATE_RANGE)
+        points.append(coordinates)
     return tuple(points)
 
 
@@ -549,8 +565,9 @@ def check_range(name: str, value: float | None, bounds: Range) -> None:
     if value is None or bounds.contains(value):
         return
     hint = f"; {bounds.hint}" if bounds.hint else ""
-    if bounds.ge == 0 and bounds.le is None and value < 0:
-        raise ParameterError(name, f"{value} is negative; use 0 or more{hint}")
+    if bounds.ge == 0 and value < 0:
+        use = "0 or more" if bounds.le is None else f"a value {bounds.describe()}"
+        raise ParameterError(name, f"{value} is negative; use {use}{hint}")
     raise ParameterError(name, f"{value} must be {bounds.describe()}{hint}")
 
 
@@ -558,6 +575,10 @@ def _validate(spec: PlanSpec) -> None:
     _check_scanner(spec)  # first: the profile's figures are the defaults checked below
     for name, bounds in RANGES.items():
         check_range(name, getattr(spec, name), bounds)
+    for name, most in MAX_ITEMS.items():
+        items = getattr(spec, name)
+        _check(items is None or len(items) <= most, name,
+               f"has {0 if items is None else len(items)} items, more than {most}")
     _check(
         spec.dof_min_m < spec.dof_max_m,
         "dof_min_m",

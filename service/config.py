@@ -115,6 +115,12 @@ class Settings(BaseSettings):
                                        "at most 300 s")
     callback_poll_interval_s: float = Field(
         default=1.0, gt=0, description="how often the API looks for job changes to announce")
+    # fair tenants (service/tenants.py)
+    max_active_jobs_per_key: int = Field(
+        default=100, ge=0, description="jobs one API key may have queued or running; a "
+        "submission past it answers 429 with Retry-After; 0: no limit")
+    busy_retry_after_s: int = Field(default=30, ge=1,
+                                    description="Retry-After of that 429, seconds")
 
     @field_validator("api_keys", "callback_allow", mode="before")
     @classmethod

@@ -15,7 +15,7 @@ from http import HTTPStatus
 from pathlib import Path
 from typing import Any
 
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
@@ -96,7 +96,8 @@ def create_app(settings: Settings | None = None, *, queue: JobQueue | None = Non
 
     # operation ids are the handlers' names: what a generated client calls its functions
     app = FastAPI(title="scanplan", version=VERSION, description=DESCRIPTION,
-                  lifespan=lifespan, generate_unique_id_function=lambda route: route.name)
+                  lifespan=lifespan, generate_unique_id_function=lambda route: route.name,
+                  dependencies=[Depends(_single_query_values)])
     _add_problem_component(app)
     app.add_middleware(RequestSizeLimit, max_bytes=settings.max_request_bytes)
     _add_problem_handlers(app)
@@ -104,6 +105,28 @@ def create_app(settings: Settings | None = None, *, queue: JobQueue | None = Non
         app.include_router(module.router)
     _add_pages(app)
     return app
+
+
+async def _single_query_values(request: Request) -> None:
+    """422 for a query parameter given twice that takes one value (FastAPI keeps the last)."""
+    route = request.scope.get("route")
+    repeated = [key for key in request.query_params
+                if len(request.query_params.getlist(key)) > 1]
+    if not repeated or route is None:
+        return
+    operation = request.app.openapi()["paths"].get(getattr(route, "path_format", ""), {}).get(
+        request.method.lower(), {})
+    lists = {p["name"] for p in operation.get("parameters", [])
+             if p.get("in") == "query" and _is_array(p.get("schema", {}))}
+    errors = [{"type": "repeated", "loc": ("query", key),
+               "msg": "given more than once; it takes one value", "input": key}
+              for key in repeated if key not in lists]
+    if errors:
+        raise RequestValidationError(errors)
+
+
+def _is_array(schema: dict[str, Any]) -> bool:
+    return schema.get("type") == "array" or any(_is_array(s) for s in schema.get("anyOf", []))
 
 
 class RequestSizeLimit:
@@ -167,7 +190,8 @@ def _problem_response(document: dict[str, Any], headers: dict[str, str] | None =
 
 def _add_problem_handlers(app: FastAPI) -> None:
     async def domain_error(request: Request, exc: Exception) -> JSONResponse:
-        headers = {"WWW-Authenticate": "Bearer"} if isinstance(exc, UnauthorizedError) else None
+        headers = ({"WWW-Authenticate": "Bearer"} if isinstance(exc, UnauthorizedError)
+                   else getattr(exc, "headers", None))  # Retry-After of a 429
         return _problem_response(problem_for(exc, instance=request.url.path), headers)
 
     async def validation_error(request: Request, exc: Exception) -> JSONResponse:

@@ -24,7 +24,9 @@ from pydantic import (
 )
 
 from planner.parameters import (
+    COORDINATE_RANGE,
     GROUP_RANGES,
+    MAX_ITEMS,
     MAX_SETTINGS,
     RANGES,
     SCANNER_RANGES,
@@ -46,21 +48,23 @@ def _defaults() -> dict[str, Any]:
 
 DEFAULTS = _defaults()
 Number = Annotated[float, Strict()]
-Point3 = Annotated[list[Number], Field(min_length=3, max_length=3)]
-Point2 = Annotated[list[Number], Field(min_length=2, max_length=2)]
+Coordinate = Annotated[float, Strict(), Field(ge=COORDINATE_RANGE.ge, le=COORDINATE_RANGE.le)]
+Point3 = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
+Point2 = Annotated[list[Coordinate], Field(min_length=2, max_length=2)]
 Goal = Annotated[float, Strict(), Field(gt=0, le=1)]  # as PlanSpec checks curve_goals[i]
 
 
-def _ranged(default: Any, description: str, bounds: Range | None) -> Any:
+def _ranged(default: Any, description: str, bounds: Range | None,
+            max_items: int | None = None) -> Any:
     """A field with the bounds of the planner's range table (None: no bound)."""
     bounds = bounds or Range()
     return Field(default=default, description=description, ge=bounds.ge, gt=bounds.gt,
-                 le=bounds.le, lt=bounds.lt)
+                 le=bounds.le, lt=bounds.lt, max_length=max_items)
 
 
 def _d(name: str, description: str) -> Any:
-    """A field whose default is PlanSpec's and whose range is the planner's."""
-    return _ranged(DEFAULTS[name], description, RANGES.get(name))
+    """A field whose default is PlanSpec's, whose range and most items are the planner's."""
+    return _ranged(DEFAULTS[name], description, RANGES.get(name), MAX_ITEMS.get(name))
 
 
 class GroupRequirementModel(BaseModel):
@@ -262,7 +266,7 @@ class ExecuteRequest(BaseModel):
 
     inputs: ExecuteInputs
     outputs: dict[str, dict[str, Any]] | None = Field(
-        default=None, description="OGC: outputs wanted; every output is kept")
+        default=None, max_length=100, description="OGC: outputs wanted; every output is kept")
     response: Literal["raw", "document"] = Field(
         default="document", description="OGC: results as a document (the only form here)")
     subscriber: Subscriber | None = Field(
@@ -279,6 +283,27 @@ class Link(BaseModel):
 
 
 JobStatus = Literal["accepted", "running", "successful", "failed", "dismissed"]
+
+
+class AttemptInfo(BaseModel):
+    """One ended attempt of a job: where and how it ended, and the figures of a death."""
+
+    attempt: int = Field(..., description="1 for the first run")
+    worker: str | None = Field(None, description="host:pid of the worker that ran it")
+    started: str | None = None
+    finished: str | None = None
+    outcome: Literal["successful", "failed", "out of memory", "killed", "worker lost"] = Field(
+        ..., description="killed: the planning process was ended by a signal from outside, "
+        "its memory far below the limit (queued again until the last attempt); worker lost: "
+        "the worker stopped heartbeating")
+    stage: str | None = Field(None, description="the last stage the attempt reached")
+    signal: str | None = Field(None, description="the signal that ended the planning process")
+    exit_code: int | None = None
+    peak_rss_mib: float | None = Field(None, description="resident peak of the planning "
+                                       "process, MiB (wait4 ru_maxrss)")
+    peak_address_space_mib: float | None = Field(None, description="its address space peak, "
+                                                 "MiB, as last read")
+    memory_limit_mib: float | None = Field(None, description="its address-space limit, MiB")
 
 
 class StatusInfo(BaseModel):
@@ -300,6 +325,8 @@ class StatusInfo(BaseModel):
         None, description="seconds per stage (reading, candidates, visibility, ...)")
     problem: dict[str, Any] | None = Field(default=None,
                                            description="RFC 9457 problem of a failure")
+    attempt_log: list[AttemptInfo] = Field(default_factory=list,
+                                           description="each ended attempt, oldest first")
     warnings: list[str] | None = Field(
         default=None, description="at submission: what looks wrong before any work is done "
         "(e.g. a model size that suggests another unit_scale)")

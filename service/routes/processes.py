@@ -13,7 +13,7 @@ from planner.io.readers import unit_warning
 from planner.outputs.report import OUTPUTS
 from planner.parameters import PlanSpec
 from planner.scanners import presets
-from service import guards
+from service import guards, tenants
 from service.callbacks import check_subscriber
 from service.deps import OwnerDep, ServicesDep
 from service.problems import (
@@ -51,6 +51,11 @@ _JOB_LINKS = {
     operation: {"operationId": operation, "parameters": {"job_id": "$response.body#/jobID"}}
     for operation in ("get_job", "get_results", "delete_job")
 }
+
+
+# past the key's cap of jobs queued or running (service.tenants)
+_BUSY = {**problem_responses(429)[429], "headers": {"Retry-After": {
+    "description": "seconds to wait before submitting again", "schema": {"type": "integer"}}}}
 
 
 # the schema lists the one process; another id is still a 404 no-such-process (OGC), not a 422
@@ -107,7 +112,7 @@ def _check_process(process_id: str) -> None:
              response_model=StatusInfo,
              responses={201: {"links": _JOB_LINKS},
                         200: {"model": StatusInfo, "description": "Idempotency-Key replay"},
-                        **problem_responses(400, 413)},
+                        **problem_responses(400, 413), 429: _BUSY},
              callbacks=callback_router.routes)
 async def execute(
     process_id: ProcessIdPath, body: ExecuteRequest, request: Request, response: Response,
@@ -162,6 +167,7 @@ def _submit(services: ServicesDep, owner: str, mesh_id: str, parameters: dict[st
                                         idempotency_key=idempotency_key,
                                         request_hash=request_hash)
     if created:
+        tenants.admit(services.jobs, job, services.settings)  # 429 past the key's cap
         if callback_uris is not None:
             services.callbacks.subscribe(job.id, base_url, callback_uris)
         services.queue.enqueue(job.id)

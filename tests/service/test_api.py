@@ -187,17 +187,34 @@ def test_dismiss_queued_job_and_mesh_in_use(tmp_path: Path, hall_bytes: bytes) -
         assert client.get(f"/jobs/{job_id}").json()["status"] == "accepted"
         assert_problem(client.delete(f"/meshes/{mesh_id}"), 409, "unfinished")
         assert client.delete(f"/jobs/{job_id}").json()["status"] == "dismissed"
-        assert_problem(client.get(f"/jobs/{job_id}/results"), 404, "dismissed")
-        assert client.delete(f"/jobs/{job_id}").status_code == 200  # now deleted
-        assert_problem(client.get(f"/jobs/{job_id}"), 404)
+        # OGC dismiss: the job is gone for every /jobs request, and from the list
+        for path in (f"/jobs/{job_id}", f"/jobs/{job_id}/results",
+                     f"/jobs/{job_id}/results/plan.json"):
+            assert_problem(client.get(path), 404, "dismissed")
+        assert_problem(client.delete(f"/jobs/{job_id}"), 404, "dismissed")
+        assert client.get("/jobs").json()["numberMatched"] == 0
+        assert client.get("/jobs?status=dismissed").json()["jobs"] == []
         assert client.delete(f"/meshes/{mesh_id}").status_code == 204
+
+
+def test_delete_of_a_finished_job_removes_it_and_its_files(
+        client: TestClient, hall_bytes: bytes, hall_parameters: dict[str, Any]) -> None:
+    mesh_id = upload(client, hall_bytes).json()["id"]
+    job_id = submit(client, mesh_id, hall_parameters).json()["jobID"]
+    assert client.get(f"/jobs/{job_id}").json()["status"] == "successful"
+    answer = client.delete(f"/jobs/{job_id}")
+    assert answer.status_code == 200 and answer.json()["status"] == "dismissed"
+    assert_problem(client.get(f"/jobs/{job_id}"), 404)
+    assert_problem(client.get(f"/jobs/{job_id}/results/plan.json"), 404)
+    assert_problem(client.delete(f"/jobs/{job_id}"), 404)
 
 
 def test_job_list_filters_and_pages(tmp_path: Path, hall_bytes: bytes) -> None:
     with make_client(tmp_path, InlineQueue(hold=True), api_keys=[]) as client:
         mesh_id = upload(client, hall_bytes).json()["id"]
         ids = [submit(client, mesh_id, {}).json()["jobID"] for _ in range(3)]
-        client.delete(f"/jobs/{ids[0]}")
+        ids.append(submit(client, mesh_id, {}).json()["jobID"])
+        client.delete(f"/jobs/{ids[0]}")  # dismissed: no longer listed
         page = client.get("/jobs?limit=2").json()
         assert page["numberMatched"] == 3 and len(page["jobs"]) == 2
         assert any(link["rel"] == "next" for link in page["links"])
@@ -309,3 +326,14 @@ def test_verify_job_option_serves_the_simulated_scan(
     assert served["totals"] == expected["totals"]
     faces = np.load(io.BytesIO(client.get(results["faces.npz"]["href"]).content))
     assert "verified_lpd_pts_m2" in faces.files
+
+
+def test_a_query_parameter_given_twice_is_refused_unless_it_is_a_list(
+        client: TestClient) -> None:
+    # FastAPI would keep the last value silently; the schema says one value
+    answer = client.post("/meshes?filename=a.obj&filename=b.obj", content=b"v 0 0 0",
+                         headers={"content-type": "application/octet-stream"})
+    assert_problem(answer, 422, "filename", "more than once")
+    assert_problem(client.get("/jobs?limit=2&limit=3"), 422, "limit")
+    assert client.get("/jobs?status=accepted&status=running").status_code == 200
+    assert_problem(client.get("/jobs?offset=2703897329755260715008&limit=353"), 422, "offset")

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import fields
 from pathlib import Path
+from typing import Any
 
 from planner.parameters import GroupRequirement, PlanSpec
 from service.openapi_export import render, spec
@@ -94,3 +96,60 @@ def test_schema_ranges_are_the_validators() -> None:
                     from planner.parameters import check_range
 
                     check_range(name, value, bounds)
+
+
+def _accepted_schemas(document: dict[str, Any]) -> list[tuple[str, dict[str, Any]]]:
+    """(where, schema) of every request parameter and body of the OpenAPI document."""
+    found = []
+    for path, operations in document["paths"].items():
+        for method, operation in operations.items():
+            for parameter in operation.get("parameters", []):
+                found.append((f"{method} {path} {parameter['name']}", parameter["schema"]))
+            for media, content in operation.get("requestBody", {}).get("content", {}).items():
+                found.append((f"{method} {path} body {media}", content.get("schema", {})))
+    return found
+
+
+def _unbounded(document: dict[str, Any], schema: Any, where: str,
+               seen: frozenset[str] = frozenset()) -> list[str]:
+    """Every number without a finite bound on each side and every list without maxItems."""
+    if isinstance(schema, list):
+        return [w for i, s in enumerate(schema) for w in _unbounded(document, s, where, seen)]
+    if not isinstance(schema, dict):
+        return []
+    if "$ref" in schema:
+        ref = schema["$ref"]
+        if ref in seen:
+            return []
+        target: Any = document
+        for part in ref.removeprefix("#/").split("/"):
+            target = target[part]
+        return _unbounded(document, target, f"{where} > {ref.rsplit('/', 1)[-1]}", seen | {ref})
+    problems = []
+    kind = schema.get("type")
+    if kind in ("number", "integer"):
+        low = schema.get("minimum", schema.get("exclusiveMinimum"))
+        high = schema.get("maximum", schema.get("exclusiveMaximum"))
+        if low is None or high is None or not math.isfinite(low) or not math.isfinite(high):
+            problems.append(f"{where}: {kind} in [{low}, {high}]")
+    if kind == "array" and "maxItems" not in schema:
+        problems.append(f"{where}: array without maxItems")
+    if kind == "object" and isinstance(schema.get("additionalProperties"), dict) \
+            and "maxProperties" not in schema:
+        problems.append(f"{where}: object keyed by the client without maxProperties")
+    for key, value in schema.items():
+        if key == "properties":
+            for name, item in value.items():
+                problems += _unbounded(document, item, f"{where}.{name}", seen)
+        elif key in ("items", "additionalProperties", "anyOf", "oneOf", "allOf"):
+            problems += _unbounded(document, value, where, seen)
+    return problems
+
+
+def test_every_number_and_list_the_api_accepts_is_bounded() -> None:
+    """No schema-valid request carries a number or a list the database or planner cannot take
+    (an offset of 2.7e21 was a 500): finite bounds on each side, maxItems on every list."""
+    document = spec()
+    problems = [p for where, schema in _accepted_schemas(document)
+                for p in _unbounded(document, schema, where)]
+    assert problems == []
