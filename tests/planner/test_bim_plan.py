@@ -30,6 +30,7 @@ from planner.outputs.ifc_plan import COVERAGE_PSET, OBJECT_TYPE, STATION_PSET, p
 from planner.outputs.report import absent_outputs, write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
+from tests.planner.ifc_parts import placed
 
 ifcopenshell = pytest.importorskip("ifcopenshell")
 xmlschema = pytest.importorskip("xmlschema")
@@ -61,34 +62,25 @@ def _two_storeys(schema: str, path: Path, rooms: bool) -> None:
     aggregate.assign_object(model, relating_object=ifc_project, products=[site])
     aggregate.assign_object(model, relating_object=site, products=[building])
 
-    def placed(ifc_class: str, name: str, representation: Any,
-               xyz: tuple[float, float, float], turn: float = 0.0) -> Any:
-        product = root.create_entity(model, ifc_class=ifc_class, name=name)
-        matrix = np.eye(4)
-        matrix[:2, :2] = [[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]]
-        matrix[:3, 3] = xyz
-        geometry.edit_object_placement(model, product=product, matrix=matrix, is_si=True)
-        geometry.assign_representation(model, product=product, representation=representation)
-        return product
-
     outline = [(0.0, 0.0), (6.0, 0.0), (6.0, 4.0), (0.0, 4.0)]
     for level, (name, z) in enumerate([("Ground", 0.0), ("Upper", 3.0)]):
         storey = root.create_entity(model, ifc_class="IfcBuildingStorey", name=name)
         storey.Elevation = z * 1000.0
         aggregate.assign_object(model, relating_object=building, products=[storey])
-        parts = [placed("IfcSlab", f"{name} floor", geometry.add_slab_representation(
+        parts = [placed(model, "IfcSlab", f"{name} floor", geometry.add_slab_representation(
             model, body, depth=0.2, polyline=outline), (0, 0, z - 0.2))]
         if level == 1:
-            parts.append(placed("IfcSlab", "Roof", geometry.add_slab_representation(
+            parts.append(placed(model, "IfcSlab", "Roof", geometry.add_slab_representation(
                 model, body, depth=0.2, polyline=outline), (0, 0, z + 2.8)))
         for wall, length, x, y, turn in [("S", 6.0, 0, 0, 0.0), ("E", 4.0, 6, 0, 0.5),
                                          ("N", 6.0, 6, 4, 1.0), ("W", 4.0, 0, 4, 1.5)]:
-            parts.append(placed("IfcWall", f"{name} {wall}", geometry.add_wall_representation(
-                model, body, length=length, height=2.8, thickness=0.2), (x, y, z),
-                turn * np.pi))
+            wall_body = geometry.add_wall_representation(
+                model, body, length=length, height=2.8, thickness=0.2)
+            parts.append(placed(model, "IfcWall", f"{name} {wall}", wall_body, (x, y, z),
+                                turn * np.pi))
         spatial.assign_container(model, relating_structure=storey, products=parts)
         if rooms:
-            space = placed("IfcSpace", f"{level}01", geometry.add_slab_representation(
+            space = placed(model, "IfcSpace", f"{level}01", geometry.add_slab_representation(
                 model, body, depth=2.6, polyline=[(0.2, 0.2), (5.8, 0.2), (5.8, 3.8),
                                                   (0.2, 3.8)]), (0, 0, z))
             aggregate.assign_object(model, relating_object=storey, products=[space])

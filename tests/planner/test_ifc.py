@@ -31,6 +31,7 @@ from planner.outputs.report import plan_document, write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
 from planner.scene import Element, Scene, build_scene, remesh
+from tests.planner.ifc_parts import placed
 
 ifcopenshell = pytest.importorskip("ifcopenshell")
 
@@ -344,29 +345,19 @@ def _one_room_building(schema: str, path: Path, monkeypatch: pytest.MonkeyPatch)
     aggregate.assign_object(model, relating_object=site, products=[building])
     aggregate.assign_object(model, relating_object=building, products=[storey])
 
-    def placed(ifc_class: str, name: str, representation: Any,
-               xyz: tuple[float, float, float], turn: float = 0.0) -> Any:
-        product = root.create_entity(model, ifc_class=ifc_class, name=name)
-        matrix = np.eye(4)
-        matrix[:2, :2] = [[np.cos(turn), -np.sin(turn)], [np.sin(turn), np.cos(turn)]]
-        matrix[:3, 3] = xyz
-        geometry.edit_object_placement(model, product=product, matrix=matrix, is_si=True)
-        geometry.assign_representation(model, product=product, representation=representation)
-        return product
-
     outline = [(0.0, 0.0), (6.0, 0.0), (6.0, 4.0), (0.0, 4.0)]
     parts = [
-        placed("IfcSlab", "Floor", geometry.add_slab_representation(
+        placed(model, "IfcSlab", "Floor", geometry.add_slab_representation(
             model, body, depth=0.2, polyline=outline), (0, 0, 2.8)),
-        placed("IfcSlab", "Ceiling", geometry.add_slab_representation(
+        placed(model, "IfcSlab", "Ceiling", geometry.add_slab_representation(
             model, body, depth=0.2, polyline=outline), (0, 0, 5.7)),
     ]
     for name, length, x, y, turn in [("South", 6.0, 0, 0, 0.0), ("East", 4.0, 6, 0, 0.5),
                                      ("North", 6.0, 6, 4, 1.0), ("West", 4.0, 0, 4, 1.5)]:
-        parts.append(placed("IfcWall", name, geometry.add_wall_representation(
+        parts.append(placed(model, "IfcWall", name, geometry.add_wall_representation(
             model, body, length=length, height=2.7, thickness=0.2), (x, y, 3.0), turn * np.pi))
     spatial.assign_container(model, relating_structure=storey, products=parts)
-    space = placed("IfcSpace", "101", geometry.add_slab_representation(
+    space = placed(model, "IfcSpace", "101", geometry.add_slab_representation(
         model, body, depth=2.7, polyline=[(0.2, 0.2), (5.8, 0.2), (5.8, 3.8), (0.2, 3.8)]),
         (0, 0, 3.0))
     space.LongName = "Office"
