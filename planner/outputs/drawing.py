@@ -225,7 +225,7 @@ def draw_preview(result: PlanResult) -> Preview:
     rgb = face_rgb(result.faces, result.limits.target, result.limits.min_density_pts_m2)
     classes = face_classes(result.faces, result.limits.target)
 
-    extents = [_level_extent(result, lv) for lv in shown]
+    extents = [level_extent(result, lv) for lv in shown]
     scale = _print_scale(extents, cell_w * width_in, cell_h * height_in)
     axes = []
     for i, (level, extent) in enumerate(zip(shown, extents, strict=True)):
@@ -235,7 +235,7 @@ def draw_preview(result: PlanResult) -> Preview:
         ax = fig.add_axes((left, bottom, cell_w, cell_h))
         _limits_at_scale(ax, extent, cell_w * width_in, cell_h * height_in, scale)
         _draw_level(ax, result, level, mesh, rgb, classes)
-        _scale_bar(ax)
+        scale_bar(ax)
         title = level.name or "plan"
         ax.set_title(f"{title}: section at {level.section_z:.2f} m, floor {level.floor_z:.2f} m"
                      if level.name else
@@ -257,7 +257,7 @@ def _png(fig: Figure) -> bytes:
     return buffer.getvalue()
 
 
-def _level_extent(result: PlanResult, level: Level) -> tuple[float, float, float, float]:
+def level_extent(result: PlanResult, level: Level) -> tuple[float, float, float, float]:
     """(xmin, ymin, xmax, ymax) of the faces of a level and its candidates, with a margin."""
     scene = result.scene
     cz = scene.centroids[:, 2]
@@ -418,7 +418,7 @@ def _nice_length(span_m: float) -> float:
     return best
 
 
-def _scale_bar(ax: Axes) -> None:
+def scale_bar(ax: Axes) -> None:
     x0, x1 = ax.get_xlim()
     y0, y1 = ax.get_ylim()
     length = _nice_length(x1 - x0)

@@ -26,6 +26,11 @@ MEDIA_TYPES = {
     ".json": "application/json", ".csv": "text/csv; charset=utf-8", ".png": "image/png",
     ".glb": "model/gltf-binary", ".npz": "application/octet-stream",
     ".npy": "application/octet-stream", ".parquet": "application/vnd.apache.parquet",
+    # the plan for BIM and CAD programs: IFC (STEP physical file, ISO 10303-21), the DXF
+    # drawing (IANA image/vnd.dxf), the print set; a BCF file is a zip archive that only BIM
+    # tools open, served as plain bytes so browsers save it under its name
+    ".ifc": "application/x-step", ".bcf": "application/octet-stream",
+    ".dxf": "image/vnd.dxf", ".pdf": "application/pdf",
 }
 
 
