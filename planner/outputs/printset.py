@@ -41,7 +41,7 @@ from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.backends.backend_pdf import PdfPages
-from matplotlib.collections import LineCollection
+from matplotlib.collections import LineCollection, PatchCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, Rectangle
@@ -258,11 +258,14 @@ def _draw_markers(ax: Axes, result: PlanResult, sheet: Sheet, storey: _Storey
                 result.spec.dof_max_m)
     colour = tuple(c / 255 for c in drawing.STATION_RGB)
     markers: dict[int, tuple[Artist, ...]] = {}
-    for order in _on_sheet(result, sheet, storey.orders):
-        x, y = result.candidates.positions[result.chosen.stations[order], :2]
-        if math.isfinite(reach):
-            ax.add_patch(Circle((x, y), reach, fill=False, linestyle=(0, (4, 3)),
-                                linewidth=0.5, edgecolor=colour, alpha=0.4, zorder=6))
+    orders = _on_sheet(result, sheet, storey.orders)
+    centres = result.candidates.positions[[result.chosen.stations[o] for o in orders], :2]
+    if math.isfinite(reach) and orders:
+        ax.add_collection(PatchCollection([Circle((x, y), reach) for x, y in centres],
+                                          facecolors="none", edgecolors=[colour],
+                                          linestyles=[(0, (4, 3))], linewidths=0.5,
+                                          alpha=0.4, zorder=6))
+    for order, (x, y) in zip(orders, centres, strict=True):
         disc = Circle((x, y), radius_m, facecolor=colour, edgecolor="white", linewidth=0.8,
                       zorder=8)
         ax.add_patch(disc)
@@ -347,7 +350,7 @@ def _key_plan(fig: Figure, result: PlanResult, sheet: Sheet, storey: _Storey,
               rect: tuple[float, float, float, float]) -> None:
     """The whole storey small: its section, stations, every tile outlined, this one shaded."""
     ax = fig.add_axes(rect)
-    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_aspect("equal", adjustable="box")
     ax.set_xticks([])
     ax.set_yticks([])
     ax.set_title(f"key plan: {len(sheet.tiles)} sheets", fontsize=7, loc="left")
