@@ -36,7 +36,6 @@ from typing import Any
 
 import ezdxf
 import numpy as np
-import shapely
 import trimesh
 from ezdxf import units
 from ezdxf.document import Drawing
@@ -46,7 +45,7 @@ from ezdxf.math import OCS
 from numpy.typing import NDArray
 
 from planner.io.orientation import scene_rotation, to_model
-from planner.outputs.drawing import Level, levels, section_at
+from planner.outputs.drawing import Level, joined_lines, levels, section_at
 from planner.pipeline import PlanResult
 
 DXF_VERSION = "R2010"
@@ -87,13 +86,20 @@ def build_drawing(result: PlanResult) -> Drawing:
     mesh = _file_mesh(result)
     for index, (level, layers) in enumerate(zip(storeys, layer_sets, strict=True)):
         _walls(msp, frame, mesh, level, layers["walls"])
-        _title(msp, frame, result, level, layers["labels"])
+        _title(msp, frame, result, level, index, layers["labels"])
         for order in np.flatnonzero(station_level == index):
             _station(msp, frame, result, level, int(order), positions[order], layers)
     if result.survey is not None:
         _route(msp, frame, result, storeys, layer_sets)
         _registration(msp, frame, result, positions, station_level, layer_sets)
     doc.set_modelspace_vport(height=_view_height(result), center=_view_centre(result, frame))
+    corners = frame.model(np.array(np.meshgrid(*result.scene.bounds.T)).reshape(3, -1).T)
+    # the model's extent, for "zoom extents": ezdxf copies the layout's to the header unless
+    # one of them is the origin, so both are set
+    low, high = (tuple(float(v) for v in corners.min(axis=0)),
+                 tuple(float(v) for v in corners.max(axis=0)))
+    msp.dxf.extmin, msp.dxf.extmax = low, high
+    doc.header["$EXTMIN"], doc.header["$EXTMAX"] = low, high
     return doc
 
 
@@ -227,13 +233,7 @@ def _walls(msp: Modelspace, frame: _Frame, mesh: trimesh.Trimesh, level: Level,
            layer: str) -> None:
     """The cut at the storey's section height, as polylines (segments joined end to end)."""
     segments, _ = section_at(mesh, level.section_z)
-    if not len(segments):
-        return
-    ends = np.round(segments, _MERGE_DECIMALS)
-    merged = shapely.line_merge(shapely.multilinestrings(list(ends)))
-    lines = shapely.get_parts(merged)
-    for line in lines:
-        xy = shapely.get_coordinates(shapely.simplify(line, 0.0))
+    for xy in joined_lines(segments, _MERGE_DECIMALS):
         points = np.column_stack([xy, np.full(len(xy), level.section_z)])
         planar = frame.planar(frame.model(points))
         closed = len(planar) > 3 and bool(np.allclose(planar[0], planar[-1]))
@@ -243,10 +243,13 @@ def _walls(msp: Modelspace, frame: _Frame, mesh: trimesh.Trimesh, level: Level,
             layer, elevation=float(planar[0, 2])))
 
 
-def _title(msp: Modelspace, frame: _Frame, result: PlanResult, level: Level,
+def _title(msp: Modelspace, frame: _Frame, result: PlanResult, level: Level, index: int,
            layer: str) -> None:
+    """The storey's name under its candidates, one line lower per storey (seen from above,
+    the storeys' titles do not cover each other)."""
     chosen = set(level.candidates.tolist()).intersection(result.chosen.stations)
-    corner = result.candidates.positions[level.candidates, :2].min(axis=0) - 1.0
+    corner = (result.candidates.positions[level.candidates, :2].min(axis=0)
+              - (1.0, 1.0 + 3 * TEXT_HEIGHT_M * index))
     anchor = frame.planar(frame.model(np.array([[corner[0], corner[1], level.section_z]])))[0]
     title = (f"{level.name or 'plan'}: section at {level.section_z:.2f} m, "
              f"{len(chosen)} stations")

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import shapely
 import trimesh
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -326,7 +327,11 @@ def draw_surfaces(ax: Axes, result: PlanResult, below: NDArray[np.int64],
                   rgb: NDArray[np.uint8], *, rasterized: bool = False) -> None:
     """Floor faces ``below`` painted in their colours, and the section ``segments``
     (:func:`section_at`) as thick lines in the colours of the faces they cut over a thin
-    black core."""
+    black core.
+
+    ``rasterized`` (for vector output: a PDF): the floor and the coloured lines become an
+    image, the black core is drawn as the segments joined into polylines (a few hundred
+    paths instead of one per cut face)."""
     scene = result.scene
     if len(below):
         polys = scene.vertices[scene.faces[below]][:, :, :2]
@@ -339,9 +344,22 @@ def draw_surfaces(ax: Axes, result: PlanResult, below: NDArray[np.int64],
     if len(segments):
         ax.add_collection(LineCollection(list(segments),
                                          colors=rgb[cut_faces] / 255.0,
-                                         linewidths=3.2, capstyle="round", zorder=3))
-        ax.add_collection(LineCollection(list(segments), colors="black", linewidths=0.7,
+                                         linewidths=3.2, capstyle="round", zorder=3,
+                                         rasterized=rasterized))
+        core = joined_lines(segments) if rasterized else list(segments)
+        ax.add_collection(LineCollection(core, colors="black", linewidths=0.7,
                                          zorder=4))
+
+
+def joined_lines(segments: NDArray[np.float64], decimals: int = 6) -> list[NDArray[np.float64]]:
+    """The (S, 2, 2) segments joined end to end into polylines, each (N, 2), collinear
+    vertices dropped; ends equal to ``decimals`` places join."""
+    if not len(segments):
+        return []
+    ends = np.round(segments, decimals)
+    merged = shapely.line_merge(shapely.multilinestrings(list(ends)))
+    return [np.asarray(shapely.get_coordinates(shapely.simplify(line, 0.0)))
+            for line in shapely.get_parts(merged)]
 
 
 def _draw_level(ax: Axes, result: PlanResult, level: Level, mesh: Any,
