@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import io
 import re
+from collections import OrderedDict
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -65,6 +66,10 @@ def plan_dxf(result: PlanResult) -> bytes:
     """``plan.dxf`` bytes (ASCII DXF R2010, UTF-8): see the module docstring."""
     with _fixed_metadata():
         doc = build_drawing(result)
+        # ezdxf registers the CLASSES section in an order that can change from one process
+        # to the next (string hashing): register them all now, in a fixed order
+        doc.classes.add_required_classes(doc.dxfversion)
+        doc.classes.classes = OrderedDict(sorted(doc.classes.classes.items()))
         stream = io.StringIO()
         doc.write(stream)
     return doc.encode(stream.getvalue())

@@ -14,6 +14,10 @@ import dataclasses
 import io
 import itertools
 import json
+import os
+import pickle
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -99,6 +103,23 @@ def test_hall_dxf_audits_clean_and_places_every_station(hall: PlanResult) -> Non
     assert {layer.dxf.name for layer in doc.layers} >= {
         "plan - walls", "plan - stations", "plan - route", "plan - registration",
         "plan - labels"}
+
+
+def test_same_bytes_in_another_process(hall: PlanResult, tmp_path: Path) -> None:
+    """Not only twice in one process: ezdxf and matplotlib must not let string hashing
+    (PYTHONHASHSEED) order anything they write."""
+    saved = tmp_path / "plan.pickle"
+    saved.write_bytes(pickle.dumps(hall))
+    script = ("import pickle, sys; from planner.outputs import cad, printset; "
+              "r = pickle.loads(open(sys.argv[1], 'rb').read()); "
+              "open(sys.argv[2], 'wb').write(cad.plan_dxf(r) + b'|' + printset.plan_pdf(r))")
+    outputs = []
+    for seed in ("1", "4"):  # without a fixed order, ezdxf 1.4.5 orders CLASSES apart
+        out = tmp_path / f"out-{seed}"
+        subprocess.run([sys.executable, "-c", script, str(saved), str(out)], check=True,
+                       env={**os.environ, "PYTHONHASHSEED": seed}, timeout=300)
+        outputs.append(out.read_bytes())
+    assert outputs[0] == outputs[1] == cad.plan_dxf(hall) + b"|" + printset.plan_pdf(hall)
 
 
 def test_hall_dxf_walls_are_the_cut_at_instrument_height(hall: PlanResult) -> None:
