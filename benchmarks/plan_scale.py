@@ -209,6 +209,7 @@ t3 = time.perf_counter()
 seconds = {"read": t1 - t0, **result.stats.seconds, "outputs": t3 - t2, "total": t3 - t0}
 print(json.dumps({"faces": result.scene.n_faces, "candidates": len(result.candidates),
                   "stations": len(result.chosen.stations), "seconds": seconds,
+                  "cpu_seconds": result.stats.cpu_seconds,
                   "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 """
 

@@ -66,7 +66,7 @@ def run_plan(args: argparse.Namespace) -> int:
     # ``scanplan --help`` and the service's subcommands do not need
     from planner.io.readers import read_scene
     from planner.method.candidates import read_candidates_csv
-    from planner.outputs.report import write_outputs
+    from planner.outputs.report import absent_outputs, write_outputs
     from planner.pipeline import plan
 
     values = load_params(args.params)
@@ -99,24 +99,40 @@ def run_plan(args: argparse.Namespace) -> int:
             f"candidates in {time.perf_counter() - started:.1f} s; wrote "
             f"{', '.join(p.name for p in written)} to {args.out}"
         )
+        for name, reason in absent_outputs(result).items():
+            print(f"no {name}: {reason}")
     return 0
 
 
 def run_scanners(args: argparse.Namespace) -> int:
-    from planner.survey.scanners import scanners  # lazily: only this command reads the presets
+    from planner.scanners import FIGURES, presets  # lazily: only this command reads them
 
     if args.json:
-        print(json.dumps([s.to_dict() for s in scanners().values()], indent=2))
+        print(json.dumps([p.to_dict() for p in presets().values()], indent=2))
         return 0
-    for scanner in scanners().values():
-        steps = ", ".join(f"{s.point_spacing_m_at_10m * 1000:g} mm" for s in scanner.settings)
-
-        def stated(value: float | None) -> str:
-            return "-" if value is None else f"{value:g}"  # "-": no source, default kept
-
-        print(f"{scanner.id:<24} {scanner.name:<24} range {stated(scanner.dof_min_m)} to "
-              f"{stated(scanner.dof_max_m)} m, elevation {stated(scanner.elevation_min_deg)} to "
-              f"{stated(scanner.elevation_max_deg)} deg, steps at 10 m: {steps or '-'}")
+    cited: dict[str, dict[str, Any]] = {}
+    for preset in presets().values():
+        print(f"{preset.id}  {preset.profile.name} ({preset.maker})")
+        for name in FIGURES:
+            figure = preset.figures.get(name)
+            if figure is None:
+                continue
+            if figure["value"] is None:  # "-": no source, the plan keeps its default
+                print(f"    {name:<24} {'-':>10}  no source: {figure['reason']}")
+            else:
+                keys = [figure["source"], *figure.get("also", ())]
+                print(f"    {name:<24} {figure['value']:>10g}  {', '.join(keys)}")
+        for setting in preset.profile.settings:
+            print(f"    setting {setting.name:<16} {setting.point_spacing_m * 1000:>7g} mm at "
+                  f"{setting.reference_distance_m:g} m  {preset.settings_note.get('source', '')}")
+        if not preset.profile.settings:
+            print(f"    {'settings':<24} {'-':>10}  no source: "
+                  f"{preset.settings_note.get('reason', '')}")
+        cited.update(preset.sources)
+    print("sources")
+    for key, source in sorted(cited.items()):
+        where = source.get("url") or source.get("corpus_file")
+        print(f"    {key:<24} {source['title']}; {where}")
     return 0
 
 

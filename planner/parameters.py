@@ -19,6 +19,17 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, Literal
 
 from planner.errors import ParameterError
+from planner.scanners import (
+    PROFILE_FIELDS,
+    SETTING_FIELDS,
+    STEP_TOLERANCE,
+    ScannerProfile,
+    ScanSetting,
+    fallback_step,
+    plan_defaults,
+    preset,
+    resolve,
+)
 
 Method = Literal["greedy", "weighted_greedy", "optimal"]
 METHODS: tuple[Method, ...] = ("greedy", "weighted_greedy", "optimal")
@@ -85,6 +96,9 @@ class PlanSpec:
     candidates: tuple[tuple[float, float, float], ...] | None = None
     grid_spacing_m: float = 0.5
     scanner_height_m: float = 1.5
+    # several instrument heights: candidates at each over the same floor points (null: only
+    # scanner_height_m, the paper's single height)
+    scanner_heights_m: tuple[float, ...] | None = None
     clearance_m: float = 0.3
     area_of_interest: tuple[tuple[float, float], ...] | None = None
     # "walkable": the lowest floor and every level a person reaches from it on foot (stairs,
@@ -99,7 +113,8 @@ class PlanSpec:
     # writes verification.json (planner.truth; as `scanplan verify` does)
     verify: bool = False
     # survey (issue 11): presets, registration overlap, walking route, field time
-    scanner: str | None = None  # a preset of planner/survey/scanners.json; sets the defaults above
+    # a preset id (planner/scanners.json) or an instrument profile; sets the defaults above
+    scanner: str | ScannerProfile | None = None
     min_overlap_m2: float | None = None  # null: the paper's selection, no overlap constraint
     # a surface counts for registration at this density: 25 mm x 25 mm, the data density of
     # Level of Detail 2 in GSA BIM Guide Series 03, 3D Imaging (U.S. GSA, 2009)
@@ -107,6 +122,11 @@ class PlanSpec:
     route_start: tuple[float, float, float] | None = None  # null: the route chooses
     setup_time_s: float | None = None  # per station; null: the preset's, else 60 s
     walking_speed_m_s: float = 0.8
+    # placement tolerance (planner.method.placement): the report of what each station keeps
+    # when set up anywhere within this radius (0: no report), and robust planning (a face
+    # counts for a candidate only when it qualifies from every displaced position)
+    placement_tolerance_m: float = 0.25
+    robust: bool = False
 
     def __post_init__(self) -> None:
         # accept plain data too (dicts, lists), as from_mapping does
@@ -119,7 +139,22 @@ class PlanSpec:
         if self.route_start is not None:
             object.__setattr__(self, "route_start",
                                _points("route_start", [self.route_start], 3)[0])
+        object.__setattr__(self, "scanner", _scanner(self.scanner))
+        if self.scanner_heights_m is not None:
+            object.__setattr__(self, "scanner_heights_m",
+                               _convert("scanner_heights_m", self.scanner_heights_m))
         _validate(self)
+
+    @property
+    def scanner_profile(self) -> ScannerProfile | None:
+        """The instrument ``scanner`` stands for (a preset's figures filled in), or None."""
+        return None if self.scanner is None else resolve(self.scanner)
+
+    @property
+    def heights_m(self) -> tuple[float, ...]:
+        """The instrument heights of generated candidates: ``scanner_heights_m``, or
+        ``scanner_height_m`` alone when that is null."""
+        return self.scanner_heights_m or (self.scanner_height_m,)
 
     @property
     def angular_step_rad(self) -> float:
@@ -144,12 +179,21 @@ class PlanSpec:
                 unknown[0], f"unknown parameter; known ones are {', '.join(sorted(known))}"
             )
         if values.get("scanner") is not None:
-            if not isinstance(values["scanner"], str):
-                raise ParameterError("scanner", f"expected a preset id, got {values['scanner']!r}")
-            from planner.survey.scanners import preset_defaults
-
-            # the preset fills the defaults; what the caller gave explicitly wins
-            values = {**preset_defaults(values["scanner"]), **values}
+            # the profile fills the defaults; what the caller gave explicitly wins. The
+            # step stays the plan's (given as a pair: point_spacing_m with its
+            # reference_distance_m, else the default) unless no setting is that fine
+            scanner = _scanner(values["scanner"])
+            assert scanner is not None
+            profile = resolve(scanner)
+            defaults: dict[str, float] = plan_defaults(profile)
+            finest = None if any(values.get(k) is not None for k in (
+                "point_spacing_m", "reference_distance_m")) else fallback_step(
+                profile, DEFAULT_ANGULAR_STEP_RAD)
+            if finest is not None:
+                defaults["point_spacing_m"] = finest.point_spacing_m
+                defaults["reference_distance_m"] = finest.reference_distance_m
+            values = {**defaults, **{k: v for k, v in values.items()
+                                     if v is not None or k in _NULLABLE}}
         kwargs: dict[str, Any] = {}
         for name, value in values.items():
             if value is None and name not in _NULLABLE:
@@ -165,12 +209,16 @@ class PlanSpec:
         }
         data["route_start"] = None if self.route_start is None else list(self.route_start)
         for key in ("candidates", "area_of_interest", "storeys", "rooms", "curve_goals",
-                    "fixed_stations"):
+                    "fixed_stations", "scanner_heights_m"):
             value = getattr(self, key)
             data[key] = None if value is None else [
                 list(p) if isinstance(p, tuple) else p for p in value
             ]
         return data
+
+
+# the paper's step (Table 2: 10 mm at 10 m); a scanner keeps it unless no setting is as fine
+DEFAULT_ANGULAR_STEP_RAD = PlanSpec.point_spacing_m / PlanSpec.reference_distance_m
 
 
 @dataclass(frozen=True)
@@ -208,29 +256,63 @@ def _g(number: float | None) -> str:
 
 
 # The one table of ranges: the validator below and the service's OpenAPI schema read it.
+# Every bound is finite, so no value the schema accepts overflows the arithmetic after it;
+# the upper bounds are generous ceilings (no instrument or site comes near them), not
+# instrument figures.
 RANGES: dict[str, Range] = {
-    "dof_min_m": Range(ge=0),
-    "dof_max_m": Range(gt=0),
-    "point_spacing_m": Range(gt=0),
-    "reference_distance_m": Range(gt=0),
+    "dof_min_m": Range(ge=0, le=10_000),
+    "dof_max_m": Range(gt=0, le=10_000),
+    "point_spacing_m": Range(gt=0, le=10),
+    "reference_distance_m": Range(gt=0, le=10_000),
     "elevation_min_deg": Range(ge=-90, le=90),
     "elevation_max_deg": Range(ge=-90, le=90),
     "min_incidence_deg": Range(ge=0, le=90),
-    "min_density_pts_m2": Range(ge=0),
+    "min_density_pts_m2": Range(ge=0, le=1e9),
     "coverage_goal": Range(gt=0, le=1, hint="0.8 means 80 % of the achievable area"),
-    "optimal_time_limit_s": Range(gt=0),
-    "max_edge_m": Range(gt=0, hint="or null to use the mesh as given"),
-    "unit_scale": Range(gt=0, hint="0.001 for a model in millimetres"),
-    "grid_spacing_m": Range(gt=0),
-    "scanner_height_m": Range(gt=0),
-    "clearance_m": Range(ge=0),
-    "min_overlap_m2": Range(gt=0, hint="or null for no overlap constraint"),
-    "overlap_density_pts_m2": Range(gt=0),
-    "setup_time_s": Range(ge=0, hint="or null for the preset's"),
-    "walking_speed_m_s": Range(gt=0, hint="0.8 is a slow walk with a tripod"),
+    "optimal_time_limit_s": Range(gt=0, le=86_400, hint="86400 is one day"),
+    "max_edge_m": Range(gt=0, le=10_000, hint="or null to use the mesh as given"),
+    "unit_scale": Range(gt=0, le=1e6, hint="0.001 for a model in millimetres"),
+    "grid_spacing_m": Range(gt=0, le=10_000),
+    "scanner_height_m": Range(gt=0, le=1_000),
+    "placement_tolerance_m": Range(ge=0, le=5, hint="0 turns the tolerance report off"),
+    "clearance_m": Range(ge=0, le=1_000),
+    "min_overlap_m2": Range(gt=0, le=1e9, hint="or null for no overlap constraint"),
+    "overlap_density_pts_m2": Range(gt=0, le=1e9),
+    "setup_time_s": Range(ge=0, le=86_400, hint="or null for the preset's"),
+    "walking_speed_m_s": Range(gt=0, le=100, hint="0.8 is a slow walk with a tripod"),
     "samples_per_face": Range(ge=1, le=256, hint="a square number; use 16"),
     "min_sampled_fraction": Range(gt=0, le=1, hint="1 means the whole face"),
 }
+# each coordinate of candidates, fixed_stations, area_of_interest and route_start, in model
+# units (a georeferenced model in millimetres has northings near 1e10)
+COORDINATE_RANGE = Range(ge=-1e12, le=1e12, hint="coordinates are in model units")
+# the most items a list (or, for group_requirements, keys an object) parameter may have
+MAX_ITEMS: dict[str, int] = {
+    "candidates": 1_000_000, "fixed_stations": 10_000, "area_of_interest": 100_000,
+    "curve_goals": 100, "storeys": 10_000, "rooms": 100_000, "group_requirements": 100_000,
+    "scanner_heights_m": 16,
+}
+# the same for the figures of a scanner profile (planner.scanners.ScannerProfile) ...
+SCANNER_RANGES: dict[str, Range] = {
+    "min_range_m": RANGES["dof_min_m"],
+    "max_range_m": RANGES["dof_max_m"],
+    "elevation_min_deg": RANGES["elevation_min_deg"],
+    "elevation_max_deg": RANGES["elevation_max_deg"],
+    "measurement_rate_pts_s": Range(ge=1, le=1e9,
+                                    hint="points recorded per second, e.g. 2000000"),
+    "setup_time_s": RANGES["setup_time_s"],
+    "overhead_s": Range(ge=0, le=86_400, hint="imaging, tilt and any other constant per scan"),
+}
+# ... and of each of its settings (planner.scanners.ScanSetting)
+SETTING_RANGES: dict[str, Range] = {
+    "point_spacing_m": RANGES["point_spacing_m"],
+    "reference_distance_m": RANGES["reference_distance_m"],
+    "duration_s": Range(gt=0, le=86_400,
+                        hint="or leave it out to compute it from measurement_rate_pts_s"),
+}
+MAX_SETTINGS = 32
+# the finest angular step a setting may have: 0.01 mm at 10 m, far below any instrument's
+MIN_STEP_RAD = 1e-6
 # the same for the per-group overrides (GroupRequirement)
 GROUP_RANGES: dict[str, Range] = {
     "min_density_pts_m2": RANGES["min_density_pts_m2"],
@@ -240,7 +322,7 @@ GROUP_RANGES: dict[str, Range] = {
 
 _NULLABLE = {"max_edge_m", "candidates", "area_of_interest", "storeys", "rooms",
              "curve_goals", "fixed_stations", "scanner", "min_overlap_m2", "route_start",
-             "setup_time_s", "up_axis"}
+             "setup_time_s", "up_axis", "scanner_heights_m"}
 _FLOATS = {
     f.name
     for f in fields(PlanSpec)
@@ -282,7 +364,7 @@ def _convert(name: str, value: Any) -> Any:
         if value not in COVERAGE_MODELS:
             raise ParameterError(name, f"{value!r} is not one of {', '.join(COVERAGE_MODELS)}")
         return value
-    if name == "verify":
+    if name in ("verify", "robust"):
         if not isinstance(value, bool):
             raise ParameterError(name, f"expected true or false, got {value!r}")
         return value
@@ -296,6 +378,12 @@ def _convert(name: str, value: Any) -> Any:
         return value
     if name in ("candidates", "fixed_stations"):
         return None if value is None else _points(name, value, 3)
+    if name == "scanner_heights_m":
+        if value is None:
+            return None
+        if not isinstance(value, list | tuple):
+            raise ParameterError(name, "expected a list of heights in metres, e.g. [1.2, 1.5, 1.8]")
+        return tuple(_number(f"{name}[{i}]", v) for i, v in enumerate(value))
     if name == "curve_goals":
         if value is None:
             return None
@@ -314,6 +402,8 @@ def _convert(name: str, value: Any) -> Any:
         return tuple(value)
     if name == "group_requirements":
         return _group_requirements(value)
+    if name == "scanner":
+        return _scanner(value)
     return value
 
 
@@ -326,7 +416,10 @@ def _points(name: str, value: Any, dims: int) -> tuple[tuple[float, ...], ...]:
             raise ParameterError(
                 name, f"point {i} is {point!r}; each point needs exactly {dims} coordinates"
             )
-        points.append(tuple(_number(f"{name}[{i}]", c) for c in point))
+        coordinates = tuple(_number(f"{name}[{i}]", c) for c in point)
+        for c in coordinates:
+            check_range(f"{name}[{i}]", c, COORDINATE_RANGE)
+        points.append(coordinates)
     return tuple(points)
 
 
@@ -357,6 +450,111 @@ def _group_requirements(value: Any) -> dict[str, GroupRequirement]:
     return result
 
 
+def _scanner(value: Any) -> str | ScannerProfile | None:
+    """A preset id or a :class:`ScannerProfile` from plain data (ranges: :func:`_validate`)."""
+    if value is None or isinstance(value, ScannerProfile):
+        return value
+    if isinstance(value, str):
+        preset(value)  # raises, naming the known presets
+        return value
+    if not isinstance(value, Mapping):
+        raise ParameterError("scanner", "expected a preset id (scanplan scanners lists them) or "
+                                        "an object {name, measurement_rate_pts_s, settings, ...}")
+    _known_keys("scanner", value, PROFILE_FIELDS)
+    kwargs: dict[str, Any] = {"name": _text("scanner.name", value.get("name"))}
+    if value.get("preset") is not None:
+        kwargs["preset"] = _text("scanner.preset", value["preset"])
+        if kwargs["preset"] not in _preset_ids():
+            raise ParameterError("scanner.preset", f"{kwargs['preset']!r} is not a known preset; "
+                                 f"use one of {', '.join(_preset_ids())} or leave it out")
+    for key in SCANNER_RANGES:
+        if value.get(key) is not None:
+            kwargs[key] = _number(f"scanner.{key}", value[key])
+    settings = value.get("settings") or []
+    if not isinstance(settings, list | tuple):
+        raise ParameterError("scanner.settings", "expected a list of {name, point_spacing_m, "
+                                                 "reference_distance_m, duration_s?}")
+    kwargs["settings"] = tuple(_setting(f"scanner.settings[{i}]", s)
+                               for i, s in enumerate(settings))
+    return ScannerProfile(**kwargs)
+
+
+def _preset_ids() -> list[str]:
+    from planner.scanners import presets
+
+    return list(presets())
+
+
+def _setting(where: str, value: Any) -> ScanSetting:
+    if isinstance(value, ScanSetting):
+        return value
+    if not isinstance(value, Mapping):
+        raise ParameterError(where, "expected an object {name, point_spacing_m, "
+                                    "reference_distance_m, duration_s?}")
+    _known_keys(where, value, SETTING_FIELDS)
+    kwargs: dict[str, Any] = {"name": _text(f"{where}.name", value.get("name"))}
+    for key in ("point_spacing_m", "reference_distance_m"):
+        if value.get(key) is None:
+            raise ParameterError(f"{where}.{key}", "is missing; a setting is a point spacing at "
+                                 "a distance, e.g. point_spacing_m 0.006, reference_distance_m 10")
+        kwargs[key] = _number(f"{where}.{key}", value[key])
+    if value.get("duration_s") is not None:
+        kwargs["duration_s"] = _number(f"{where}.duration_s", value["duration_s"])
+    return ScanSetting(**kwargs)
+
+
+def _known_keys(where: str, value: Mapping[str, Any], known: tuple[str, ...]) -> None:
+    unknown = sorted(set(value) - set(known))
+    if unknown:
+        raise ParameterError(f"{where}.{unknown[0]}", f"unknown key; use {', '.join(known)}")
+
+
+def _text(name: str, value: Any) -> str:
+    if not isinstance(value, str) or not value.strip() or len(value) > 100:
+        raise ParameterError(name, f"expected a name of 1 to 100 characters, got {value!r}")
+    return value
+
+
+def _check_scanner(spec: PlanSpec) -> None:
+    """The ranges of the scanner object's figures, and the plan's step against its settings."""
+    profile = spec.scanner_profile
+    if profile is None:
+        return
+    if isinstance(spec.scanner, ScannerProfile):  # a preset's figures are checked by its tests
+        for key, bounds in SCANNER_RANGES.items():
+            check_range(f"scanner.{key}", getattr(spec.scanner, key), bounds)
+        for i, setting in enumerate(spec.scanner.settings):
+            for key, bounds in SETTING_RANGES.items():
+                check_range(f"scanner.settings[{i}].{key}", getattr(setting, key), bounds)
+            step = setting.angular_step_rad
+            _check(MIN_STEP_RAD <= step < math.pi, f"scanner.settings[{i}].point_spacing_m",
+                   f"{setting.point_spacing_m} m at {setting.reference_distance_m} m is an "
+                   f"angular step of {step:g} rad; a scanner's step lies between "
+                   f"{MIN_STEP_RAD:g} rad (0.01 mm at 10 m) and pi")
+        _check(len(spec.scanner.settings) <= MAX_SETTINGS, "scanner.settings",
+               f"has {len(spec.scanner.settings)} settings; at most {MAX_SETTINGS}")
+        names = [s.name for s in spec.scanner.settings]
+        _check(len(set(names)) == len(names), "scanner.settings",
+               f"names must differ, got {names}")
+    low, high = profile.min_range_m, profile.max_range_m
+    _check(low is None or high is None or low < high, "scanner.min_range_m",
+           f"{low} must be less than scanner.max_range_m ({high})")
+    low, high = profile.elevation_min_deg, profile.elevation_max_deg
+    _check(low is None or high is None or low < high, "scanner.elevation_min_deg",
+           f"{low} must be less than scanner.elevation_max_deg ({high})")
+    finest = profile.finest()
+    if finest is not None:
+        # every station must be scannable at some setting: the plan's promise may not need
+        # a finer step than the finest the instrument has
+        _check(spec.angular_step_rad >= finest.angular_step_rad * (1 - STEP_TOLERANCE),
+               "point_spacing_m",
+               f"{spec.point_spacing_m} m at {spec.reference_distance_m} m is finer than the "
+               f"finest setting of scanner {profile.name!r} ({finest.name}: "
+               f"{finest.point_spacing_m} m at {finest.reference_distance_m} m); give a "
+               "coarser one, or leave point_spacing_m and reference_distance_m out (the plan "
+               "then keeps 0.01 m at 10 m, or the finest setting when none is that fine)")
+
+
 def _check(ok: bool, name: str, message: str) -> None:
     if not ok:
         raise ParameterError(name, message)
@@ -367,14 +565,20 @@ def check_range(name: str, value: float | None, bounds: Range) -> None:
     if value is None or bounds.contains(value):
         return
     hint = f"; {bounds.hint}" if bounds.hint else ""
-    if bounds.ge == 0 and bounds.le is None and value < 0:
-        raise ParameterError(name, f"{value} is negative; use 0 or more{hint}")
+    if bounds.ge == 0 and value < 0:
+        use = "0 or more" if bounds.le is None else f"a value {bounds.describe()}"
+        raise ParameterError(name, f"{value} is negative; use {use}{hint}")
     raise ParameterError(name, f"{value} must be {bounds.describe()}{hint}")
 
 
 def _validate(spec: PlanSpec) -> None:
+    _check_scanner(spec)  # first: the profile's figures are the defaults checked below
     for name, bounds in RANGES.items():
         check_range(name, getattr(spec, name), bounds)
+    for name, most in MAX_ITEMS.items():
+        items = getattr(spec, name)
+        _check(items is None or len(items) <= most, name,
+               f"has {0 if items is None else len(items)} items, more than {most}")
     _check(
         spec.dof_min_m < spec.dof_max_m,
         "dof_min_m",
@@ -411,13 +615,21 @@ def _validate(spec: PlanSpec) -> None:
         for i, goal in enumerate(spec.curve_goals):
             _check(0 < goal <= 1, f"curve_goals[{i}]",
                    f"{goal} is outside (0, 1]; 0.8 means 80 % of the achievable area")
+    if spec.scanner_heights_m is not None:
+        _check(len(spec.scanner_heights_m) > 0, "scanner_heights_m",
+               "is an empty list; give at least one height or null for scanner_height_m")
+        _check(len(set(spec.scanner_heights_m)) == len(spec.scanner_heights_m),
+               "scanner_heights_m", f"{list(spec.scanner_heights_m)} repeats a height")
+        for i, height in enumerate(spec.scanner_heights_m):
+            check_range(f"scanner_heights_m[{i}]", height, RANGES["scanner_height_m"])
+        _check(spec.candidates is None, "scanner_heights_m",
+               "applies to generated candidates; explicit candidates carry their own z "
+               "(leave scanner_heights_m null or drop candidates)")
+    _check(not spec.robust or spec.placement_tolerance_m > 0, "robust",
+           "needs placement_tolerance_m greater than 0 (the radius a setup may be off)")
     if spec.area_of_interest is not None:
         _check(len(spec.area_of_interest) >= 3, "area_of_interest",
                "needs at least 3 [x, y] vertices")
-    if spec.scanner is not None:
-        from planner.survey.scanners import get
-
-        get(spec.scanner)  # raises, naming the known presets
     for group, req in spec.group_requirements.items():
         for name, bounds in GROUP_RANGES.items():
             check_range(f"group_requirements.{group}.{name}", getattr(req, name), bounds)

@@ -28,6 +28,12 @@ from planner.method.connectivity import Connectivity
 from planner.method.coverage import CoverageTable, QualifiedPairs
 from planner.method.optimal import OptimalResult, choose_stations
 from planner.method.pairs import FaceLimits, PairFinder, in_block_order
+from planner.method.placement import (
+    at_heights,
+    displaced_positions,
+    robust_blocks,
+    within_table,
+)
 from planner.method.selection import Selection, coverage_state, fixed_candidates
 from planner.method.splitting import faces_to_split
 from planner.method.visibility import (
@@ -41,6 +47,7 @@ from planner.parameters import PlanSpec
 from planner.scene import Scene, remesh
 from planner.survey.fieldwork import Survey, survey
 from planner.survey.registration import OverlapRows, connected_greedy, overlap_graph
+from planner.survey.tolerance import Tolerance, placement_tolerance
 
 # progress(stage, fraction 0..1) -> True to cancel
 ProgressCallback = Callable[[str, float], bool | None]
@@ -54,6 +61,7 @@ class Stats:
     """What the run did, for benchmarks and the job record (never in the result bytes)."""
 
     seconds: dict[str, float] = field(default_factory=dict)
+    cpu_seconds: dict[str, float] = field(default_factory=dict)  # process CPU, all threads
     pairs_tested: int = 0
     rays_cast: int = 0
     qualified_pairs: int = 0
@@ -77,6 +85,7 @@ class PlanResult:
     optimal_curve: tuple[OptimalResult, ...] = ()  # per goal of curve_goals
     selection_report: dict[str, Any] = field(default_factory=dict)  # plan.json "selection"
     survey: Survey | None = None  # registration, route, field time (planner.survey.fieldwork)
+    tolerance: Tolerance | None = None  # placement tolerance (planner.survey.tolerance)
 
 
 def _notify(progress: ProgressCallback | None, stage: str, fraction: float) -> None:
@@ -108,7 +117,7 @@ def plan(
     threads : worker threads for visibility (default: the machine's cores)
     """
     stats = Stats()
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     if scene.split_max_edge_m is not None and (spec.occluders != "file" or backend != "embree"):
         scene = remesh(scene, scene.split_max_edge_m)  # the pieces occlude: split them all now
     limits = FaceLimits.from_spec(spec, scene)
@@ -122,19 +131,23 @@ def plan(
     elif scene.metadata.get("spaces"):
         from planner.io import ifc
 
-        candidates = ifc.room_candidates(scene, spec, _caster(scene, spec, limits, occlusion))
+        candidates = at_heights(spec, lambda at: ifc.room_candidates(
+            scene, at, _caster(scene, spec, limits, occlusion)))
     else:
-        candidates = generate_grid(scene, spec, _caster(scene, spec, limits, occlusion))
+        candidates = at_heights(spec, lambda at: generate_grid(
+            scene, at, _caster(scene, spec, limits, occlusion)))
     fixed: tuple[int, ...] = ()
     if spec.fixed_stations:  # re-scan: stations already scanned are candidates too
         fixed_xyz = to_plan(scene_rotation(scene.metadata), np.asarray(spec.fixed_stations))
         positions, fixed = fixed_candidates(
             candidates.positions, tuple((float(x), float(y), float(z)) for x, y, z in fixed_xyz))
         if len(positions) > len(candidates):
+            added = len(positions) - len(candidates)
             candidates = dataclasses.replace(
                 candidates, positions=positions,
-                labels=candidates.labels + ({},) * (len(positions) - len(candidates))
-                if candidates.labels else ())
+                labels=candidates.labels + ({},) * added if candidates.labels else (),
+                heights_m=None if candidates.heights_m is None
+                else np.r_[candidates.heights_m, np.full(added, np.nan)])
     stats.seconds["candidates"] = time.perf_counter() - t0
     if scene.split_max_edge_m is not None:
         t_split = time.perf_counter()
@@ -151,6 +164,19 @@ def plan(
         len(candidates), scene.areas)
     stats.qualified_pairs = table.n_pairs
     stats.seconds["visibility"] = time.perf_counter() - t1
+    if spec.robust:  # a face counts only when it qualifies from every displaced setup too
+        t_robust = time.perf_counter()
+        table = CoverageTable.from_blocks(robust_blocks(
+            scene, table, displaced_positions(
+                scene, candidates.positions, spec.placement_tolerance_m, spec.clearance_m,
+                _caster(scene, spec, limits, occlusion)),
+            limits, _qualifier(scene, spec, occlusion), threads=threads,
+            disc_radius_m=spec.placement_tolerance_m if spec.coverage_model == "centroid"
+            else None,
+            # part of the coverage table: a cancel is heard, the percentage stays put
+            notify=lambda _: _notify(progress, "visibility", 1.0)),
+            len(candidates), scene.areas)
+        stats.seconds["robust"] = time.perf_counter() - t_robust
     if table.n_pairs == 0:
         raise NothingVisibleError(
             f"no face qualifies from any of the {len(candidates)} candidates: check that "
@@ -204,19 +230,53 @@ def plan(
     for step, seconds in outcome.seconds.items():
         stats.seconds[f"selection_{step}"] = seconds
     release_freed_memory()
+    tolerance = None
+    if spec.placement_tolerance_m > 0:
+        if station_overlap is None:  # the survey's rows, made once for both (its "overlap"),
+            # cut to the faces two stations share as the survey cuts them (no whole matrix)
+            t_rows = time.perf_counter()
+            station_overlap = OverlapRows(
+                scene, candidates.positions[list(chosen.stations)], limits, occlusion,
+                spec.overlap_density_pts_m2, threads=threads,
+                file_faces=spec.occluders == "file").shared_matrix(range(len(chosen.stations)))
+            stats.seconds["overlap"] = time.perf_counter() - t_rows
+        t_tolerance, cpu_tolerance = time.perf_counter(), time.process_time()
+        tolerance = placement_tolerance(
+            scene, table, chosen.stations, displaced_positions(
+                scene, candidates.positions[list(chosen.stations)],
+                spec.placement_tolerance_m, spec.clearance_m,
+                _caster(scene, spec, limits, occlusion)),
+            limits, _qualifier(scene, spec, occlusion),
+            tolerance_m=spec.placement_tolerance_m,
+            covered_area_m2=chosen.covered_area_m2[-1] if chosen.stations else 0.0,
+            goal_area_m2=spec.coverage_goal * table.max_achievable_area_m2,
+            station_overlap=station_overlap, min_overlap_m2=min_overlap_m2,
+            overlap_density_pts_m2=spec.overlap_density_pts_m2, occlusion=occlusion,
+            file_faces=spec.occluders == "file", threads=threads)
+        stats.seconds["tolerance"] = time.perf_counter() - t_tolerance
+        stats.cpu_seconds["tolerance"] = time.process_time() - cpu_tolerance
+    # the table keeps no densities: the chosen stations' pairs are qualified again, alone,
+    # and read block by block; with a scanner, each station's least density margin over
+    # the faces it is credited with chooses its setting (planner.scanners)
+    densities = _qualified_blocks(
+        scene, spec, candidates.positions[list(chosen.stations)], limits, occlusion, stats,
+        threads=threads)
+    if spec.robust:
+        densities = within_table(densities, table, chosen.stations)
+    faces = coverage_state(table, chosen.stations, densities,
+                           None if spec.scanner is None else limits.min_density_pts_m2)
+    margins = faces.pop("density_margin", None)
     plan_survey = survey(scene, spec, candidates.positions[list(chosen.stations)], limits,
                          occlusion, _caster(scene, spec, limits, occlusion), stats.seconds,
-                         station_overlap=station_overlap, threads=threads)
+                         station_overlap=station_overlap, threads=threads,
+                         density_margins=None if margins is None else margins.tolist())
     _new_stage(progress, "report")
-    # the table keeps no densities: the chosen stations' pairs are qualified again, alone,
-    # and read block by block
-    faces = coverage_state(table, chosen.stations, _qualified_blocks(
-        scene, spec, candidates.positions[list(chosen.stations)], limits, occlusion, stats,
-        threads=threads))
+    stats.cpu_seconds["plan"] = time.process_time() - cpu0
     return PlanResult(scene=scene, spec=spec, candidates=candidates, table=table,
                       limits=limits, selections=selections, chosen=chosen, optimal=optimal,
                       faces=faces, stats=stats, optimal_curve=outcome.curve,
-                      selection_report=outcome.report, survey=plan_survey)
+                      selection_report=outcome.report, survey=plan_survey,
+                      tolerance=tolerance)
 
 
 def _split_as_needed(scene: Scene, spec: PlanSpec, positions: np.ndarray, limits: FaceLimits,
@@ -237,6 +297,15 @@ def _caster(scene: Scene, spec: PlanSpec, limits: FaceLimits, occlusion: Occlusi
     if isinstance(occlusion, RayCaster):
         return occlusion
     return make_ray_caster(scene, limits.occludes, file_faces=spec.occluders == "file")
+
+
+def _qualifier(scene: Scene, spec: PlanSpec, occlusion: Occlusion
+               ) -> Callable[[np.ndarray, FaceLimits], Iterator[QualifiedPairs]]:
+    """The plan's coverage model for a few displaced setups at a time (one thread each:
+    the caller runs positions in parallel)."""
+    def qualify(positions: np.ndarray, limits: FaceLimits) -> Iterator[QualifiedPairs]:
+        return _qualified_blocks(scene, spec, positions, limits, occlusion, Stats(), threads=1)
+    return qualify
 
 
 def _qualified_blocks(

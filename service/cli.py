@@ -36,7 +36,8 @@ def register(subparsers: Any) -> None:
     worker = subparsers.add_parser(
         "worker", help="consume jobs only (scale-out: Redis queue, PostgreSQL job table)",
         description="Run N worker processes against SCANPLAN_QUEUE_URL and "
-                    "SCANPLAN_DATABASE_URL, sharing the data directory with the API.")
+                    "SCANPLAN_DATABASE_URL; files through SCANPLAN_STORE_URL (s3://...), "
+                    "else the data directory shared with the API.")
     _common(worker)
     worker.set_defaults(handler=run_worker)
 

@@ -7,11 +7,12 @@ overrides the environment, which overrides the defaults.
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import os
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 LOOPBACK_HOSTS = ("127.0.0.1", "::1", "localhost")
@@ -43,13 +44,21 @@ class Settings(BaseSettings):
 
     host: str = Field(default="127.0.0.1", description="address the API binds to")
     port: int = Field(default=8000, ge=0, le=65535, description="TCP port of the API")
-    data_dir: Path = Field(default=Path("data"), description="meshes, results, SQLite files")
+    data_dir: Path = Field(default=Path("data"),
+                           description="meshes, results, SQLite files (scratch only with "
+                                       "store_url)")
     workers: int = Field(default_factory=_cores, ge=0,
                          description="worker processes (default: the number of cores)")
     database_url: str | None = Field(
         default=None, description="SQLAlchemy URL of the job table; default SQLite in data_dir")
     queue_url: str | None = Field(
         default=None, description="redis://host:port/db for scale-out; default SQLite in data_dir")
+    store_url: str | None = Field(
+        default=None, description="s3://bucket/prefix: meshes and results in an S3-compatible "
+                                  "store (AWS_ENDPOINT_URL, AWS_ACCESS_KEY_ID...); default: "
+                                  "files in data_dir")
+    store_addressing_style: Literal["auto", "path", "virtual"] | None = Field(
+        default=None, description="S3 addressing; default: path with AWS_ENDPOINT_URL, else auto")
     api_keys: Annotated[list[str], NoDecode] = Field(
         default_factory=list,
         description="comma-separated bearer keys, or sha256:<hex> of a key; empty = no auth")
@@ -89,12 +98,54 @@ class Settings(BaseSettings):
         default=2e11, gt=0, description="refuse plans above this many candidate x face pairs")
     max_request_bytes: int = Field(default=8 * 1024 * 1024, gt=0,
                                    description="largest JSON request body (not uploads)")
+    # callbacks (service/callbacks.py)
+    callback_secret: SecretStr | None = Field(
+        default=None, description="HMAC-SHA256 key of X-Scanplan-Signature; unset: execute "
+                                  "requests with a subscriber are refused")
+    callback_allow: Annotated[list[str], NoDecode] = Field(
+        default_factory=list, description="comma-separated CIDRs callbacks may reach besides "
+                                          "public addresses (e.g. 10.0.0.0/8)")
+    callback_progress_interval_s: float = Field(
+        default=5.0, ge=0, description="least time between two inProgress callbacks of a job")
+    callback_timeout_s: float = Field(default=10.0, gt=0, description="timeout of one POST")
+    callback_max_attempts: int = Field(default=8, ge=1,
+                                       description="POSTs of one callback before giving up")
+    callback_retry_base_s: float = Field(
+        default=5.0, gt=0, description="wait after the first failed POST; doubles each time, "
+                                       "at most 300 s")
+    callback_poll_interval_s: float = Field(
+        default=1.0, gt=0, description="how often the API looks for job changes to announce")
+    # fair tenants (service/tenants.py)
+    max_active_jobs_per_key: int = Field(
+        default=100, ge=0, description="jobs one API key may have queued or running; a "
+        "submission past it answers 429 with Retry-After; 0: no limit")
+    busy_retry_after_s: int = Field(default=30, ge=1,
+                                    description="Retry-After of that 429, seconds")
 
-    @field_validator("api_keys", mode="before")
+    @field_validator("api_keys", "callback_allow", mode="before")
     @classmethod
     def _split_keys(cls, value: object) -> object:
         if isinstance(value, str):
             return [key.strip() for key in value.split(",") if key.strip()]
+        return value
+
+    @field_validator("store_url")
+    @classmethod
+    def _check_store_url(cls, value: str | None) -> str | None:
+        if value:
+            from service.store import parse_store_url
+
+            parse_store_url(value)  # ValueError naming the expected form
+        return value or None
+    @field_validator("callback_allow")
+    @classmethod
+    def _check_networks(cls, value: list[str]) -> list[str]:
+        for cidr in value:
+            try:
+                ipaddress.ip_network(cidr, strict=False)
+            except ValueError as exc:
+                raise ValueError(f"SCANPLAN_CALLBACK_ALLOW: {cidr!r} is not a network "
+                                 "(write 10.0.0.0/8 or 127.0.0.1)") from exc
         return value
 
     @property

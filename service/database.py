@@ -6,6 +6,7 @@ several worker processes can write the same file.
 
 from __future__ import annotations
 
+import contextlib
 from typing import Any
 
 from sqlalchemy import (
@@ -23,6 +24,8 @@ from sqlalchemy import (
     create_engine,
     event,
     exc,
+    inspect,
+    text,
 )
 
 metadata = MetaData()
@@ -67,6 +70,7 @@ jobs = Table(
     Column("problem", Text, nullable=True),  # JSON problem document of a failed job
     Column("timings", Text, nullable=True),  # JSON seconds per stage
     Column("outputs", Text, nullable=True),  # JSON {name: {"bytes", "sha256"}}
+    Column("attempt_log", Text, nullable=True),  # JSON list: one entry per ended attempt
 )
 Index("jobs_owner_idempotency", jobs.c.owner, jobs.c.idempotency_key, unique=True)
 
@@ -98,4 +102,18 @@ def make_engine(url: str) -> Engine:
     except exc.DBAPIError:
         # another process created the tables at the same moment; theirs are the same
         metadata.create_all(engine)
+    _add_missing_columns(engine)
     return engine
+
+
+def _add_missing_columns(engine: Engine) -> None:
+    """Add the nullable columns a table of an older version lacks (create_all adds none)."""
+    for table in metadata.sorted_tables:
+        present = {c["name"] for c in inspect(engine).get_columns(table.name)}
+        for column in table.columns:
+            if column.name in present or not column.nullable:
+                continue
+            kind = column.type.compile(dialect=engine.dialect)
+            with contextlib.suppress(exc.DBAPIError), engine.begin() as conn:
+                # another process may add it at the same moment
+                conn.execute(text(f'ALTER TABLE {table.name} ADD COLUMN "{column.name}" {kind}'))

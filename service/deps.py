@@ -8,10 +8,12 @@ from typing import Annotated
 from fastapi import Depends, Header, Request
 
 from service.auth import KeyRing
+from service.callbacks import CallbackStore
 from service.config import Settings
 from service.job_store import JobStore
 from service.mesh_store import MeshStore
 from service.queue import JobQueue
+from service.store import ObjectStore
 
 
 @dataclass
@@ -23,6 +25,12 @@ class Services:
     meshes: MeshStore
     queue: JobQueue
     keys: KeyRing
+    callbacks: CallbackStore
+
+    @property
+    def store(self) -> ObjectStore:
+        """Where meshes and results live (the data directory, or S3 in scale-out)."""
+        return self.meshes.store
 
 
 # both dependencies are async although they never wait: FastAPI runs a plain ``def``

@@ -51,11 +51,12 @@ class JobRecord:
     problem: dict[str, Any] | None
     timings: dict[str, float] | None
     outputs: dict[str, dict[str, Any]] | None
+    attempt_log: list[dict[str, Any]] | None = None  # see attempt_entry
 
     @classmethod
     def from_row(cls, row: Row[Any]) -> JobRecord:
         data = dict(row._mapping)
-        for name in ("parameters", "problem", "timings", "outputs"):
+        for name in ("parameters", "problem", "timings", "outputs", "attempt_log"):
             data[name] = None if data[name] is None else json.loads(data[name])
         return cls(**data)
 
@@ -67,6 +68,24 @@ _INSERT_JOB = insert(jobs)
 
 def _json(value: Any) -> str | None:
     return None if value is None else json.dumps(value, sort_keys=True)
+
+
+def attempt_entry(job: JobRecord, outcome: str, **figures: Any) -> dict[str, Any]:
+    """One ended attempt of ``job`` (a running record) as the job's ``attempt_log`` keeps it.
+
+    ``outcome``: successful, failed, out of memory, killed (ended by a signal from outside,
+    queued again or failed after the last try) or worker lost; ``figures``: ``stage``,
+    ``signal``, ``peak_rss_mib``, ... of :class:`service.plan_process.ChildEnd`. Times are
+    epoch seconds.
+    """
+    return {"attempt": job.attempts, "worker": job.worker, "started": job.started,
+            "finished": time.time(), "outcome": outcome, **figures}
+
+
+def _stage_of(message: str) -> str | None:
+    """The stage a running job's progress message names ("visibility: 40 % ...")."""
+    stage, colon, _ = message.partition(":")
+    return stage if colon and " " not in stage else None
 
 
 class JobStore:
@@ -112,7 +131,7 @@ class JobStore:
             progress=0, message="queued", created=now, started=None, finished=None,
             updated=now, heartbeat=None, attempts=0, worker_token=None, worker=None,
             idempotency_key=idempotency_key, request_hash=request_hash, problem=None,
-            timings=None, outputs=None), True
+            timings=None, outputs=None, attempt_log=None), True
 
     def by_idempotency_key(self, owner: str, key: str | None) -> JobRecord | None:
         """The job created with ``key`` by ``owner``, if any."""
@@ -161,11 +180,30 @@ class JobStore:
         with self.engine.connect() as conn:
             return int(conn.execute(query).scalar_one())
 
-    def _update(self, job_id: str, where: Sequence[Any], **values: Any) -> bool:
-        values.setdefault("updated", time.time())
-        statement = update(jobs).where(jobs.c.id == job_id, *where).values(**values)
+    def active_count(self, owner: str) -> int:
+        """How many jobs of ``owner`` are accepted or running."""
+        query = select(func.count()).select_from(jobs).where(
+            jobs.c.owner == owner, jobs.c.status.in_(ACTIVE))
+        with self.engine.connect() as conn:
+            return int(conn.execute(query).scalar_one())
+
+    def withdraw(self, job_id: str) -> bool:
+        """Remove a job refused right after its insert (still accepted, never enqueued)."""
+        statement = delete(jobs).where(jobs.c.id == job_id, jobs.c.status == ACCEPTED)
         with self._write_lock, self.engine.begin() as conn:
             return bool(conn.execute(statement).rowcount == 1)
+
+    def _update(self, job_id: str, where: Sequence[Any], *,
+                attempt: dict[str, Any] | None = None, **values: Any) -> bool:
+        """The conditional UPDATE; ``attempt``: an entry appended to the attempt log."""
+        values.setdefault("updated", time.time())
+        statement = update(jobs).where(jobs.c.id == job_id, *where)
+        with self._write_lock, self.engine.begin() as conn:
+            if attempt is not None:  # read and extended in the same transaction
+                logged = conn.execute(
+                    select(jobs.c.attempt_log).where(jobs.c.id == job_id)).scalar()
+                values["attempt_log"] = _json([*json.loads(logged or "[]"), attempt])
+            return bool(conn.execute(statement.values(**values)).rowcount == 1)
 
     def claim(self, job_id: str, token: str, worker: str) -> bool:
         """``accepted -> running`` for the worker holding ``token``; False if not accepted."""
@@ -196,8 +234,9 @@ class JobStore:
 
     def finish(self, job_id: str, token: str, status: str, *, message: str,
                problem: dict[str, Any] | None = None, timings: dict[str, float] | None = None,
-               outputs: dict[str, dict[str, Any]] | None = None) -> bool:
-        """``running -> successful|failed`` by the claim holder."""
+               outputs: dict[str, dict[str, Any]] | None = None,
+               attempt: dict[str, Any] | None = None) -> bool:
+        """``running -> successful|failed`` by the claim holder (``attempt``: its log entry)."""
         values: dict[str, Any] = {
             "status": status, "message": message, "finished": time.time(),
             "problem": _json(problem), "timings": _json(timings), "outputs": _json(outputs),
@@ -206,7 +245,14 @@ class JobStore:
         if status == SUCCESSFUL:
             values["progress"] = 100
         return self._update(job_id, [jobs.c.status == RUNNING, jobs.c.worker_token == token],
-                            **values)
+                            attempt=attempt, **values)
+
+    def retry(self, job_id: str, token: str, *, message: str, attempt: dict[str, Any]) -> bool:
+        """``running -> accepted`` by the claim holder whose attempt was killed from outside:
+        the attempt counts (unlike :meth:`release`) and is logged; the caller enqueues."""
+        return self._update(
+            job_id, [jobs.c.status == RUNNING, jobs.c.worker_token == token],
+            status=ACCEPTED, worker_token=None, progress=0, message=message, attempt=attempt)
 
     def release(self, job_id: str, token: str) -> bool:
         """``running -> accepted`` when a worker is stopped: the run does not count."""
@@ -243,6 +289,7 @@ class JobStore:
                      jobs.c.heartbeat == job.heartbeat],
             status=ACCEPTED, worker_token=None, progress=0,
             message=f"queued again: the worker was lost (attempt {job.attempts})",
+            attempt=attempt_entry(job, "worker lost", stage=_stage_of(job.message)),
         )
 
     def fail_lost(self, job: JobRecord, problem: dict[str, Any]) -> bool:
@@ -252,4 +299,5 @@ class JobStore:
                      jobs.c.heartbeat == job.heartbeat],
             status=FAILED, worker_token=None, finished=time.time(),
             message=problem["detail"], problem=_json(problem),
+            attempt=attempt_entry(job, "worker lost", stage=_stage_of(job.message)),
         )

@@ -15,7 +15,7 @@ from http import HTTPStatus
 from pathlib import Path
 from typing import Any
 
-from fastapi import FastAPI, Request
+from fastapi import Depends, FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from fastapi.staticfiles import StaticFiles
@@ -24,8 +24,15 @@ from starlette.routing import compile_path
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from planner.errors import ParameterError, PlannerError
-from planner.parameters import GROUP_RANGES, RANGES, check_range
+from planner.parameters import (
+    GROUP_RANGES,
+    RANGES,
+    SCANNER_RANGES,
+    SETTING_RANGES,
+    check_range,
+)
 from service.auth import KeyRing
+from service.callbacks import CallbackDispatcher, CallbackStore
 from service.config import Settings
 from service.database import make_engine
 from service.deps import Services
@@ -40,7 +47,10 @@ from service.problems import (
     problem_for,
 )
 from service.queue import HueyQueue, JobQueue, make_huey
-from service.routes import health, jobs, landing, meshes, processes
+from service.routes import callbacks, health, jobs, landing, meshes, processes
+from service.routes.callbacks import callback_document
+from service.schemas import OBJECT_TAG, PRESET_TAG
+from service.store import open_store
 from service.worker import Reaper
 
 log = logging.getLogger("scanplan.service")
@@ -74,23 +84,49 @@ def create_app(settings: Settings | None = None, *, queue: JobQueue | None = Non
             if requeued:
                 log.info("re-enqueued %d accepted job(s) from before the start", requeued)
             keeper.start()
+        dispatcher = CallbackDispatcher(services.callbacks, settings, callback_document)
+        dispatcher.start()
         try:
             yield
         finally:
+            dispatcher.stop()
             if keeper is not None:
                 keeper.stop()
             services.jobs.engine.dispose()
 
     # operation ids are the handlers' names: what a generated client calls its functions
     app = FastAPI(title="scanplan", version=VERSION, description=DESCRIPTION,
-                  lifespan=lifespan, generate_unique_id_function=lambda route: route.name)
+                  lifespan=lifespan, generate_unique_id_function=lambda route: route.name,
+                  dependencies=[Depends(_single_query_values)])
     _add_problem_component(app)
     app.add_middleware(RequestSizeLimit, max_bytes=settings.max_request_bytes)
     _add_problem_handlers(app)
-    for module in (landing, meshes, processes, jobs, health):
+    for module in (landing, meshes, processes, jobs, callbacks, health):
         app.include_router(module.router)
     _add_pages(app)
     return app
+
+
+async def _single_query_values(request: Request) -> None:
+    """422 for a query parameter given twice that takes one value (FastAPI keeps the last)."""
+    route = request.scope.get("route")
+    repeated = [key for key in request.query_params
+                if len(request.query_params.getlist(key)) > 1]
+    if not repeated or route is None:
+        return
+    operation = request.app.openapi()["paths"].get(getattr(route, "path_format", ""), {}).get(
+        request.method.lower(), {})
+    lists = {p["name"] for p in operation.get("parameters", [])
+             if p.get("in") == "query" and _is_array(p.get("schema", {}))}
+    errors = [{"type": "repeated", "loc": ("query", key),
+               "msg": "given more than once; it takes one value", "input": key}
+              for key in repeated if key not in lists]
+    if errors:
+        raise RequestValidationError(errors)
+
+
+def _is_array(schema: dict[str, Any]) -> bool:
+    return schema.get("type") == "array" or any(_is_array(s) for s in schema.get("anyOf", []))
 
 
 class RequestSizeLimit:
@@ -138,9 +174,11 @@ def open_services(settings: Settings, queue: JobQueue | None = None) -> Services
     return Services(
         settings=settings,
         jobs=JobStore(engine),
-        meshes=MeshStore(settings.data_dir / "meshes", engine, settings.max_upload_bytes),
+        meshes=MeshStore(settings.data_dir / "meshes", engine, settings.max_upload_bytes,
+                         open_store(settings)),
         queue=queue or HueyQueue(make_huey(settings)),
         keys=KeyRing.from_settings(settings.api_keys),
+        callbacks=CallbackStore(engine),
     )
 
 
@@ -152,7 +190,8 @@ def _problem_response(document: dict[str, Any], headers: dict[str, str] | None =
 
 def _add_problem_handlers(app: FastAPI) -> None:
     async def domain_error(request: Request, exc: Exception) -> JSONResponse:
-        headers = {"WWW-Authenticate": "Bearer"} if isinstance(exc, UnauthorizedError) else None
+        headers = ({"WWW-Authenticate": "Bearer"} if isinstance(exc, UnauthorizedError)
+                   else getattr(exc, "headers", None))  # Retry-After of a 429
         return _problem_response(problem_for(exc, instance=request.url.path), headers)
 
     async def validation_error(request: Request, exc: Exception) -> JSONResponse:
@@ -197,6 +236,8 @@ def _add_problem_handlers(app: FastAPI) -> None:
 
 
 _RANGE_ERRORS = {"greater_than", "greater_than_equal", "less_than", "less_than_equal"}
+# parts of a validation error's location that name no field: the body, a union's form
+_NOT_NAMES = {"body", PRESET_TAG, OBJECT_TAG}
 
 
 def _allowed_methods(app: Any, path: str) -> list[str]:
@@ -214,7 +255,7 @@ def _describe_validation(error: Any) -> str:
     range_message = _range_message(error)
     if range_message is not None:
         return range_message
-    where = ".".join(str(p) for p in error.get("loc", ()) if p != "body")
+    where = ".".join(str(p) for p in error.get("loc", ()) if p not in _NOT_NAMES)
     message = error.get("msg", "invalid")
     if "input" in error and error.get("type") != "missing":
         value = repr(error["input"])
@@ -228,7 +269,10 @@ def _range_message(error: Any) -> str | None:
     if error.get("type") not in _RANGE_ERRORS or parameter is None:
         return None
     name = parameter.rsplit(".", 1)[-1]
-    bounds = (GROUP_RANGES if parameter.startswith("group_requirements.") else RANGES).get(name)
+    table = (GROUP_RANGES if parameter.startswith("group_requirements.")
+             else SETTING_RANGES if parameter.startswith("scanner.settings.")
+             else SCANNER_RANGES if parameter.startswith("scanner.") else RANGES)
+    bounds = table.get(name)
     if bounds is None or not isinstance(error.get("input"), int | float):
         return None
     try:
@@ -239,7 +283,7 @@ def _range_message(error: Any) -> str | None:
 
 
 def _parameter_of(error: Any) -> str | None:
-    loc = [str(p) for p in error.get("loc", ())]
+    loc = [str(p) for p in error.get("loc", ()) if p not in _NOT_NAMES]
     if "parameters" in loc:
         rest = loc[loc.index("parameters") + 1:]
         return ".".join(rest) or None

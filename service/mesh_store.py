@@ -1,4 +1,5 @@
-"""Meshes as content-addressed files: ``meshes/<sha256>/mesh.<format>`` in the data dir.
+"""Meshes as content-addressed files: ``meshes/<sha256>/mesh.<format>`` in the store (the
+data directory, or an S3 bucket in scale-out: see :mod:`service.store`).
 
 An upload is streamed to a staging file while its sha256 is computed and its size capped
 (the body never lands in the store when it is too large), its format is sniffed from the
@@ -22,9 +23,11 @@ from typing import Any
 from sqlalchemy import Engine, bindparam, delete, func, insert, select
 from sqlalchemy.exc import IntegrityError
 
+from planner.errors import SceneError
 from planner.io.readers import file_format, read_scene
 from service.database import mesh_owners, meshes
 from service.problems import PayloadTooLargeError
+from service.store import LocalStore, ObjectStore, mesh_key, mesh_prefix
 
 _CHUNK_BYTES = 1 << 20
 # built once: every submission looks its mesh up, and building the statement per call
@@ -66,6 +69,14 @@ class MeshRecord:
     filename: str | None
 
 
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        while chunk := handle.read(_CHUNK_BYTES):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
 def safe_filename(name: str | None) -> str:
     """A plain file name (no directories) for messages and downloads."""
     base = Path(name or "").name
@@ -74,19 +85,46 @@ def safe_filename(name: str | None) -> str:
 
 
 class MeshStore:
-    """Mesh files under ``root`` and their rows in the database."""
+    """Mesh files in ``store`` (default: under ``root``) and their rows in the database.
 
-    def __init__(self, root: Path, engine: Engine, max_upload_bytes: int) -> None:
+    ``root`` is ``<data dir>/meshes``; uploads are staged beside it, in ``<data dir>/tmp``,
+    whatever the store.
+    """
+
+    def __init__(self, root: Path, engine: Engine, max_upload_bytes: int,
+                 store: ObjectStore | None = None) -> None:
         self.root = root
         self.engine = engine
         self.max_upload_bytes = max_upload_bytes
         self.staging = root.parent / "tmp"
+        self.store: ObjectStore = store or LocalStore(root.parent)
 
-    def path(self, mesh_id: str) -> Path | None:
-        """The stored file of ``mesh_id`` (None when absent)."""
-        folder = self.root / mesh_id
-        found = sorted(folder.glob("mesh.*")) if folder.is_dir() else []
-        return found[0] if found else None
+    def key(self, mesh_id: str) -> str | None:
+        """The store key of ``mesh_id`` (None when no such mesh is stored)."""
+        row = self._row(mesh_id)
+        return None if row is None else mesh_key(mesh_id, row.format)
+
+    def fetch(self, mesh_id: str, scratch: Path) -> Path | None:
+        """The stored model as a local file (downloaded into the new directory ``scratch``
+        from a remote store: the caller removes it), its bytes checked against the id
+        (their sha256); None when absent, and then ``scratch`` is gone.
+
+        Raises SceneError when the stored bytes are not the ones uploaded.
+        """
+        key = self.key(mesh_id)
+        try:
+            path = None if key is None else self.store.fetch(key, scratch)
+            if path is not None and _sha256(path) != mesh_id:
+                raise SceneError(f"the stored bytes of mesh {mesh_id} do not match its sha256 "
+                                 f"(in {self.store!r}); upload the model again")
+        except FileNotFoundError:
+            path = None
+        except BaseException:
+            shutil.rmtree(scratch, ignore_errors=True)
+            raise
+        if path is None:
+            shutil.rmtree(scratch, ignore_errors=True)
+        return path
 
     async def stage(self, chunks: AsyncIterator[bytes]) -> StagedUpload:
         """Stream ``chunks`` into a staging file, hashing; 413 past ``max_upload_bytes``."""
@@ -131,11 +169,8 @@ class MeshStore:
         return record, created
 
     def _store(self, staged: StagedUpload, fmt: str, summary: dict[str, Any]) -> None:
-        folder = self.root / staged.sha256
-        folder.mkdir(parents=True, exist_ok=True)
-        target = folder / f"mesh.{fmt}"
-        staged.path.chmod(0o644)
-        staged.path.replace(target)  # same bytes as any concurrent upload: harmless race
+        # the key is the sha256: any concurrent upload writes the same bytes (harmless race)
+        self.store.put_file(mesh_key(staged.sha256, fmt), staged.path)
         try:
             with self.engine.begin() as conn:
                 conn.execute(insert(meshes).values(
@@ -178,10 +213,10 @@ class MeshStore:
             if holders or files_in_use:
                 return
             conn.execute(delete(meshes).where(meshes.c.id == mesh_id))
-        shutil.rmtree(self.root / mesh_id, ignore_errors=True)
+        self.store.delete_prefix(mesh_prefix(mesh_id))
 
     def ping(self) -> None:
-        """Raise when the data directory is not writable."""
+        """Raise when the data directory (the staging of uploads) is not writable."""
         self.staging.mkdir(parents=True, exist_ok=True)
         probe = self.staging / f".probe-{uuid.uuid4().hex}"
         probe.write_bytes(b"")

@@ -7,6 +7,13 @@ sends the child SIGKILL, which frees its memory at once, whatever stage it is in
 runs under ``RLIMIT_AS`` (the worker is not limited), so a plan that outgrows its share gets a
 ``MemoryError`` (or dies) and fails as "out of memory" while the worker lives on.
 
+A child that ends without a result is told apart by its exit status and its peak memory
+(``wait4``'s ``ru_maxrss``, and the address space last read from ``/proc``): a
+``MemoryError``, or a death with a peak near the limit, is out of memory (a re-run would
+end the same); a signal with the peak far below the limit came from outside (an operator,
+the container runtime, the host's OOM killer when the machine ran short), and a re-run can
+succeed. :class:`ChildEnd` carries the figures the worker records of the attempt.
+
 The child never touches the database or the queue: it sends ``(stage, fraction)`` progress
 messages and one final message over the pipe; the worker does all the bookkeeping.
 
@@ -27,6 +34,7 @@ import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, Pipe
+from pathlib import Path
 from typing import Any
 
 log = logging.getLogger("scanplan.worker")
@@ -41,12 +49,56 @@ _PR_SET_PDEATHSIG = 1
 _PROGRESS_EVERY_S = 0.1
 
 
-class PlanProcessError(Exception):
-    """The child ended without a result: out of memory, or killed by a signal."""
+# a death counts as out of memory when the child's peak reached this share of its limit:
+# RLIMIT_AS refuses the allocation that would cross it, and C++ code (Embree) then ends
+# with SIGABRT or SIGSEGV instead of a MemoryError
+NEAR_LIMIT_SHARE = 0.9
+_MIB = 2**20
 
-    def __init__(self, message: str, *, out_of_memory: bool) -> None:
+
+@dataclass(frozen=True)
+class ChildEnd:
+    """How a child ended without a result: the figures of one attempt.
+
+    ``peak_rss_mib``: resident peak (``wait4`` ``ru_maxrss``); ``peak_address_space_mib``:
+    VmPeak as last read while it ran (None when never read); ``signal``: e.g. ``SIGKILL``,
+    None when it exited; ``stage``: the last stage it reported.
+    """
+
+    out_of_memory: bool
+    stage: str | None
+    signal: str | None
+    exit_code: int | None
+    peak_rss_mib: float | None
+    peak_address_space_mib: float | None
+    memory_limit_mib: float | None
+
+    @property
+    def killed(self) -> bool:
+        """Ended by a signal far below its memory limit: from outside; a re-run can succeed."""
+        return self.signal is not None and not self.out_of_memory
+
+    def figures(self) -> str:
+        """Words for a message: stage, peak resident and (when read) address space."""
+        parts = [f"stage {self.stage or 'starting'}"]
+        if self.peak_rss_mib is not None:
+            peak = f"peak {self.peak_rss_mib:,.0f} MiB resident"
+            if self.peak_address_space_mib is not None:
+                peak += f" ({self.peak_address_space_mib:,.0f} MiB address space)"
+            parts.append(peak)
+        return ", ".join(parts)
+
+
+class PlanProcessError(Exception):
+    """The child ended without a result: out of memory, killed by a signal, or exited."""
+
+    def __init__(self, message: str, end: ChildEnd) -> None:
         super().__init__(message)
-        self.out_of_memory = out_of_memory
+        self.end = end
+
+    @property
+    def out_of_memory(self) -> bool:
+        return self.end.out_of_memory
 
 
 class ChildFailedError(Exception):
@@ -76,7 +128,8 @@ class ChildLimits:
 def run_in_child(work: Work, *, limits: ChildLimits,
                  on_progress: Callable[[str, float], bool],
                  should_stop: Callable[[], bool], poll_interval_s: float,
-                 describe_error: Callable[[BaseException], dict[str, Any]]) -> Any:
+                 describe_error: Callable[[BaseException], dict[str, Any]],
+                 measured: dict[str, float] | None = None) -> Any:
     """Run ``work`` in a forked child and return its result.
 
     Parameters
@@ -84,6 +137,8 @@ def run_in_child(work: Work, *, limits: ChildLimits,
     on_progress : called in this process for each progress message; True stops the child
     should_stop : called every ``poll_interval_s``; True stops the child
     describe_error : the problem document of an exception raised by ``work`` (in the child)
+    measured : when given, receives the child's ``peak_rss_mib`` (and
+        ``peak_address_space_mib`` when read) once it is gone, whatever the outcome
 
     Raises
     ------
@@ -99,25 +154,75 @@ def run_in_child(work: Work, *, limits: ChildLimits,
         receiver.close()
         _child_main(work, sender, parent_pid, limits, describe_error)
     sender.close()
+    child = _Child(pid, limits)
     try:
-        return _wait_for_child(pid, receiver, limits, on_progress, should_stop,
-                               poll_interval_s)
+        return _wait_for_child(child, receiver, on_progress, should_stop, poll_interval_s)
     finally:
-        _kill(pid)
+        if not child.reaped:  # SIGKILL (it may be exiting by itself already) and reap
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+            with contextlib.suppress(ChildProcessError):
+                child.reap()
         receiver.close()
+        if measured is not None and child.peak_rss_mib is not None:
+            measured["peak_rss_mib"] = round(child.peak_rss_mib, 1)
+            if child.address_space_mib is not None:
+                measured["peak_address_space_mib"] = round(child.address_space_mib, 1)
 
 
-def _wait_for_child(pid: int, receiver: Connection, limits: ChildLimits,
+@dataclass
+class _Child:
+    """The worker's view of a running child: last stage, address space, reaped or not."""
+
+    pid: int
+    limits: ChildLimits
+    stage: str | None = None
+    address_space_mib: float | None = None
+    peak_rss_mib: float | None = None  # once reaped
+    reaped: bool = False
+
+    def sample(self) -> None:
+        """Read the child's peak address space (VmPeak) from /proc."""
+        with contextlib.suppress(OSError, ValueError):
+            for line in Path(f"/proc/{self.pid}/status").read_text().splitlines():
+                if line.startswith("VmPeak:"):
+                    self.address_space_mib = int(line.split()[1]) / 1024
+                    return
+
+    def reap(self) -> tuple[int, float]:
+        """Wait for the child's end: its wait status and resident peak in MiB."""
+        _, status, usage = os.wait4(self.pid, 0)
+        self.reaped = True
+        self.peak_rss_mib = usage.ru_maxrss / 1024  # Linux: ru_maxrss in KiB
+        return status, self.peak_rss_mib
+
+    def end(self, *, signal_name: str | None, exit_code: int | None, peak_rss_mib: float,
+            out_of_memory: bool | None = None) -> ChildEnd:
+        limit = self.limits.memory_bytes
+        limit_mib = None if limit is None else limit / _MIB
+        if out_of_memory is None:  # a death: out of memory when the peak neared the limit
+            peak = max(peak_rss_mib, self.address_space_mib or 0.0)
+            out_of_memory = limit_mib is not None and peak >= NEAR_LIMIT_SHARE * limit_mib
+        return ChildEnd(out_of_memory=out_of_memory, stage=self.stage, signal=signal_name,
+                        exit_code=exit_code, peak_rss_mib=round(peak_rss_mib, 1),
+                        peak_address_space_mib=None if self.address_space_mib is None
+                        else round(self.address_space_mib, 1),
+                        memory_limit_mib=None if limit_mib is None else round(limit_mib, 1))
+
+
+def _wait_for_child(child: _Child, receiver: Connection,
                     on_progress: Callable[[str, float], bool],
                     should_stop: Callable[[], bool], poll_interval_s: float) -> Any:
     next_check = time.monotonic() + poll_interval_s
+    child.sample()
     while True:
         if receiver.poll(poll_interval_s):
             try:
                 kind, *payload = receiver.recv()
             except EOFError:  # the child died before its final message
-                raise _death(pid, limits) from None
+                raise _death(child) from None
             if kind == "progress":
+                child.stage = payload[0]
                 if on_progress(payload[0], payload[1]):
                     raise StoppedError("cancelled while running")
             elif kind == "result":
@@ -125,42 +230,46 @@ def _wait_for_child(pid: int, receiver: Connection, limits: ChildLimits,
             elif kind == "error":
                 raise ChildFailedError(payload[0], payload[1])
             elif kind == "out-of-memory":
-                raise PlanProcessError(_oom_message(limits, payload[0]), out_of_memory=True)
+                child.sample()
+                _, peak_rss_mib = child.reap()  # it exits right after this message
+                end = child.end(signal_name=None, exit_code=0, peak_rss_mib=peak_rss_mib,
+                                out_of_memory=True)
+                raise PlanProcessError(_oom_message(end, payload[0]), end)
         if time.monotonic() >= next_check:
+            child.sample()
             if should_stop():
                 raise StoppedError("cancelled while running")
             next_check = time.monotonic() + poll_interval_s
 
 
-def _death(pid: int, limits: ChildLimits) -> PlanProcessError:
-    """Why the child ended without a message (reaps it)."""
-    _, status = os.waitpid(pid, 0)
+def _death(child: _Child) -> PlanProcessError:
+    """Why the child ended without a message (reaps it): out of memory, killed, or exited."""
+    status, peak_rss_mib = child.reap()
     if os.WIFSIGNALED(status):
         name = signal.Signals(os.WTERMSIG(status)).name
-        if limits.memory_bytes is not None or os.WTERMSIG(status) == signal.SIGKILL:
-            # SIGKILL is the kernel's OOM killer; SIGSEGV/SIGABRT are how C++ allocators
-            # (Embree) fail when the address-space limit refuses them memory
-            return PlanProcessError(_oom_message(limits, f"the planning process died ({name})"),
-                                    out_of_memory=True)
-        return PlanProcessError(f"the planning process died ({name})", out_of_memory=False)
-    return PlanProcessError(f"the planning process exited with status "
-                            f"{os.WEXITSTATUS(status)} without a result", out_of_memory=False)
+        end = child.end(signal_name=name, exit_code=None, peak_rss_mib=peak_rss_mib)
+        if end.out_of_memory:
+            return PlanProcessError(_oom_message(end, f"the planning process died ({name})"),
+                                    end)
+        limit = ("" if end.memory_limit_mib is None
+                 else f", far below the memory limit of {end.memory_limit_mib:,.0f} MiB")
+        return PlanProcessError(
+            f"the planning process was ended by {name} ({end.figures()}{limit}): stopped "
+            "from outside the service (an operator, the container runtime, or the host's "
+            "OOM killer when the machine ran short of memory)", end)
+    code = os.WEXITSTATUS(status)
+    end = child.end(signal_name=None, exit_code=code, peak_rss_mib=peak_rss_mib,
+                    out_of_memory=False)
+    return PlanProcessError(f"the planning process exited with status {code} without a "
+                            f"result ({end.figures()})", end)
 
 
-def _oom_message(limits: ChildLimits, what: str) -> str:
-    limit = ("" if limits.memory_bytes is None
-             else f" of {limits.memory_bytes / 2**20:.0f} MiB (SCANPLAN_JOB_MEMORY_LIMIT_MB)")
+def _oom_message(end: ChildEnd, what: str) -> str:
+    limit = ("" if end.memory_limit_mib is None
+             else f" of {end.memory_limit_mib:,.0f} MiB (SCANPLAN_JOB_MEMORY_LIMIT_MB)")
     return (f"out of memory: the plan needs more than the worker's memory limit{limit} "
-            f"({what}); use a larger max_edge_m or grid_spacing_m, fewer candidates, or a "
-            "smaller model")
-
-
-def _kill(pid: int) -> None:
-    """SIGKILL and reap the child (a no-op when it was reaped already)."""
-    with contextlib.suppress(ProcessLookupError):
-        os.kill(pid, signal.SIGKILL)
-    with contextlib.suppress(ChildProcessError):
-        os.waitpid(pid, 0)
+            f"({what} in {end.figures()}); use a larger max_edge_m or grid_spacing_m, fewer "
+            "candidates, or a smaller model")
 
 
 def _child_main(work: Work, sender: Connection, parent_pid: int, limits: ChildLimits,

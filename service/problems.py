@@ -155,6 +155,8 @@ _WHEN = {
     413: "request body over the configured cap",
     415: "not a model format the planner reads",
     422: "invalid input, named in `parameter`",
+    429: "this API key has as many jobs queued or running as it may; retry after "
+         "`Retry-After` seconds",
     500: "unexpected error",
     503: "a dependency is unreachable",
 }
@@ -195,3 +197,23 @@ PROBLEMS[OutOfMemoryError] = ProblemKind(422, "urn:scanplan:problem:out-of-memor
                                          "Out of memory")
 PROBLEMS[JobTooLargeError] = ProblemKind(422, "urn:scanplan:problem:job-too-large",
                                          "The plan would be too large for this service")
+
+
+class PlanKilledError(ServiceError):
+    """The planning process was ended by a signal from outside on the job's last attempt."""
+
+
+PROBLEMS[PlanKilledError] = ProblemKind(500, "urn:scanplan:problem:plan-killed",
+                                        "The planning process was killed")
+
+
+class TooManyJobsError(ServiceError):
+    """The API key has as many jobs queued or running as it may (service.tenants)."""
+
+    def __init__(self, message: str, *, retry_after_s: int) -> None:
+        super().__init__(message)
+        self.headers = {"Retry-After": str(retry_after_s)}
+
+
+PROBLEMS[TooManyJobsError] = ProblemKind(429, "urn:scanplan:problem:too-many-jobs",
+                                         "Too many jobs queued or running for this key")

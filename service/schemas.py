@@ -12,9 +12,28 @@ from __future__ import annotations
 from dataclasses import MISSING, fields
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, RootModel, Strict, StrictBool
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Discriminator,
+    Field,
+    RootModel,
+    Strict,
+    StrictBool,
+    Tag,
+)
 
-from planner.parameters import GROUP_RANGES, RANGES, PlanSpec, Range
+from planner.parameters import (
+    COORDINATE_RANGE,
+    GROUP_RANGES,
+    MAX_ITEMS,
+    MAX_SETTINGS,
+    RANGES,
+    SCANNER_RANGES,
+    SETTING_RANGES,
+    PlanSpec,
+    Range,
+)
 
 
 def _defaults() -> dict[str, Any]:
@@ -29,21 +48,23 @@ def _defaults() -> dict[str, Any]:
 
 DEFAULTS = _defaults()
 Number = Annotated[float, Strict()]
-Point3 = Annotated[list[Number], Field(min_length=3, max_length=3)]
-Point2 = Annotated[list[Number], Field(min_length=2, max_length=2)]
+Coordinate = Annotated[float, Strict(), Field(ge=COORDINATE_RANGE.ge, le=COORDINATE_RANGE.le)]
+Point3 = Annotated[list[Coordinate], Field(min_length=3, max_length=3)]
+Point2 = Annotated[list[Coordinate], Field(min_length=2, max_length=2)]
 Goal = Annotated[float, Strict(), Field(gt=0, le=1)]  # as PlanSpec checks curve_goals[i]
 
 
-def _ranged(default: Any, description: str, bounds: Range | None) -> Any:
+def _ranged(default: Any, description: str, bounds: Range | None,
+            max_items: int | None = None) -> Any:
     """A field with the bounds of the planner's range table (None: no bound)."""
     bounds = bounds or Range()
     return Field(default=default, description=description, ge=bounds.ge, gt=bounds.gt,
-                 le=bounds.le, lt=bounds.lt)
+                 le=bounds.le, lt=bounds.lt, max_length=max_items)
 
 
 def _d(name: str, description: str) -> Any:
-    """A field whose default is PlanSpec's and whose range is the planner's."""
-    return _ranged(DEFAULTS[name], description, RANGES.get(name))
+    """A field whose default is PlanSpec's, whose range and most items are the planner's."""
+    return _ranged(DEFAULTS[name], description, RANGES.get(name), MAX_ITEMS.get(name))
 
 
 class GroupRequirementModel(BaseModel):
@@ -57,6 +78,71 @@ class GroupRequirementModel(BaseModel):
                                                GROUP_RANGES["min_incidence_deg"])
     target: StrictBool = Field(default=True, description="false: blocks rays, needs no coverage")
     occludes: StrictBool = Field(default=True, description="false: rays pass through (glass)")
+
+
+Name = Annotated[str, Strict(), Field(min_length=1, max_length=100)]
+
+
+class ScanSettingModel(BaseModel):
+    """One angular step of the instrument: a point spacing at a distance."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: Name = Field(..., description="as the crew calls it, e.g. 6 mm @ 10 m")
+    point_spacing_m: Number = _ranged(..., "point spacing at reference_distance_m, metres",
+                                      SETTING_RANGES["point_spacing_m"])
+    reference_distance_m: Number = _ranged(..., "distance at which the spacing holds, metres",
+                                           SETTING_RANGES["reference_distance_m"])
+    duration_s: Number | None = _ranged(
+        None, "seconds of one scan at this setting; null: from measurement_rate_pts_s",
+        SETTING_RANGES["duration_s"])
+
+
+class ScannerProfileModel(BaseModel):
+    """The instrument, described by the crew; null figures keep the plan's (or the preset's)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: Name = Field(..., description="the instrument's name, as plan.json will show it")
+    preset: str | None = Field(default=None, description="a preset id whose figures fill what "
+                               "this object leaves out (GET /processes/scan-plan lists them)")
+    min_range_m: Number | None = _ranged(None, "nearest range, metres (sets dof_min_m)",
+                                         SCANNER_RANGES["min_range_m"])
+    max_range_m: Number | None = _ranged(None, "farthest range, metres (sets dof_max_m)",
+                                         SCANNER_RANGES["max_range_m"])
+    elevation_min_deg: Number | None = _ranged(None, "lowest beam elevation, degrees",
+                                               SCANNER_RANGES["elevation_min_deg"])
+    elevation_max_deg: Number | None = _ranged(None, "highest beam elevation, degrees",
+                                               SCANNER_RANGES["elevation_max_deg"])
+    measurement_rate_pts_s: Number | None = _ranged(
+        None, "points recorded per second (scan duration = points / rate + overhead_s)",
+        SCANNER_RANGES["measurement_rate_pts_s"])
+    settings: list[ScanSettingModel] = Field(
+        default_factory=list, max_length=MAX_SETTINGS,
+        description="angular steps offered; each station is scanned at the coarsest that "
+                    "still qualifies its faces at the plan's point_spacing_m (kept, unless no "
+                    "setting is as fine as the default: then the finest sets it)")
+    setup_time_s: Number | None = _ranged(None, "setup per station, seconds",
+                                          SCANNER_RANGES["setup_time_s"])
+    overhead_s: Number | None = _ranged(None, "imaging, tilt and any constant per scan, "
+                                        "seconds", SCANNER_RANGES["overhead_s"])
+
+
+def _scanner_kind(value: Any) -> str | None:
+    if isinstance(value, str):
+        return PRESET_TAG
+    return OBJECT_TAG if isinstance(value, dict | ScannerProfileModel) else None
+
+
+# the two forms of ``scanner``; an error in one names only that form, and the tags (never a
+# field name) are left out of the parameter a problem names (service.main)
+PRESET_TAG, OBJECT_TAG = "preset id", "object"
+ScannerParameter = Annotated[
+    Annotated[str, Strict(), Tag(PRESET_TAG)] | Annotated[ScannerProfileModel, Tag(OBJECT_TAG)],
+    Discriminator(_scanner_kind, custom_error_type="scanner_type",
+                  custom_error_message="expected a preset id or an object {name, "
+                                       "measurement_rate_pts_s, settings, ...}"),
+]
 
 
 class PlanParameters(BaseModel):
@@ -103,6 +189,9 @@ class PlanParameters(BaseModel):
         "candidates", "scanner positions [x, y, z] in model coordinates; null: a grid")
     grid_spacing_m: Number = _d("grid_spacing_m", "spacing of generated candidates, metres")
     scanner_height_m: Number = _d("scanner_height_m", "height above the floor, metres")
+    scanner_heights_m: list[Annotated[float, Strict(), Field(gt=0)]] | None = _d(
+        "scanner_heights_m", "instrument heights above the floor for generated candidates, "
+        "metres, each a separate candidate; null: scanner_height_m alone")
     clearance_m: Number = _d("clearance_m", "least distance to any surface, metres")
     glb_compression: Literal["meshopt", "none"] = _d(
         "glb_compression", "coverage.glb: meshopt-compressed, or none for plain loaders")
@@ -115,8 +204,9 @@ class PlanParameters(BaseModel):
         "on the lowest surface only, or on every flat surface with head room (meshes)")
     storeys: list[str] | None = _d("storeys", "IFC storeys to plan for; null: all")
     rooms: list[str] | None = _d("rooms", "IFC spaces to plan for; null: all")
-    scanner: str | None = _d("scanner", "scanner preset id (GET /processes/scan-plan lists "
-                             "them); sets the defaults of the limits it knows; null: Table 2")
+    scanner: ScannerParameter | None = _d(
+        "scanner", "scanner preset id (GET /processes/scan-plan lists them) or the instrument "
+        "as an object; sets the defaults of the limits it knows; null: Table 2")
     min_overlap_m2: Number | None = _d(
         "min_overlap_m2", "least shared area for a registration edge, m²; null: no constraint")
     overlap_density_pts_m2: Number = _d(
@@ -126,6 +216,11 @@ class PlanParameters(BaseModel):
     setup_time_s: Number | None = _d("setup_time_s",
                                      "per-station setup, seconds; null: the preset's or 60")
     walking_speed_m_s: Number = _d("walking_speed_m_s", "walking speed with the kit, m/s")
+    placement_tolerance_m: Number = _d(
+        "placement_tolerance_m", "radius a tripod may land off its planned position, metres; "
+        "the plan reports what each station keeps within it (0: no report)")
+    robust: StrictBool = _d("robust", "credit a face to a candidate only when it qualifies from "
+                            "every position within placement_tolerance_m")
 
 
 class ExecuteInputs(BaseModel):
@@ -136,6 +231,28 @@ class ExecuteInputs(BaseModel):
     mesh: str = Field(..., description="id of an uploaded mesh (its sha256)",
                       min_length=1, max_length=64)
     parameters: PlanParameters = Field(default_factory=PlanParameters)
+
+
+class Subscriber(BaseModel):
+    """OGC ``subscriber``: where the job's status document is POSTed (callbacks).
+
+    http(s) only, to a public address unless the operator allows more
+    (``SCANPLAN_CALLBACK_ALLOW``); each POST is signed (``X-Scanplan-Signature``).
+    """
+
+    model_config = ConfigDict(extra="forbid")
+
+    successUri: str = Field(  # noqa: N815 - OGC's name
+        ..., min_length=1, max_length=2048, json_schema_extra={"format": "uri"},
+        description="gets the status document with a link to every output once the job "
+                    "succeeded")
+    inProgressUri: str | None = Field(  # noqa: N815
+        default=None, min_length=1, max_length=2048, json_schema_extra={"format": "uri"},
+        description="gets the status document when the status or stage changes (at most "
+                    "one every few seconds, SCANPLAN_CALLBACK_PROGRESS_INTERVAL_S)")
+    failedUri: str | None = Field(  # noqa: N815
+        default=None, min_length=1, max_length=2048, json_schema_extra={"format": "uri"},
+        description="gets the status document with the problem once the job failed")
 
 
 class ExecuteRequest(BaseModel):
@@ -149,9 +266,11 @@ class ExecuteRequest(BaseModel):
 
     inputs: ExecuteInputs
     outputs: dict[str, dict[str, Any]] | None = Field(
-        default=None, description="OGC: outputs wanted; every output is kept")
+        default=None, max_length=100, description="OGC: outputs wanted; every output is kept")
     response: Literal["raw", "document"] = Field(
         default="document", description="OGC: results as a document (the only form here)")
+    subscriber: Subscriber | None = Field(
+        default=None, description="OGC callbacks: URIs the status document is POSTed to")
 
 
 class Link(BaseModel):
@@ -164,6 +283,27 @@ class Link(BaseModel):
 
 
 JobStatus = Literal["accepted", "running", "successful", "failed", "dismissed"]
+
+
+class AttemptInfo(BaseModel):
+    """One ended attempt of a job: where and how it ended, and the figures of a death."""
+
+    attempt: int = Field(..., description="1 for the first run")
+    worker: str | None = Field(None, description="host:pid of the worker that ran it")
+    started: str | None = None
+    finished: str | None = None
+    outcome: Literal["successful", "failed", "out of memory", "killed", "worker lost"] = Field(
+        ..., description="killed: the planning process was ended by a signal from outside, "
+        "its memory far below the limit (queued again until the last attempt); worker lost: "
+        "the worker stopped heartbeating")
+    stage: str | None = Field(None, description="the last stage the attempt reached")
+    signal: str | None = Field(None, description="the signal that ended the planning process")
+    exit_code: int | None = None
+    peak_rss_mib: float | None = Field(None, description="resident peak of the planning "
+                                       "process, MiB (wait4 ru_maxrss)")
+    peak_address_space_mib: float | None = Field(None, description="its address space peak, "
+                                                 "MiB, as last read")
+    memory_limit_mib: float | None = Field(None, description="its address-space limit, MiB")
 
 
 class StatusInfo(BaseModel):
@@ -185,6 +325,8 @@ class StatusInfo(BaseModel):
         None, description="seconds per stage (reading, candidates, visibility, ...)")
     problem: dict[str, Any] | None = Field(default=None,
                                            description="RFC 9457 problem of a failure")
+    attempt_log: list[AttemptInfo] = Field(default_factory=list,
+                                           description="each ended attempt, oldest first")
     warnings: list[str] | None = Field(
         default=None, description="at submission: what looks wrong before any work is done "
         "(e.g. a model size that suggests another unit_scale)")

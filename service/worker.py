@@ -18,7 +18,7 @@ import socket
 import threading
 import time
 import uuid
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +29,7 @@ from planner.parameters import PlanSpec
 from planner.pipeline import plan
 from service.config import Settings
 from service.database import make_engine
-from service.job_store import FAILED, SUCCESSFUL, JobRecord, JobStore
+from service.job_store import FAILED, SUCCESSFUL, JobRecord, JobStore, attempt_entry
 from service.mesh_store import MeshStore
 from service.plan_process import (
     ChildFailedError,
@@ -39,8 +39,9 @@ from service.plan_process import (
     StoppedError,
     run_in_child,
 )
-from service.problems import OutOfMemoryError, WorkerLostError, problem_for
+from service.problems import OutOfMemoryError, PlanKilledError, WorkerLostError, problem_for
 from service.queue import HueyQueue, JobQueue, make_huey
+from service.store import open_store, results_prefix
 
 log = logging.getLogger("scanplan.worker")
 
@@ -69,13 +70,9 @@ def build_context(settings: Settings, queue: JobQueue) -> WorkerContext:
     """Open the database and stores for ``settings`` (call it in the process that uses it)."""
     settings.data_dir.mkdir(parents=True, exist_ok=True)
     engine = make_engine(settings.job_db_url)
-    meshes = MeshStore(settings.data_dir / "meshes", engine, settings.max_upload_bytes)
+    meshes = MeshStore(settings.data_dir / "meshes", engine, settings.max_upload_bytes,
+                       open_store(settings))
     return WorkerContext(settings, JobStore(engine), meshes, queue)
-
-
-def results_dir(settings: Settings, job_id: str) -> Path:
-    """Where the outputs of ``job_id`` live once it succeeded."""
-    return settings.data_dir / "jobs" / job_id
 
 
 @dataclass
@@ -144,26 +141,27 @@ def execute_job(ctx: WorkerContext, job_id: str) -> None:
     job = ctx.jobs.get(job_id)
     assert job is not None
     reporter = ProgressReporter(ctx, job_id, token)
+    measured: dict[str, float] = {}  # the planning process's peak memory, once it is gone
     log.info("job %s: running (attempt %d)", job_id, job.attempts)
     instance = f"/jobs/{job_id}"
     try:
         with Heartbeat(reporter, ctx.settings.heartbeat_interval_s):
-            outputs, timings = _run_plan(ctx, job, reporter)
+            outputs, timings = _run_plan(ctx, job, reporter, measured)
     except (CancelledError, StoppedError):
         log.info("job %s: stopped (dismissed or reassigned)", job_id)
     except ChildFailedError as exc:
         log.info("job %s: failed: %s", job_id, exc)
         ctx.jobs.finish(job_id, token, FAILED, message=str(exc),
-                        problem={**exc.problem, "instance": instance})
+                        problem={**exc.problem, "instance": instance},
+                        attempt=attempt_entry(job, FAILED, **measured))
     except PlanProcessError as exc:
         log.warning("job %s: %s", job_id, exc)
-        error = OutOfMemoryError(str(exc)) if exc.out_of_memory else exc
-        ctx.jobs.finish(job_id, token, FAILED, message=str(exc),
-                        problem=problem_for(error, instance=instance))
+        _child_ended(ctx, job, token, exc)
     except PlannerError as exc:
         log.info("job %s: failed: %s", job_id, exc)
         ctx.jobs.finish(job_id, token, FAILED, message=str(exc),
-                        problem=problem_for(exc, instance=instance))
+                        problem=problem_for(exc, instance=instance),
+                        attempt=attempt_entry(job, FAILED, **measured))
     except KeyboardInterrupt:  # huey stops the worker: hand the job back, it is not lost
         if ctx.jobs.release(job_id, token):
             ctx.queue.enqueue(job_id)
@@ -171,25 +169,54 @@ def execute_job(ctx: WorkerContext, job_id: str) -> None:
     except Exception as exc:
         log.exception("job %s: unexpected error", job_id)
         ctx.jobs.finish(job_id, token, FAILED, message="internal error",
-                        problem=problem_for(exc, instance=instance))
+                        problem=problem_for(exc, instance=instance),
+                        attempt=attempt_entry(job, FAILED, **measured))
     else:
         if ctx.jobs.finish(job_id, token, SUCCESSFUL, message="done", timings=timings,
-                           outputs=outputs):
+                           outputs=outputs, attempt=attempt_entry(job, SUCCESSFUL, **measured)):
             log.info("job %s: successful", job_id)
         else:  # dismissed while the files were moved into place
-            shutil.rmtree(results_dir(ctx.settings, job_id), ignore_errors=True)
+            ctx.meshes.store.delete_prefix(results_prefix(job_id))
 
 
-def _run_plan(ctx: WorkerContext, job: JobRecord,
-              reporter: ProgressReporter) -> tuple[dict[str, dict[str, Any]], dict[str, float]]:
+def _child_ended(ctx: WorkerContext, job: JobRecord, token: str,
+                 exc: PlanProcessError) -> None:
+    """The planning process ended without a result: out of memory fails the job; ended by a
+    signal from outside, the job is queued again like a lost worker's, until its last try."""
+    end = exc.end
+    outcome = "out of memory" if end.out_of_memory else "killed" if end.killed else FAILED
+    figures = {k: v for k, v in asdict(end).items() if k != "out_of_memory" and v is not None}
+    attempt = attempt_entry(job, outcome, **figures)
+    tries = f"attempt {job.attempts} of {ctx.settings.max_attempts}"
+    if end.killed and job.attempts < ctx.settings.max_attempts:
+        if ctx.jobs.retry(job.id, token, attempt=attempt, message=(
+                f"queued again: the planning process was ended by {end.signal} in stage "
+                f"{end.stage or 'starting'} ({tries})")):
+            ctx.queue.enqueue(job.id)
+            log.warning("job %s: queued again after %s", job.id, tries)
+        return
+    error: Exception = exc
+    if end.out_of_memory:
+        error = OutOfMemoryError(str(exc))
+    elif end.killed:
+        error = PlanKilledError(f"{exc}; that was {tries} (SCANPLAN_MAX_ATTEMPTS, the job's "
+                                "attempt_log lists each); submit the job again")
+    ctx.jobs.finish(job.id, token, FAILED, message=str(error), attempt=attempt,
+                    problem=problem_for(error, instance=f"/jobs/{job.id}"))
+
+
+def _run_plan(ctx: WorkerContext, job: JobRecord, reporter: ProgressReporter,
+              measured: dict[str, float]) -> tuple[dict[str, dict[str, Any]], dict[str, float]]:
     """Plan ``job`` in a child process (see :mod:`service.plan_process`), then move the
-    outputs it wrote into place."""
+    outputs it wrote into place (upload them, with an object store); ``measured`` receives
+    the child's peak memory."""
     spec = PlanSpec.from_mapping(job.parameters)
-    mesh_path = ctx.meshes.path(job.mesh_id)
-    if mesh_path is None:
-        raise SceneError(f"mesh {job.mesh_id} is no longer stored; upload it again")
     ctx.results_root.mkdir(parents=True, exist_ok=True)
     temporary = ctx.results_root / f".tmp-{job.id}-{reporter.token}"
+    downloads = ctx.results_root / f".mesh-{job.id}-{reporter.token}"  # from an object store
+    mesh_path = ctx.meshes.fetch(job.mesh_id, downloads)
+    if mesh_path is None:
+        raise SceneError(f"mesh {job.mesh_id} is no longer stored; upload it again")
     threads = ctx.settings.threads_per_job
 
     def work(progress: Progress) -> tuple[dict[str, dict[str, Any]], dict[str, float]]:
@@ -221,19 +248,18 @@ def _run_plan(ctx: WorkerContext, job: JobRecord,
 
     try:
         outputs, timings = run_in_child(
-            work, limits=ChildLimits(memory_bytes=ctx.settings.job_memory_limit_bytes,
-                                     nice=ctx.settings.worker_nice),
+            work, measured=measured, limits=ChildLimits(
+                memory_bytes=ctx.settings.job_memory_limit_bytes,
+                nice=ctx.settings.worker_nice),
             on_progress=reporter, should_stop=should_stop,
             poll_interval_s=ctx.settings.cancel_poll_interval_s,
             describe_error=lambda exc: problem_for(exc))
         if reporter("writing", 1.0):
             raise CancelledError("the plan was cancelled before its outputs were in place")
-        final = results_dir(ctx.settings, job.id)
-        if final.exists():  # left by an earlier attempt that could not finish
-            shutil.rmtree(final)
-        temporary.rename(final)
+        ctx.meshes.store.publish_folder(temporary, results_prefix(job.id))
     finally:
         shutil.rmtree(temporary, ignore_errors=True)
+        shutil.rmtree(downloads, ignore_errors=True)
     return outputs, timings
 
 

@@ -20,6 +20,9 @@ Reading (:func:`read_ifc`)
   aggregates; "" for the site), and its group is the element's IFC class, except glazing.
 - Triangulation uses IfcOpenShell's hybrid CGAL/OpenCASCADE kernel when it has one, on one
   thread (see ``_GEOMETRY_LIBRARY``).
+- ``metadata["source_path"]`` and ``metadata["source_sha256"]`` name the file read, for
+  ``plan.ifc`` (:mod:`planner.outputs.ifc_plan`), which is this file with the plan added;
+  ``metadata["project_global_id"]`` is its IfcProject's, which ``plan.bcf`` refers to.
 
 Glass
 -----
@@ -54,6 +57,7 @@ pipeline looks for it.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -136,7 +140,13 @@ def read_ifc(path: str | Path) -> Scene:
             "IfcOpenShell can triangulate; export the model with its 3D geometry"
         )
     shapes.sort(key=lambda s: (s.ifc_class, s.global_id))
-    return _scene(shapes, space_shapes, storeys, schema, scale)
+    scene = _scene(shapes, space_shapes, storeys, schema, scale)
+    # plan.ifc is this file with the plan added (planner.outputs.ifc_plan)
+    scene.metadata["source_path"] = str(path.resolve())
+    scene.metadata["source_sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
+    projects = model.by_type("IfcProject")
+    scene.metadata["project_global_id"] = str(projects[0].GlobalId) if projects else ""
+    return scene
 
 
 def _unit_scale(model: Any) -> float:
@@ -197,7 +207,8 @@ def _shapes(model: Any, path: Path, storey_name: dict[str, str]
     geom: Any = ifcopenshell.geom  # its stubs are partial; keep the calls untyped
     library = _GEOMETRY_LIBRARY if geom.has_geometry_library(_GEOMETRY_LIBRARY) \
         else "opencascade"
-    schema = ifcopenshell.ifcopenshell_wrapper.schema_by_name(model.schema)
+    # the full identifier: IFC4X3 files are IFC4X3_ADD2 (or _ADD1) to the wrapper
+    schema = ifcopenshell.ifcopenshell_wrapper.schema_by_name(model.schema_identifier)
     exclude = []
     for name in (*NON_PHYSICAL[1:], "IfcOpeningStandardCase"):
         try:

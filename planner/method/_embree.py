@@ -8,6 +8,7 @@ from __future__ import annotations
 import threading
 from typing import Any
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -29,6 +30,9 @@ except ImportError as exc:  # pragma: no cover - depends on the installation
 # probe rays for a ray float32 cannot decide run this far beside it, on four sides: 20x the
 # float32 rounding of a point 5 m away, far below the size of any face that matters
 _PROBE_OFFSET_M = 1e-5
+# a hit this many float32 steps (of the largest coordinate) inside its triangle and in front
+# of the target is one every mode of Embree finds: far above the rounding of either test
+_CLEAR_HIT_ULPS = 1024.0
 # doubtful rays decided together: bounds the chunk's (ray, occluder) pairs (some 100 a ray)
 _EXACT_RAYS_PER_CHUNK = 1024
 
@@ -59,14 +63,20 @@ class EmbreeOcclusion:
     (common in models built on a grid, where a ray from a grid point to a centroid often
     passes exactly through a vertex) is decided by rounding, and Embree's rounding depends
     on the instruction set the CPU offers (AVX2 and AVX-512 disagree on a few rays). So
-    ``visible`` casts every ray twice, in Embree's robust (watertight) mode and in its
-    fast mode, and decides the rays where the two disagree in float64 as the brute-force
-    reference does, against the faces either cast hit and every face sharing a vertex with
-    them. Measured: 150 of hall-small's 3.0 M rays and 2,296 of hall-full's 17.6 M disagree;
+    ``visible`` casts every ray in Embree's robust (watertight) mode and, unless that cast
+    hit an occluder clearly (well inside its edges and in front of the target, a hit every
+    mode finds, so the verdicts cannot differ), again in its fast mode; it decides the rays
+    where the two disagree in float64 as the brute-force reference does, against the
+    faces either cast hit and every face sharing a vertex with them. Measured: 150 of
+    hall-small's 3.0 M rays and 2,296 of hall-full's 17.6 M disagree;
     the robust cast alone was wrong on 21 and 35 of them, enough to change the stations
     the coverage curve needs at 100 % on hall-small (37 instead of the reference's 36) on
     an AVX2 machine. The second cast costs a second BVH and ray time: hall-full's
     visibility stage went from 2.15 s to 3.93 s on 2 cores (benchmarks/plan_hall.py).
+    Leaving it out on clear hits saves it on 35 % of hall-full's rays and 63 % of
+    FZK-Haus's (most of a building's rays end in a wall of another room): FZK-Haus's
+    65.9 M rays took 32.6 CPU s instead of 40.8, every verdict the same
+    (tests/planner/test_occlusion.py compares them ray by ray).
 
     ``visible`` releases the GIL inside Embree, so threads calling it run in parallel.
     """
@@ -97,6 +107,10 @@ class EmbreeOcclusion:
             faces32 = bvh_faces[self._faces].astype(np.int32)
             self._mesh = TriangleMesh(self._scene, vertices32, faces32)
             self._check_mesh = TriangleMesh(self._check_scene, vertices32, faces32)
+            # the corners as Embree holds them (float32), for the clear-hit test
+            self._corners32 = (vertices32, faces32)
+            scale_m = float(np.abs(vertices32).max(initial=1.0))
+            self._clear_margin_m = _CLEAR_HIT_ULPS * float(np.spacing(np.float32(scale_m)))
         self._occludes = occludes
         self._all_occlude = bool(file_occludes.all())
         self._scene_faces = (scene.vertices, scene.faces)
@@ -128,10 +142,16 @@ class EmbreeOcclusion:
         far = np.multiply(distances_m, FAR_LIMIT_FACTOR, dtype=np.float32)
         prim = np.asarray(self._scene.run(origins32, directions32, dists=far,
                                           query="INTERSECT"), np.int64)
-        check = np.asarray(self._check_scene.run(origins32, directions32, dists=far,
-                                                 query="INTERSECT"), np.int64)
         targets: NDArray[np.int64] = np.asarray(target_faces, np.int64)
         visible = self._reaches(prim, targets)
+        # the fast-mode cast, for the rays whose robust verdict is not a clear hit on an
+        # occluder (a clear hit is found in either mode, so both casts would agree on it)
+        check = prim.copy()
+        unsure = np.flatnonzero(~self._clear_hits(origins32, directions32, prim, visible,
+                                                  distances_m))
+        if len(unsure):
+            check[unsure] = self._check_scene.run(
+                origins32[unsure], directions32[unsure], dists=far[unsure], query="INTERSECT")
         doubtful = np.flatnonzero(visible != self._reaches(check, targets))
         if len(doubtful):
             if exact_rays is not None:
@@ -144,6 +164,25 @@ class EmbreeOcclusion:
                 origins64, directions64, targets[doubtful], prim[doubtful],
                 check[doubtful])
         return visible
+
+    def _clear_hits(self, origins32: NDArray[np.float32], directions32: NDArray[np.float32],
+                    prim: NDArray[np.int64], visible: NDArray[np.bool_],
+                    distances_m: NDArray[np.floating[Any]]) -> NDArray[np.bool_]:
+        """(P,) the rays whose robust cast hit an occluder (not the target) clearly: more than
+        ``_clear_margin_m`` inside the hit face's edges and in front of the target.
+
+        Such a hit is found by Embree's fast mode too (only rays at an edge or a corner are
+        decided by rounding), so the fast cast's first hit is this face or one before it,
+        never the target: the two casts agree and the fast cast is not needed. In a
+        building most rays to faces in other rooms end inside a wall's face like this.
+        """
+        vertices32, faces32 = self._corners32
+        clear = np.zeros(len(prim), bool)
+        blocked = np.flatnonzero(~visible & (prim >= 0))
+        if len(blocked):
+            _clear_hit_kernel(origins32, directions32, np.asarray(distances_m, np.float64),
+                              blocked, prim, vertices32, faces32, self._clear_margin_m, clear)
+        return clear
 
     def _bvh_face(self, faces: NDArray[np.int64]) -> NDArray[np.int64]:
         """The BVH face (file face, or the face itself) of scene faces."""
@@ -282,3 +321,56 @@ class EmbreeOcclusion:
             face = np.where(hit, self._first_piece[np.maximum(face, 0)], -1)
         distance = np.where(hit, np.asarray(info["tfar"], np.float64), np.inf)
         return face, distance
+
+
+@numba.njit(nogil=True, cache=True)
+def _clear_hit_kernel(  # compiled; compared with both casts in tests/planner/test_limits.py
+    origins32: NDArray[np.float32], directions32: NDArray[np.float32],
+    distances_m: NDArray[np.float64], rays: NDArray[np.int64], prim: NDArray[np.int64],
+    vertices32: NDArray[np.float32], faces32: NDArray[np.int32], margin_m: float,
+    out: NDArray[np.bool_],
+) -> None:
+    """Set ``out[r]`` for each ray r of ``rays`` whose hit on BVH face ``prim[r]`` lies more
+    than ``margin_m`` inside every edge of that triangle and ``margin_m`` before
+    ``distances_m[r]``, in float64 on the float32 ray and corners Embree was given."""
+    for k in range(rays.shape[0]):
+        r = rays[k]
+        f = prim[r]
+        ox, oy, oz = float(origins32[r, 0]), float(origins32[r, 1]), float(origins32[r, 2])
+        dx, dy, dz = (float(directions32[r, 0]), float(directions32[r, 1]),
+                      float(directions32[r, 2]))
+        length = np.sqrt(dx * dx + dy * dy + dz * dz)
+        if length <= 0.0:
+            continue
+        dx, dy, dz = dx / length, dy / length, dz / length
+        a, b, c = faces32[f, 0], faces32[f, 1], faces32[f, 2]
+        ax, ay, az = float(vertices32[a, 0]), float(vertices32[a, 1]), float(vertices32[a, 2])
+        e1x = float(vertices32[b, 0]) - ax
+        e1y = float(vertices32[b, 1]) - ay
+        e1z = float(vertices32[b, 2]) - az
+        e2x = float(vertices32[c, 0]) - ax
+        e2y = float(vertices32[c, 1]) - ay
+        e2z = float(vertices32[c, 2]) - az
+        # Moller-Trumbore: barycentric (w, u, v) of the hit and its distance t (unit ray)
+        px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
+        det = e1x * px + e1y * py + e1z * pz
+        if det == 0.0:
+            continue
+        sx, sy, sz = ox - ax, oy - ay, oz - az
+        u = (sx * px + sy * py + sz * pz) / det
+        qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
+        v = (dx * qx + dy * qy + dz * qz) / det
+        t = (e2x * qx + e2y * qy + e2z * qz) / det
+        w = 1.0 - u - v
+        # distance of the hit to each edge: barycentric coordinate x the height on that edge
+        nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+        doubled_area = np.sqrt(nx * nx + ny * ny + nz * nz)
+        fx, fy, fz = e2x - e1x, e2y - e1y, e2z - e1z
+        edge_bc = np.sqrt(fx * fx + fy * fy + fz * fz)
+        edge_ac = np.sqrt(e2x * e2x + e2y * e2y + e2z * e2z)
+        edge_ab = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+        if edge_bc <= 0.0 or edge_ac <= 0.0 or edge_ab <= 0.0:
+            continue
+        inside_m = min(w * doubled_area / edge_bc, u * doubled_area / edge_ac,
+                       v * doubled_area / edge_ab)
+        out[r] = inside_m > margin_m and margin_m < t < distances_m[r] - margin_m

@@ -73,6 +73,8 @@ class CandidateSet:
     levels : ``floor_levels`` "all": name, floor height and candidate count per level
     floor_from_space : room candidates: the rooms without a slab, standing on their
         IfcSpace's bottom
+    heights_m : (C,) float64, each candidate's height above its floor when it was placed
+        on one (NaN: not known, e.g. a fixed station); None for explicit candidates
     """
 
     positions: NDArray[np.float64]
@@ -82,6 +84,7 @@ class CandidateSet:
     labels: tuple[dict[str, str], ...] = ()
     levels: list[dict[str, object]] | None = None
     floor_from_space: tuple[str, ...] | None = None
+    heights_m: NDArray[np.float64] | None = None
 
     def __len__(self) -> int:
         return len(self.positions)

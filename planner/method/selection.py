@@ -229,7 +229,8 @@ def replay(table: CoverageTable, stations: list[int] | tuple[int, ...],
 
 
 def coverage_state(
-    table: CoverageTable, stations: tuple[int, ...], densities: Iterable[QualifiedPairs]
+    table: CoverageTable, stations: tuple[int, ...], densities: Iterable[QualifiedPairs],
+    min_density_pts_m2: NDArray[np.float64] | None = None,
 ) -> dict[str, NDArray[np.generic]]:
     """Per-face results of a plan.
 
@@ -245,11 +246,15 @@ def coverage_state(
     n_stations : (F,) int32, chosen stations that qualify
     first_station : (F,) int32, index into ``stations`` of the first that qualifies, -1 if none
     n_candidates : (F,) int32, all candidates that qualify
+    density_margin : (S,) float64, only with the (F,) ``min_density_pts_m2``: per station,
+        the least ratio of density to requirement over the faces it is credited with (those
+        no earlier station covers); inf when none of them needs a density
     """
     n = table.n_faces
     best = np.zeros(n, np.float32)  # the LPDs are float32: their maximum is one of them
     count = np.zeros(n, np.int32)
     first = np.full(n, -1, np.int32)
+    margin = np.full(len(stations), np.inf)
 
     def add(order: int, faces: NDArray[np.int32], lpd_pts_m2: NDArray[np.float32]) -> None:
         if not np.array_equal(faces, table.faces_of(stations[order])):
@@ -257,8 +262,14 @@ def coverage_state(
                                "the faces in the coverage table")
         np.maximum.at(best, faces, lpd_pts_m2)
         count[faces] += 1
-        unset = faces[first[faces] < 0]
-        first[unset] = order
+        credited = first[faces] < 0
+        first[faces[credited]] = order
+        if min_density_pts_m2 is not None:
+            required = min_density_pts_m2[faces[credited]]
+            needs = required > 0
+            if needs.any():
+                margin[order] = float(np.min(
+                    lpd_pts_m2[credited][needs].astype(np.float64) / required[needs]))
 
     done = 0  # stations read so far
     for block in densities:
@@ -274,13 +285,16 @@ def coverage_state(
         done = last
     for order in range(done, len(stations)):  # stations that qualify for no face
         add(order, np.zeros(0, np.int32), np.zeros(0, np.float32))
-    return {
+    state: dict[str, NDArray[np.generic]] = {
         "covered": count > 0,
         "best_lpd_pts_m2": best,
         "n_stations": count,
         "first_station": first,
         "n_candidates": table.candidates_per_face,
     }
+    if min_density_pts_m2 is not None:
+        state["density_margin"] = margin
+    return state
 
 
 # a fixed station this close to a candidate (metres, per axis) is that candidate: plan.json

@@ -68,6 +68,8 @@ CLASS_RGB = ((49, 163, 84), (240, 150, 20), (190, 30, 60), (200, 200, 200))
 STATION_RGB = (20, 60, 160)
 VISIT_RGB = (0.85, 0.35, 0.0)  # the walking route and visit numbers (matplotlib 0-1)
 EDGE_RGB = (0.15, 0.45, 0.15)  # registration edges
+# ring around a critical station (its worst setup within placement_tolerance_m breaks the goal)
+CRITICAL_RGB = (0.85, 0.1, 0.1)
 
 DPI = 150
 PREVIEW_SIZE_IN = (11.69, 8.27)  # A4 landscape
@@ -385,10 +387,19 @@ def _draw_level(ax: Axes, result: PlanResult, level: Level, mesh: Any,
                                 zorder=6))
         label = str(order + 1)
         size = 15 if len(label) < 3 else 19
+        if is_critical(result, order):  # the goal breaks without it in place: a red ring
+            ax.plot([x], [y], marker="o", markersize=size + 7, markerfacecolor="none",
+                    markeredgecolor=CRITICAL_RGB, markeredgewidth=2.2, linestyle="none",
+                    zorder=8)
         ax.plot([x], [y], marker="o", markersize=size, markerfacecolor=station_colour,
                 markeredgecolor="white", markeredgewidth=1.2, linestyle="none", zorder=8)
         ax.text(x, y, label, ha="center", va="center_baseline", color="white",
                 fontsize=8 if len(label) < 3 else 7, fontweight="bold", zorder=9)
+
+
+def is_critical(result: PlanResult, order: int) -> bool:
+    """The station's worst setup within the placement tolerance alone breaks the goal."""
+    return result.tolerance is not None and result.tolerance.stations[order].critical
 
 
 def _draw_survey(ax: Axes, result: PlanResult, level: Level, members: set[int]) -> None:
@@ -472,7 +483,9 @@ def _key(fig: Figure, result: PlanResult, scale: int) -> None:
     fig.legend(handles=legend_handles(result), loc="upper left", bbox_to_anchor=(0.75, 0.865),
                fontsize=7.5, frameon=False, handlelength=2.2, borderaxespad=0.0,
                labelspacing=0.55)
-    fig.text(0.755, 0.47, "\n".join(plan_lines(result)), fontsize=7.5, va="top",
+    lines = plan_lines(result)
+    # a sixth line (the scanner's field time) starts the block a line higher
+    fig.text(0.755, 0.47 + 0.022 * (len(lines) - 5), "\n".join(lines), fontsize=7.5, va="top",
              linespacing=1.5)
     _station_table(fig, result, top=0.355)
 
@@ -506,6 +519,11 @@ def legend_handles(result: PlanResult) -> list[Any]:
         Line2D([], [], marker="o", color="none", markerfacecolor=_rgb(STATION_RGB),
                markeredgecolor="white", markersize=11, label="station, in scan order"),
     ]
+    if result.tolerance is not None and any(s.critical for s in result.tolerance.stations):
+        handles.append(Line2D([], [], marker="o", color="none", markerfacecolor="none",
+                              markeredgecolor=CRITICAL_RGB, markeredgewidth=2.0, markersize=13,
+                              label=f"critical (crit.): goal breaks if set up "
+                                    f"{result.spec.placement_tolerance_m:g} m off"))
     if math.isfinite(reach):
         handles.append(Line2D([], [], color=_rgb(STATION_RGB), linestyle=(0, (4, 3)),
                               alpha=0.7, label=f"head-on density range {reach:.2f} m"))
@@ -516,7 +534,7 @@ def plan_lines(result: PlanResult) -> list[str]:
     """The plan's model and scanner in a few lines: faces, areas, candidates, limits."""
     doc_totals = _totals(result)
     spec = result.spec
-    return [
+    lines = [
         f"Faces {result.scene.n_faces:,}, area {doc_totals['total']:.1f} m²",
         f"Coverable (max achievable) {doc_totals['max']:.1f} m²",
         f"Candidates {len(result.candidates):,}",
@@ -525,6 +543,13 @@ def plan_lines(result: PlanResult) -> list[str]:
         f"Scanner step {spec.point_spacing_m * 1000:g} mm at {spec.reference_distance_m:g} m, "
         f"range {spec.dof_min_m:g} to {spec.dof_max_m:g} m",
     ]
+    field_time = None if result.survey is None else result.survey.field_time
+    if field_time is not None and field_time.scanner is not None:  # a scanner was given
+        scan = "unknown" if field_time.scan_s is None else f"{field_time.scan_s / 60:.1f} min"
+        lines.append(f"{field_time.scanner}: scans {scan}, field time "
+                     + ("unknown" if field_time.total_s is None
+                        else f"{field_time.total_s / 60:.1f} min"))
+    return lines
 
 
 def _totals(result: PlanResult) -> dict[str, float]:
@@ -541,7 +566,10 @@ def station_rows(result: PlanResult, orders: Iterable[int], *, visit: bool = Fal
     first: number, (visit,) model coordinates, new area, cumulative coverage."""
     chosen = result.chosen
     max_area = chosen.max_achievable_area_m2
-    rows = [("  no. visit" if visit else "  no.") + "      x       y       z   new m²  cum. %"]
+    # with a scanner: the setting each station is scanned at and its scan time
+    scans = () if result.survey is None else result.survey.scans
+    rows = [("  no. visit" if visit else "  no.") + "      x       y       z   new m²  cum. %"
+            + (" setting   scan" if scans else "")]
     # the plan view is drawn levelled (up_axis); the table gives the model's coordinates
     positions = to_model(scene_rotation(result.scene.metadata), result.candidates.positions)
     for order in orders:
@@ -551,8 +579,15 @@ def station_rows(result: PlanResult, orders: Iterable[int], *, visit: bool = Fal
         if visit:
             number = None if result.survey is None else result.survey.visit_of(order + 1)
             place = f" {'-' if number is None else number:>5}"
-        rows.append(f"{order + 1:5d}{place} {x:7.2f} {y:7.2f} {z:6.2f} "
-                    f"{chosen.new_area_m2[order]:8.2f} {fraction:7.1f}")
+        row = (f"{order + 1:5d}{place} {x:7.2f} {y:7.2f} {z:6.2f} "
+               f"{chosen.new_area_m2[order]:8.2f} {fraction:7.1f}")
+        if scans:
+            scan = scans[order]
+            seconds = "?" if scan.scan_s is None else f"{scan.scan_s:.0f}s"
+            row += f" {(scan.setting or 'plan')[:8]:<8}{seconds:>6}"
+        if is_critical(result, order):
+            row += " crit."
+        rows.append(row)
     return rows
 
 
@@ -560,12 +595,14 @@ def _station_table(fig: Figure, result: PlanResult, top: float) -> None:
     chosen = result.chosen
     limit = 14
     rows = station_rows(result, range(min(limit, len(chosen.stations))))
+    scans = () if result.survey is None else result.survey.scans
     if len(chosen.stations) > limit:
         rows.append(f"  ... {len(chosen.stations) - limit} more in stations.csv")
     fig.text(0.755, top, "Stations (model coordinates, m)", fontsize=8, fontweight="bold",
              va="bottom")
-    fig.text(0.752, top - 0.006, "\n".join(rows), fontsize=6.8, family="monospace", va="top",
-             linespacing=1.35)
+    # the two scan columns take a smaller type to stay on the page
+    fig.text(0.752, top - 0.006, "\n".join(rows), fontsize=5.8 if scans else 6.8,
+             family="monospace", va="top", linespacing=1.35)
 
 
 # --- curve.png ------------------------------------------------------------------------

@@ -266,8 +266,11 @@ def _draw_markers(ax: Axes, result: PlanResult, sheet: Sheet, storey: _Storey
                                           linestyles=[(0, (4, 3))], linewidths=0.5,
                                           alpha=0.4, zorder=6))
     for order, (x, y) in zip(orders, centres, strict=True):
-        disc = Circle((x, y), radius_m, facecolor=colour, edgecolor="white", linewidth=0.8,
-                      zorder=8)
+        # a critical station (placement tolerance) has a red rim instead of a white one,
+        # inside the disc, so its marker takes no more paper
+        critical = drawing.is_critical(result, order)
+        disc = Circle((x, y), radius_m, facecolor=colour, linewidth=1.6 if critical else 0.8,
+                      edgecolor=drawing.CRITICAL_RGB if critical else "white", zorder=8)
         ax.add_patch(disc)
         label = str(order + 1)
         artists: list[Artist] = [disc, ax.text(

@@ -11,13 +11,16 @@ Outputs of :func:`write_outputs` (the names the service serves too):
 - ``faces.npz``: per face ``covered``, ``best_lpd_pts_m2``, ``n_stations``,
   ``first_station``, ``n_candidates``, ``source_face``;
 - ``stations.csv``: ``id,x,y,z,order,candidate_index,visit`` in model coordinates (``visit``:
-  place on the walking route, empty when unreachable);
+  place on the walking route, empty when unreachable), with a scanner also ``setting,scan_s``;
 - ``candidates.csv``: every candidate considered, ``x,y,z``;
 - ``elements.csv``, ``elements.json``: coverage per BIM element (IFC models only, see
   :mod:`planner.outputs.bim`); a renderer that returns None writes no file;
 - the pictures: ``preview.png``, ``curve.png`` (:mod:`planner.outputs.drawing`),
   ``coverage.glb`` (:mod:`planner.outputs.glb`), ``plan.dxf`` (CAD drawing,
   :mod:`planner.outputs.cad`) and ``plan.pdf`` (print set, :mod:`planner.outputs.printset`).
+- ``plan.ifc`` (IFC models only, :mod:`planner.outputs.ifc_plan`; :func:`absent_outputs`
+  says why it is missing) and ``plan.bcf`` (:mod:`planner.outputs.bcf_plan`): the plan
+  back in the BIM.
 """
 
 from __future__ import annotations
@@ -25,7 +28,6 @@ from __future__ import annotations
 import csv
 import importlib
 import io
-import json
 import os
 import tempfile
 import zipfile
@@ -39,6 +41,7 @@ import numpy as np
 from planner.io.orientation import scene_rotation, to_model
 from planner.method.curve import coverage_curve
 from planner.method.selection import GOAL_SLACK_M2
+from planner.outputs.canonical import canonical_json as canonical_json  # re-exported
 from planner.pipeline import PlanResult
 
 FORMAT_VERSION = 1
@@ -97,6 +100,15 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
             station["fixed"] = True  # re-scan: scanned before (fixed_stations)
         if result.survey is not None:
             station["visit"] = result.survey.visit_of(order + 1)
+            if result.survey.scans:  # a scanner was given: its setting and scan time
+                scan = result.survey.scans[order]
+                station["setting"] = scan.setting
+                station["scan_s"] = None if scan.scan_s is None else round(scan.scan_s, 1)
+        heights = result.candidates.heights_m
+        if heights is not None and np.isfinite(heights[candidate]):
+            station["scanner_height_m"] = _r(heights[candidate])
+        if result.tolerance is not None:
+            station["tolerance"] = result.tolerance.stations[order].to_dict()
         stations.append(station)
     document: dict[str, Any] = {
         "format_version": FORMAT_VERSION,
@@ -132,17 +144,19 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
         document["registration"] = result.survey.registration.to_dict()
         document["route"] = _route_in_model(result)
         document["field_time"] = result.survey.field_time.to_dict()
+    if result.tolerance is not None:
+        document["tolerance"] = result.tolerance.to_dict()
+    if result.spec.scanner_heights_m is not None and result.candidates.heights_m is not None:
+        heights, counts = np.unique(result.candidates.heights_m[
+            np.isfinite(result.candidates.heights_m)], return_counts=True)
+        document["candidates"]["per_height"] = [
+            {"scanner_height_m": _r(h), "candidates": int(n)}
+            for h, n in zip(heights, counts, strict=True)]
     if result.optimal is not None:
         document["optimal"] = result.optimal.to_dict()
         document["optimal"]["greedy_stations"] = result.selections["greedy"].count_for_goal(
             result.spec.coverage_goal)
     return document
-
-
-def canonical_json(data: Any) -> bytes:
-    """Deterministic JSON bytes: sorted keys, two-space indent, UTF-8, final newline."""
-    return (json.dumps(data, sort_keys=True, indent=2, ensure_ascii=False,
-                       allow_nan=False) + "\n").encode("utf-8")
 
 
 def plan_json(result: PlanResult) -> bytes:
@@ -172,14 +186,20 @@ def faces_npz(result: PlanResult) -> bytes:
 def stations_csv(result: PlanResult) -> bytes:
     out = io.StringIO()
     writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(["id", "x", "y", "z", "order", "candidate_index", "visit"])
+    scans = () if result.survey is None else result.survey.scans
+    # with a scanner: each station's setting and scan seconds (empty when unknown)
+    writer.writerow(["id", "x", "y", "z", "order", "candidate_index", "visit"]
+                    + (["setting", "scan_s"] if scans else []))
     positions = model_positions(result)
     for order, candidate in enumerate(result.chosen.stations):
         x, y, z = (f"{v:.6f}" for v in positions[candidate])
         visit = None if result.survey is None else result.survey.visit_of(order + 1)
         # an unreachable station has no place on the route: an empty cell
-        writer.writerow([order + 1, x, y, z, order + 1, int(candidate),
-                         "" if visit is None else visit])
+        row = [order + 1, x, y, z, order + 1, int(candidate), "" if visit is None else visit]
+        if scans:
+            scan = scans[order]
+            row += [scan.setting or "", "" if scan.scan_s is None else f"{scan.scan_s:.1f}"]
+        writer.writerow(row)
     return out.getvalue().encode("utf-8")
 
 
@@ -228,7 +248,17 @@ OUTPUTS: dict[str, Callable[[PlanResult], bytes | None]] = {
     "coverage.glb": lambda result: _lazy("glb", "coverage_glb", result),
     "plan.dxf": lambda result: _lazy("cad", "plan_dxf", result),
     "plan.pdf": lambda result: _lazy("printset", "plan_pdf", result),
+    "plan.ifc": lambda result: _lazy("ifc_plan", "plan_ifc", result),
+    "plan.bcf": lambda result: _lazy("bcf_plan", "plan_bcf", result),
 }
+
+
+def absent_outputs(result: PlanResult) -> dict[str, str]:
+    """Outputs of :data:`OUTPUTS` this plan has none of that a user may look for, with why."""
+    from planner.outputs.ifc_plan import absent_reason
+
+    reason = absent_reason(result)
+    return {} if reason is None else {"plan.ifc": reason}
 
 
 # Pictures: slow to render and not what a BIM platform waits for, so they are drawn in

@@ -18,7 +18,8 @@ from planner.io.orientation import scene_rotation, to_plan
 from planner.memory import release_freed_memory
 from planner.method.pairs import FaceLimits
 from planner.method.visibility import Occlusion, RayCaster, make_ray_caster
-from planner.parameters import PlanSpec
+from planner.parameters import DEFAULT_ANGULAR_STEP_RAD, PlanSpec
+from planner.scanners import StationScan, missing_duration_reason, station_scans, step_note
 from planner.scene import Scene
 from planner.survey.registration import (
     OverlapRows,
@@ -29,7 +30,7 @@ from planner.survey.registration import (
 from planner.survey.route import Route, plan_route
 from planner.survey.walkgraph import build_walk_graph, door_faces
 
-DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the preset gives one
+DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the scanner gives one
 
 
 @dataclass(frozen=True)
@@ -37,7 +38,12 @@ class FieldTime:
     setup_s: float
     scan_s: float | None  # None: no scan duration known for this scanner and resolution
     walk_s: float
-    scanner: str | None
+    scanner: str | None  # the preset id or the profile's name
+    # with a scanner whose durations are unknown: the missing figure and the field for it
+    scan_unknown_reason: str | None = None
+    # with a scanner none of whose settings is as fine as the default step: why the plan's
+    # step is its finest setting (planner.scanners.fallback_step)
+    step_note: str | None = None
 
     @property
     def total_s(self) -> float | None:
@@ -49,8 +55,14 @@ class FieldTime:
         def r(v: float | None) -> float | None:
             return None if v is None else round(v, 1)
 
-        return {"total_s": r(self.total_s), "setup_s": r(self.setup_s), "scan_s": r(self.scan_s),
-                "walk_s": r(self.walk_s), "scanner": self.scanner}
+        data: dict[str, Any] = {
+            "total_s": r(self.total_s), "setup_s": r(self.setup_s), "scan_s": r(self.scan_s),
+            "walk_s": r(self.walk_s), "scanner": self.scanner}
+        if self.scan_unknown_reason is not None:
+            data["scan_unknown_reason"] = self.scan_unknown_reason
+        if self.step_note is not None:
+            data["step_note"] = self.step_note
+        return data
 
 
 @dataclass(frozen=True)
@@ -58,6 +70,8 @@ class Survey:
     registration: Registration
     route: Route
     field_time: FieldTime
+    # per station in selection order, with a scanner: its setting and scan time; () without
+    scans: tuple[StationScan, ...] = ()
 
     def visit_of(self, station_id: int) -> int | None:
         """1-based place of a station on the route; None when it is unreachable."""
@@ -67,20 +81,47 @@ class Survey:
             return None
 
 
-def field_time(spec: PlanSpec, n_stations: int, route: Route) -> FieldTime:
-    scan_one_s: float | None = None
-    if spec.scanner is not None:
-        from planner.survey.scanners import get
-
-        setting = get(spec.scanner).setting_for(spec.point_spacing_m, spec.reference_distance_m)
-        scan_one_s = None if setting is None else setting.scan_duration_s
-    setup_one_s = DEFAULT_SETUP_TIME_S if spec.setup_time_s is None else spec.setup_time_s
+def field_time(spec: PlanSpec, n_stations: int, route: Route,
+               scans: tuple[StationScan, ...] = ()) -> FieldTime:
+    """Setup, scan and walk time; ``scans`` are the stations' (empty without a scanner)."""
+    profile = spec.scanner_profile
+    setup_one_s = spec.setup_time_s
+    if setup_one_s is None:
+        setup_one_s = DEFAULT_SETUP_TIME_S if profile is None or profile.setup_time_s is None \
+            else profile.setup_time_s
+    scan_s: float | None = None
+    reason: str | None = None
+    if profile is not None:
+        durations = [s.scan_s for s in scans]
+        if all(d is not None for d in durations):
+            scan_s = float(sum(d for d in durations if d is not None))
+        else:
+            reason = missing_duration_reason(profile, scans)
     return FieldTime(
         setup_s=setup_one_s * n_stations,
-        scan_s=None if scan_one_s is None else scan_one_s * n_stations,
+        scan_s=scan_s,
         walk_s=route.length_m / spec.walking_speed_m_s,
-        scanner=spec.scanner,
+        scanner=None if profile is None else
+        spec.scanner if isinstance(spec.scanner, str) else profile.name,
+        scan_unknown_reason=reason,
+        step_note=None if profile is None else step_note(profile, spec.angular_step_rad,
+                                                         DEFAULT_ANGULAR_STEP_RAD),
     )
+
+
+def scans_of(spec: PlanSpec, density_margins: list[float] | None, n_stations: int
+             ) -> tuple[StationScan, ...]:
+    """Each station's setting and scan time (planner.scanners); () without a scanner.
+
+    ``density_margins``: per station, the least density / requirement over the faces it is
+    credited with; None: every station keeps the plan's step (margin 1).
+    """
+    profile = spec.scanner_profile
+    if profile is None:
+        return ()
+    margins = [1.0] * n_stations if density_margins is None else density_margins
+    return station_scans(profile, spec.angular_step_rad, spec.elevation_min_deg,
+                         spec.elevation_max_deg, margins)
 
 
 def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool
@@ -97,11 +138,12 @@ def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces
 def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceLimits,
            occlusion: Occlusion, caster: RayCaster, seconds: dict[str, float],
            station_overlap: sp.csr_matrix | None = None,
-           threads: int | None = None) -> Survey:
+           threads: int | None = None, density_margins: list[float] | None = None) -> Survey:
     """Registration, route and field time of the (S, 3) stations, in selection order.
 
     ``station_overlap``: the stations' (S, F) overlap rows when the selection already made
-    them; ``seconds`` gains the stages "overlap" and "walk graph".
+    them; ``density_margins``: see :func:`scans_of`; ``seconds`` gains the stages "overlap"
+    and "walk graph".
     """
     t0 = time.perf_counter()
     # only what two stations share counts: the rows are cut to it before the registration's
@@ -129,4 +171,5 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
         start = (float(x), float(y), float(z))
     route = plan_route(graph, walk_caster, stations_xyz, start)
     seconds["walk graph"] = time.perf_counter() - t1
-    return Survey(registration, route, field_time(spec, len(stations_xyz), route))
+    scans = scans_of(spec, density_margins, len(stations_xyz))
+    return Survey(registration, route, field_time(spec, len(stations_xyz), route, scans), scans)

@@ -1,4 +1,4 @@
-"""``/healthz`` (the process answers) and ``/readyz`` (database, queue, data dir reachable)."""
+"""``/healthz`` (the process answers) and ``/readyz`` (database, queue, data dir, store)."""
 
 from __future__ import annotations
 
@@ -21,11 +21,12 @@ async def healthz() -> dict[str, str]:
 
 @router.get("/readyz", responses=problem_responses(503))
 def readyz(services: ServicesDep) -> dict[str, Any]:
-    """Readiness: the job table, the queue and the data directory all answer."""
+    """Readiness: the job table, the queue, the data directory and the store all answer."""
     checks = {
         "database": services.jobs.ping,
         "queue": services.queue.ping,
         "data_dir": services.meshes.ping,
+        "store": services.store.ping,
     }
     failed = []
     for name, check in checks.items():

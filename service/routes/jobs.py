@@ -3,24 +3,34 @@
 from __future__ import annotations
 
 import json
-import shutil
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response, status
 from fastapi.responses import FileResponse, JSONResponse
 
 from service.deps import OwnerDep, ServicesDep
-from service.job_store import ACTIVE, FAILED, SUCCESSFUL, JobRecord
+from service.job_store import ACTIVE, DISMISSED, FAILED, STATUSES, SUCCESSFUL, JobRecord
 from service.problems import MEDIA_TYPE, NoSuchJobError, ResultNotReadyError, problem_responses
-from service.schemas import JobList, JobResults, JobStatus, Link, OutputRef, StatusInfo
+from service.schemas import (
+    AttemptInfo,
+    JobList,
+    JobResults,
+    JobStatus,
+    Link,
+    OutputRef,
+    StatusInfo,
+)
+from service.store import result_key, results_prefix
 from service.timefmt import iso
-from service.worker import results_dir
 
 router = APIRouter(prefix="/jobs", tags=["jobs"],
                    responses=problem_responses(401, 404, 422, 500))
 
 # the output id of the plan inline in the results document (the files are named outputs)
 PLAN_OUTPUT = "plan"
+# the largest offset of GET /jobs: far past any job table, and within every database's
+# 64-bit integers (a larger one was a 500 from the database)
+MAX_OFFSET = 1_000_000_000
 RESULTS_REL = "http://www.opengis.net/def/rel/ogc/1.0/results"
 MEDIA_TYPES = {
     ".json": "application/json", ".csv": "text/csv; charset=utf-8", ".png": "image/png",
@@ -47,6 +57,8 @@ def status_info(job: JobRecord) -> StatusInfo:
              Link(href=f"{href}/viewer", rel="alternate", type="text/html", title="viewer"),
              Link(href=f"/meshes/{job.mesh_id}", rel="related", type="application/json",
                   title="mesh")]
+    if job.status == DISMISSED:
+        links = []  # gone: nothing to link to
     if job.status in (SUCCESSFUL, FAILED):
         links.append(Link(href=f"{href}/results", rel=RESULTS_REL, type="application/json",
                           title="results"))
@@ -55,29 +67,38 @@ def status_info(job: JobRecord) -> StatusInfo:
         message=job.message, progress=job.progress, created=iso(job.created) or "",
         started=iso(job.started), finished=iso(job.finished), updated=iso(job.updated) or "",
         mesh=job.mesh_id, attempts=job.attempts, timings_s=job.timings, problem=job.problem,
+        attempt_log=[AttemptInfo(**{**entry, "started": iso(entry.get("started")),
+                                    "finished": iso(entry.get("finished"))})
+                     for entry in job.attempt_log or []],
         links=links,
     )
 
 
 def _job(services: ServicesDep, owner: str, job_id: str) -> JobRecord:
+    """The caller's job; a dismissed one is gone (OGC dismiss), as one that never was."""
     job = services.jobs.get(job_id, owner)
     if job is None:
         raise NoSuchJobError(f"no job {job_id}; GET /jobs lists yours")
+    if job.status == DISMISSED:
+        raise NoSuchJobError(f"job {job_id} was dismissed (DELETE); it and its results are "
+                             "gone; GET /jobs lists yours")
     return job
 
 
 @router.get("", response_model=JobList)
 def list_jobs(
     request: Request, services: ServicesDep, owner: OwnerDep,
-    status_: Annotated[list[JobStatus] | None, Query(alias="status",
+    status_: Annotated[list[JobStatus] | None, Query(alias="status", max_length=16,
                                                      description="only jobs in these states")]
     = None,
     limit: Annotated[int, Query(ge=1, le=1000)] = 50,
-    offset: Annotated[int, Query(ge=0)] = 0,
+    offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
 ) -> JobList:
     """Your jobs, newest first, ``limit`` at a time."""
-    wanted = list(status_ or [])
-    records, total = services.jobs.page(owner, wanted, limit=limit, offset=offset)
+    # dismissed jobs are gone: never listed, whatever the filter says
+    wanted = [s for s in (status_ or STATUSES) if s != DISMISSED]
+    records, total = (services.jobs.page(owner, wanted, limit=limit, offset=offset)
+                      if wanted else ([], 0))
     links = [Link(href=str(request.url), rel="self", type="application/json")]
     if offset + limit < total:
         links.append(Link(href=str(request.url.include_query_params(offset=offset + limit)),
@@ -96,16 +117,21 @@ def get_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInfo:
 
 @router.delete("/{job_id}", response_model=StatusInfo)
 def delete_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInfo:
-    """Dismiss a queued or running job (it stops at its next chunk); delete a finished one."""
+    """Dismiss the job (OGC dismiss): a queued or running one is cancelled (a running plan
+    stops within a second or two), a finished one is deleted with its results. Either way
+    the answer is its last status document, ``dismissed``, and from then on every
+    ``/jobs/{id}`` request answers 404."""
     job = _job(services, owner, job_id)
     if job.status in ACTIVE and services.jobs.dismiss(job_id):
-        return status_info(_job(services, owner, job_id))
+        dismissed = services.jobs.get(job_id, owner)
+        assert dismissed is not None  # the row stays: the worker learns of the dismissal
+        return status_info(dismissed)
     job = _job(services, owner, job_id)  # it may have finished meanwhile
     if services.jobs.delete(job_id):
-        shutil.rmtree(results_dir(services.settings, job_id), ignore_errors=True)
+        services.store.delete_prefix(results_prefix(job_id))
     document = status_info(job)
-    document.status = "dismissed"
-    document.message = "deleted with its results"
+    document.status, document.links = "dismissed", []
+    document.message = "dismissed: deleted with its results"
     return document
 
 
@@ -120,9 +146,8 @@ def get_results(job_id: str, services: ServicesDep, owner: OwnerDep) -> JobResul
     if job.status != SUCCESSFUL or job.outputs is None:
         raise ResultNotReadyError(f"job {job_id} is {job.status}; results come once it is "
                                   "successful")
-    folder = results_dir(services.settings, job_id)
-    document: dict[str, dict[str, Any]] = {
-        PLAN_OUTPUT: json.loads((folder / "plan.json").read_text(encoding="utf-8"))}
+    plan = services.store.read_bytes(result_key(job_id, "plan.json"))
+    document: dict[str, dict[str, Any]] = {PLAN_OUTPUT: json.loads(plan.decode("utf-8"))}
     for name, meta in sorted(job.outputs.items()):
         document[name] = OutputRef(href=f"/jobs/{job_id}/results/{name}",
                                    type=media_type(name), bytes=meta["bytes"],
@@ -145,12 +170,19 @@ def get_output(job_id: str, output: str, request: Request, services: ServicesDep
         raise ResultNotReadyError(f"job {job_id} is {job.status}; results come once it is "
                                   "successful")
     meta = job.outputs.get(output)
-    path = results_dir(services.settings, job_id) / output
-    if meta is None or not path.is_file():
-        raise ResultNotReadyError(
-            f"job {job_id} has no output {output!r}; it has {', '.join(sorted(job.outputs))}")
+    if meta is None:
+        raise _no_output(job, output)
     etag = f'"{meta["sha256"]}"'
     if etag in [t.strip() for t in request.headers.get("if-none-match", "").split(",")]:
         return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers={"ETag": etag})
-    return FileResponse(path, media_type=media_type(output), headers={"ETag": etag},
-                        content_disposition_type="inline", filename=output)
+    answer = services.store.response(
+        result_key(job_id, output), media_type=media_type(output), etag=etag, filename=output,
+        disposition="inline", request_headers=dict(request.headers))
+    if answer is None:
+        raise _no_output(job, output)
+    return answer
+
+
+def _no_output(job: JobRecord, output: str) -> ResultNotReadyError:
+    return ResultNotReadyError(f"job {job.id} has no output {output!r}; it has "
+                               f"{', '.join(sorted(job.outputs or {}))}")

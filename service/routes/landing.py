@@ -7,9 +7,11 @@ classes this service implements (OGC 18-062r2, section 7.4 and Annex A):
 
 - core, ogc-process-description, json, oas30: the process list and description, async
   execution, status and results as JSON, this OpenAPI 3 document;
-- job-list: ``GET /jobs``; dismiss: ``DELETE /jobs/{jobId}``.
+- job-list: ``GET /jobs``; dismiss: ``DELETE /jobs/{jobId}``;
+- callback: ``subscriber`` in the execute request (:mod:`service.callbacks`), claimed when
+  the operator set ``SCANPLAN_CALLBACK_SECRET`` (without it a subscriber is refused).
 
-Not claimed: html (only the landing page has an HTML form) and callback.
+Not claimed: html (only the landing page has an HTML form).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from fastapi import APIRouter, Query, Request
 from fastapi.responses import JSONResponse, Response
 from pydantic import BaseModel
 
+from service.deps import ServicesDep
 from service.problems import problem_responses
 from service.routes.pages import page
 from service.schemas import Link
@@ -29,6 +32,7 @@ router = APIRouter(tags=["ogc"], responses=problem_responses(422, 500))
 _CONF = "http://www.opengis.net/spec/ogcapi-processes-1/1.0/conf/"
 CONFORMANCE = [_CONF + name for name in (
     "core", "ogc-process-description", "json", "oas30", "job-list", "dismiss")]
+CALLBACK = _CONF + "callback"
 _REL = "http://www.opengis.net/def/rel/ogc/1.0/"
 
 
@@ -95,7 +99,8 @@ def landing_page(
 
 
 @router.get("/conformance", response_model=ConfClasses)
-def conformance() -> ConfClasses:
+def conformance(services: ServicesDep) -> ConfClasses:
     """The conformance classes this service implements."""
-    return ConfClasses(conformsTo=CONFORMANCE)
+    callback = [CALLBACK] if services.settings.callback_secret is not None else []
+    return ConfClasses(conformsTo=CONFORMANCE + callback)
 

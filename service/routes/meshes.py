@@ -18,6 +18,7 @@ from service.problems import (
     problem_responses,
 )
 from service.schemas import Link, MeshInfo
+from service.store import mesh_key
 from service.timefmt import iso
 from service.upload import FILE_FIELD, MultipartFile, multipart_boundary
 
@@ -110,15 +111,19 @@ def get_mesh(mesh_id: str, response: Response, services: ServicesDep,
 
 @router.get("/{mesh_id}/content", response_class=FileResponse,
             responses={200: {"content": {"application/octet-stream": {}}}})
-def get_mesh_content(mesh_id: str, services: ServicesDep, owner: OwnerDep) -> FileResponse:
+def get_mesh_content(mesh_id: str, request: Request, services: ServicesDep,
+                     owner: OwnerDep) -> Response:
     """The uploaded bytes, unchanged."""
     record = services.meshes.get(mesh_id, owner)
-    path = services.meshes.path(mesh_id)
-    if record is None or path is None:
+    if record is None:
         raise _not_found(mesh_id)
-    return FileResponse(path, media_type="application/octet-stream",
-                        filename=record.filename or path.name,
-                        headers={"ETag": f'"{record.id}"'})
+    answer = services.store.response(
+        mesh_key(record.id, record.format), media_type="application/octet-stream",
+        etag=f'"{record.id}"', filename=record.filename or f"mesh.{record.format}",
+        disposition="attachment", request_headers=dict(request.headers))
+    if answer is None:
+        raise _not_found(mesh_id)
+    return answer
 
 
 @router.delete("/{mesh_id}", status_code=status.HTTP_204_NO_CONTENT,

@@ -6,14 +6,15 @@ import hashlib
 import json
 from typing import Annotated, Any
 
-from fastapi import APIRouter, Header, Path, Response, status
+from fastapi import APIRouter, Header, Path, Request, Response, status
 from starlette.concurrency import run_in_threadpool
 
 from planner.io.readers import unit_warning
 from planner.outputs.report import OUTPUTS
 from planner.parameters import PlanSpec
-from planner.survey.scanners import scanners
-from service import guards
+from planner.scanners import presets
+from service import guards, tenants
+from service.callbacks import check_subscriber
 from service.deps import OwnerDep, ServicesDep
 from service.problems import (
     IdempotencyKeyReusedError,
@@ -22,6 +23,7 @@ from service.problems import (
     NotFoundError,
     problem_responses,
 )
+from service.routes.callbacks import callback_router
 from service.routes.jobs import PLAN_OUTPUT, media_type, status_info
 from service.schemas import ExecuteRequest, PlanParameters, StatusInfo
 
@@ -51,6 +53,11 @@ _JOB_LINKS = {
 }
 
 
+# past the key's cap of jobs queued or running (service.tenants)
+_BUSY = {**problem_responses(429)[429], "headers": {"Retry-After": {
+    "description": "seconds to wait before submitting again", "schema": {"type": "integer"}}}}
+
+
 # the schema lists the one process; another id is still a 404 no-such-process (OGC), not a 422
 ProcessIdPath = Annotated[str, Path(json_schema_extra={"enum": [PROCESS_ID]})]
 
@@ -71,7 +78,7 @@ def _description() -> dict[str, Any]:
                            "schema": PlanParameters.model_json_schema(),
                            "minOccurs": 0, "maxOccurs": 1},
         },
-        "scanners": [scanner.to_dict() for scanner in scanners().values()],
+        "scanners": [preset.to_dict() for preset in presets().values()],
         "outputs": {
             PLAN_OUTPUT: {"title": "the plan inline", "description": "the content of plan.json",
                           "schema": {"type": "object"}},
@@ -105,10 +112,11 @@ def _check_process(process_id: str) -> None:
              response_model=StatusInfo,
              responses={201: {"links": _JOB_LINKS},
                         200: {"model": StatusInfo, "description": "Idempotency-Key replay"},
-                        **problem_responses(400, 413)})
+                        **problem_responses(400, 413), 429: _BUSY},
+             callbacks=callback_router.routes)
 async def execute(
-    process_id: ProcessIdPath, body: ExecuteRequest, response: Response, services: ServicesDep,
-    owner: OwnerDep,
+    process_id: ProcessIdPath, body: ExecuteRequest, request: Request, response: Response,
+    services: ServicesDep, owner: OwnerDep,
     idempotency_key: Annotated[str | None, Header(max_length=255)] = None,
     prefer: Annotated[str | None, Header(
         description="OGC: respond-async (every execution is asynchronous)")] = None,
@@ -123,16 +131,22 @@ async def execute(
         response.headers["Preference-Applied"] = "respond-async"
     parameters = body.inputs.parameters.model_dump(exclude_unset=True)
     spec = PlanSpec.from_mapping(parameters)  # ranges and consistency: 422 naming it
+    subscriber = body.subscriber.model_dump(exclude_none=True) if body.subscriber else None
     return await run_in_threadpool(_submit, services, owner, body.inputs.mesh, parameters,
-                                   spec, idempotency_key, response)
+                                   spec, idempotency_key, response, subscriber,
+                                   str(request.base_url))
 
 
 def _submit(services: ServicesDep, owner: str, mesh_id: str, parameters: dict[str, Any],
-            spec: PlanSpec, idempotency_key: str | None, response: Response) -> StatusInfo:
+            spec: PlanSpec, idempotency_key: str | None, response: Response,
+            subscriber: dict[str, str] | None = None, base_url: str = "") -> StatusInfo:
     mesh = services.meshes.get(mesh_id, owner)
     if mesh is None:
         raise MeshNotFoundError(f"inputs.mesh: no mesh {mesh_id}; upload the model with "
                                 "POST /meshes and use the id it returns")
+    # resolves the hosts: here, in the thread pool, not on the event loop
+    callback_uris = None if subscriber is None else check_subscriber(services.settings,
+                                                                     subscriber)
     # the mesh's bounds are in file units: scaled by this job's unit_scale they say whether
     # the model is plausibly in metres, before a worker spends any time on it
     low, high = mesh.summary["bounds"]
@@ -145,12 +159,17 @@ def _submit(services: ServicesDep, owner: str, mesh_id: str, parameters: dict[st
             raise
         # a model in millimetres is a thousand times too large: say so, not just "too large"
         raise JobTooLargeError("unit_scale", f"{warning}. Refused as it is: {exc}") from exc
-    request_hash = hashlib.sha256(json.dumps(
-        {"mesh": mesh_id, "parameters": parameters}, sort_keys=True).encode()).hexdigest()
+    hashed: dict[str, Any] = {"mesh": mesh_id, "parameters": parameters}
+    if subscriber is not None:
+        hashed["subscriber"] = subscriber
+    request_hash = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()
     job, created = services.jobs.create(owner, mesh_id, parameters,
                                         idempotency_key=idempotency_key,
                                         request_hash=request_hash)
     if created:
+        tenants.admit(services.jobs, job, services.settings)  # 429 past the key's cap
+        if callback_uris is not None:
+            services.callbacks.subscribe(job.id, base_url, callback_uris)
         services.queue.enqueue(job.id)
     elif job.request_hash != request_hash:
         raise IdempotencyKeyReusedError(

@@ -161,6 +161,14 @@ function showTotals(doc) {
     ['faces', String(t.faces ?? '–')],
   ];
   if (doc.optimal) rows.push(['optimal (MILP)', `${doc.optimal.stations}, proven ≥ ${doc.optimal.lower_bound}`]);
+  const tol = doc.tolerance;
+  if (tol) {
+    const critical = tol.critical_stations || [];
+    rows.push([`set up ${fmt(tol.placement_tolerance_m, 2)} m off`,
+      `goal ${tol.goal_holds ? 'holds' : 'may break'} (≥ ${fmt(tol.worst_case_covered_area_m2, 1)} m²), ` +
+      `network ${tol.network_holds ? 'holds' : 'may break'}` +
+      (critical.length ? `; critical: ${critical.join(', ')}` : '')]);
+  }
   const dl = el('dl');
   for (const [name, value] of rows) dl.append(el('dt', { text: name }), el('dd', { text: value }));
   $('totals').replaceChildren(el('h2', { text: 'Totals' }), dl);
@@ -181,14 +189,13 @@ function duration(seconds) {
 
 // why plan.json has no scan time (field_time.scan_s null)
 function scanUnknownReason(doc) {
-  const p = doc.parameters || {};
-  const scanner = doc.field_time && doc.field_time.scanner;
-  if (!scanner) {
-    return 'no scanner preset was chosen (parameter scanner), so the scan duration of a ' +
-      'station is not known';
+  const ft = doc.field_time || {};
+  if (ft.scan_unknown_reason) return ft.scan_unknown_reason;
+  if (!ft.scanner) {
+    return 'no scanner was given (parameter scanner: a preset or an object with ' +
+      'measurement_rate_pts_s), so the scan duration of a station is not known';
   }
-  return `the preset ${scanner} states no scan duration for a point spacing of ` +
-    `${fmt(1000 * Number(p.point_spacing_m), 1)} mm at ${fmt(p.reference_distance_m, 1)} m`;
+  return `the scanner ${ft.scanner} gives no measurement rate or scan durations`;
 }
 
 function showFieldTime(doc) {
@@ -228,16 +235,31 @@ function showFieldTime(doc) {
 
 function showStationTable(stations) {
   const body = $('stations').querySelector('tbody');
+  // with a scanner, plan.json gives each station's setting and scan time
+  const scans = stations.some((s) => 'scan_s' in s);
+  const head = $('stations').querySelector('thead tr');
+  for (const th of head.querySelectorAll('th.scan')) th.remove();
+  if (scans) {
+    head.append(el('th', { text: 'setting', class: 'scan' }),
+      el('th', { text: 'scan', class: 'scan' }));
+  }
   body.replaceChildren(...stations.map((s) => {
     const p = s.position || [];
     const onRoute = s.visit !== null && s.visit !== undefined;
     const visit = el('td', { text: onRoute ? String(s.visit) : '–', class: 'visit' });
     if (!onRoute && 'visit' in s) visit.title = 'not reachable on foot';
-    const tr = el('tr', { 'data-order': String(s.id) },
+    const tr = el('tr', { 'data-order': String(s.id), class: isCritical(s) ? 'critical' : '' },
       el('td', { text: String(s.id) }), visit, el('td', { text: fmt(p[0]) }),
       el('td', { text: fmt(p[1]) }), el('td', { text: fmt(p[2]) }),
       el('td', { text: fmt(s.new_area_m2, 1) }),
       el('td', { text: fmt(100 * Number(s.coverage_fraction), 1) }));
+    if (scans) {
+      tr.append(el('td', { text: s.setting ?? 'plan step', 'data-col': 'setting' }),
+        el('td', { text: s.scan_s === null || s.scan_s === undefined ? 'unknown'
+          : duration(s.scan_s), 'data-col': 'scan' }));
+    }
+    if (isCritical(s)) tr.title = 'critical: the goal breaks if this station is set up ' +
+      `${fmt(s.tolerance.worst_offset_m[0], 2)}, ${fmt(s.tolerance.worst_offset_m[1], 2)} m off`;
     tr.addEventListener('click', () => selectStation(Number(s.id)));
     return tr;
   }));
@@ -251,6 +273,16 @@ const BIM_FILES = {
   'plan.dxf': 'CAD drawing in metres, a layer set per storey',
   'plan.pdf': 'print set: A3 sheets per storey at 1:50, 1:100 or 1:200',
 };
+
+// the goal breaks when this station alone lands at its worst setup (plan.json tolerance)
+function isCritical(station) {
+  return Boolean(station && station.tolerance && station.tolerance.critical);
+}
+
+function criticalOrder(order) {
+  return Boolean(plan && Array.isArray(plan.stations)
+    && isCritical(plan.stations.find((s) => Number(s.id) === order)));
+}
 
 function showFiles() {
   const [p, bim] = [$('files').querySelector('p'), $('bim-files')];
@@ -406,7 +438,7 @@ async function loadModel() {
       box.expandByObject(object);
     }
     if (Number.isInteger(data.order) && Number.isInteger(data.station)) {
-      const label = labelSprite(String(data.order));
+      const label = labelSprite(String(data.order), criticalOrder(data.order) ? '#c81e1e' : undefined);
       const world = new THREE.Vector3();
       object.getWorldPosition(world);
       label.position.copy(world).add(new THREE.Vector3(0, 0.75, 0));
@@ -762,6 +794,14 @@ function selectStation(order) {
     el('p', { text: visitText(data) }),
     el('p', { text: `position x ${fmt(p[0])} m, y ${fmt(p[1])} m, z ${fmt(p[2])} m` }),
     el('p', { text: `new area ${fmt(data.new_area_m2)} m²` }),
+    ...(data.scanner_height_m !== undefined
+      ? [el('p', { text: `instrument height ${fmt(data.scanner_height_m, 2)} m` })] : []),
+    ...(data.tolerance ? [el('p', {
+      class: data.tolerance.critical ? 'critical' : '',
+      text: `set up off by up to ${fmt(plan.tolerance.placement_tolerance_m, 2)} m: loses at most ` +
+            `${fmt(data.tolerance.worst_loss_m2, 2)} m² (worst offset ` +
+            `${fmt(data.tolerance.worst_offset_m[0], 2)}, ${fmt(data.tolerance.worst_offset_m[1], 2)} m)` +
+            (data.tolerance.critical ? '; critical: the goal breaks' : '') })] : []),
     el('p', { text: `covered after it ${fmt(data.covered_area_m2)} m² ` +
                     `(${fmt(100 * Number(data.coverage_fraction), 1)} % of coverable)` }),
     el('p', { class: 'muted', text: `candidate ${data.candidate_index ?? '–'}` }));

@@ -10,6 +10,7 @@ import sqlite3
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -94,9 +95,8 @@ class Service:
         return int(str(row[0]).rsplit(":", 1)[1])
 
 
-def session_pids(sid: int) -> list[int]:
-    """Live (non-zombie) processes whose session id is ``sid``, from /proc."""
-    pids = []
+def _live_processes() -> Iterator[tuple[int, int, int]]:
+    """(pid, parent pid, session id) of every live (non-zombie) process, from /proc."""
     for entry in Path("/proc").iterdir():
         if not entry.name.isdigit():
             continue
@@ -104,10 +104,18 @@ def session_pids(sid: int) -> list[int]:
             fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
         except OSError:
             continue
-        state, session = fields[0], int(fields[3])
-        if session == sid and state != "Z":
-            pids.append(int(entry.name))
-    return sorted(pids)
+        if fields[0] != "Z":
+            yield int(entry.name), int(fields[1]), int(fields[3])
+
+
+def session_pids(sid: int) -> list[int]:
+    """Live (non-zombie) processes whose session id is ``sid``."""
+    return sorted(pid for pid, _, session in _live_processes() if session == sid)
+
+
+def child_pids(pid: int) -> list[int]:
+    """Live (non-zombie) children of ``pid`` (a worker's planning process)."""
+    return sorted(child for child, parent, _ in _live_processes() if parent == pid)
 
 
 def wait_for(client: httpx.Client, job_id: str, statuses: tuple[str, ...],

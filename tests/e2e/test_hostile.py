@@ -113,12 +113,19 @@ def test_hostile_uploads_are_refused_or_stored_safely(service: Service) -> None:
 
 def test_jobs_that_pass_the_guards_end_as_successful_or_failed(
         service: Service, mesh: str) -> None:
-    """Huge but cheap parameters: the job runs and ends; the worker stays for the next."""
+    """Absurd numbers are refused naming the parameter; the largest the schema allows run
+    and end; the worker stays for the next."""
+    for name, parameters in (("dof_max_m", {"dof_max_m": 1e300}),
+                             ("grid_spacing_m", {"grid_spacing_m": 1e300}),
+                             ("candidates", {"candidates": [[1e300, -1e300, 1e300]]}),
+                             ("min_density_pts_m2", {"min_density_pts_m2": 1e300})):
+        answer = _execute(service, {"inputs": {"mesh": mesh, "parameters": parameters}})
+        assert _problem(answer, 422)["parameter"].startswith(name), answer.text
     jobs = []
-    for parameters in ({"max_edge_m": None, "dof_max_m": 1e300},
-                       {"max_edge_m": None, "grid_spacing_m": 1e300},
-                       {"max_edge_m": None, "candidates": [[1e300, -1e300, 1e300]]},
-                       {"max_edge_m": 1e300, "min_density_pts_m2": 1e300}):
+    for parameters in ({"max_edge_m": None, "dof_max_m": 10_000.0},
+                       {"max_edge_m": None, "grid_spacing_m": 10_000.0},
+                       {"max_edge_m": None, "candidates": [[1e12, -1e12, 1e12]]},
+                       {"max_edge_m": 10_000.0, "min_density_pts_m2": 1e9}):
         answer = _execute(service, {"inputs": {"mesh": mesh, "parameters": parameters}})
         assert answer.status_code == 201, answer.text
         jobs.append(answer.json()["jobID"])

@@ -16,7 +16,7 @@ from planner.io.readers import read_scene
 from planner.outputs.report import write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from tests.e2e.service_process import Service, wait_for
+from tests.e2e.service_process import Service, child_pids, wait_for
 
 SCENES = Path(__file__).resolve().parents[2].parent / "shared" / "scenes"
 FINISHED = ("successful", "failed", "dismissed")
@@ -132,6 +132,25 @@ def test_sigkilled_worker_job_still_finishes(service: Service) -> None:
     assert status["attempts"] >= 2, "the job should have run again after the kill"
 
 
+def test_sigkilled_planning_process_is_run_again_not_called_out_of_memory(
+        service: Service) -> None:
+    """What an operator, a container runtime or the host's OOM killer does to the plan."""
+    hall = _scene("hall-full")
+    with service.client() as client:
+        job_id = _submit(client, hall)
+        worker = _wait_running(service, client, job_id)
+        [child] = child_pids(worker)
+        os.kill(child, signal.SIGKILL)
+        status = wait_for(client, job_id, FINISHED, timeout_s=300)
+    assert status["status"] == "successful", status
+    assert status["attempts"] == 2, status
+    killed, succeeded = status["attempt_log"]
+    assert killed["outcome"] == "killed" and killed["signal"] == "SIGKILL", killed
+    assert killed["stage"] in ("reading", "candidates", "visibility", "selection"), killed
+    assert killed["peak_rss_mib"] < 0.9 * killed["memory_limit_mib"], killed
+    assert succeeded["outcome"] == "successful"
+
+
 def test_delete_cancels_a_running_job(service: Service) -> None:
     hall = _scene("hall-full")
     with service.client() as client:
@@ -143,7 +162,7 @@ def test_delete_cancels_a_running_job(service: Service) -> None:
             assert time.monotonic() < deadline, "the worker did not stop within 15 s"
             time.sleep(0.2)
         os.kill(pid, 0)  # the worker process itself lives on for the next job
-        assert client.get(f"/jobs/{job_id}").json()["status"] == "dismissed"
+        assert client.get(f"/jobs/{job_id}").status_code == 404  # dismissed: gone
         assert not (service.data_dir / "jobs" / job_id).exists()
 
 

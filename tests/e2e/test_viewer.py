@@ -268,6 +268,11 @@ def check_route_and_time(page: Any, plan: dict[str, Any]) -> None:
         assert cells.nth(0).inner_text() == str(station["id"])
         visit = station["visit"]
         assert cells.nth(1).inner_text() == ("\u2013" if visit is None else str(visit))
+        if "scan_s" in station:  # a scanner was given: its setting and scan time per station
+            assert cells.nth(7).inner_text() == (station["setting"] or "plan step")
+            assert cells.nth(8).inner_text() == duration(station["scan_s"])
+        else:
+            assert cells.count() == 7
     times = plan["field_time"]
     box = page.locator("#fieldtime")
     assert box.is_visible()
@@ -279,8 +284,7 @@ def check_route_and_time(page: Any, plan: dict[str, Any]) -> None:
     if times["scan_s"] is None:
         assert page.locator('#fieldtime dd[data-time="scan"]').inner_text() == "unknown"
         assert total.startswith("unknown")
-        assert "scan time unknown: no scanner preset was chosen (parameter scanner)" in (
-            box.inner_text())
+        assert "scan time unknown: no scanner was given (parameter scanner" in box.inner_text()
     else:
         assert total == duration(times["total_s"])
         assert page.locator('#fieldtime dd[data-time="scan"]').inner_text() == duration(
@@ -310,10 +314,15 @@ def test_viewer_route_of_a_model_with_another_up(
     with (scenes_dir / "hall-small" / "candidates.csv").open() as handle:
         candidates = [(rotation.T @ np.array([float(r["x"]), float(r["y"]), float(r["z"])])
                        ).tolist() for r in csv.DictReader(handle)]
+    # with the crew's scanner: the stations' settings and scan times, the field time's total
+    scanner = {"name": "crew", "measurement_rate_pts_s": 2e6, "overhead_s": 30, "settings": [
+        {"name": "10 mm", "point_spacing_m": 0.01, "reference_distance_m": 10},
+        {"name": "20 mm", "point_spacing_m": 0.02, "reference_distance_m": 10}]}
     job = submit(base, scenes_dir, model="\n".join(lines).encode(), up_axis="-Y",
-                 candidates=candidates)
+                 candidates=candidates, scanner=scanner)
     plan = httpx.get(f"{base}/jobs/{job}/results/plan.json").json()
     assert plan["scene"]["orientation"]["rotation"] == rotation.tolist()
+    assert plan["field_time"]["scan_s"] is not None
     page, errors = open_page(browser_context, f"{base}/jobs/{job}/viewer")
     page.wait_for_function("window.scanplanViewer && window.scanplanViewer.ready",
                            timeout=60_000)

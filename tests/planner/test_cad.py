@@ -234,7 +234,8 @@ def hundred_stations(result: PlanResult) -> PlanResult:
     chosen = Selection(method="greedy", stations=order, new_area_m2=area,
                        covered_area_m2=tuple(float(k + 1) for k in order),
                        max_achievable_area_m2=100.0)
-    return dataclasses.replace(result, chosen=chosen, survey=None, candidates=CandidateSet(
+    return dataclasses.replace(result, chosen=chosen, survey=None, tolerance=None,
+                               candidates=CandidateSet(
         positions=positions, source="explicit", considered=100))
 
 

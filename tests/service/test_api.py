@@ -145,6 +145,18 @@ def test_oversized_upload(tmp_path: Path, hall_bytes: bytes) -> None:
     ({"method": "best"}, "method", "greedy"),
     ({"no_such": 1}, "no_such", "Extra inputs"),
     ({"candidates": [[0, 0]]}, "candidates.0", "3"),
+    ({"scanner": 42}, "scanner", "preset id or an object"),
+    ({"scanner": "leica-x"}, "scanner", "not a known preset"),
+    ({"scanner": {"name": "x", "measurement_rate_pts_s": 0}}, "scanner.measurement_rate_pts_s",
+     "1 or more"),
+    ({"scanner": {"name": "x", "overhead_s": -3}}, "scanner.overhead_s", "in [0, 86400]"),
+    ({"scanner": {"name": "x", "settings": [{"name": "a", "point_spacing_m": 0.01}]}},
+     "scanner.settings.0.reference_distance_m", "required"),
+    ({"scanner": {"name": "x", "settings": [
+        {"name": "a", "point_spacing_m": 0.01, "reference_distance_m": 10, "duration_s": 0}]}},
+     "scanner.settings.0.duration_s", "in (0, 86400]"),
+    ({"scanner": {"name": "x", "min_range_m": 4, "max_range_m": 2}}, "scanner.min_range_m",
+     "less than scanner.max_range_m"),
 ])
 def test_bad_parameters(client: TestClient, hall_bytes: bytes, parameters: dict[str, Any],
                         parameter: str, word: str) -> None:
@@ -194,17 +206,34 @@ def test_dismiss_queued_job_and_mesh_in_use(tmp_path: Path, hall_bytes: bytes) -
         assert client.get(f"/jobs/{job_id}").json()["status"] == "accepted"
         assert_problem(client.delete(f"/meshes/{mesh_id}"), 409, "unfinished")
         assert client.delete(f"/jobs/{job_id}").json()["status"] == "dismissed"
-        assert_problem(client.get(f"/jobs/{job_id}/results"), 404, "dismissed")
-        assert client.delete(f"/jobs/{job_id}").status_code == 200  # now deleted
-        assert_problem(client.get(f"/jobs/{job_id}"), 404)
+        # OGC dismiss: the job is gone for every /jobs request, and from the list
+        for path in (f"/jobs/{job_id}", f"/jobs/{job_id}/results",
+                     f"/jobs/{job_id}/results/plan.json"):
+            assert_problem(client.get(path), 404, "dismissed")
+        assert_problem(client.delete(f"/jobs/{job_id}"), 404, "dismissed")
+        assert client.get("/jobs").json()["numberMatched"] == 0
+        assert client.get("/jobs?status=dismissed").json()["jobs"] == []
         assert client.delete(f"/meshes/{mesh_id}").status_code == 204
+
+
+def test_delete_of_a_finished_job_removes_it_and_its_files(
+        client: TestClient, hall_bytes: bytes, hall_parameters: dict[str, Any]) -> None:
+    mesh_id = upload(client, hall_bytes).json()["id"]
+    job_id = submit(client, mesh_id, hall_parameters).json()["jobID"]
+    assert client.get(f"/jobs/{job_id}").json()["status"] == "successful"
+    answer = client.delete(f"/jobs/{job_id}")
+    assert answer.status_code == 200 and answer.json()["status"] == "dismissed"
+    assert_problem(client.get(f"/jobs/{job_id}"), 404)
+    assert_problem(client.get(f"/jobs/{job_id}/results/plan.json"), 404)
+    assert_problem(client.delete(f"/jobs/{job_id}"), 404)
 
 
 def test_job_list_filters_and_pages(tmp_path: Path, hall_bytes: bytes) -> None:
     with make_client(tmp_path, InlineQueue(hold=True), api_keys=[]) as client:
         mesh_id = upload(client, hall_bytes).json()["id"]
         ids = [submit(client, mesh_id, {}).json()["jobID"] for _ in range(3)]
-        client.delete(f"/jobs/{ids[0]}")
+        ids.append(submit(client, mesh_id, {}).json()["jobID"])
+        client.delete(f"/jobs/{ids[0]}")  # dismissed: no longer listed
         page = client.get("/jobs?limit=2").json()
         assert page["numberMatched"] == 3 and len(page["jobs"]) == 2
         assert any(link["rel"] == "next" for link in page["links"])
@@ -246,6 +275,20 @@ def test_process_lists_the_scanner_presets(client: TestClient) -> None:
     rtc360 = next(s for s in scanners if s["id"] == "leica-rtc360")
     assert rtc360["defaults"]["dof_max_m"] == 130.0
     assert all(s["sources"] or not s["defaults"] for s in scanners)  # no default unsourced
+    # the parameter's schema describes the instrument object, with its ranges
+    schema = client.get("/processes/scan-plan").json()["inputs"]["parameters"]["schema"]
+    profile = schema["$defs"]["ScannerProfileModel"]["properties"]
+    assert {"name", "measurement_rate_pts_s", "settings", "overhead_s"} <= set(profile)
+    rate = next(s for s in profile["measurement_rate_pts_s"]["anyOf"] if s["type"] == "number")
+    assert rate["minimum"] == 1
+
+
+def test_a_scanner_object_is_accepted(client: TestClient, hall_bytes: bytes) -> None:
+    mesh_id = upload(client, hall_bytes).json()["id"]
+    scanner = {"name": "crew", "measurement_rate_pts_s": 2e6, "overhead_s": 30, "settings": [
+        {"name": "fine", "point_spacing_m": 0.01, "reference_distance_m": 10}]}
+    response = submit(client, mesh_id, {"scanner": scanner})
+    assert response.status_code == 201, response.text
 
 
 def test_readyz(client: TestClient) -> None:
@@ -302,3 +345,14 @@ def test_verify_job_option_serves_the_simulated_scan(
     assert served["totals"] == expected["totals"]
     faces = np.load(io.BytesIO(client.get(results["faces.npz"]["href"]).content))
     assert "verified_lpd_pts_m2" in faces.files
+
+
+def test_a_query_parameter_given_twice_is_refused_unless_it_is_a_list(
+        client: TestClient) -> None:
+    # FastAPI would keep the last value silently; the schema says one value
+    answer = client.post("/meshes?filename=a.obj&filename=b.obj", content=b"v 0 0 0",
+                         headers={"content-type": "application/octet-stream"})
+    assert_problem(answer, 422, "filename", "more than once")
+    assert_problem(client.get("/jobs?limit=2&limit=3"), 422, "limit")
+    assert client.get("/jobs?status=accepted&status=running").status_code == 200
+    assert_problem(client.get("/jobs?offset=2703897329755260715008&limit=353"), 422, "offset")

@@ -64,13 +64,19 @@ def test_compose_has_embedded_service_and_scale_profile() -> None:
     services = compose["services"]
     assert "profiles" not in services["scanplan"]  # the default: one container
     assert "/data" in services["scanplan"]["volumes"][0]
-    for name in ("api", "worker", "redis", "postgres"):
+    for name in ("api", "worker", "redis", "postgres", "minio", "bucket"):
         assert services[name]["profiles"] == ["scale"], name
     assert services["worker"]["command"][:2] == ["scanplan", "worker"]
     assert services["api"]["command"][:2] == ["scanplan", "serve"]
-    env = services["worker"]["environment"]
-    assert env["SCANPLAN_QUEUE_URL"].startswith("redis://")
-    assert env["SCANPLAN_DATABASE_URL"].startswith("postgresql")
+    for name in ("api", "worker"):  # no shared disk: they meet in Redis, PostgreSQL, MinIO
+        assert "volumes" not in services[name], name
+        env = services[name]["environment"]
+        assert env["SCANPLAN_QUEUE_URL"].startswith("redis://")
+        assert env["SCANPLAN_DATABASE_URL"].startswith("postgresql")
+        assert env["SCANPLAN_STORE_URL"].startswith("s3://")
+        assert env["AWS_ENDPOINT_URL"] == "http://minio:9000"
+        assert services[name]["depends_on"]["bucket"]["condition"] == \
+            "service_completed_successfully"
 
 
 def test_serve_and_worker_options_are_documented() -> None:

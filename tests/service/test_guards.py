@@ -14,24 +14,10 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
+from tests.e2e.service_process import child_pids
 from tests.service.conftest import InlineQueue, make_client, submit, upload
 
 SCENES = Path(__file__).resolve().parents[2].parent / "shared" / "scenes"
-
-
-def _children(pid: int) -> list[int]:
-    """Live (non-zombie) child processes of ``pid``, from /proc."""
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid and fields[0] != "Z":
-            found.append(int(entry.name))
-    return found
 
 
 @pytest.fixture
@@ -95,17 +81,17 @@ def test_delete_frees_the_worker_within_2_s_in_every_stage(
             assert worker.is_alive(), client.get(f"/jobs/{job_id}").json()
             assert time.monotonic() < deadline, f"the job never reached {stage}"
             time.sleep(0.02)
-        children = _children(_pid())
+        children = child_pids(_pid())
         assert len(children) == 1, "the plan should run in one child process"
         assert _address_space_limit_mb(children[0]) == 4096, "the child runs unlimited"
         assert client.delete(f"/jobs/{job_id}").json()["status"] == "dismissed"
         worker.join(2.0)
         assert not worker.is_alive(), f"the worker was still busy 2 s after DELETE in {stage}"
-        assert _children(_pid()) == [], "the planning process outlived the DELETE"
+        assert child_pids(_pid()) == [], "the planning process outlived the DELETE"
     finally:
         worker.join()
-    status = client.get(f"/jobs/{job_id}").json()
-    assert status["status"] == "dismissed"
+    assert client.get(f"/jobs/{job_id}").status_code == 404  # dismissed: gone
+    assert queue.ctx.jobs.get(job_id).status == "dismissed"
     assert not list((queue.ctx.results_root).glob(f"*{job_id}*")), "files left behind"
 
 
@@ -126,7 +112,14 @@ def test_a_job_past_the_memory_limit_fails_and_the_worker_goes_on(
         assert status["status"] == "failed", status
         assert status["message"].startswith("out of memory"), status["message"]
         assert status["problem"]["type"].endswith("out-of-memory")
-        assert "SCANPLAN_JOB_MEMORY_LIMIT_MB" in status["problem"]["detail"]
+        detail = status["problem"]["detail"]
+        assert "SCANPLAN_JOB_MEMORY_LIMIT_MB" in detail
+        assert f"limit of {limit_mb:,} MiB" in detail and "MiB resident" in detail, detail
+        # out of memory is not retried: a re-run would end the same
+        [attempt] = status["attempt_log"]
+        assert status["attempts"] == 1 and attempt["outcome"] == "out of memory"
+        assert attempt["memory_limit_mib"] == limit_mb and attempt["peak_rss_mib"] > 0
+        assert queue.enqueued == [job_id]
         results = client.get(f"/jobs/{job_id}/results")
         assert results.status_code == 422
         assert results.headers["content-type"] == "application/problem+json"

@@ -42,6 +42,9 @@ def test_reaper_requeues_then_fails_as_worker_lost(tmp_path: Path) -> None:
     assert queue.enqueued == [job.id]
     assert final.status == "failed" and "worker lost" in final.message
     assert final.problem is not None and final.problem["type"].endswith("worker-lost")
+    assert final.attempt_log is not None
+    assert [(a["attempt"], a["outcome"]) for a in final.attempt_log] == [
+        (1, "worker lost"), (2, "worker lost")]
 
 
 def test_release_returns_the_job_without_using_an_attempt(tmp_path: Path) -> None:
@@ -52,3 +55,24 @@ def test_release_returns_the_job_without_using_an_attempt(tmp_path: Path) -> Non
     again = jobs.get(job.id)
     assert again is not None and again.status == "accepted" and again.attempts == 0
     assert Reaper(jobs, queue, settings).requeue_accepted() == 1
+
+
+def test_a_job_table_of_an_older_version_gains_the_attempt_log(tmp_path: Path) -> None:
+    import sqlite3
+
+    from service.database import jobs as table
+
+    old_columns = [c for c in table.columns if c.name != "attempt_log"]
+    with sqlite3.connect(tmp_path / "jobs.db") as db:  # the table as the last version made it
+        db.execute(f"CREATE TABLE jobs ({', '.join(c.name for c in old_columns)})")
+        db.execute("INSERT INTO jobs (id, owner, mesh_id, parameters, status, progress, "
+                   "message, created, updated, attempts) VALUES ('old', 'me', 'm', '{}', "
+                   "'successful', 100, 'done', 1, 1, 1)")
+    jobs, _, _ = _store(tmp_path)
+    old = jobs.get("old")
+    assert old is not None and old.status == "successful" and old.attempt_log is None
+    job, _ = jobs.create("me", "m" * 64, {})
+    assert jobs.claim(job.id, "t", "host:1")
+    assert jobs.finish(job.id, "t", "successful", message="done",
+                       attempt={"attempt": 1, "outcome": "successful"})
+    assert (jobs.get(job.id) or old).attempt_log == [{"attempt": 1, "outcome": "successful"}]

@@ -1,0 +1,290 @@
+"""Where a tripod really stands: placement tolerance and instrument heights.
+
+A plan's station is a point; on site the tripod lands up to ``placement_tolerance_m`` off it
+(a cable, a pallet, a door that opens the other way) and its head stands at the height the
+crew sets. This module gives
+
+- :func:`offsets_m`: the displaced setups evaluated for a position: the position itself and
+  ``OFFSET_DIRECTIONS`` = 8 points on the circle of radius ``placement_tolerance_m`` around
+  it (every 45 degrees from +X, counter-clockwise). On hall-full, 16 directions and an inner
+  ring at half the radius change no station's worst loss by more than the figures in the
+  README (``benchmarks/tolerance_cost.py`` prints the comparison);
+- :func:`displaced_positions`: those setups put on the floor: a displaced setup stands on
+  the floor under it when that floor is flat (as a generated candidate's, 30 degrees), lies
+  within ``SAME_FLOOR_M`` of the position's own floor (the gap that separates two levels
+  in :mod:`planner.method.candidates`: a table top or a stair step is another floor), has
+  head room up to ``clearance_m`` above the head, and passes the candidates' clearance and
+  inside-an-object tests (:func:`planner.method.candidates.unclear_mask`). Its head is at the
+  position's own height above the floor. Setups that cannot stand are not evaluated: no crew
+  sets up there;
+- :func:`kept_faces`: which of a position's faces still qualify from each displaced setup
+  (the same coverage model, limits and occlusion as the plan, tested only for the faces the
+  position qualifies for: the others cannot be lost);
+- :func:`robust_blocks`: the robust coverage table's rows (``robust: true``): a face counts
+  for a candidate only when it qualifies from the candidate and from every displaced setup
+  of it;
+- :func:`at_heights`: generated candidates at each of ``scanner_heights_m`` over the same
+  floor points, as separate candidates, height after height.
+
+Array letters: N positions, K displaced setups per position (K = 9, the first the position
+itself), F faces.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from planner.errors import NoCandidatesError
+from planner.method.candidates import (
+    _LEVEL_GAP_M,
+    _MAX_FLOOR_SLOPE_DEG,
+    DROP_REASONS,
+    CandidateSet,
+    unclear_mask,
+)
+from planner.method.coverage import CoverageTable, QualifiedPairs
+from planner.method.pairs import FaceLimits, in_block_order
+from planner.method.visibility import RayCaster
+from planner.parameters import PlanSpec
+from planner.scene import Scene
+
+OFFSET_DIRECTIONS = 8
+# a displaced setup stands on the position's own floor when the two floors are this close
+SAME_FLOOR_M = _LEVEL_GAP_M
+# the head room is tested from this far above the floor, as for generated candidates
+_LIFT_M = 0.01
+
+# (M, 3) positions, the limits with only the faces to test as targets -> the qualified
+# pairs, numbered by position (0 .. M - 1), under the plan's coverage model
+Qualify = Callable[[NDArray[np.float64], FaceLimits], Iterable[QualifiedPairs]]
+
+
+def offsets_m(tolerance_m: float, directions: int = OFFSET_DIRECTIONS,
+              rings: tuple[float, ...] = (1.0,)) -> NDArray[np.float64]:
+    """(K, 2) horizontal offsets: (0, 0), then ``directions`` points on each ring (a
+    fraction of ``tolerance_m``), every 360 / ``directions`` degrees from +X."""
+    angles = 2 * math.pi * np.arange(directions) / directions
+    circle = np.column_stack([np.cos(angles), np.sin(angles)])
+    rows = [np.zeros((1, 2))] + [circle * tolerance_m * ring for ring in rings]
+    offsets = np.concatenate(rows)
+    offsets[np.abs(offsets) < 1e-12] = 0.0  # cos 90 degrees is 6e-17: no "-0.0"
+    return offsets
+
+
+@dataclass(frozen=True, eq=False)
+class Displaced:
+    """The displaced setups of N positions.
+
+    Attributes
+    ----------
+    offsets_m : (K, 2) float64, horizontal offsets; row 0 is (0, 0), the position itself
+    positions : (N, K, 3) float64, the scanner's head at each setup
+    valid : (N, K) bool, the setup stands on the position's floor with room for a tripod
+        (row 0 always)
+    """
+
+    offsets_m: NDArray[np.float64]
+    positions: NDArray[np.float64]
+    valid: NDArray[np.bool_]
+
+
+def displaced_positions(scene: Scene, positions: NDArray[np.float64], tolerance_m: float,
+                        clearance_m: float, caster: RayCaster,
+                        offsets: NDArray[np.float64] | None = None) -> Displaced:
+    """The setups of :func:`offsets_m` around each of the (N, 3) ``positions``, on their
+    floors (see the module docstring). A position with no floor under it keeps only
+    itself."""
+    offsets = offsets_m(tolerance_m) if offsets is None else offsets
+    points = np.asarray(positions, np.float64).reshape(-1, 3)
+    n, k = len(points), len(offsets)
+    down = np.tile([0.0, 0.0, -1.0], (n, 1))
+    face, distance = caster.first_hit(points, down)
+    has_floor = face >= 0
+    floor_z = points[:, 2] - distance  # (N,) -inf where there is none
+    height = np.where(has_floor, points[:, 2] - floor_z, 0.0)  # (N,) head above floor
+    steep = math.cos(math.radians(_MAX_FLOOR_SLOPE_DEG))
+    moved = np.repeat(points[None], k, axis=0)  # (K, N, 3)
+    valid = np.zeros((k, n), bool)
+    valid[0] = True
+    for at in range(1, k):
+        heads = points + np.array([offsets[at, 0], offsets[at, 1], 0.0])
+        hit, drop = caster.first_hit(heads, down)
+        ok = has_floor & (hit >= 0)
+        ok[ok] = np.abs(scene.normals[hit[ok], 2]) >= steep
+        new_floor = heads[:, 2] - drop
+        ok &= np.abs(new_floor - floor_z) <= SAME_FLOOR_M
+        heads[:, 2] = np.where(ok, new_floor + height, heads[:, 2])
+        # nothing between just above the floor and clearance_m above the head
+        index = np.flatnonzero(ok)
+        start = np.column_stack([heads[index, :2], new_floor[index] + _LIFT_M])
+        _, room = caster.first_hit(start, -down[:len(index)])
+        ok[index] = room > height[index] + clearance_m - _LIFT_M
+        moved[at] = heads
+        valid[at] = ok
+    # inside an object, or an obstacle within clearance_m of the tripod: one pass for all
+    flat_points = moved[1:].reshape(-1, 3)
+    flat_valid = valid[1:].reshape(-1)
+    index = np.flatnonzero(flat_valid)
+    if len(index):
+        floors = flat_points[index, 2] - np.tile(height, k - 1)[index]
+        clear = unclear_mask(scene, flat_points[index], clearance_m,
+                             dict.fromkeys(DROP_REASONS, 0), floors)
+        flat_valid[index] = clear
+        valid[1:] = flat_valid.reshape(k - 1, n)
+    return Displaced(offsets_m=offsets, positions=np.ascontiguousarray(moved.transpose(1, 0, 2)),
+                     valid=np.ascontiguousarray(valid.T))
+
+
+def kept_faces(scene: Scene, displaced: Displaced,
+               faces_of: Callable[[int], NDArray[np.int32]], limits: FaceLimits,
+               qualify: Qualify, *, threads: int | None = None,
+               notify: Callable[[float], None] | None = None,
+               ) -> Iterator[tuple[NDArray[np.int32], NDArray[np.bool_]]]:
+    """Per position, in order: its faces to test (``faces_of(n)``, ascending) and (K, f)
+    bool, which of them qualify from each displaced setup. Setups that cannot stand
+    (``displaced.valid`` false) and the position itself keep every face.
+
+    Only the faces given are tested (the limits' targets are cut to them), so the cost is
+    K - 1 rays per face of the position, not per face of the model. ``notify`` gets the
+    fraction done after each position and may raise to stop.
+    """
+    def work(n: int) -> tuple[NDArray[np.int32], NDArray[np.bool_]]:
+        faces = np.asarray(faces_of(n), np.int32)
+        setups = np.flatnonzero(displaced.valid[n, 1:]) + 1
+        kept = np.ones((len(displaced.offsets_m), len(faces)), bool)
+        if len(faces) == 0 or len(setups) == 0:
+            return faces, kept
+        target = np.zeros(scene.n_faces, bool)
+        target[faces] = True
+        kept[setups] = False
+        for block in qualify(displaced.positions[n, setups],
+                             dataclasses.replace(limits, target=target)):
+            kept[setups[block.candidate], np.searchsorted(faces, block.face)] = True
+        return faces, kept
+
+    return in_block_order(work, range(len(displaced.positions)), threads=threads,
+                          notify=notify)
+
+
+def robust_blocks(scene: Scene, table: CoverageTable, displaced: Displaced,
+                  limits: FaceLimits, qualify: Qualify, *, disc_radius_m: float | None,
+                  threads: int | None = None, notify: Callable[[float], None] | None = None,
+                  ) -> Iterator[QualifiedPairs]:
+    """The rows of the robust coverage table, a candidate at a time: the faces of
+    ``table`` (each candidate's own) that qualify from every displaced setup of it too,
+    and (``disc_radius_m``, the centroid model) pass the analytic limits from every point
+    of the disc of that radius around it (:func:`disc_limits_hold`). The densities are not
+    kept (the table keeps only the pattern)."""
+    for candidate, (faces, kept) in enumerate(
+            kept_faces(scene, displaced, table.faces_of, limits, qualify, threads=threads,
+                       notify=notify)):
+        keep = kept.all(axis=0)
+        if disc_radius_m is not None:
+            keep &= disc_limits_hold(scene, limits, displaced.positions[candidate, 0], faces,
+                                     disc_radius_m)
+        robust = faces[keep]
+        yield QualifiedPairs(np.full(len(robust), candidate, np.int32), robust,
+                             np.zeros(len(robust), np.float32))
+
+
+def disc_limits_hold(scene: Scene, limits: FaceLimits, position: NDArray[np.float64],
+                     faces: NDArray[np.int32], radius_m: float) -> NDArray[np.bool_]:
+    """(f,) bool: the centroid of each of ``faces`` passes the analytic limits (range,
+    elevation, incidence, density) from every point of the horizontal disc of ``radius_m``
+    around ``position`` (the head at the same height), by bounds that hold over the disc:
+
+    - the horizontal distance h to the centroid lies in [h - r, h + r] (not below 0), so the
+      range in [hypot(h - r, dz), hypot(h + r, dz)], and the elevation's sine dz / range is
+      extreme at the two ends;
+    - the beam turns by at most asin(r / d) (d the distance from the disc's centre), so the
+      incidence is at least the centre's minus that angle, and the density at least
+      sin(that incidence) / (SPS * farthest range)^2.
+
+    The occlusion ray cannot be bounded this way: it is tested at the setups only.
+    """
+    offset = scene.centroids[faces] - position  # (f, 3)
+    dz = offset[:, 2]
+    horizontal = np.hypot(offset[:, 0], offset[:, 1])
+    distance = np.linalg.norm(offset, axis=1)
+    near = np.hypot(np.maximum(horizontal - radius_m, 0.0), dz)
+    far = np.hypot(horizontal + radius_m, dz)
+    ok = (near >= limits.dof_min_m) & (far <= limits.dof_max_m) & (distance > radius_m)
+    low = math.sin(math.radians(limits.elevation_min_deg))
+    high = math.sin(math.radians(limits.elevation_max_deg))
+    for reach in (near, far):
+        sine = np.divide(dz, reach, out=np.zeros_like(dz), where=reach > 0)
+        ok &= (sine >= low) & (sine <= high)
+    unit = offset / np.maximum(distance, 1e-12)[:, None]
+    incidence = np.arcsin(np.clip(np.abs(np.einsum("ij,ij->i", unit, scene.normals[faces])),
+                                  0.0, 1.0))
+    turn = np.arcsin(np.clip(radius_m / np.maximum(distance, 1e-12), 0.0, 1.0))
+    worst = np.sin(np.maximum(incidence - turn, 0.0))
+    ok &= worst >= np.sin(np.radians(limits.min_incidence_deg[faces]))
+    ok &= worst / (limits.angular_step_rad * far) ** 2 >= limits.min_density_pts_m2[faces]
+    return np.asarray(ok)
+
+
+def within_table(blocks: Iterable[QualifiedPairs], table: CoverageTable,
+                 stations: tuple[int, ...]) -> Iterator[QualifiedPairs]:
+    """The pairs of ``blocks`` (numbered by their place in ``stations``) that are in the
+    table's rows of those stations: a robust table credits a station fewer faces than it
+    qualifies for from its planned position."""
+    for block in blocks:
+        keep = np.zeros(len(block.face), bool)
+        for order in np.unique(block.candidate):
+            rows = np.flatnonzero(block.candidate == order)
+            keep[rows] = np.isin(block.face[rows], table.faces_of(stations[int(order)]),
+                                 assume_unique=True)
+        yield QualifiedPairs(block.candidate[keep], block.face[keep], block.lpd_pts_m2[keep])
+
+
+def at_heights(spec: PlanSpec, generate: Callable[[PlanSpec], CandidateSet]) -> CandidateSet:
+    """Generated candidates at every height of ``spec.heights_m``, height after height
+    (``generate`` places them with ``scanner_height_m`` set to each), with their heights.
+
+    The floor points are the same for every height; a point may drop out at one height and
+    not another (a shelf over the head at 1.8 m, not at 1.2 m). A height that leaves no
+    candidate at all is skipped when another does.
+    """
+    sets: list[CandidateSet] = []
+    heights: list[float] = []
+    failure: NoCandidatesError | None = None
+    for height in spec.heights_m:
+        try:
+            sets.append(generate(dataclasses.replace(spec, scanner_height_m=height)))
+        except NoCandidatesError as exc:
+            failure = failure or exc
+            continue
+        heights.append(height)
+    if not sets:
+        assert failure is not None
+        raise failure
+    heights_m = np.concatenate([np.full(len(s), h) for s, h in zip(sets, heights, strict=True)])
+    if len(sets) == 1:
+        return dataclasses.replace(sets[0], heights_m=heights_m)
+    dropped = {reason: sum(s.dropped.get(reason, 0) for s in sets) for reason in DROP_REASONS}
+    levels: list[dict[str, object]] | None = None
+    if any(s.levels is not None for s in sets):
+        merged: dict[str, dict[str, object]] = {}
+        for s in sets:
+            for level in s.levels or ():
+                entry = merged.setdefault(str(level["name"]), {**level, "candidates": 0})
+                entry["candidates"] = int(str(entry["candidates"])) + int(
+                    str(level["candidates"]))
+        levels = sorted(merged.values(), key=lambda level: float(str(level["floor_z_m"])))
+    spaces = sorted({name for s in sets for name in s.floor_from_space or ()})
+    return CandidateSet(
+        positions=np.concatenate([s.positions for s in sets]),
+        source=sets[0].source, considered=sum(s.considered for s in sets), dropped=dropped,
+        labels=tuple(label for s in sets for label in s.labels)
+        if all(s.labels for s in sets) else (),
+        levels=levels,
+        floor_from_space=tuple(spaces) if any(s.floor_from_space is not None for s in sets)
+        else None,
+        heights_m=heights_m)

@@ -1,0 +1,53 @@
+"""The Embree occlusion test: the fast-mode cast is left out only where it cannot change
+the verdict (a clear hit on an occluder), so every ray's verdict is that of both casts."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner.io.readers import read_scene
+from planner.method import _embree
+from planner.method.candidates import read_candidates_csv
+from planner.method.pairs import FaceLimits, PairFinder
+from planner.method.visibility import make_occlusion
+from planner.parameters import PlanSpec
+
+
+@pytest.mark.parametrize("model", ["hall-small/hall.obj", "IfcOpenHouse_IFC4.ifc"])
+def test_leaving_out_the_fast_cast_on_clear_hits_changes_no_verdict(
+    scenes_dir: Path, model: str, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    scene = read_scene(scenes_dir / model, max_edge_m=0.2, split_faces="all")
+    # at the registration overlap's density the rays reach through the rooms into walls
+    spec = PlanSpec(max_edge_m=0.2, min_density_pts_m2=1600.0)
+    limits = FaceLimits.from_spec(spec, scene)
+    occlusion = make_occlusion(scene, limits.occludes, "embree", file_faces=True)
+    assert isinstance(occlusion, _embree.EmbreeOcclusion)
+    if model.startswith("hall"):
+        positions = read_candidates_csv(scenes_dir / "hall-small/candidates.csv")[::40]
+    else:  # points in the house, 1.5 m over its lowest faces
+        low, high = scene.vertices.min(axis=0), scene.vertices.max(axis=0)
+        positions = np.array([[x, y, low[2] + 1.5] for x in np.linspace(low[0], high[0], 5)[1:-1]
+                              for y in np.linspace(low[1], high[1], 5)[1:-1]])
+    pairs, _ = PairFinder(scene, limits).find(positions, 0)
+    rays = (pairs.origin, pairs.direction, pairs.distance_m, pairs.face)
+    exact = pairs.exact_rays(positions, scene.centroids)
+    skipped = _embree.EmbreeOcclusion._clear_hits
+
+    def counted(self: _embree.EmbreeOcclusion, *args: np.ndarray) -> np.ndarray:
+        clear = skipped(self, *args)
+        counts.append(int(clear.sum()))
+        return clear
+
+    counts: list[int] = []
+    monkeypatch.setattr(_embree.EmbreeOcclusion, "_clear_hits", counted)
+    with_skips = occlusion.visible(*rays, exact_rays=exact)
+    monkeypatch.setattr(_embree.EmbreeOcclusion, "_clear_hits",
+                        lambda self, origins, *rest: np.zeros(len(origins), bool))
+    both_casts = occlusion.visible(*rays, exact_rays=exact)
+    np.testing.assert_array_equal(with_skips, both_casts)
+    assert sum(counts) > len(pairs) // 5  # the fast cast really was left out on many rays
+    assert 0 < with_skips.sum() < len(pairs)
