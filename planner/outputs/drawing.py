@@ -30,11 +30,12 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import shapely
 import trimesh
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -65,6 +66,8 @@ COVERED_HIGH_RGB = (0, 90, 50)  # best LPD >= COVERED_SATURATION x the requireme
 COVERED_SATURATION = 8.0
 CLASS_RGB = ((49, 163, 84), (240, 150, 20), (190, 30, 60), (200, 200, 200))
 STATION_RGB = (20, 60, 160)
+VISIT_RGB = (0.85, 0.35, 0.0)  # the walking route and visit numbers (matplotlib 0-1)
+EDGE_RGB = (0.15, 0.45, 0.15)  # registration edges
 # ring around a critical station (its worst setup within placement_tolerance_m breaks the goal)
 CRITICAL_RGB = (0.85, 0.1, 0.1)
 
@@ -225,7 +228,7 @@ def draw_preview(result: PlanResult) -> Preview:
     rgb = face_rgb(result.faces, result.limits.target, result.limits.min_density_pts_m2)
     classes = face_classes(result.faces, result.limits.target)
 
-    extents = [_level_extent(result, lv) for lv in shown]
+    extents = [level_extent(result, lv) for lv in shown]
     scale = _print_scale(extents, cell_w * width_in, cell_h * height_in)
     axes = []
     for i, (level, extent) in enumerate(zip(shown, extents, strict=True)):
@@ -235,7 +238,7 @@ def draw_preview(result: PlanResult) -> Preview:
         ax = fig.add_axes((left, bottom, cell_w, cell_h))
         _limits_at_scale(ax, extent, cell_w * width_in, cell_h * height_in, scale)
         _draw_level(ax, result, level, mesh, rgb, classes)
-        _scale_bar(ax)
+        scale_bar(ax)
         title = level.name or "plan"
         ax.set_title(f"{title}: section at {level.section_z:.2f} m, floor {level.floor_z:.2f} m"
                      if level.name else
@@ -257,7 +260,7 @@ def _png(fig: Figure) -> bytes:
     return buffer.getvalue()
 
 
-def _level_extent(result: PlanResult, level: Level) -> tuple[float, float, float, float]:
+def level_extent(result: PlanResult, level: Level) -> tuple[float, float, float, float]:
     """(xmin, ymin, xmax, ymax) of the faces of a level and its candidates, with a margin."""
     scene = result.scene
     cz = scene.centroids[:, 2]
@@ -298,30 +301,73 @@ def _limits_at_scale(ax: Axes, extent: tuple[float, float, float, float], width_
         spine.set_color("0.4")
 
 
-def _draw_level(ax: Axes, result: PlanResult, level: Level, mesh: Any,
-                rgb: NDArray[np.uint8], classes: NDArray[np.uint8]) -> None:
+def section_at(mesh: trimesh.Trimesh, z: float) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """The cut of ``mesh`` by the horizontal plane at height ``z``.
+
+    Returns (S, 2, 2) float64 segments (x, y of both ends) and (S,) int64 the face each
+    segment cuts.
+    """
+    lines, cut_faces = trimesh.intersections.mesh_plane(  # type: ignore[no-untyped-call]
+        mesh, plane_normal=[0.0, 0.0, 1.0], plane_origin=[0.0, 0.0, z], return_faces=True)
+    if not len(lines):
+        return np.zeros((0, 2, 2)), np.zeros(0, np.int64)
+    return np.asarray(lines)[:, :, :2], np.asarray(cut_faces, np.int64)
+
+
+def floor_faces(result: PlanResult, level: Level) -> NDArray[np.int64]:
+    """(T,) faces of ``level`` seen from above under its section, lowest first (the order
+    they are painted in)."""
     scene = result.scene
     cz = scene.centroids[:, 2]
     up = scene.normals[:, 2] >= _UP_NZ
     below = np.flatnonzero(up & (cz >= level.floor_z - 0.2) & (cz <= level.section_z))
-    below = below[np.argsort(cz[below], kind="stable")]
+    return below[np.argsort(cz[below], kind="stable")]
+
+
+def draw_surfaces(ax: Axes, result: PlanResult, below: NDArray[np.int64],
+                  segments: NDArray[np.float64], cut_faces: NDArray[np.int64],
+                  rgb: NDArray[np.uint8], *, rasterized: bool = False) -> None:
+    """Floor faces ``below`` painted in their colours, and the section ``segments``
+    (:func:`section_at`) as thick lines in the colours of the faces they cut over a thin
+    black core.
+
+    ``rasterized`` (for vector output: a PDF): the floor and the coloured lines become an
+    image, the black core is drawn as the segments joined into polylines (a few hundred
+    paths instead of one per cut face)."""
+    scene = result.scene
     if len(below):
         polys = scene.vertices[scene.faces[below]][:, :, :2]
         colours = rgb[below] / 255.0
         # one (T, 3, 2) array, not a list: matplotlib's fast path builds the T paths at once
         ax.add_collection(PolyCollection(polys,  # type: ignore[arg-type]  # stubs: lists only
                                          facecolors=colours, edgecolors=colours,
-                                         linewidths=0.0, antialiased=False, zorder=1))
-    lines, cut_faces = trimesh.intersections.mesh_plane(  # type: ignore[no-untyped-call]
-        mesh, plane_normal=[0.0, 0.0, 1.0], plane_origin=[0.0, 0.0, level.section_z],
-        return_faces=True)
-    if len(lines):
-        segments = np.asarray(lines)[:, :, :2]
+                                         linewidths=0.0, antialiased=False, zorder=1,
+                                         rasterized=rasterized))
+    if len(segments):
         ax.add_collection(LineCollection(list(segments),
-                                         colors=rgb[np.asarray(cut_faces)] / 255.0,
-                                         linewidths=3.2, capstyle="round", zorder=3))
-        ax.add_collection(LineCollection(list(segments), colors="black", linewidths=0.7,
+                                         colors=rgb[cut_faces] / 255.0,
+                                         linewidths=3.2, capstyle="round", zorder=3,
+                                         rasterized=rasterized))
+        core = joined_lines(segments) if rasterized else list(segments)
+        ax.add_collection(LineCollection(core, colors="black", linewidths=0.7,
                                          zorder=4))
+
+
+def joined_lines(segments: NDArray[np.float64], decimals: int = 6) -> list[NDArray[np.float64]]:
+    """The (S, 2, 2) segments joined end to end into polylines, each (N, 2), collinear
+    vertices dropped; ends equal to ``decimals`` places join."""
+    if not len(segments):
+        return []
+    ends = np.round(segments, decimals)
+    merged = shapely.line_merge(shapely.multilinestrings(list(ends)))
+    return [np.asarray(shapely.get_coordinates(shapely.simplify(line, 0.0)))
+            for line in shapely.get_parts(merged)]
+
+
+def _draw_level(ax: Axes, result: PlanResult, level: Level, mesh: Any,
+                rgb: NDArray[np.uint8], classes: NDArray[np.uint8]) -> None:
+    draw_surfaces(ax, result, floor_faces(result, level), *section_at(mesh, level.section_z),
+                  rgb)
     candidates = result.candidates.positions[level.candidates]
     ax.scatter(candidates[:, 0], candidates[:, 1], s=2.5, c=[(0.35, 0.35, 0.35)],
                linewidths=0, alpha=0.55, zorder=5)
@@ -341,7 +387,7 @@ def _draw_level(ax: Axes, result: PlanResult, level: Level, mesh: Any,
                                 zorder=6))
         label = str(order + 1)
         size = 15 if len(label) < 3 else 19
-        if _critical(result, order):  # the goal breaks without it in place: a red ring
+        if is_critical(result, order):  # the goal breaks without it in place: a red ring
             ax.plot([x], [y], marker="o", markersize=size + 7, markerfacecolor="none",
                     markeredgecolor=CRITICAL_RGB, markeredgewidth=2.2, linestyle="none",
                     zorder=8)
@@ -351,7 +397,7 @@ def _draw_level(ax: Axes, result: PlanResult, level: Level, mesh: Any,
                 fontsize=8 if len(label) < 3 else 7, fontweight="bold", zorder=9)
 
 
-def _critical(result: PlanResult, order: int) -> bool:
+def is_critical(result: PlanResult, order: int) -> bool:
     """The station's worst setup within the placement tolerance alone breaks the goal."""
     return result.tolerance is not None and result.tolerance.stations[order].critical
 
@@ -359,26 +405,35 @@ def _critical(result: PlanResult, order: int) -> bool:
 def _draw_survey(ax: Axes, result: PlanResult, level: Level, members: set[int]) -> None:
     """Registration edges (thin, dotted) and the walking route (legs, with visit numbers)."""
     assert result.survey is not None
+    draw_survey_lines(ax, result, level, members)
+    positions = result.candidates.positions
+    stations = result.chosen.stations
+    for order, candidate in enumerate(stations):
+        visit = result.survey.visit_of(order + 1)
+        if candidate in members and visit is not None:
+            x, y = positions[candidate, :2]
+            ax.annotate(f"v{visit}", (x, y), xytext=(8, 8), textcoords="offset points",
+                        fontsize=7, color=VISIT_RGB, fontweight="bold", zorder=9)
+
+
+def draw_survey_lines(ax: Axes, result: PlanResult, level: Level, members: set[int]) -> None:
+    """Registration edges between stations of ``level`` (thin, dotted) and the walking
+    route's legs within its height band."""
+    assert result.survey is not None
     positions = result.candidates.positions
     stations = result.chosen.stations
     for edge in result.survey.registration.edges:
         a, b = stations[edge.a - 1], stations[edge.b - 1]
         if edge.ok and a in members and b in members:
             ax.plot(positions[[a, b], 0], positions[[a, b], 1], linestyle=(0, (1, 2)),
-                    linewidth=0.9, color=(0.15, 0.45, 0.15), zorder=6)
+                    linewidth=0.9, color=EDGE_RGB, zorder=6)
     low, high = level.floor_z - 0.3, level.section_z
     for leg in result.survey.route.legs:
         path = np.asarray(leg.path)
         inside = (path[:, 2] >= low) & (path[:, 2] <= high)
         segments = [path[i:i + 2, :2] for i in range(len(path) - 1) if inside[i] and inside[i + 1]]
-        ax.add_collection(LineCollection(segments, colors=[(0.85, 0.35, 0.0)], linewidths=1.3,
+        ax.add_collection(LineCollection(segments, colors=[VISIT_RGB], linewidths=1.3,
                                          zorder=7))
-    for order, candidate in enumerate(stations):
-        visit = result.survey.visit_of(order + 1)
-        if candidate in members and visit is not None:
-            x, y = positions[candidate, :2]
-            ax.annotate(f"v{visit}", (x, y), xytext=(8, 8), textcoords="offset points",
-                        fontsize=7, color=(0.85, 0.35, 0.0), fontweight="bold", zorder=9)
 
 
 def _nice_length(span_m: float) -> float:
@@ -392,7 +447,7 @@ def _nice_length(span_m: float) -> float:
     return best
 
 
-def _scale_bar(ax: Axes) -> None:
+def scale_bar(ax: Axes) -> None:
     x0, x1 = ax.get_xlim()
     y0, y1 = ax.get_ylim()
     length = _nice_length(x1 - x0)
@@ -422,8 +477,22 @@ def _key(fig: Figure, result: PlanResult, scale: int) -> None:
              f"the {doc_totals['max']:.1f} m² coverable (goal "
              f"{result.spec.coverage_goal * 100:.0f} %)",
              fontsize=10.5, va="center")
-    # north arrow
-    nax = fig.add_axes((0.935, 0.86, 0.05, 0.1))
+    north_arrow(fig, (0.935, 0.86, 0.05, 0.1))
+    fig.text(0.755, 0.91, f"Scale 1:{scale} on A4", fontsize=10, fontweight="bold")
+    fig.text(0.755, 0.885, "north arrow = +Y axis of the model", fontsize=7, color="0.3")
+    fig.legend(handles=legend_handles(result), loc="upper left", bbox_to_anchor=(0.75, 0.865),
+               fontsize=7.5, frameon=False, handlelength=2.2, borderaxespad=0.0,
+               labelspacing=0.55)
+    lines = plan_lines(result)
+    # a sixth line (the scanner's field time) starts the block a line higher
+    fig.text(0.755, 0.47 + 0.022 * (len(lines) - 5), "\n".join(lines), fontsize=7.5, va="top",
+             linespacing=1.5)
+    _station_table(fig, result, top=0.355)
+
+
+def north_arrow(fig: Figure, rect: tuple[float, float, float, float]) -> None:
+    """A north arrow (+Y of the model) in ``rect`` (figure fractions)."""
+    nax = fig.add_axes(rect)
     nax.set_xlim(-1, 1)
     nax.set_ylim(-1, 1.4)
     nax.axis("off")
@@ -432,9 +501,10 @@ def _key(fig: Figure, result: PlanResult, scale: int) -> None:
                              "color": "black", "linewidth": 1.6})
     nax.text(0, 1.15, "N", ha="center", va="center", fontsize=12, fontweight="bold")
     nax.text(0, -1.05, "+Y", ha="center", va="top", fontsize=7)
-    fig.text(0.755, 0.91, f"Scale 1:{scale} on A4", fontsize=10, fontweight="bold")
-    fig.text(0.755, 0.885, "north arrow = +Y axis of the model", fontsize=7, color="0.3")
 
+
+def legend_handles(result: PlanResult) -> list[Any]:
+    """The legend of a plan view: face classes, section, candidates, stations, range."""
     reach = density_range_m(result.spec.min_density_pts_m2, result.spec.angular_step_rad)
     handles = [
         Patch(facecolor=_rgb(COVERED_LOW_RGB), label="covered, density at requirement"),
@@ -457,8 +527,12 @@ def _key(fig: Figure, result: PlanResult, scale: int) -> None:
     if math.isfinite(reach):
         handles.append(Line2D([], [], color=_rgb(STATION_RGB), linestyle=(0, (4, 3)),
                               alpha=0.7, label=f"head-on density range {reach:.2f} m"))
-    fig.legend(handles=handles, loc="upper left", bbox_to_anchor=(0.75, 0.865), fontsize=7.5,
-               frameon=False, handlelength=2.2, borderaxespad=0.0, labelspacing=0.55)
+    return handles
+
+
+def plan_lines(result: PlanResult) -> list[str]:
+    """The plan's model and scanner in a few lines: faces, areas, candidates, limits."""
+    doc_totals = _totals(result)
     spec = result.spec
     lines = [
         f"Faces {result.scene.n_faces:,}, area {doc_totals['total']:.1f} m²",
@@ -475,10 +549,7 @@ def _key(fig: Figure, result: PlanResult, scale: int) -> None:
         lines.append(f"{field_time.scanner}: scans {scan}, field time "
                      + ("unknown" if field_time.total_s is None
                         else f"{field_time.total_s / 60:.1f} min"))
-    # a sixth line (the scanner's field time) starts the block a line higher
-    fig.text(0.755, 0.47 + 0.022 * (len(lines) - 5), "\n".join(lines), fontsize=7.5, va="top",
-             linespacing=1.5)
-    _station_table(fig, result, top=0.355)
+    return lines
 
 
 def _totals(result: PlanResult) -> dict[str, float]:
@@ -490,28 +561,41 @@ def _totals(result: PlanResult) -> dict[str, float]:
             "total": float(result.scene.areas.sum())}
 
 
-def _station_table(fig: Figure, result: PlanResult, top: float) -> None:
+def station_rows(result: PlanResult, orders: Iterable[int], *, visit: bool = False) -> list[str]:
+    """A monospaced table of the stations at ``orders`` (0-based selection order), header
+    first: number, (visit,) model coordinates, new area, cumulative coverage."""
     chosen = result.chosen
     max_area = chosen.max_achievable_area_m2
     # with a scanner: the setting each station is scanned at and its scan time
     scans = () if result.survey is None else result.survey.scans
-    rows = ["  no.      x       y       z   new m²  cum. %"
+    rows = [("  no. visit" if visit else "  no.") + "      x       y       z   new m²  cum. %"
             + (" setting   scan" if scans else "")]
-    limit = 14
     # the plan view is drawn levelled (up_axis); the table gives the model's coordinates
     positions = to_model(scene_rotation(result.scene.metadata), result.candidates.positions)
-    for order, candidate in enumerate(chosen.stations[:limit]):
-        x, y, z = positions[candidate]
+    for order in orders:
+        x, y, z = positions[chosen.stations[order]]
         fraction = chosen.covered_area_m2[order] / max_area * 100 if max_area else 0.0
-        row = (f"{order + 1:5d} {x:7.2f} {y:7.2f} {z:6.2f} {chosen.new_area_m2[order]:8.2f}"
-               f" {fraction:7.1f}")
+        place = ""
+        if visit:
+            number = None if result.survey is None else result.survey.visit_of(order + 1)
+            place = f" {'-' if number is None else number:>5}"
+        row = (f"{order + 1:5d}{place} {x:7.2f} {y:7.2f} {z:6.2f} "
+               f"{chosen.new_area_m2[order]:8.2f} {fraction:7.1f}")
         if scans:
             scan = scans[order]
             seconds = "?" if scan.scan_s is None else f"{scan.scan_s:.0f}s"
             row += f" {(scan.setting or 'plan')[:8]:<8}{seconds:>6}"
-        if _critical(result, order):
+        if is_critical(result, order):
             row += " crit."
         rows.append(row)
+    return rows
+
+
+def _station_table(fig: Figure, result: PlanResult, top: float) -> None:
+    chosen = result.chosen
+    limit = 14
+    rows = station_rows(result, range(min(limit, len(chosen.stations))))
+    scans = () if result.survey is None else result.survey.scans
     if len(chosen.stations) > limit:
         rows.append(f"  ... {len(chosen.stations) - limit} more in stations.csv")
     fig.text(0.755, top, "Stations (model coordinates, m)", fontsize=8, fontweight="bold",

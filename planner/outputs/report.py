@@ -15,6 +15,9 @@ Outputs of :func:`write_outputs` (the names the service serves too):
 - ``candidates.csv``: every candidate considered, ``x,y,z``;
 - ``elements.csv``, ``elements.json``: coverage per BIM element (IFC models only, see
   :mod:`planner.outputs.bim`); a renderer that returns None writes no file;
+- the pictures: ``preview.png``, ``curve.png`` (:mod:`planner.outputs.drawing`),
+  ``coverage.glb`` (:mod:`planner.outputs.glb`), ``plan.dxf`` (CAD drawing,
+  :mod:`planner.outputs.cad`) and ``plan.pdf`` (print set, :mod:`planner.outputs.printset`).
 - ``plan.ifc`` (IFC models only, :mod:`planner.outputs.ifc_plan`; :func:`absent_outputs`
   says why it is missing) and ``plan.bcf`` (:mod:`planner.outputs.bcf_plan`): the plan
   back in the BIM.
@@ -243,6 +246,8 @@ OUTPUTS: dict[str, Callable[[PlanResult], bytes | None]] = {
     "preview.png": lambda result: _lazy("drawing", "preview_png", result),
     "curve.png": lambda result: _lazy("drawing", "curve_png", result),
     "coverage.glb": lambda result: _lazy("glb", "coverage_glb", result),
+    "plan.dxf": lambda result: _lazy("cad", "plan_dxf", result),
+    "plan.pdf": lambda result: _lazy("printset", "plan_pdf", result),
     "plan.ifc": lambda result: _lazy("ifc_plan", "plan_ifc", result),
     "plan.bcf": lambda result: _lazy("bcf_plan", "plan_bcf", result),
 }
@@ -259,8 +264,8 @@ def absent_outputs(result: PlanResult) -> dict[str, str]:
 # Pictures: slow to render and not what a BIM platform waits for, so they are drawn in
 # background threads while the data files are written, and land on disk after them. One
 # thread per group: matplotlib is not thread-safe, so its two pictures share one thread;
-# coverage.glb (numpy and meshopt, which release the GIL) has its own.
-PICTURE_GROUPS = (("preview.png", "curve.png"), ("coverage.glb",))
+# coverage.glb (numpy and meshopt, which release the GIL) has its own, so has plan.dxf.
+PICTURE_GROUPS = (("preview.png", "curve.png", "plan.pdf"), ("coverage.glb",), ("plan.dxf",))
 
 
 def write_outputs(result: PlanResult, out_dir: str | Path,

@@ -36,6 +36,11 @@ MEDIA_TYPES = {
     ".json": "application/json", ".csv": "text/csv; charset=utf-8", ".png": "image/png",
     ".glb": "model/gltf-binary", ".npz": "application/octet-stream",
     ".npy": "application/octet-stream", ".parquet": "application/vnd.apache.parquet",
+    # the plan for BIM and CAD programs: IFC (STEP physical file, ISO 10303-21), the DXF
+    # drawing (IANA image/vnd.dxf), the print set; a BCF file is a zip archive that only BIM
+    # tools open, served as plain bytes so browsers save it under its name
+    ".ifc": "application/x-step", ".bcf": "application/octet-stream",
+    ".dxf": "image/vnd.dxf", ".pdf": "application/pdf",
 }
 
 
@@ -154,7 +159,12 @@ def get_results(job_id: str, services: ServicesDep, owner: OwnerDep) -> JobResul
             responses={200: {"content": {"application/octet-stream": {}}}, 304: {}})
 def get_output(job_id: str, output: str, request: Request, services: ServicesDep,
                owner: OwnerDep) -> Response:
-    """One output file, with ETag (its sha256) and Range support."""
+    """One output file, with ETag (its sha256) and Range support.
+
+    Served with its media type: ``plan.json`` application/json, CSVs text/csv, PNGs
+    image/png, ``coverage.glb`` model/gltf-binary, ``plan.dxf`` image/vnd.dxf, ``plan.pdf``
+    application/pdf, ``plan.ifc`` application/x-step, ``plan.bcf`` (a zip) and ``faces.npz``
+    application/octet-stream."""
     job = _job(services, owner, job_id)
     if job.status != SUCCESSFUL or job.outputs is None:
         raise ResultNotReadyError(f"job {job_id} is {job.status}; results come once it is "

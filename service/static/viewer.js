@@ -266,6 +266,14 @@ function showStationTable(stations) {
   $('stations').hidden = stations.length === 0;
 }
 
+// the plan in the formats of BIM and CAD programs, each linked when the job wrote it
+const BIM_FILES = {
+  'plan.ifc': 'the input model with a survey annotation per station (IFC input only)',
+  'plan.bcf': 'BCF 3.0 topics: a viewpoint per station, uncoverable elements',
+  'plan.dxf': 'CAD drawing in metres, a layer set per storey',
+  'plan.pdf': 'print set: A3 sheets per storey at 1:50, 1:100 or 1:200',
+};
+
 // the goal breaks when this station alone lands at its worst setup (plan.json tolerance)
 function isCritical(station) {
   return Boolean(station && station.tolerance && station.tolerance.critical);
@@ -277,15 +285,26 @@ function criticalOrder(order) {
 }
 
 function showFiles() {
-  const p = $('files').querySelector('p');
+  const [p, bim] = [$('files').querySelector('p'), $('bim-files')];
   p.replaceChildren();
+  bim.replaceChildren();
   const first = ['preview.png', 'curve.png', 'coverage.glb', 'plan.json', 'stations.csv',
     'faces.npz', 'verification.json'];
   const names = outputs.size ? [...first.filter((n) => outputs.has(n)),
-    ...[...outputs].filter((n) => !first.includes(n)).sort()] : first.slice(0, -1);
-  for (const name of names) {
-    p.append(el('a', { href: `${basePath()}${jobPath}/results/${name}`, text: name }), ' ');
+    ...[...outputs].filter((n) => !first.includes(n) && !(n in BIM_FILES)).sort()]
+    : first.slice(0, -1);
+  const link = (name, title = '') => el('a', {
+    href: `${basePath()}${jobPath}/results/${name}`, text: name, ...(title ? { title } : {}) });
+  for (const name of names) p.append(link(name), ' ');
+  const present = Object.keys(BIM_FILES).filter((n) => outputs.has(n));
+  if (present.length) {
+    bim.append('For BIM and CAD programs: ');
+    for (const name of present) bim.append(link(name, BIM_FILES[name]), ' ');
+    if (!outputs.has('plan.ifc') && plan && plan.scene && plan.scene.format !== 'ifc') {
+      bim.append(el('span', { class: 'muted', text: '(no plan.ifc: the model was not IFC)' }));
+    }
   }
+  bim.hidden = present.length === 0;
   $('files').hidden = false;
 }
 

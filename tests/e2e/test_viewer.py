@@ -182,6 +182,12 @@ def test_viewer_of_a_finished_job(server: tuple[str, InlineQueue], scenes_dir: P
 
     assert page.locator("#status-badge").inner_text() == "successful"
     assert "stations" in page.locator("#totals").inner_text()
+    # the drawing and the print set are linked for CAD; a mesh gets no plan.ifc, and is told
+    bim = page.locator("#bim-files")
+    for name in ("plan.dxf", "plan.pdf"):
+        href = bim.locator(f'a:text-is("{name}")').get_attribute("href") or ""
+        assert href.endswith(f"/results/{name}"), href
+    assert "no plan.ifc: the model was not IFC" in bim.inner_text()
     assert page.locator("#class-toggles input").count() == 4
     stations = page.evaluate("window.scanplanViewer.stations()")
     assert len(stations) >= 1

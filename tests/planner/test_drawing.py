@@ -15,7 +15,7 @@ from scipy import ndimage
 from planner.io.readers import read_scene
 from planner.method.candidates import CandidateSet, read_candidates_csv
 from planner.outputs import drawing
-from planner.outputs.report import OUTPUTS, faces_npz, write_outputs
+from planner.outputs.report import OUTPUTS, PICTURE_GROUPS, faces_npz, write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
 
@@ -154,7 +154,8 @@ def test_data_files_land_before_pictures(result: PlanResult, tmp_path: Path) -> 
     names = [p.name for p in written]
     assert names == [name for name in OUTPUTS if (tmp_path / name).exists()]  # OUTPUTS order
     assert names[0] == "plan.json"
-    pictures = {"preview.png", "curve.png", "coverage.glb"}
+    pictures = {name for group in PICTURE_GROUPS for name in group}
+    assert {"preview.png", "curve.png", "coverage.glb", "plan.dxf", "plan.pdf"} == pictures
     assert pictures <= set(names)
     modified = {p.name: p.stat().st_mtime_ns for p in written}
     assert max(t for n, t in modified.items() if n not in pictures) <= min(

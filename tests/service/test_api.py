@@ -14,6 +14,7 @@ from planner.io.readers import read_scene
 from planner.outputs.report import write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
+from service.routes.jobs import media_type
 from tests.service.conftest import InlineQueue, make_client, submit, upload
 
 PROBLEM = "application/problem+json"
@@ -87,6 +88,24 @@ def test_output_headers_etag_and_range(client: TestClient, hall_bytes: bytes,
     assert client.get(f"{base}/stations.csv",
                       headers={"if-none-match": etag}).status_code == 304
     assert_problem(client.get(f"{base}/nope.txt"), 404, "plan.json")
+
+
+def test_cad_outputs_are_served_with_their_media_types(client: TestClient, hall_bytes: bytes,
+                                                       hall_parameters: dict[str, Any]) -> None:
+    """plan.dxf and plan.pdf are job results like the others; plan.ifc and plan.bcf, when a
+    job wrote them, are served as STEP and as bytes."""
+    mesh_id = upload(client, hall_bytes).json()["id"]
+    job_id = submit(client, mesh_id, hall_parameters).json()["jobID"]
+    results = client.get(f"/jobs/{job_id}/results").json()
+    for name, media, magic in (("plan.dxf", "image/vnd.dxf", b"  0\nSECTION"),
+                               ("plan.pdf", "application/pdf", b"%PDF-")):
+        assert results[name]["type"] == media
+        served = client.get(results[name]["href"])
+        assert served.status_code == 200, name
+        assert served.headers["content-type"] == media
+        assert served.content.startswith(magic) and len(served.content) == results[name]["bytes"]
+    assert media_type("plan.ifc") == "application/x-step"
+    assert media_type("plan.bcf") == "application/octet-stream"
 
 
 @pytest.mark.parametrize(("body", "status", "word"), [
