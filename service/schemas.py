@@ -373,5 +373,6 @@ class JobResults(RootModel[dict[str, dict[str, Any]]]):
     """``GET /jobs/{id}/results`` (OGC ``results.yaml``): output id -> value or link.
 
     ``plan`` is the plan inline (the content of plan.json); every file output (``plan.json``,
-    ``faces.npz``, ...) is a link ``{href, type, bytes, sha256}``.
+    ``faces.npz``, ...) is a link ``{href, type, bytes, sha256}``; an output this input
+    cannot have is ``{absent: why}`` (``plan.ifc`` of a mesh).
     """

@@ -47,10 +47,15 @@ APPLICATION = "scanplan"
 
 def absent_reason(result: PlanResult) -> str | None:
     """Why this plan has no ``plan.ifc`` (None: it has one)."""
-    fmt = str(result.scene.metadata.get("format", ""))
-    if fmt != "ifc":
+    return reason_without_ifc(str(result.scene.metadata.get("format", "")))
+
+
+def reason_without_ifc(input_format: str) -> str | None:
+    """Why a plan of an input in ``input_format`` (plan.json ``scene.format``) has no
+    ``plan.ifc``; None for IFC."""
+    if input_format != "ifc":
         return (f"plan.ifc is the input IFC model with the stations added; this input is "
-                f"{fmt.upper() or 'not IFC'}, which has no IFC model to add them to "
+                f"{input_format.upper() or 'not IFC'}, which has no IFC model to add them to "
                 "(plan.bcf carries the stations for any input)")
     return None
 

@@ -59,7 +59,9 @@ def test_plan_equals_in_process_plan(client: TestClient, hall: Path, hall_bytes:
     assert any(link["href"].endswith("/viewer") for link in status["links"])
     results = client.get(f"/jobs/{job_id}/results").json()
     assert results["plan"]["totals"]["stations"] >= 1
-    assert set(results) >= {"plan", "plan.json", "faces.npz", "stations.csv"}
+    assert set(results) >= {"plan", "plan.json", "faces.npz", "stations.csv", "plan.bcf"}
+    # a mesh has no IFC model to add the stations to: the results say so instead of a link
+    assert "OBJ" in results["plan.ifc"]["absent"] and "href" not in results["plan.ifc"]
 
     spec = PlanSpec.from_mapping(hall_parameters)
     scene = read_scene(hall / "hall.obj", max_edge_m=spec.max_edge_m)
