@@ -14,7 +14,8 @@ side by side with a yard between them:
 - the stairs: a scissor stair (flights alternately along +x and -x in two strips, under a
   hole through every upper slab); unit A's flights are steps of ``RISER_M`` x ``TREAD_M``,
   unit B's flights are sloped solids (wedges) at the same pitch;
-- the two units are joined only outside, through their front doors.
+- the two units are joined only outside, through their front doors;
+- ``furnished``: a desk in every room (a 1.6 x 0.8 m top at 0.76 m on four legs).
 
 Every part is a box (or a wedge); each box side is cut into a grid of squares whose
 triangles' edges are at most ``max_edge_m`` long, so the face count is a parameter:
@@ -26,6 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import trimesh
@@ -44,6 +46,7 @@ TREAD_M = 0.28
 FLIGHT_Y_M = 1.2  # width of one flight; the two strips of a scissor stair side by side
 LANDING_M = 1.2  # free floor before and after the flights
 YARD_M = 6.0  # between the two units
+DESK_M = (1.6, 0.8, 0.76)  # top size and height
 
 Box = tuple[tuple[float, float, float], tuple[float, float, float]]
 
@@ -114,7 +117,16 @@ def _slab(x0: float, x1: float, y0: float, y1: float, top: float,
             ((hx0, y0, bottom), (hx1, hy0, top)), ((hx0, hy1, bottom), (hx1, y1, top))]
 
 
-def _unit_parts(unit: Unit, floors: int, rooms_per_side: int
+def _desk(cx: float, cy: float, z0: float) -> list[Box]:
+    """A desk centred on (cx, cy) standing on the floor at z0: a top and four legs."""
+    w, d, h = DESK_M
+    top = ((cx - w / 2, cy - d / 2, z0 + h - 0.04), (cx + w / 2, cy + d / 2, z0 + h))
+    legs = [((x, y, z0), (x + 0.05, y + 0.05, z0 + h - 0.04))
+            for x in (cx - w / 2, cx + w / 2 - 0.05) for y in (cy - d / 2, cy + d / 2 - 0.05)]
+    return [top, *legs]
+
+
+def _unit_parts(unit: Unit, floors: int, rooms_per_side: int, furnished: bool
                 ) -> tuple[list[Box], list[Box], list[NDArray[np.float64]]]:
     """(boxes, door leaves, wedges as (6, 3) corner arrays) of one unit."""
     oy = unit.origin_y_m
@@ -155,6 +167,11 @@ def _unit_parts(unit: Unit, floors: int, rooms_per_side: int
         for walls, doors in parts:
             boxes += walls
             leaves += doors
+        if furnished:
+            for i in range(rooms_per_side):
+                cx = i * ROOM_X_M + ROOM_X_M / 2
+                boxes += _desk(cx, oy + ROOM_Y_M / 2, z0)
+                boxes += _desk(cx, north - ROOM_Y_M / 2, z0)
         if k == floors - 1:
             continue
         # the flight from storey k to k + 1: along +x in the south strip on even storeys,
@@ -196,12 +213,12 @@ def _triangle(points: NDArray[np.float64], cell_m: float | None
     longest = max(np.linalg.norm(p1 - p0), np.linalg.norm(p2 - p1), np.linalg.norm(p0 - p2))
     n = 1 if cell_m is None else max(1, math.ceil(longest / cell_m))
     index: dict[tuple[int, int], int] = {}
-    vertices = []
+    vertices: list[NDArray[np.float64]] = []
     for i in range(n + 1):
         for j in range(n + 1 - i):
             index[i, j] = len(vertices)
             vertices.append(p0 + (p1 - p0) * i / n + (p2 - p0) * j / n)
-    faces = []
+    faces: list[list[int]] = []
     for i in range(n):
         for j in range(n - i):
             faces.append([index[i, j], index[i + 1, j], index[i, j + 1]])
@@ -242,14 +259,14 @@ def _wedge_sides(w: NDArray[np.float64]
     return fixed, tris
 
 
-def office_parts(floors: int = 3, rooms_per_side: int = 4
+def office_parts(floors: int = 3, rooms_per_side: int = 4, furnished: bool = True
                  ) -> tuple[list[Box], list[Box], list[NDArray[np.float64]]]:
     """Boxes, door leaves and wedges of the whole building (both units)."""
     boxes: list[Box] = []
     leaves: list[Box] = []
     wedges: list[NDArray[np.float64]] = []
     for unit in units(rooms_per_side):
-        b, d, w = _unit_parts(unit, floors, rooms_per_side)
+        b, d, w = _unit_parts(unit, floors, rooms_per_side, furnished)
         boxes += b
         leaves += d
         wedges += w
@@ -257,7 +274,8 @@ def office_parts(floors: int = 3, rooms_per_side: int = 4
 
 
 def office_building(floors: int = 3, rooms_per_side: int = 4,
-                    max_edge_m: float | None = None) -> trimesh.Trimesh:
+                    max_edge_m: float | None = None, furnished: bool = True
+                    ) -> trimesh.Trimesh:
     """The office (see the module docstring) as one plain mesh.
 
     Parameters
@@ -267,10 +285,11 @@ def office_building(floors: int = 3, rooms_per_side: int = 4,
         ``unit_length_m(rooms_per_side)`` long and 12 m deep
     max_edge_m : no triangle edge is longer; None: two triangles a box side (the
         coarsest mesh)
+    furnished : a desk in every room
     """
     if floors < 1 or rooms_per_side < 1:
         raise ValueError("floors and rooms_per_side must be at least 1")
-    boxes, leaves, wedges = office_parts(floors, rooms_per_side)
+    boxes, leaves, wedges = office_parts(floors, rooms_per_side, furnished)
     cell_m = None if max_edge_m is None else max_edge_m / math.sqrt(2.0)
     vertices: list[NDArray[np.float64]] = []
     faces: list[NDArray[np.int64]] = []
@@ -294,12 +313,32 @@ def office_building(floors: int = 3, rooms_per_side: int = 4,
     return trimesh.Trimesh(np.concatenate(vertices), np.concatenate(faces), process=False)
 
 
-def office_area_m2(floors: int = 3, rooms_per_side: int = 4) -> float:
+def office_area_m2(floors: int = 3, rooms_per_side: int = 4, furnished: bool = True
+                   ) -> float:
     """Total surface area of the office's parts (what :func:`max_edge_for_faces` divides)."""
-    return float(office_building(floors, rooms_per_side).area)
+    return float(office_building(floors, rooms_per_side, furnished=furnished).area)
 
 
-def max_edge_for_faces(faces: int, floors: int = 3, rooms_per_side: int = 4) -> float:
+def max_edge_for_faces(faces: int, floors: int = 3, rooms_per_side: int = 4,
+                       furnished: bool = True) -> float:
     """``max_edge_m`` that gives :func:`office_building` about ``faces`` faces: a square
     of side max_edge_m / sqrt(2) holds two triangles, so faces ~ 4 area / max_edge_m^2."""
-    return math.sqrt(4.0 * office_area_m2(floors, rooms_per_side) / faces)
+    return math.sqrt(4.0 * office_area_m2(floors, rooms_per_side, furnished) / faces)
+
+
+def export_plain_mesh(ifc_path: str | Path, out_path: str | Path) -> Path:
+    """Write the IFC model's triangles to ``out_path`` (.obj or .ply) as a plain mesh: no
+    IFC classes, no groups, no elements (what a BIM tool's mesh export without semantics
+    gives). The geometry is IfcOpenShell's, as :func:`planner.io.ifc.read_ifc` reads it."""
+    from planner.io.ifc import read_ifc
+
+    scene = read_ifc(ifc_path)
+    mesh = trimesh.Trimesh(np.asarray(scene.vertices), np.asarray(scene.faces), process=False)
+    out_path = Path(out_path)
+    if out_path.suffix == ".obj":  # vertices and faces only: no o/g lines, no normals
+        lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in mesh.vertices.tolist()]
+        lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in mesh.faces.tolist()]
+        out_path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    else:
+        mesh.export(out_path)
+    return out_path
