@@ -215,7 +215,7 @@ def walkable_levels(
     The lowest *surface* under a point is the underside of a thick ground slab in many
     exported models, where "lowest" finds no floor at all; the lowest *level* is the first
     flat surface with head room. Reachable means: the candidate's floor point lies on a
-    node of the walk graph (:mod:`planner.survey.walkgraph`: floor samples linked within a
+    node of the walk graph (:mod:`planner.method.walkgraph`: floor samples linked within a
     step and free at knee height, so stairs join storeys) whose connected component also
     holds a floor point of the lowest level. A machine or table top is a flat surface with
     head room, but no step leads onto it.
@@ -223,7 +223,7 @@ def walkable_levels(
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
-    from planner.survey.walkgraph import build_walk_graph
+    from planner.method.walkgraph import build_walk_graph
 
     levels_dropped = dict.fromkeys(DROP_REASONS, 0)
     positions, level_of = place_on_levels(scene, xy, spec, caster, levels_dropped)

@@ -1,3 +1,4 @@
 """What a crew needs to run a plan: scanner presets (``scanners``), registration overlap
-(``registration``), where a person can walk (``walkgraph``), the visiting order
-(``route``), and the three put together with the field time (``fieldwork``)."""
+(``registration``), the visiting order and its walk (``route``, on the walk graph of
+:mod:`planner.method.walkgraph`), and the three put together with the field time
+(``fieldwork``)."""

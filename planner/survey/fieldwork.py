@@ -27,7 +27,7 @@ from planner.survey.registration import (
     station_registration,
 )
 from planner.survey.route import Route, plan_route
-from planner.survey.walkgraph import build_walk_graph, door_faces
+from planner.method.walkgraph import build_walk_graph, door_faces
 
 DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the preset gives one
 

@@ -26,7 +26,7 @@ from planner.survey.registration import (
     station_registration,
 )
 from planner.survey.route import exact_open_tour, open_tour, plan_route
-from planner.survey.walkgraph import KNEE_HEIGHT_M, build_walk_graph, segment_free
+from planner.method.walkgraph import KNEE_HEIGHT_M, build_walk_graph, segment_free
 from tests.planner.survey_scenes import (
     MEZZANINE_Z_M,
     boxes_scene,
