@@ -18,6 +18,7 @@ from planner.io.orientation import scene_rotation, to_plan
 from planner.memory import release_freed_memory
 from planner.method.pairs import FaceLimits
 from planner.method.visibility import Occlusion, RayCaster, make_ray_caster
+from planner.method.walkgraph import build_walk_graph, door_faces
 from planner.parameters import PlanSpec
 from planner.scene import Scene
 from planner.survey.registration import (
@@ -27,7 +28,6 @@ from planner.survey.registration import (
     station_registration,
 )
 from planner.survey.route import Route, plan_route
-from planner.method.walkgraph import build_walk_graph, door_faces
 
 DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the preset gives one
 

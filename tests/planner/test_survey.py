@@ -16,6 +16,7 @@ from planner.io.readers import read_scene
 from planner.method import connectivity
 from planner.method.candidates import read_candidates_csv
 from planner.method.visibility import make_occlusion, make_ray_caster
+from planner.method.walkgraph import KNEE_HEIGHT_M, build_walk_graph, segment_free
 from planner.outputs.report import plan_document, stations_csv
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
@@ -26,7 +27,6 @@ from planner.survey.registration import (
     station_registration,
 )
 from planner.survey.route import exact_open_tour, open_tour, plan_route
-from planner.method.walkgraph import KNEE_HEIGHT_M, build_walk_graph, segment_free
 from tests.planner.survey_scenes import (
     MEZZANINE_Z_M,
     boxes_scene,
