@@ -110,9 +110,10 @@ class PlanParameters(BaseModel):
                             "of its stations: verification.json and verified faces.npz arrays")
     area_of_interest: list[Point2] | None = _d(
         "area_of_interest", "polygon [x, y] the generated candidates stay in; null: all")
-    floor_levels: Literal["walkable", "lowest", "all"] = _d(
-        "floor_levels", "grid on the lowest floor and the levels reached from it on foot, "
-        "on the lowest surface only, or on every flat surface with head room (meshes)")
+    floor_levels: Literal["storeys", "walkable", "lowest", "all"] = _d(
+        "floor_levels", "grid on every storey (floor area and head room, not furniture), "
+        "on the lowest floor and the levels reached from it on foot, on the lowest surface "
+        "only, or on every flat surface with head room (meshes)")
     storeys: list[str] | None = _d("storeys", "IFC storeys to plan for; null: all")
     rooms: list[str] | None = _d("rooms", "IFC spaces to plan for; null: all")
     scanner: str | None = _d("scanner", "scanner preset id (GET /processes/scan-plan lists "

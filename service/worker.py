@@ -10,6 +10,7 @@ worker died and fails them as "worker lost" after their last attempt.
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import multiprocessing
 import os
@@ -173,11 +174,24 @@ def execute_job(ctx: WorkerContext, job_id: str) -> None:
         ctx.jobs.finish(job_id, token, FAILED, message="internal error",
                         problem=problem_for(exc, instance=instance))
     else:
-        if ctx.jobs.finish(job_id, token, SUCCESSFUL, message="done", timings=timings,
-                           outputs=outputs):
+        if ctx.jobs.finish(job_id, token, SUCCESSFUL, message=_done_message(ctx, job_id),
+                           timings=timings, outputs=outputs):
             log.info("job %s: successful", job_id)
         else:  # dismissed while the files were moved into place
             shutil.rmtree(results_dir(ctx.settings, job_id), ignore_errors=True)
+
+
+def _done_message(ctx: WorkerContext, job_id: str) -> str:
+    """"done", and the storeys planned and what was left out when there is more than one
+    level (:func:`planner.method.candidates.levels_line`)."""
+    from planner.method.candidates import levels_line
+
+    try:
+        plan_doc = json.loads((results_dir(ctx.settings, job_id) / "plan.json").read_text())
+        line = levels_line(plan_doc["candidates"].get("levels"))
+    except (OSError, ValueError, KeyError):
+        line = None
+    return "done" if line is None else f"done; {line}"
 
 
 def _run_plan(ctx: WorkerContext, job: JobRecord,

@@ -1,11 +1,24 @@
 """Where a person with a tripod can walk: a graph of floor samples built from the model.
 
 Floor samples: a grid of vertical rays (``WALK_GRID_M`` apart) is cast down through the
-whole model, level after level; a hit on a near-horizontal face (``|n_z| >= cos 35 deg``)
-with ``HEADROOM_M`` free above it is a node. Two nodes in neighbouring grid columns (8
-neighbours) are linked when their floor heights differ by at most ``STEP_M`` (so stairs join
-storeys without any IFC semantics) and the straight segment between them at
-``KNEE_HEIGHT_M`` above the floor hits nothing. The link costs its 3D length.
+whole model, level after level; a hit on a face flatter than ``MAX_WALK_SLOPE_DEG`` with
+``HEADROOM_M`` free above it is a node. Two nodes in neighbouring grid columns (8
+neighbours) are linked when their floor heights differ by at most ``STEP_M`` and the
+straight segment between them at ``KNEE_HEIGHT_M`` above the floor hits nothing. The link
+costs its 3D length. So, without any IFC semantics:
+
+- stairs join storeys whether modelled as steps (a riser is at most ``STEP_M`` between
+  samples), as a sloped solid or as a ramp (up to ``MAX_WALK_SLOPE_DEG``, steeper than any
+  stair: a ship's ladder or a wall is not walked);
+- doors are passable whatever the leaf's modelled position: the walk rays skip door faces
+  (:func:`door_faces`: IFC doors by class; in a plain mesh a closed leaf in a wall opening,
+  found by :func:`mesh_door_faces`). IfcOpeningElement voids are never part of the mesh;
+- around the outside at ground level: in a model without terrain, the ground plane at the
+  lowest indoor floor (the lowest floor sample with something over it) is walkable
+  outside the footprint and ``OUTSIDE_MARGIN_M`` around the model (*ground nodes*, after
+  the model's own nodes), wherever a column has no surface below that height plus
+  ``HEADROOM_M``; a model with its own terrain is walked on that terrain instead. Units or
+  wings joined only through their front doors are joined.
 
 Array letters: N nodes, E links.
 """
@@ -23,28 +36,99 @@ from planner.method.visibility import RayCaster
 from planner.scene import Scene
 
 WALK_GRID_M = 0.25  # floor sample spacing; finer than a stair tread (~0.26-0.30 m)
+OUTSIDE_MARGIN_M = 1.0  # ground walked around a model without terrain
 MAX_COLUMNS = 400_000  # the grid coarsens on very large models to stay within this
 KNEE_HEIGHT_M = 0.5  # the link must be free at this height above the floor
 # largest floor height change between neighbouring samples: a stair riser is <= 0.19 m in
 # most building codes; two risers can fall between samples 0.25 m apart on steep stairs
 STEP_M = 0.4
 HEADROOM_M = 1.8  # free height a person needs above a floor sample
-_MIN_FLOOR_NZ = math.cos(math.radians(35.0))  # steeper than 35 deg is a wall, not a floor
+# steepest walked surface: a stair modelled as a sloped solid has the stair's pitch, at most
+# 42 deg for a private stair (Building Regulations 2010, Approved Document K, 2013 edition,
+# Table 1.1 note 1; https://stairplan.com/stair-plan-catalogues/BUILDING-REGULATIONS-
+# DOCUMENT-K-2013-STAIRS/WebSearch/page0015.html); steeper than 45 deg is a ladder or a wall
+MAX_WALK_SLOPE_DEG = 45.0
+_MIN_FLOOR_NZ = math.cos(math.radians(MAX_WALK_SLOPE_DEG))
 _LINKS_PER_BLOCK = 1 << 18
-_MAX_LEVELS = 8  # floors stacked over one grid column (storeys, stairs, roofs)
+_MAX_LEVELS = 32  # surfaces followed down one grid column (slabs, furniture, stairs, roofs)
 _EPS_M = 1e-3
 
 
 # IFC classes modelled closed that a survey crew opens: people walk and scanners see through
 OPEN_DOOR_CLASSES = ("IfcDoor",)
+# a door leaf in a plain mesh (mesh_door_faces): a thin upright panel of a door's size whose
+# two ends meet the jambs of a wall opening
+DOOR_THICKNESS_MAX_M = 0.12
+DOOR_WIDTH_M = (0.5, 2.6)  # one leaf to a double door
+DOOR_HEIGHT_M = (1.8, 2.6)
+DOOR_JAMB_GAP_MAX_M = 0.15  # from the panel's end to the jamb, at the panel's mid-height
 
 
-def door_faces(scene: Scene) -> NDArray[np.bool_]:
-    """(F,) bool: faces of IFC doors (all False for a mesh without elements)."""
+def door_faces(scene: Scene, caster: RayCaster | None = None) -> NDArray[np.bool_]:
+    """(F,) bool: faces of doors. IFC models: the faces of ``OPEN_DOOR_CLASSES``
+    elements. Plain meshes (no elements): with a ``caster`` over every face, the closed
+    leaves in wall openings of :func:`mesh_door_faces`; without one, none."""
     if not scene.elements:
-        return np.zeros(scene.n_faces, bool)
+        if caster is None:
+            return np.zeros(scene.n_faces, bool)
+        return mesh_door_faces(scene, caster)
     door = np.array([e.ifc_class in OPEN_DOOR_CLASSES for e in scene.elements] + [False])
     result: NDArray[np.bool_] = door[scene.face_element]  # -1 picks the trailing False
+    return result
+
+
+def mesh_door_faces(scene: Scene, caster: RayCaster) -> NDArray[np.bool_]:
+    """(F,) bool: the faces of closed door leaves in a mesh without semantics.
+
+    The rule: a *part* (faces joined by shared vertices, in the file's mesh) is a door
+    when it is an upright panel (``DOOR_HEIGHT_M`` tall, ``DOOR_WIDTH_M`` wide along its
+    main horizontal axis, at most ``DOOR_THICKNESS_MAX_M`` thick across it) and, at its
+    mid-height, a horizontal ray from each of its two ends outward along the panel meets
+    something within ``DOOR_JAMB_GAP_MAX_M``: the panel fills a gap in a wall. A door
+    frame exported as a thin part of its own counts too (its faces are the door's, as in
+    IFC). A leaf modelled open (swung into the room) does not fill the opening and stays
+    an obstacle where it stands; the opening itself is free. A thin partition of door
+    size between two walls is taken for a door: a rule from geometry alone cannot tell
+    them apart.
+    """
+    from scipy.sparse.csgraph import connected_components
+
+    vertices, faces = scene.file_mesh
+    n_vertices = len(vertices)
+    edges = sp.coo_matrix(
+        (np.ones(2 * len(faces), np.int8),
+         (np.concatenate([faces[:, 0], faces[:, 1]]), np.concatenate([faces[:, 1], faces[:, 2]]))),
+        shape=(n_vertices, n_vertices))
+    n_parts, part_of_vertex = connected_components(edges, directed=False)
+    del edges
+    lo = np.full((n_parts, 3), np.inf)
+    hi = np.full((n_parts, 3), -np.inf)
+    np.minimum.at(lo, part_of_vertex, vertices)
+    np.maximum.at(hi, part_of_vertex, vertices)
+    size = hi - lo
+    tall = (size[:, 2] >= DOOR_HEIGHT_M[0]) & (size[:, 2] <= DOOR_HEIGHT_M[1])
+    small = np.hypot(size[:, 0], size[:, 1]) <= math.hypot(DOOR_WIDTH_M[1],
+                                                            DOOR_THICKNESS_MAX_M)
+    door_part = np.zeros(n_parts, bool)
+    for part in np.flatnonzero(tall & small):
+        xy = vertices[part_of_vertex == part, :2]
+        centre = xy.mean(axis=0)
+        _, axes = np.linalg.eigh((xy - centre).T @ (xy - centre))
+        across, along = axes[:, 0], axes[:, 1]
+        t = (xy - centre) @ along
+        thickness = float(np.ptp((xy - centre) @ across))
+        width = float(np.ptp(t))
+        if thickness > DOOR_THICKNESS_MAX_M or not DOOR_WIDTH_M[0] <= width <= DOOR_WIDTH_M[1]:
+            continue
+        z = (lo[part, 2] + hi[part, 2]) / 2
+        ends = np.array([[*(centre + (t.max() + _EPS_M) * along), z],
+                         [*(centre + (t.min() - _EPS_M) * along), z]])
+        outward = np.array([[*along, 0.0], [*(-along), 0.0]])
+        _, gap = caster.first_hit(ends, outward)
+        door_part[part] = bool((gap <= DOOR_JAMB_GAP_MAX_M).all())
+    on_file = door_part[part_of_vertex[faces[:, 0]]]
+    result: NDArray[np.bool_] = on_file[scene.source_face] if scene.file_faces is not None \
+        else on_file
     return result
 
 
@@ -54,22 +138,38 @@ class WalkGraph:
 
     Attributes
     ----------
-    floor_xyz : (N, 3) float64, floor points (metres)
+    floor_xyz : (N, 3) float64, floor points (metres); the model's own floor samples
+        first, then the ground nodes (``n_ground`` of them)
     links : (N, N) CSR float64, symmetric, link length in metres
     """
 
     floor_xyz: NDArray[np.float64]
     links: sp.csr_matrix
     grid_m: float
+    n_ground: int = 0
 
     @property
     def n_nodes(self) -> int:
         return len(self.floor_xyz)
 
 
-def _floor_samples(scene: Scene, caster: RayCaster, grid_m: float
-                   ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
-    """(N, 3) floor points and their (N,) grid column indices ix, iy."""
+@dataclass(frozen=True, eq=False)
+class _Samples:
+    """Floor samples of a grid of columns (see :func:`_floor_samples`)."""
+
+    floor_xyz: NDArray[np.float64]  # (N, 3)
+    ix: NDArray[np.int64]  # (N,) grid column of each sample
+    iy: NDArray[np.int64]
+    covered: NDArray[np.bool_]  # (N,) something over the sample (not open sky)
+    lowest_z: NDArray[np.float64]  # (nx, ny) lowest surface of a column; -inf unknown
+    nx: int
+    ny: int
+
+
+def _floor_samples(scene: Scene, caster: RayCaster, grid_m: float) -> _Samples:
+    """The floor samples of the grid over the model's footprint, ordered by column, then
+    height; the lowest surface of every column (+inf: none; -inf: more surfaces than
+    followed)."""
     lo, hi = scene.bounds
     nx = math.floor((hi[0] - lo[0]) / grid_m) + 1
     ny = math.floor((hi[1] - lo[1]) / grid_m) + 1
@@ -77,10 +177,12 @@ def _floor_samples(scene: Scene, caster: RayCaster, grid_m: float
     ix, iy = grid_x.ravel(), grid_y.ravel()
     xy = np.stack([lo[0] + (ix + 0.5) * grid_m, lo[1] + (iy + 0.5) * grid_m], axis=1)
     z = np.full(len(xy), hi[2] + 1.0)
+    lowest = np.full(len(xy), np.inf)
     down = np.tile([0.0, 0.0, -1.0], (len(xy), 1))
     up = np.tile([0.0, 0.0, 1.0], (len(xy), 1))
     points: list[NDArray[np.float64]] = []
     columns: list[NDArray[np.int64]] = []
+    covered: list[NDArray[np.bool_]] = []
     alive = np.arange(len(xy))
     for _ in range(_MAX_LEVELS):
         origins = np.column_stack([xy[alive], z[alive]])
@@ -91,20 +193,51 @@ def _floor_samples(scene: Scene, caster: RayCaster, grid_m: float
             break
         floor = origins.copy()
         floor[:, 2] -= distance
+        lowest[alive] = floor[:, 2]
         horizontal = np.abs(scene.normals[face, 2]) >= _MIN_FLOOR_NZ
         above = floor + np.array([0.0, 0.0, _EPS_M * 10])
         _, free = caster.first_hit(above, up[: len(above)])
         keep = horizontal & (free >= HEADROOM_M)
         points.append(floor[keep])
         columns.append(alive[keep])
+        covered.append(np.isfinite(free[keep]))
         z[alive] = floor[:, 2] - _EPS_M  # continue below this surface
+    else:
+        lowest[alive] = -np.inf  # surfaces left below: the lowest one is not known
+    lowest_z = lowest.reshape(nx, ny)
     if not points:
-        return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return _Samples(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                        np.zeros(0, bool), lowest_z, nx, ny)
     floor_xyz = np.concatenate(points)
     column = np.concatenate(columns)
     order = np.lexsort((floor_xyz[:, 2], column))  # by column, then height: deterministic
     floor_xyz, column = floor_xyz[order], column[order]
-    return floor_xyz, ix[column], iy[column]
+    return _Samples(floor_xyz, ix[column], iy[column], np.concatenate(covered)[order],
+                    lowest_z, nx, ny)
+
+
+def _ground_nodes(scene: Scene, samples: _Samples, grid_m: float
+                  ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """(G, 3) ground nodes and their (G,) grid columns (which may lie outside the model's
+    grid, by up to ``OUTSIDE_MARGIN_M``): see the module docstring."""
+    indoor = samples.floor_xyz[samples.covered, 2]
+    if len(indoor) == 0:
+        return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    ground_z = float(indoor.min())
+    margin = math.ceil(OUTSIDE_MARGIN_M / grid_m)
+    nx, ny = samples.nx, samples.ny
+    grid_x, grid_y = np.meshgrid(np.arange(-margin, nx + margin),
+                                 np.arange(-margin, ny + margin), indexing="ij")
+    ix, iy = grid_x.ravel(), grid_y.ravel()
+    inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+    lowest = np.full(len(ix), np.inf)
+    lowest[inside] = samples.lowest_z[ix[inside], iy[inside]]
+    free = lowest > ground_z + HEADROOM_M
+    ix, iy = ix[free], iy[free]
+    lo = scene.bounds[0]
+    xyz = np.column_stack([lo[0] + (ix + 0.5) * grid_m, lo[1] + (iy + 0.5) * grid_m,
+                           np.full(len(ix), ground_z)])
+    return xyz, ix.astype(np.int64), iy.astype(np.int64)
 
 
 def segment_free(caster: RayCaster, a: NDArray[np.float64], b: NDArray[np.float64]
@@ -121,26 +254,39 @@ def segment_free(caster: RayCaster, a: NDArray[np.float64], b: NDArray[np.float6
     return free
 
 
-def build_walk_graph(scene: Scene, caster: RayCaster) -> WalkGraph:
-    """The walk graph of ``scene`` (see the module docstring)."""
+def build_walk_graph(scene: Scene, caster: RayCaster, *, ground: bool = True) -> WalkGraph:
+    """The walk graph of ``scene`` (see the module docstring); ``ground``: add the ground
+    nodes of a model without terrain."""
     lo, hi = scene.bounds
     columns = ((hi[0] - lo[0]) / WALK_GRID_M + 1) * ((hi[1] - lo[1]) / WALK_GRID_M + 1)
     grid_m = WALK_GRID_M * max(1.0, math.sqrt(columns / MAX_COLUMNS))
-    floor_xyz, ix, iy = _floor_samples(scene, caster, grid_m)
+    samples = _floor_samples(scene, caster, grid_m)
+    floor_xyz, ix, iy = samples.floor_xyz, samples.ix, samples.iy
+    n_ground = 0
+    if ground:
+        ground_xyz, ground_ix, ground_iy = _ground_nodes(scene, samples, grid_m)
+        n_ground = len(ground_xyz)
+        floor_xyz = np.concatenate([floor_xyz, ground_xyz])
+        ix, iy = np.concatenate([ix, ground_ix]), np.concatenate([iy, ground_iy])
     n = len(floor_xyz)
     # nodes by grid column: a neighbour column's nodes are found by a sorted-key search
+    # (columns shifted to start at 0; the model's own samples are sorted already)
+    shift_x, shift_y = (int(ix.min()), int(iy.min())) if n else (0, 0)
+    ix, iy = ix - shift_x, iy - shift_y
     width = int(iy.max()) + 2 if n else 1
     key = ix * width + iy
+    by_key = np.lexsort((floor_xyz[:, 2], key))
+    sorted_key = key[by_key]
     rows: list[NDArray[np.int64]] = []
     cols: list[NDArray[np.int64]] = []
     for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
         target = (ix + dx) * width + (iy + dy)
-        start = np.searchsorted(key, target, side="left")
-        stop = np.searchsorted(key, target, side="right")
+        start = np.searchsorted(sorted_key, target, side="left")
+        stop = np.searchsorted(sorted_key, target, side="right")
         counts = stop - start
         a = np.repeat(np.arange(n), counts)
-        b = (np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-             + np.repeat(start, counts))
+        b = by_key[np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+                   + np.repeat(start, counts)]
         close = np.abs(floor_xyz[a, 2] - floor_xyz[b, 2]) <= STEP_M
         rows.append(a[close])
         cols.append(b[close])
@@ -159,4 +305,4 @@ def build_walk_graph(scene: Scene, caster: RayCaster) -> WalkGraph:
     links = sp.coo_matrix((np.concatenate([length, length]),
                            (np.concatenate([a, b]), np.concatenate([b, a]))),
                           shape=(n, n)).tocsr()
-    return WalkGraph(floor_xyz=floor_xyz, links=links, grid_m=grid_m)
+    return WalkGraph(floor_xyz=floor_xyz, links=links, grid_m=grid_m, n_ground=n_ground)

@@ -86,9 +86,11 @@ def field_time(spec: PlanSpec, n_stations: int, route: Route) -> FieldTime:
 def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool
                  ) -> RayCaster:
     """Rays for walking: every face blocks (glass too, which coverage may see through)
-    except doors; the coverage caster is reused when it blocks exactly those faces.
-    ``file_faces``: cast against the file's faces, as the plan's rays (``occluders``)."""
-    blocks = ~door_faces(scene)
+    except doors (IFC doors; in a plain mesh the closed leaves in wall openings, found with
+    the coverage ``caster``); the coverage caster is reused when it blocks exactly those
+    faces. ``file_faces``: cast against the file's faces, as the plan's rays
+    (``occluders``)."""
+    blocks = ~door_faces(scene, caster)
     if np.array_equal(blocks, limits.occludes):
         return caster
     return make_ray_caster(scene, blocks, file_faces=file_faces)
