@@ -14,11 +14,12 @@ costs its 3D length. So, without any IFC semantics:
   (:func:`door_faces`: IFC doors by class; in a plain mesh a closed leaf in a wall opening,
   found by :func:`mesh_door_faces`). IfcOpeningElement voids are never part of the mesh;
 - around the outside at ground level: in a model without terrain, the ground plane at the
-  lowest indoor floor (the lowest floor sample with something over it) is walkable
-  outside the footprint and ``OUTSIDE_MARGIN_M`` around the model (*ground nodes*, after
-  the model's own nodes), wherever a column has no surface below that height plus
-  ``HEADROOM_M``; a model with its own terrain is walked on that terrain instead. Units or
-  wings joined only through their front doors are joined.
+  ground floor (the lowest floor sample with something over it next to a column with
+  nothing in it, a threshold; without one the lowest floor sample with something over it)
+  is walkable outside the footprint and ``OUTSIDE_MARGIN_M`` around the model (*ground
+  nodes*, after the model's own nodes), wherever a column has no surface below that
+  height plus ``HEADROOM_M``; a model with its own terrain is walked on that terrain
+  instead. Units or wings joined only through their front doors are joined.
 
 Array letters: N nodes, E links.
 """
@@ -62,6 +63,7 @@ DOOR_THICKNESS_MAX_M = 0.12
 DOOR_WIDTH_M = (0.5, 2.6)  # one leaf to a double door
 DOOR_HEIGHT_M = (1.8, 2.6)
 DOOR_JAMB_GAP_MAX_M = 0.15  # from the panel's end to the jamb, at the panel's mid-height
+_WELD_M = 1e-3  # vertices this close are one when the mesh is cut into parts
 
 
 def door_faces(scene: Scene, caster: RayCaster | None = None) -> NDArray[np.bool_]:
@@ -80,7 +82,8 @@ def door_faces(scene: Scene, caster: RayCaster | None = None) -> NDArray[np.bool
 def mesh_door_faces(scene: Scene, caster: RayCaster) -> NDArray[np.bool_]:
     """(F,) bool: the faces of closed door leaves in a mesh without semantics.
 
-    The rule: a *part* (faces joined by shared vertices, in the file's mesh) is a door
+    The rule: a *part* (faces joined by shared corners, within 1 mm, in the file's mesh)
+    is a door
     when it is an upright panel (``DOOR_HEIGHT_M`` tall, ``DOOR_WIDTH_M`` wide along its
     main horizontal axis, at most ``DOOR_THICKNESS_MAX_M`` thick across it) and, at its
     mid-height, a horizontal ray from each of its two ends outward along the panel meets
@@ -94,13 +97,25 @@ def mesh_door_faces(scene: Scene, caster: RayCaster) -> NDArray[np.bool_]:
     from scipy.sparse.csgraph import connected_components
 
     vertices, faces = scene.file_mesh
-    n_vertices = len(vertices)
+    # vertices at the same place are one (1 mm): exports often repeat a solid's corners
+    # per side, and a leaf must be one part
+    grid = np.round(vertices / _WELD_M).astype(np.int64)
+    by_place = np.lexsort((grid[:, 2], grid[:, 1], grid[:, 0]))
+    new_place = np.r_[True, (np.diff(grid[by_place], axis=0) != 0).any(axis=1)]
+    welded = np.empty(len(vertices), np.int64)
+    welded[by_place] = np.cumsum(new_place) - 1
+    del grid, by_place, new_place
+    corners = welded[faces]  # (F0, 3)
+    n_vertices = int(welded.max()) + 1
     edges = sp.coo_matrix(
-        (np.ones(2 * len(faces), np.int8),
-         (np.concatenate([faces[:, 0], faces[:, 1]]), np.concatenate([faces[:, 1], faces[:, 2]]))),
+        (np.ones(2 * len(corners), np.int8),
+         (np.concatenate([corners[:, 0], corners[:, 1]]),
+          np.concatenate([corners[:, 1], corners[:, 2]]))),
         shape=(n_vertices, n_vertices))
-    n_parts, part_of_vertex = connected_components(edges, directed=False)
+    del corners
+    n_parts, part_of_welded = connected_components(edges, directed=False)
     del edges
+    part_of_vertex = part_of_welded[welded]  # per vertex of the file
     lo = np.full((n_parts, 3), np.inf)
     hi = np.full((n_parts, 3), -np.inf)
     np.minimum.at(lo, part_of_vertex, vertices)
@@ -110,8 +125,10 @@ def mesh_door_faces(scene: Scene, caster: RayCaster) -> NDArray[np.bool_]:
     small = np.hypot(size[:, 0], size[:, 1]) <= math.hypot(DOOR_WIDTH_M[1],
                                                             DOOR_THICKNESS_MAX_M)
     door_part = np.zeros(n_parts, bool)
+    by_part = np.argsort(part_of_vertex, kind="stable")
+    first = np.searchsorted(part_of_vertex[by_part], np.arange(n_parts + 1))
     for part in np.flatnonzero(tall & small):
-        xy = vertices[part_of_vertex == part, :2]
+        xy = vertices[by_part[first[part]:first[part + 1]], :2]
         centre = xy.mean(axis=0)
         _, axes = np.linalg.eigh((xy - centre).T @ (xy - centre))
         across, along = axes[:, 0], axes[:, 1]
@@ -220,12 +237,21 @@ def _ground_nodes(scene: Scene, samples: _Samples, grid_m: float
                   ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
     """(G, 3) ground nodes and their (G,) grid columns (which may lie outside the model's
     grid, by up to ``OUTSIDE_MARGIN_M``): see the module docstring."""
-    indoor = samples.floor_xyz[samples.covered, 2]
-    if len(indoor) == 0:
+    covered = samples.covered
+    if not covered.any():
         return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64)
-    ground_z = float(indoor.min())
-    margin = math.ceil(OUTSIDE_MARGIN_M / grid_m)
     nx, ny = samples.nx, samples.ny
+    # the ground floor: the lowest indoor floor at the building's edge, next to a column
+    # with nothing in it (a threshold); a basement is walled in. Else the lowest indoor floor
+    empty = np.ones((nx + 2, ny + 2), bool)  # a ring of empty columns around the grid
+    empty[1:-1, 1:-1] = np.isposinf(samples.lowest_z)
+    at_edge = np.zeros(len(covered), bool)
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            at_edge |= empty[samples.ix + 1 + dx, samples.iy + 1 + dy]
+    edge_floor = covered & at_edge
+    ground_z = float(samples.floor_xyz[edge_floor if edge_floor.any() else covered, 2].min())
+    margin = math.ceil(OUTSIDE_MARGIN_M / grid_m)
     grid_x, grid_y = np.meshgrid(np.arange(-margin, nx + margin),
                                  np.arange(-margin, ny + margin), indexing="ij")
     ix, iy = grid_x.ravel(), grid_y.ravel()

@@ -324,7 +324,10 @@ def test_model_without_a_floor_leaves_every_station_unreachable() -> None:
     caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
     graph = build_walk_graph(scene, caster)
     route = plan_route(graph, caster, np.array([[0.0, 0.0, 1.5], [1.0, 0.0, 1.5]]), None)
-    assert route.to_dict() == {"visits": [], "length_m": 0.0, "legs": [], "unreachable": [1, 2]}
+    document = route.to_dict()
+    reasons = document.pop("unreachable_reasons")
+    assert document == {"visits": [], "length_m": 0.0, "legs": [], "unreachable": [1, 2]}
+    assert list(reasons) == ["1", "2"] and all(r.startswith("no floor") for r in reasons.values())
 
 
 def test_shared_sums_equal_the_dense_masked_product() -> None:
