@@ -140,8 +140,8 @@ def test_every_storey_of_the_office_gets_candidates_and_desks_are_listed_not_pla
                            & (candidates.positions[:, 1] > unit.origin_y_m)
                            & (candidates.positions[:, 1] < unit.origin_y_m + ROOM_Y_M))
                 assert in_room.sum() >= 4, (unit, k, room)
-    desks = [lv for lv in candidates.levels if lv.get("excluded", "").startswith("raised")
-             and abs(float(lv["floor_z_m"]) % STOREY_M - buildings.DESK_M[2]) < 0.01]
+    desks = [lv for lv in candidates.levels if str(lv.get("excluded")).startswith("raised")
+             and abs(float(str(lv["floor_z_m"])) % STOREY_M - buildings.DESK_M[2]) < 0.01]
     assert desks, candidates.levels
     line = levels_line(candidates.levels)
     assert line is not None and line.startswith("2 storeys planned (+0.00 m: ")
