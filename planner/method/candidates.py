@@ -4,8 +4,9 @@ The grid lies in the XY plane at multiples of ``grid_spacing_m`` (so a model mov
 whole number of cells gets the same points), inside the optional ``area_of_interest``
 polygon. Each point is put ``scanner_height_m`` above the floor under it, found by casting a
 ray up from below the model (the lowest surface is the floor; multi-storey IFC models use
-their rooms instead, see :mod:`planner.io.ifc`). A point is dropped, and counted under its
-reason, when
+their rooms instead, see :mod:`planner.io.ifc`); with ``floor_levels`` "storeys" (the
+default) on every storey too, told from furniture by :func:`storey_levels`. A point is
+dropped, and counted under its reason, when
 
 - ``outside_area_of_interest``: not covered by the polygon (boundary counts as inside);
 - ``no_floor``: nothing under it, or the surface under it is steeper than 30 degrees;
@@ -76,7 +77,8 @@ class CandidateSet:
     considered : grid points before any was dropped (C for explicit candidates)
     dropped : count per reason in ``DROP_REASONS``
     labels : per candidate, e.g. the room and storey it stands in (empty when unknown)
-    levels : ``floor_levels`` "all": name, floor height and candidate count per level
+    levels : name, floor height (and for "storeys" area) and candidate count per level,
+        and for "storeys" the levels left out with the reason (``excluded``)
     floor_from_space : room candidates: the rooms without a slab, standing on their
         IfcSpace's bottom
     """

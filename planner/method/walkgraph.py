@@ -63,7 +63,7 @@ DOOR_THICKNESS_MAX_M = 0.12
 DOOR_WIDTH_M = (0.5, 2.6)  # one leaf to a double door
 DOOR_HEIGHT_M = (1.8, 2.6)
 DOOR_JAMB_GAP_MAX_M = 0.15  # from the panel's end to the jamb, at the panel's mid-height
-_WELD_M = 1e-3  # vertices this close are one when the mesh is cut into parts
+_DOOR_BOX_M = 1e-3  # a part within a door panel's box, enlarged by this, is the door's
 
 
 def door_faces(scene: Scene, caster: RayCaster | None = None) -> NDArray[np.bool_]:
@@ -82,12 +82,14 @@ def door_faces(scene: Scene, caster: RayCaster | None = None) -> NDArray[np.bool
 def mesh_door_faces(scene: Scene, caster: RayCaster) -> NDArray[np.bool_]:
     """(F,) bool: the faces of closed door leaves in a mesh without semantics.
 
-    The rule: a *part* (faces joined by shared corners, within 1 mm, in the file's mesh)
-    is a door
-    when it is an upright panel (``DOOR_HEIGHT_M`` tall, ``DOOR_WIDTH_M`` wide along its
-    main horizontal axis, at most ``DOOR_THICKNESS_MAX_M`` thick across it) and, at its
+    The rule: a *part* (faces joined by shared vertices, in the file's mesh) is a door
+    when it is an upright panel (``DOOR_HEIGHT_M`` tall, ``DOOR_WIDTH_M`` wide
+    along its main horizontal axis, 96 % of its area within ``DOOR_THICKNESS_MAX_M``
+    across it, so handles do not count) and, at its
     mid-height, a horizontal ray from each of its two ends outward along the panel meets
-    something within ``DOOR_JAMB_GAP_MAX_M``: the panel fills a gap in a wall. A door
+    something within ``DOOR_JAMB_GAP_MAX_M``: the panel fills a gap in a wall. The parts
+    inside the panel's box (its edges when an export gives each side its own vertices,
+    handles, hinges) are the door's too. A door
     frame exported as a thin part of its own counts too (its faces are the door's, as in
     IFC). A leaf modelled open (swung into the room) does not fill the opening and stays
     an obstacle where it stands; the opening itself is free. A thin partition of door
@@ -97,25 +99,14 @@ def mesh_door_faces(scene: Scene, caster: RayCaster) -> NDArray[np.bool_]:
     from scipy.sparse.csgraph import connected_components
 
     vertices, faces = scene.file_mesh
-    # vertices at the same place are one (1 mm): exports often repeat a solid's corners
-    # per side, and a leaf must be one part
-    grid = np.round(vertices / _WELD_M).astype(np.int64)
-    by_place = np.lexsort((grid[:, 2], grid[:, 1], grid[:, 0]))
-    new_place = np.r_[True, (np.diff(grid[by_place], axis=0) != 0).any(axis=1)]
-    welded = np.empty(len(vertices), np.int64)
-    welded[by_place] = np.cumsum(new_place) - 1
-    del grid, by_place, new_place
-    corners = welded[faces]  # (F0, 3)
-    n_vertices = int(welded.max()) + 1
+    n_vertices = len(vertices)
     edges = sp.coo_matrix(
-        (np.ones(2 * len(corners), np.int8),
-         (np.concatenate([corners[:, 0], corners[:, 1]]),
-          np.concatenate([corners[:, 1], corners[:, 2]]))),
+        (np.ones(2 * len(faces), np.int8),
+         (np.concatenate([faces[:, 0], faces[:, 1]]),
+          np.concatenate([faces[:, 1], faces[:, 2]]))),
         shape=(n_vertices, n_vertices))
-    del corners
-    n_parts, part_of_welded = connected_components(edges, directed=False)
+    n_parts, part_of_vertex = connected_components(edges, directed=False)
     del edges
-    part_of_vertex = part_of_welded[welded]  # per vertex of the file
     lo = np.full((n_parts, 3), np.inf)
     hi = np.full((n_parts, 3), -np.inf)
     np.minimum.at(lo, part_of_vertex, vertices)
@@ -125,15 +116,26 @@ def mesh_door_faces(scene: Scene, caster: RayCaster) -> NDArray[np.bool_]:
     small = np.hypot(size[:, 0], size[:, 1]) <= math.hypot(DOOR_WIDTH_M[1],
                                                             DOOR_THICKNESS_MAX_M)
     door_part = np.zeros(n_parts, bool)
-    by_part = np.argsort(part_of_vertex, kind="stable")
-    first = np.searchsorted(part_of_vertex[by_part], np.arange(n_parts + 1))
+    panels: list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float,
+                       float, float, float]] = []
+    part_of_face = part_of_vertex[faces[:, 0]]
+    by_part = np.argsort(part_of_face, kind="stable")
+    first = np.searchsorted(part_of_face[by_part], np.arange(n_parts + 1))
     for part in np.flatnonzero(tall & small):
-        xy = vertices[by_part[first[part]:first[part + 1]], :2]
-        centre = xy.mean(axis=0)
-        _, axes = np.linalg.eigh((xy - centre).T @ (xy - centre))
+        panel = vertices[faces[by_part[first[part]:first[part + 1]]]]  # (n, 3, 3)
+        area = np.linalg.norm(np.cross(panel[:, 1] - panel[:, 0],
+                                       panel[:, 2] - panel[:, 0]), axis=1)
+        if area.sum() <= 0:
+            continue
+        # the panel's axes and thickness by area: a handle or a hinge adds corners, not area
+        xy = panel[:, :, :2].reshape(-1, 2)
+        weight = np.repeat(area, 3)
+        centre = np.average(xy, axis=0, weights=weight)
+        offset = xy - centre
+        _, axes = np.linalg.eigh((offset * weight[:, None]).T @ offset)
         across, along = axes[:, 0], axes[:, 1]
-        t = (xy - centre) @ along
-        thickness = float(np.ptp((xy - centre) @ across))
+        thickness = _weighted_spread(offset @ across, weight)
+        t = offset @ along
         width = float(np.ptp(t))
         if thickness > DOOR_THICKNESS_MAX_M or not DOOR_WIDTH_M[0] <= width <= DOOR_WIDTH_M[1]:
             continue
@@ -142,11 +144,39 @@ def mesh_door_faces(scene: Scene, caster: RayCaster) -> NDArray[np.bool_]:
                          [*(centre + (t.min() - _EPS_M) * along), z]])
         outward = np.array([[*along, 0.0], [*(-along), 0.0]])
         _, gap = caster.first_hit(ends, outward)
-        door_part[part] = bool((gap <= DOOR_JAMB_GAP_MAX_M).all())
-    on_file = door_part[part_of_vertex[faces[:, 0]]]
+        if (gap <= DOOR_JAMB_GAP_MAX_M).all():
+            door_part[part] = True
+            panels.append((centre, along, across, float(t.min()), float(t.max()),
+                           float(lo[part, 2]), float(hi[part, 2])))
+    # the rest of a door: the parts within a panel's box (a leaf's edges and top when its
+    # sides are parts of their own, handles, hinges)
+    small = (size <= DOOR_WIDTH_M[1] + DOOR_THICKNESS_MAX_M).all(axis=1)
+    others = np.flatnonzero(small & ~door_part)
+    box = np.stack([np.stack([np.where(corner & (1 << axis), hi[others, axis],
+                                       lo[others, axis]) for axis in range(3)], axis=1)
+                    for corner in range(8)], axis=1)  # (P, 8, 3) box corners of the parts
+    for centre, along, across, t_min, t_max, z_min, z_max in panels:
+        offset = box[:, :, :2] - centre
+        t = offset @ along
+        inside = ((t >= t_min - _DOOR_BOX_M) & (t <= t_max + _DOOR_BOX_M)
+                  & (np.abs(offset @ across) <= DOOR_THICKNESS_MAX_M)
+                  & (box[:, :, 2] >= z_min - _DOOR_BOX_M)
+                  & (box[:, :, 2] <= z_max + _DOOR_BOX_M)).all(axis=1)
+        door_part[others[inside]] = True
+    on_file = door_part[part_of_face]
     result: NDArray[np.bool_] = on_file[scene.source_face] if scene.file_faces is not None \
         else on_file
     return result
+
+
+def _weighted_spread(values: NDArray[np.float64], weight: NDArray[np.float64]) -> float:
+    """Width of the middle 96 % (by ``weight``) of the (n,) ``values``."""
+    order = np.argsort(values)
+    share = np.cumsum(weight[order]) / weight.sum()
+    ranked = values[order]
+    low = ranked[int(np.searchsorted(share, 0.02))]
+    high = ranked[min(int(np.searchsorted(share, 0.98)), len(values) - 1)]
+    return float(high - low)
 
 
 @dataclass(frozen=True, eq=False)
