@@ -196,13 +196,15 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
         if spec.floor_levels == "storeys":
             placed, placed_level, report, storey_dropped = storey_levels(
                 scene, xy, spec, caster, ground_found=len(positions) > 0)
+            names: list[str] = []
             if placed is not None and placed_level is not None:
                 storey_dropped["outside_area_of_interest"] = dropped["outside_area_of_interest"]
                 positions, dropped = placed, storey_dropped
                 considered = len(positions) + sum(dropped.values())
-                _, labels = _level_labels(positions[:, 2] - spec.scanner_height_m,
-                                          placed_level)
-            levels = _storey_report(report, len(positions) if placed is None else None)
+                named, labels = _level_labels(positions[:, 2] - spec.scanner_height_m,
+                                              placed_level)
+                names = [str(entry["name"]) for entry in named]
+            levels = _storey_report(report, len(positions) if placed is None else None, names)
         if spec.floor_levels == "walkable":
             walkable = walkable_levels(scene, xy, spec, caster,
                                        ground_found=len(positions) > 0)
@@ -484,12 +486,12 @@ def place_on_levels(
     return positions, level.astype(np.int64)
 
 
-def _storey_report(report: list[dict[str, object]], lowest_candidates: int | None
-                   ) -> list[dict[str, object]] | None:
-    """``candidates.levels`` of "storeys": the storeys named as the candidates' labels
-    (:func:`_level_labels`), then what was excluded; ``lowest_candidates``: the candidates
-    stand on the lowest surface (one storey), this many. None when there is one storey
-    and nothing was excluded."""
+def _storey_report(report: list[dict[str, object]], lowest_candidates: int | None,
+                   names: list[str]) -> list[dict[str, object]] | None:
+    """``candidates.levels`` of "storeys": the storeys, named as the candidates' labels
+    (``names``, from :func:`_level_labels`, for the storeys with candidates), then what
+    was excluded; ``lowest_candidates``: the candidates stand on the lowest surface (one
+    storey), this many. None when there is one storey and nothing was excluded."""
     levels: list[dict[str, object]] = []
     storeys = [entry for entry in report if "excluded" not in entry]
     if lowest_candidates is not None and storeys:  # the lowest surface gave them all
@@ -498,8 +500,9 @@ def _storey_report(report: list[dict[str, object]], lowest_candidates: int | Non
     for entry in storeys:
         if int(str(entry["candidates"])) > 0:
             k += 1
-            levels.append({"name": f"level {k} ({float(str(entry['floor_z_m'])):+.2f} m)",
-                           **entry})
+            name = names[k - 1] if k <= len(names) else \
+                f"level {k} ({float(str(entry['floor_z_m'])):+.2f} m)"
+            levels.append({"name": name, **entry})
         else:
             levels.append({"name": f"{float(str(entry['floor_z_m'])):+.2f} m", **entry,
                            "excluded": "no room: a storey, but no grid point on it has "
@@ -545,7 +548,7 @@ def _level_labels(floor_z: NDArray[np.float64], level: NDArray[np.int64]
     for k in range(int(level.max()) + 1 if len(level) else 0):
         members = level == k
         height = float(np.median(floor_z[members]))
-        names.append(f"level {k + 1} ({height:+.2f} m)")
+        names.append(f"level {k + 1} ({round(height, 2) + 0.0:+.2f} m)")  # no "-0.00"
         summary.append({"name": names[-1], "floor_z_m": round(height, 3),
                         "candidates": int(members.sum())})
     return summary, tuple({"storey": names[k]} for k in level)
