@@ -33,6 +33,8 @@ import numpy as np
 import trimesh
 from numpy.typing import NDArray
 
+from planner.scene import Scene
+
 STOREY_M = 3.2  # floor to floor
 SLAB_M = 0.25
 WALL_M = 0.2  # interior walls
@@ -326,13 +328,16 @@ def max_edge_for_faces(faces: int, floors: int = 3, rooms_per_side: int = 4,
     return math.sqrt(4.0 * office_area_m2(floors, rooms_per_side, furnished) / faces)
 
 
-def export_plain_mesh(ifc_path: str | Path, out_path: str | Path) -> Path:
+def export_plain_mesh(ifc_path: str | Path, out_path: str | Path,
+                      scene: Scene | None = None) -> Path:
     """Write the IFC model's triangles to ``out_path`` (.obj or .ply) as a plain mesh: no
     IFC classes, no groups, no elements (what a BIM tool's mesh export without semantics
-    gives). The geometry is IfcOpenShell's, as :func:`planner.io.ifc.read_ifc` reads it."""
+    gives). The geometry is IfcOpenShell's, as :func:`planner.io.ifc.read_ifc` reads it
+    (``scene``: that reading, when already made)."""
     from planner.io.ifc import read_ifc
 
-    scene = read_ifc(ifc_path)
+    if scene is None:
+        scene = read_ifc(ifc_path)
     mesh = trimesh.Trimesh(np.asarray(scene.vertices), np.asarray(scene.faces), process=False)
     out_path = Path(out_path)
     if out_path.suffix == ".obj":  # vertices and faces only: no o/g lines, no normals

@@ -8,6 +8,7 @@ than doors with a float64 segment test written here (not Embree), at knee height
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -208,6 +209,14 @@ def plain_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return tmp_path_factory.mktemp("plain")
 
 
+@functools.cache
+def ifc_reading(path: Path) -> Scene:
+    """The IFC model as IfcOpenShell reads it (once a module: tens of seconds for FZK)."""
+    from planner.io.ifc import read_ifc
+
+    return read_ifc(path)
+
+
 def house_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateSet:
     if scene.metadata.get("spaces"):
         from planner.io.ifc import room_candidates
@@ -224,7 +233,7 @@ def test_the_houses_get_every_storey_and_a_route_to_every_station(
     ifc = scenes_dir / f"{house}.ifc"
     path = ifc if form == "ifc" else plain_dir / f"{house}.{form}"
     if not path.exists():
-        export_plain_mesh(ifc, path)
+        export_plain_mesh(ifc, path, ifc_reading(ifc))
     spec = PlanSpec(grid_spacing_m=1.0, max_edge_m=0.5)
     scene = read_scene(path, max_edge_m=spec.max_edge_m, split_faces="as_needed")
     if form != "ifc":
@@ -241,9 +250,7 @@ def test_the_houses_get_every_storey_and_a_route_to_every_station(
     assert route.unreachable == (), list(zip(route.unreachable, route.unreachable_reasons,
                                              strict=True))
     # doors, independently of the mesh's door rule: the IFC model's door faces
-    from planner.io.ifc import read_ifc
-
-    reference = read_ifc(ifc)
+    reference = ifc_reading(ifc)
     door = np.array([e.ifc_class == "IfcDoor" for e in reference.elements] + [False])
     walls = np.asarray(reference.vertices)[np.asarray(reference.faces)[
         ~door[reference.face_element]]]
