@@ -91,7 +91,13 @@ def run_plan(args: argparse.Namespace) -> int:
     finally:
         progress.done()
     if not args.quiet:
-        totals = json.loads(written[0].read_text())["totals"]
+        plan_doc = json.loads(written[0].read_text())
+        totals = plan_doc["totals"]
+        from planner.method.candidates import levels_line
+
+        line = levels_line(plan_doc["candidates"].get("levels"))
+        if line:
+            print(line)
         print(
             f"{totals['stations']} stations cover {totals['covered_area_m2']:.2f} m² "
             f"of {totals['max_achievable_area_m2']:.2f} m² achievable "

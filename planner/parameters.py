@@ -35,8 +35,8 @@ Method = Literal["greedy", "weighted_greedy", "optimal"]
 METHODS: tuple[Method, ...] = ("greedy", "weighted_greedy", "optimal")
 GlbCompression = Literal["meshopt", "none"]
 GLB_COMPRESSIONS: tuple[GlbCompression, ...] = ("meshopt", "none")
-FloorLevels = Literal["walkable", "lowest", "all"]
-FLOOR_LEVELS: tuple[FloorLevels, ...] = ("walkable", "lowest", "all")
+FloorLevels = Literal["storeys", "walkable", "lowest", "all"]
+FLOOR_LEVELS: tuple[FloorLevels, ...] = ("storeys", "walkable", "lowest", "all")
 UpAxis = Literal["+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto"]
 UP_AXES: tuple[UpAxis, ...] = ("+Z", "-Z", "+Y", "-Y", "+X", "-X", "auto")
 CoverageModel = Literal["centroid", "sampled"]
@@ -101,10 +101,11 @@ class PlanSpec:
     scanner_heights_m: tuple[float, ...] | None = None
     clearance_m: float = 0.3
     area_of_interest: tuple[tuple[float, float], ...] | None = None
-    # "walkable": the lowest floor and every level a person reaches from it on foot (stairs,
-    # not machine tops); "lowest": the lowest surface only; "all": every flat surface with
-    # head room
-    floor_levels: FloorLevels = "walkable"
+    # "storeys": every level with floor area and head room that is not raised furniture,
+    # reached on foot or not; "walkable": the lowest floor and every level a person reaches
+    # from it on foot (stairs, not machine tops); "lowest": the lowest surface only; "all":
+    # every flat surface with head room
+    floor_levels: FloorLevels = "storeys"
     storeys: tuple[str, ...] | None = None
     rooms: tuple[str, ...] | None = None
     # outputs

@@ -199,9 +199,10 @@ class PlanParameters(BaseModel):
                             "of its stations: verification.json and verified faces.npz arrays")
     area_of_interest: list[Point2] | None = _d(
         "area_of_interest", "polygon [x, y] the generated candidates stay in; null: all")
-    floor_levels: Literal["walkable", "lowest", "all"] = _d(
-        "floor_levels", "grid on the lowest floor and the levels reached from it on foot, "
-        "on the lowest surface only, or on every flat surface with head room (meshes)")
+    floor_levels: Literal["storeys", "walkable", "lowest", "all"] = _d(
+        "floor_levels", "grid on every storey (floor area and head room, not furniture), "
+        "on the lowest floor and the levels reached from it on foot, on the lowest surface "
+        "only, or on every flat surface with head room (meshes)")
     storeys: list[str] | None = _d("storeys", "IFC storeys to plan for; null: all")
     rooms: list[str] | None = _d("rooms", "IFC spaces to plan for; null: all")
     scanner: ScannerParameter | None = _d(
@@ -373,6 +374,5 @@ class JobResults(RootModel[dict[str, dict[str, Any]]]):
     """``GET /jobs/{id}/results`` (OGC ``results.yaml``): output id -> value or link.
 
     ``plan`` is the plan inline (the content of plan.json); every file output (``plan.json``,
-    ``faces.npz``, ...) is a link ``{href, type, bytes, sha256}``; an output this input
-    cannot have is ``{absent: why}`` (``plan.ifc`` of a mesh).
+    ``faces.npz``, ...) is a link ``{href, type, bytes, sha256}``.
     """

@@ -10,6 +10,7 @@ worker died and fails them as "worker lost" after their last attempt.
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 import multiprocessing
 import os
@@ -41,7 +42,7 @@ from service.plan_process import (
 )
 from service.problems import OutOfMemoryError, PlanKilledError, WorkerLostError, problem_for
 from service.queue import HueyQueue, JobQueue, make_huey
-from service.store import open_store, results_prefix
+from service.store import open_store, result_key, results_prefix
 
 log = logging.getLogger("scanplan.worker")
 
@@ -172,8 +173,9 @@ def execute_job(ctx: WorkerContext, job_id: str) -> None:
                         problem=problem_for(exc, instance=instance),
                         attempt=attempt_entry(job, FAILED, **measured))
     else:
-        if ctx.jobs.finish(job_id, token, SUCCESSFUL, message="done", timings=timings,
-                           outputs=outputs, attempt=attempt_entry(job, SUCCESSFUL, **measured)):
+        if ctx.jobs.finish(job_id, token, SUCCESSFUL, message=_done_message(ctx, job_id),
+                           timings=timings, outputs=outputs,
+                           attempt=attempt_entry(job, SUCCESSFUL, **measured)):
             log.info("job %s: successful", job_id)
         else:  # dismissed while the files were moved into place
             ctx.meshes.store.delete_prefix(results_prefix(job_id))
@@ -203,6 +205,23 @@ def _child_ended(ctx: WorkerContext, job: JobRecord, token: str,
                                 "attempt_log lists each); submit the job again")
     ctx.jobs.finish(job.id, token, FAILED, message=str(error), attempt=attempt,
                     problem=problem_for(error, instance=f"/jobs/{job.id}"))
+
+
+def _done_message(ctx: WorkerContext, job_id: str) -> str:
+    """"done", then the storeys planned and what was left out when there is more than one
+    level (:func:`planner.method.candidates.levels_line`), and why there is no plan.ifc for
+    an input that is not IFC, each in a clause of its own."""
+    from planner.method.candidates import levels_line
+    from planner.outputs.ifc_plan import reason_without_ifc
+
+    try:
+        plan_doc = json.loads(ctx.meshes.store.read_bytes(result_key(job_id, "plan.json")))
+        no_ifc = reason_without_ifc(str(plan_doc["scene"].get("format", "")))
+        clauses = [levels_line(plan_doc["candidates"].get("levels")),
+                   None if no_ifc is None else f"no plan.ifc: {no_ifc}"]
+    except (OSError, ValueError, KeyError):
+        clauses = []
+    return "; ".join(["done", *(clause for clause in clauses if clause)])
 
 
 def _run_plan(ctx: WorkerContext, job: JobRecord, reporter: ProgressReporter,

@@ -4,8 +4,9 @@ The grid lies in the XY plane at multiples of ``grid_spacing_m`` (so a model mov
 whole number of cells gets the same points), inside the optional ``area_of_interest``
 polygon. Each point is put ``scanner_height_m`` above the floor under it, found by casting a
 ray up from below the model (the lowest surface is the floor; multi-storey IFC models use
-their rooms instead, see :mod:`planner.io.ifc`). A point is dropped, and counted under its
-reason, when
+their rooms instead, see :mod:`planner.io.ifc`); with ``floor_levels`` "storeys" (the
+default) on every storey too, told from furniture by :func:`storey_levels`. A point is
+dropped, and counted under its reason, when
 
 - ``outside_area_of_interest``: not covered by the polygon (boundary counts as inside);
 - ``no_floor``: nothing under it, or the surface under it is steeper than 30 degrees;
@@ -28,12 +29,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from shapely import Polygon, intersects_xy
 
 from planner.errors import NoCandidatesError, ParameterError
 from planner.method.visibility import RayCaster
+from planner.method.walkgraph import HEADROOM_M
 from planner.method.winding import winding_numbers
 from planner.parameters import PlanSpec
 from planner.scene import Scene, subdivide
@@ -57,6 +61,9 @@ _MAX_SURFACES = 32
 _SURFACE_STEP_M = 1e-4
 _LEVEL_GAP_M = 0.15
 _MIN_LEVEL_AREA_M2 = 4.0
+# floor_levels "storeys": a patch with a lower floor beside it along more than this share of
+# its edge is raised (furniture), not a storey
+_RAISED_EDGE_SHARE = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,7 +77,8 @@ class CandidateSet:
     considered : grid points before any was dropped (C for explicit candidates)
     dropped : count per reason in ``DROP_REASONS``
     labels : per candidate, e.g. the room and storey it stands in (empty when unknown)
-    levels : ``floor_levels`` "all": name, floor height and candidate count per level
+    levels : name, floor height (and for "storeys" area) and candidate count per level,
+        and for "storeys" the levels left out with the reason (``excluded``)
     floor_from_space : room candidates: the rooms without a slab, standing on their
         IfcSpace's bottom
     heights_m : (C,) float64, each candidate's height above its floor when it was placed
@@ -188,6 +196,18 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
         positions = place_on_floor(scene, xy, spec, caster, dropped)
         floors = positions[:, 2] - spec.scanner_height_m
         positions = drop_unclear(scene, positions, spec.clearance_m, dropped, floors)
+        if spec.floor_levels == "storeys":
+            placed, placed_level, report, storey_dropped = storey_levels(
+                scene, xy, spec, caster, ground_found=len(positions) > 0)
+            names: list[str] = []
+            if placed is not None and placed_level is not None:
+                storey_dropped["outside_area_of_interest"] = dropped["outside_area_of_interest"]
+                positions, dropped = placed, storey_dropped
+                considered = len(positions) + sum(dropped.values())
+                named, labels = _level_labels(positions[:, 2] - spec.scanner_height_m,
+                                              placed_level)
+                names = [str(entry["name"]) for entry in named]
+            levels = _storey_report(report, len(positions) if placed is None else None, names)
         if spec.floor_levels == "walkable":
             walkable = walkable_levels(scene, xy, spec, caster,
                                        ground_found=len(positions) > 0)
@@ -218,7 +238,7 @@ def walkable_levels(
     The lowest *surface* under a point is the underside of a thick ground slab in many
     exported models, where "lowest" finds no floor at all; the lowest *level* is the first
     flat surface with head room. Reachable means: the candidate's floor point lies on a
-    node of the walk graph (:mod:`planner.survey.walkgraph`: floor samples linked within a
+    node of the walk graph (:mod:`planner.method.walkgraph`: floor samples linked within a
     step and free at knee height, so stairs join storeys) whose connected component also
     holds a floor point of the lowest level. A machine or table top is a flat surface with
     head room, but no step leads onto it.
@@ -226,7 +246,7 @@ def walkable_levels(
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
-    from planner.survey.walkgraph import build_walk_graph
+    from planner.method.walkgraph import build_walk_graph
 
     levels_dropped = dict.fromkeys(DROP_REASONS, 0)
     positions, level_of = place_on_levels(scene, xy, spec, caster, levels_dropped)
@@ -254,23 +274,151 @@ def walkable_levels(
     return positions[reachable], level_of[reachable]
 
 
-def place_on_levels(
+def storey_levels(
+    scene: Scene, xy: NDArray[np.float64], spec: PlanSpec, caster: RayCaster, *,
+    ground_found: bool,
+) -> tuple[NDArray[np.float64] | None, NDArray[np.int64] | None, list[dict[str, object]],
+           dict[str, int]]:
+    """``floor_levels`` "storeys": (C, 3) candidates on every storey under the (N, 2) grid
+    points with their (C,) level, the report of every level (storeys and what was
+    excluded, with the reason) and the grid points dropped per reason (the points of
+    excluded levels count as ``no_floor``). Positions and levels are None when the only
+    storey is the lowest level and ``ground_found``: the lowest surface then gives the
+    candidates, exactly as "lowest" does.
+
+    How a storey is told from furniture, without semantics or the walk graph:
+
+    1. *Floor with head room*: the walkable surfaces of :func:`walkable_surfaces` (flatter
+       than 30 degrees, more than ``scanner_height_m`` + ``clearance_m`` free above, a
+       ceiling over every surface but the lowest).
+    2. *Patches*: surfaces of neighbouring grid points (8 neighbours) whose heights differ
+       by at most ``_LEVEL_GAP_M`` are one patch (a room's floor, a table top).
+    3. *Raised*: a patch that stands less than ``HEADROOM_M`` (1.8 m) above a floor beside
+       it along most (``_RAISED_EDGE_SHARE``) of its edge is furniture, a machine or a
+       platform (a table top is 0.75 m above the floor around it, a bed 0.5 m); an upper
+       storey's edge meets walls, facades and stairwells, a mezzanine's the hall floor
+       more than 1.8 m below, so people fit under it.
+    4. *Area*: the patches that are not raised are grouped by height into levels; a level
+       of less than ``_MIN_LEVEL_AREA_M2`` is stair treads or a landing.
+
+    A storey gets candidates whether or not a person can walk to it (the route reports a
+    station nobody reaches, with the reason).
+    """
+    dropped = dict.fromkeys(DROP_REASONS, 0)
+    point, floor_z = walkable_surfaces(scene, xy, spec, caster, dropped)
+    # a grid point inside a wall stands on the wall's foot with the wall's height over it:
+    # such surfaces would join a floor to the ground outside the wall, so they go first
+    inside = inside_closed_groups(
+        scene, np.column_stack([xy[point], floor_z + spec.scanner_height_m]))
+    dropped["inside_geometry"] += int(inside.sum())
+    point, floor_z = point[~inside], floor_z[~inside]
+    if len(point) == 0:
+        return None, None, [], dropped
+    cell = spec.grid_spacing_m
+    gx = np.round(xy[point] / cell).astype(np.int64)  # (K, 2) grid coordinates
+    gx -= gx.min(axis=0)
+    width = int(gx[:, 1].max()) + 3
+    key = (gx[:, 0] + 1) * width + gx[:, 1] + 1  # a ring of empty columns around
+    order = np.lexsort((floor_z, key))
+    sorted_key, sorted_z = key[order], floor_z[order]
+    n = len(point)
+    rows: list[NDArray[np.int64]] = []
+    cols: list[NDArray[np.int64]] = []
+    neighbours: list[tuple[NDArray[np.int64], NDArray[np.int64]]] = []
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            if dx == 0 and dy == 0:
+                continue
+            target = key + dx * width + dy
+            start = np.searchsorted(sorted_key, target, side="left")
+            stop = np.searchsorted(sorted_key, target, side="right")
+            counts = stop - start
+            a = np.repeat(np.arange(n), counts)
+            b = order[np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+                      + np.repeat(start, counts)]
+            neighbours.append((a, b))
+            close = np.abs(floor_z[a] - floor_z[b]) <= _LEVEL_GAP_M
+            rows.append(a[close])
+            cols.append(b[close])
+    del sorted_z
+    a, b = np.concatenate(rows), np.concatenate(cols)
+    graph = sp.coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(n, n))
+    _, patch = connected_components(graph, directed=False)
+    # raised: along the patch's edge (a grid point and a direction with no neighbour of the
+    # same patch), how often a floor lies between _LEVEL_GAP_M and HEADROOM_M below
+    edge = np.zeros(n, np.int64)
+    lower = np.zeros(n, np.int64)
+    for a, b in neighbours:
+        same = np.zeros(n, bool)
+        below = np.zeros(n, bool)
+        np.logical_or.at(same, a, patch[a] == patch[b])
+        drop = floor_z[a] - floor_z[b]
+        np.logical_or.at(below, a, (drop > _LEVEL_GAP_M) & (drop < HEADROOM_M))
+        edge += ~same
+        lower += ~same & below
+    n_patches = int(patch.max()) + 1
+    patch_edge = np.bincount(patch, edge, n_patches)
+    patch_lower = np.bincount(patch, lower, n_patches)
+    raised_patch = patch_lower > _RAISED_EDGE_SHARE * np.maximum(patch_edge, 1)
+    raised = raised_patch[patch]
+    level = _height_levels(floor_z)
+    n_levels = int(level.max()) + 1
+    area = np.bincount(level, ~raised, n_levels) * cell ** 2
+    storey_level = area >= _MIN_LEVEL_AREA_M2
+    storey = storey_level[level] & ~raised
+    dropped["no_floor"] += int((~storey).sum())  # listed under the levels, with the reason
+    positions = np.column_stack([xy[point[storey]], floor_z[storey] + spec.scanner_height_m])
+    level_of = level[storey]
+    near = closer_than(scene, positions, spec.clearance_m,
+                       positions[:, 2] - spec.scanner_height_m)
+    dropped["too_close"] += int(near.sum())
+    keep = ~near
+    positions, level_of = positions[keep], level_of[keep]
+    order = np.lexsort((point[storey][keep], level_of))  # level by level, grid rows within
+    positions, level_of = positions[order], level_of[order]
+    lowest_only = len(level_of) == 0 or (level_of == level_of.min()).all()
+    if ground_found and lowest_only:
+        positions_out, level_out = None, None
+    else:
+        positions_out, level_out = positions, level_of
+    report: list[dict[str, object]] = []
+    counts = np.bincount(level_of, minlength=n_levels)
+    for k in range(n_levels):
+        members = level == k
+        height = round(float(np.median(floor_z[members])), 3) + 0.0  # no -0.0
+        if storey_level[k]:
+            report.append({"floor_z_m": height, "area_m2": round(float(area[k]), 2),
+                           "candidates": int(counts[k])})
+        elif area[k] > 0:
+            report.append({"floor_z_m": height, "area_m2": round(float(area[k]), 2),
+                           "candidates": 0,
+                           "excluded": f"too small: less than {_MIN_LEVEL_AREA_M2:g} m² of "
+                                       "floor at this height (stair treads, a landing)"})
+        up = members & raised
+        if up.any():
+            report.append({"floor_z_m": round(float(np.median(floor_z[up])), 3) + 0.0,
+                           "area_m2": round(float(up.sum() * cell ** 2), 2), "candidates": 0,
+                           "excluded": f"raised: less than {HEADROOM_M:g} m above the floor "
+                                       "beside it along most of its edge (furniture, a "
+                                       "machine top, a platform, a stair tread)"})
+    return positions_out, level_out, report, dropped
+
+
+def walkable_surfaces(
     scene: Scene, xy: NDArray[np.float64], spec: PlanSpec, caster: RayCaster,
     dropped: dict[str, int],
-) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """(C, 3) positions above every walkable surface under the (N, 2) points, (C,) level.
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Every walkable surface under the (N, 2) points: (K,) point index and (K,) floor
+    height, by point, then height.
 
     Rays go up through the model, surface after surface. A surface is walkable when it is
     flatter than 30 degrees and the next surface above is more than ``scanner_height_m`` +
     ``clearance_m`` away (head room); above the lowest surface there must be a next surface
-    (a roof's top is outside, not a level). Floor heights are grouped into levels (a gap of more
-    than ``_LEVEL_GAP_M`` starts a new one); a level smaller than ``_MIN_LEVEL_AREA_M2`` of
-    grid cells is a table top or a stair tread, not a floor, and its points count as
-    ``no_floor``. The lowest surface of each point is accounted as
-    :func:`place_on_floor` does; upper surfaces count only when they are walkable.
+    (a roof's top is outside, not a level). The lowest surface of each point is accounted
+    as :func:`place_on_floor` does.
     """
     if len(xy) == 0:
-        return np.zeros((0, 3)), np.zeros(0, np.int64)
+        return np.zeros(0, np.int64), np.zeros(0)
     steep = math.cos(math.radians(_MAX_FLOOR_SLOPE_DEG))
     reach = spec.scanner_height_m + spec.clearance_m
     hit_point: list[NDArray[np.int64]] = []
@@ -292,7 +440,7 @@ def place_on_levels(
         z[active] = z_hit + _SURFACE_STEP_M
     if not hit_point:
         dropped["no_floor"] += len(xy)
-        return np.zeros((0, 3)), np.zeros(0, np.int64)
+        return np.zeros(0, np.int64), np.zeros(0)
     point = np.concatenate(hit_point)
     order = np.lexsort((np.concatenate(hit_z), point))
     point, zs, flat = point[order], np.concatenate(hit_z)[order], np.concatenate(hit_flat)[order]
@@ -303,12 +451,33 @@ def place_on_levels(
     dropped["blocked_above_floor"] += int((first & flat & (head_room <= reach)).sum())
     # above the lowest surface, a level needs a roof over it: the top of a roof is outside
     walkable = flat & (head_room > reach) & (first | np.isfinite(head_room))
-    point, floor_z = point[walkable], zs[walkable]
-    # levels: floor heights grouped where they lie close together
+    return point[walkable], zs[walkable]
+
+
+def _height_levels(floor_z: NDArray[np.float64]) -> NDArray[np.int64]:
+    """(K,) level of each floor height: heights grouped where they lie close together (a
+    gap of more than ``_LEVEL_GAP_M`` starts a new level), numbered from the lowest."""
     by_height = np.argsort(floor_z, kind="stable")
     level_sorted = np.r_[0, np.cumsum(np.diff(floor_z[by_height]) > _LEVEL_GAP_M)]
     level = np.empty(len(floor_z), np.int64)
     level[by_height] = level_sorted
+    return level
+
+
+def place_on_levels(
+    scene: Scene, xy: NDArray[np.float64], spec: PlanSpec, caster: RayCaster,
+    dropped: dict[str, int],
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """(C, 3) positions above every walkable surface under the (N, 2) points, (C,) level.
+
+    The surfaces are those of :func:`walkable_surfaces`, their heights grouped into levels
+    (:func:`_height_levels`); a level smaller than ``_MIN_LEVEL_AREA_M2`` of grid cells is
+    a table top or a stair tread, not a floor, and its points count as ``no_floor``.
+    """
+    point, floor_z = walkable_surfaces(scene, xy, spec, caster, dropped)
+    if len(point) == 0:
+        return np.zeros((0, 3)), np.zeros(0, np.int64)
+    level = _height_levels(floor_z)
     area = np.bincount(level) * spec.grid_spacing_m ** 2
     big = area[level] >= _MIN_LEVEL_AREA_M2
     dropped["no_floor"] += int((~big).sum())
@@ -320,6 +489,59 @@ def place_on_levels(
     return positions, level.astype(np.int64)
 
 
+def _storey_report(report: list[dict[str, object]], lowest_candidates: int | None,
+                   names: list[str]) -> list[dict[str, object]] | None:
+    """``candidates.levels`` of "storeys": the storeys, named as the candidates' labels
+    (``names``, from :func:`_level_labels`, for the storeys with candidates), then what
+    was excluded; ``lowest_candidates``: the candidates stand on the lowest surface (one
+    storey), this many. None when there is one storey and nothing was excluded."""
+    levels: list[dict[str, object]] = []
+    storeys = [entry for entry in report if "excluded" not in entry]
+    if lowest_candidates is not None and storeys:  # the lowest surface gave them all
+        storeys[0]["candidates"] = lowest_candidates
+    k = 0
+    for entry in storeys:
+        if int(str(entry["candidates"])) > 0:
+            k += 1
+            name = names[k - 1] if k <= len(names) else \
+                f"level {k} ({float(str(entry['floor_z_m'])):+.2f} m)"
+            levels.append({"name": name, **entry})
+        else:
+            levels.append({"name": f"{float(str(entry['floor_z_m'])):+.2f} m", **entry,
+                           "excluded": "no room: a storey, but no grid point on it has "
+                                       "clearance_m free around the tripod"})
+    levels += [{"name": f"{float(str(entry['floor_z_m'])):+.2f} m", **entry}
+               for entry in report if "excluded" in entry]
+    if len(levels) == 1 and "excluded" not in levels[0]:
+        return None
+    return levels
+
+
+def levels_line(levels: list[dict[str, object]] | None) -> str | None:
+    """``candidates.levels`` in one line (CLI, job message, preview): the storeys planned
+    and what was left out; None when there is nothing to say (one level)."""
+    if not levels:
+        return None
+
+    def height(entry: dict[str, object]) -> float:
+        return float(str(entry["floor_z_m"]))
+
+    storeys = [e for e in levels if "excluded" not in e]
+    line = (f"{len(storeys)} storey{'s' if len(storeys) != 1 else ''} planned ("
+            + ", ".join(f"{height(e):+.2f} m: {e['candidates']} candidates" for e in storeys)
+            + ")")
+    left_out = [e for e in levels if "excluded" in e]
+    if left_out:
+        kinds: dict[str, list[float]] = {}
+        for entry in left_out:
+            kinds.setdefault(str(entry["excluded"]).split(":")[0], []).append(
+                float(str(entry["area_m2"])))
+        line += "; not storeys: " + ", ".join(
+            f"{len(areas)} {kind} ({sum(areas):.1f} m²)" for kind, areas in kinds.items())
+        line += " (plan.json candidates.levels)"
+    return line
+
+
 def _level_labels(floor_z: NDArray[np.float64], level: NDArray[np.int64]
                   ) -> tuple[list[dict[str, object]], tuple[dict[str, str], ...]]:
     """The levels' summary for plan.json and a ``storey`` label per candidate (drawing)."""
@@ -329,7 +551,7 @@ def _level_labels(floor_z: NDArray[np.float64], level: NDArray[np.int64]
     for k in range(int(level.max()) + 1 if len(level) else 0):
         members = level == k
         height = float(np.median(floor_z[members]))
-        names.append(f"level {k + 1} ({height:+.2f} m)")
+        names.append(f"level {k + 1} ({round(height, 2) + 0.0:+.2f} m)")  # no "-0.00"
         summary.append({"name": names[-1], "floor_z_m": round(height, 3),
                         "candidates": int(members.sum())})
     return summary, tuple({"storey": names[k]} for k in level)

@@ -47,6 +47,7 @@ from matplotlib.ticker import MaxNLocator
 from numpy.typing import NDArray
 
 from planner.io.orientation import scene_rotation, to_model
+from planner.method.candidates import levels_line
 from planner.method.curve import coverage_curve
 from planner.method.density import density_range_m
 from planner.pipeline import PlanResult
@@ -246,6 +247,9 @@ def draw_preview(result: PlanResult) -> Preview:
                      fontsize=9, loc="left")
         axes.append(ax)
     _key(fig, result, scale)
+    line = levels_line(result.candidates.levels)
+    if line:  # the storeys planned and what was left out, in one line under the maps
+        fig.text(map_left, 0.012, line, fontsize=7, color="0.25", va="center")
     return Preview(figure=fig, axes=tuple(axes), levels=tuple(shown), scale=scale)
 
 

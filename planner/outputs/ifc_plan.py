@@ -54,9 +54,8 @@ def reason_without_ifc(input_format: str) -> str | None:
     """Why a plan of an input in ``input_format`` (plan.json ``scene.format``) has no
     ``plan.ifc``; None for IFC."""
     if input_format != "ifc":
-        return (f"plan.ifc is the input IFC model with the stations added; this input is "
-                f"{input_format.upper() or 'not IFC'}, which has no IFC model to add them to "
-                "(plan.bcf carries the stations for any input)")
+        return (f"the input is {input_format.upper() or 'not IFC'}, not an IFC model to add "
+                "the stations to (plan.bcf carries them for any input)")
     return None
 
 

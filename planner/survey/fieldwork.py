@@ -18,6 +18,7 @@ from planner.io.orientation import scene_rotation, to_plan
 from planner.memory import release_freed_memory
 from planner.method.pairs import FaceLimits
 from planner.method.visibility import Occlusion, RayCaster, make_ray_caster
+from planner.method.walkgraph import build_walk_graph, door_faces
 from planner.parameters import DEFAULT_ANGULAR_STEP_RAD, PlanSpec
 from planner.scanners import StationScan, missing_duration_reason, station_scans, step_note
 from planner.scene import Scene
@@ -28,7 +29,6 @@ from planner.survey.registration import (
     station_registration,
 )
 from planner.survey.route import Route, plan_route
-from planner.survey.walkgraph import build_walk_graph, door_faces
 
 DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the scanner gives one
 
@@ -127,9 +127,11 @@ def scans_of(spec: PlanSpec, density_margins: list[float] | None, n_stations: in
 def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool
                  ) -> RayCaster:
     """Rays for walking: every face blocks (glass too, which coverage may see through)
-    except doors; the coverage caster is reused when it blocks exactly those faces.
-    ``file_faces``: cast against the file's faces, as the plan's rays (``occluders``)."""
-    blocks = ~door_faces(scene)
+    except doors (IFC doors; in a plain mesh the closed leaves in wall openings, found with
+    the coverage ``caster``); the coverage caster is reused when it blocks exactly those
+    faces. ``file_faces``: cast against the file's faces, as the plan's rays
+    (``occluders``)."""
+    blocks = ~door_faces(scene, caster)
     if np.array_equal(blocks, limits.occludes):
         return caster
     return make_ray_caster(scene, blocks, file_faces=file_faces)

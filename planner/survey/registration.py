@@ -48,8 +48,8 @@ from planner.method.coverage import CoverageTable
 from planner.method.pairs import FaceLimits, PairFinder
 from planner.method.selection import GOAL_SLACK_M2, GainOrder, Selection, gain_units
 from planner.method.visibility import Occlusion, make_occlusion
+from planner.method.walkgraph import door_faces
 from planner.scene import Scene
-from planner.survey.walkgraph import door_faces
 
 # smallest eigenvalue over trace of the normal scatter matrix for an edge to register in
 # all three directions: the weakest direction carries at least 5 % of the normal weight

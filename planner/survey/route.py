@@ -1,6 +1,6 @@
 """The walking route: the order to visit the stations, and the path of every leg.
 
-Each station is attached to the walk graph (:mod:`planner.survey.walkgraph`) at the nearest floor
+Each station is attached to the walk graph (:mod:`planner.method.walkgraph`) at the nearest floor
 sample below it whose knee-height segment to the station's foot is free; shortest paths on
 the graph come from ``scipy.sparse.csgraph.dijkstra``. The visiting order is a shortest
 open tour (a path, no return) over those distances: exact (Held-Karp) up to
@@ -11,8 +11,10 @@ station gives the shortest tour (a dummy depot at distance 0 from every station)
 step has a time limit, so the same input gives the same route.
 
 Stations not attached to the graph, or in another part of it than the start (or, with no
-start, than the most stations), are *unreachable*: they are reported by id and never joined
-by a straight line.
+start, than the most stations), are *unreachable*: they are reported by id, each with the
+reason (no floor under it a person reaches; or its floor is not joined to the route's part
+of the building by steps, stairs, ramps, doors or the outside: a ladder, a hatch, a door
+the model draws as a wall), and never joined by a straight line.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 
 from planner.errors import ParameterError
 from planner.method.visibility import RayCaster
-from planner.survey.walkgraph import KNEE_HEIGHT_M, STEP_M, WalkGraph, segment_free
+from planner.method.walkgraph import KNEE_HEIGHT_M, STEP_M, WalkGraph, segment_free
 
 # a station attaches to a floor sample at most this far away horizontally (grid units)
 _ATTACH_CELLS = 2.0
@@ -50,6 +52,7 @@ class Route:
     visits: tuple[int, ...]  # station ids in walking order
     legs: tuple[Leg, ...]
     unreachable: tuple[int, ...]
+    unreachable_reasons: tuple[str, ...] = ()  # one per unreachable station
 
     @property
     def length_m(self) -> float:
@@ -63,6 +66,9 @@ class Route:
                       "path": [[round(v, 3) for v in p] for p in leg.path]}
                      for leg in self.legs],
             "unreachable": list(self.unreachable),
+            "unreachable_reasons": {str(station): reason for station, reason
+                                    in zip(self.unreachable, self.unreachable_reasons,
+                                           strict=True)},
         }
 
 
@@ -192,7 +198,7 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
             "give a point inside the building, above its floor (e.g. at scanner height), "
             "or null to let the route choose")
     if graph.n_nodes == 0:  # no floor anywhere (a facade, a single object): nobody walks
-        return Route((), (), tuple(range(1, s + 1)))
+        return Route((), (), tuple(range(1, s + 1)), (_NO_FLOOR,) * s)
     _, component = connected_components(graph.links, directed=False)
     labels = np.where(nodes >= 0, component[np.maximum(nodes, 0)], -1)
     if route_start is not None:
@@ -207,8 +213,10 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
             main = int(next(label for label in labels[:s] if label in set(best.tolist())))
     reachable = [i for i in range(s) if main >= 0 and labels[i] == main]
     unreachable = tuple(i + 1 for i in range(s) if i not in set(reachable))
+    reasons = tuple(_why_unreachable(graph, labels, feet, i - 1, component)
+                    for i in unreachable)
     if not reachable:
-        return Route((), (), unreachable)
+        return Route((), (), unreachable, reasons)
     sources = [int(nodes[i]) for i in reachable]
     if route_start is not None:
         sources.append(int(nodes[s]))
@@ -236,4 +244,23 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
         legs.append(Leg(point_ids[a], end, float(cost[a, b]),
                         tuple((float(p[0]), float(p[1]), float(p[2])) for p in path)))
     visits = tuple(pid for pid in (point_ids[i] for i in order) if pid is not None)
-    return Route(visits, tuple(legs), unreachable)
+    return Route(visits, tuple(legs), unreachable, reasons)
+
+
+_NO_FLOOR = ("no floor a person can stand on under it (within a step of its foot and "
+             f"{_ATTACH_CELLS:g} walk-grid cells, free at knee height)")
+
+
+def _why_unreachable(graph: WalkGraph, labels: NDArray[np.int64], feet: NDArray[np.float64],
+                     i: int, component: NDArray[np.int32]) -> str:
+    """Why station index ``i`` is not on the route, in a sentence."""
+    if labels[i] < 0:
+        return _NO_FLOOR
+    floor_z = graph.floor_xyz[component == labels[i], 2]
+    where = (f"its floor ({feet[i, 2] - KNEE_HEIGHT_M:+.2f} m) lies in a part of the "
+             f"building ({len(floor_z) * graph.grid_m ** 2:.1f} m² of floor, "
+             f"{floor_z.min():+.2f} to {floor_z.max():+.2f} m)")
+    return (where + " that no step of at most "
+            f"{STEP_M:g} m, stair, ramp, door or way outside joins to the route's part, with "
+            f"{KNEE_HEIGHT_M:g} m free at knee height: a ladder, a hatch, or a door or "
+            "opening the model closes")

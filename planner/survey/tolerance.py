@@ -38,6 +38,7 @@ from planner.method.pairs import FaceLimits, PairFinder
 from planner.method.placement import Displaced, Qualify, kept_faces
 from planner.method.selection import GOAL_SLACK_M2
 from planner.method.visibility import Occlusion, make_occlusion
+from planner.method.walkgraph import door_faces
 from planner.scene import Scene
 from planner.survey.registration import (
     Registration,
@@ -45,7 +46,6 @@ from planner.survey.registration import (
     shared_faces_only,
     station_registration,
 )
-from planner.survey.walkgraph import door_faces
 
 
 @dataclass(frozen=True)

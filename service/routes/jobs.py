@@ -8,7 +8,6 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query, Request, Response, status
 from fastapi.responses import FileResponse, JSONResponse
 
-from planner.outputs.ifc_plan import reason_without_ifc
 from service.deps import OwnerDep, ServicesDep
 from service.job_store import ACTIVE, DISMISSED, FAILED, STATUSES, SUCCESSFUL, JobRecord
 from service.problems import MEDIA_TYPE, NoSuchJobError, ResultNotReadyError, problem_responses
@@ -153,10 +152,6 @@ def get_results(job_id: str, services: ServicesDep, owner: OwnerDep) -> JobResul
         document[name] = OutputRef(href=f"/jobs/{job_id}/results/{name}",
                                    type=media_type(name), bytes=meta["bytes"],
                                    sha256=meta["sha256"]).model_dump()
-    if "plan.ifc" not in job.outputs:  # a plan of a mesh: say why, as the CLI does
-        reason = reason_without_ifc(str(document[PLAN_OUTPUT].get("scene", {}).get("format", "")))
-        if reason is not None:
-            document["plan.ifc"] = {"absent": reason}
     return JobResults(document)
 
 

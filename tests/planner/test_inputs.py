@@ -209,16 +209,18 @@ def _two_storeys() -> Scene:
     return scene_of(*parts)
 
 
-@pytest.mark.parametrize("floor_levels", ["walkable", "all"])
+@pytest.mark.parametrize("floor_levels", ["storeys", "walkable", "all"])
 def test_a_two_storey_mesh_gets_candidates_and_stations_on_both_storeys(
         floor_levels: str) -> None:
-    """By default ("walkable") the upper storey counts because the stair reaches it."""
+    """By default ("storeys") the upper storey counts because it has floor and head room
+    and is no furniture; with "walkable" because the stair reaches it."""
     scene = _two_storeys()
     spec = PlanSpec.from_mapping({"floor_levels": floor_levels, "grid_spacing_m": 1.0,
                                   "max_edge_m": 1.0})
     result = plan(remesh(scene, 1.0), spec)
     levels = result.candidates.summary()["levels"]
     assert isinstance(levels, list)
+    levels = [level for level in levels if "excluded" not in level]  # stair treads
     assert [level["floor_z_m"] for level in levels] == [0.0, 3.2]
     assert all(level["candidates"] > 0 for level in levels)
     floors = result.candidates.positions[result.chosen.stations, 2] - 1.5

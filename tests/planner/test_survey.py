@@ -15,6 +15,7 @@ from planner.io.readers import read_scene
 from planner.method import connectivity
 from planner.method.candidates import read_candidates_csv
 from planner.method.visibility import make_occlusion, make_ray_caster
+from planner.method.walkgraph import KNEE_HEIGHT_M, build_walk_graph, segment_free
 from planner.outputs.report import plan_document, stations_csv
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
@@ -25,7 +26,6 @@ from planner.survey.registration import (
     station_registration,
 )
 from planner.survey.route import exact_open_tour, open_tour, plan_route
-from planner.survey.walkgraph import KNEE_HEIGHT_M, build_walk_graph, segment_free
 from tests.planner.survey_scenes import (
     MEZZANINE_Z_M,
     boxes_scene,
@@ -322,7 +322,10 @@ def test_model_without_a_floor_leaves_every_station_unreachable() -> None:
     caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
     graph = build_walk_graph(scene, caster)
     route = plan_route(graph, caster, np.array([[0.0, 0.0, 1.5], [1.0, 0.0, 1.5]]), None)
-    assert route.to_dict() == {"visits": [], "length_m": 0.0, "legs": [], "unreachable": [1, 2]}
+    document = route.to_dict()
+    reasons = document.pop("unreachable_reasons")
+    assert document == {"visits": [], "length_m": 0.0, "legs": [], "unreachable": [1, 2]}
+    assert list(reasons) == ["1", "2"] and all(r.startswith("no floor") for r in reasons.values())
 
 
 def test_shared_sums_equal_the_dense_masked_product() -> None:
