@@ -189,7 +189,8 @@ class PlanParameters(BaseModel):
         "candidates", "scanner positions [x, y, z] in model coordinates; null: a grid")
     grid_spacing_m: Number = _d("grid_spacing_m", "spacing of generated candidates, metres")
     scanner_height_m: Number = _d("scanner_height_m", "height above the floor, metres")
-    scanner_heights_m: list[Annotated[float, Strict(), Field(gt=0)]] | None = _d(
+    scanner_heights_m: list[Annotated[float, Strict(), Field(
+        gt=RANGES["scanner_height_m"].gt, le=RANGES["scanner_height_m"].le)]] | None = _d(
         "scanner_heights_m", "instrument heights above the floor for generated candidates, "
         "metres, each a separate candidate; null: scanner_height_m alone")
     clearance_m: Number = _d("clearance_m", "least distance to any surface, metres")
