@@ -197,6 +197,8 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     min_sin_incidence: NDArray[np.float64], min_density: NDArray[np.float64],
     dof_min_m: float, dof_max_m: float, min_sin_elevation: float, max_sin_elevation: float,
     reach_m: float, angular_step_rad: float,
+    grid_origin: NDArray[np.float64], cell_m: float, grid_dims: NDArray[np.int64],
+    cell_start: NDArray[np.int64], cell_members: NDArray[np.int32],
     out_candidate: NDArray[np.int32], out_face: NDArray[np.int32],
     out_origin: NDArray[np.float32], out_direction: NDArray[np.float32],
     out_distance: NDArray[np.float32], out_lpd: NDArray[np.float32],
@@ -207,54 +209,181 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     through the f face indices ``faces`` (no per-plan copy: 48 bytes a face saved);
     ``face_class`` (f,) picks each face's thresholds from the (K,) ``min_sin_incidence``
     and ``min_density`` (K: the distinct pairs of them, 1 without group requirements).
-    Returns the number of pairs written.
+    Only the faces in the 3 x 3 x 3 cells of the grid (:class:`_FaceGrid`) around a point
+    are tested: a cell is at least ``reach_m`` wide, so every face within reach is among
+    them. A point's pairs are written in face order. Returns the number of pairs written.
     """
     n = 0
     reach2 = reach_m * reach_m * (1.0 + 1e-9)
+    cells = np.empty(27, np.int64)
+    low, high = np.empty(27, np.int64), np.empty(27, np.int64)
     for b in range(points.shape[0]):
         px, py, pz = points[b, 0], points[b, 1], points[b, 2]
-        for i in range(faces.shape[0]):
-            f = faces[i]
-            ox = face_xyz[f, 0] - px
-            oy = face_xyz[f, 1] - py
-            oz = face_xyz[f, 2] - pz
-            d2 = ox * ox + oy * oy + oz * oz
-            if d2 > reach2:
-                continue
-            d = np.sqrt(d2)
-            if d < dof_min_m or d > dof_max_m or d <= 0.0:
-                continue
-            uz = oz / d
-            if uz < min_sin_elevation or uz > max_sin_elevation:
-                continue
-            ux, uy = ox / d, oy / d
-            s = abs(ux * face_normal[f, 0] + uy * face_normal[f, 1] + uz * face_normal[f, 2])
-            k = face_class[i]
-            if s < min_sin_incidence[k]:
-                continue
-            spacing = angular_step_rad * d
-            lpd = s / (spacing * spacing)
-            if lpd < min_density[k]:
-                continue
-            out_candidate[n] = first_index + b
-            out_face[n] = f
-            out_distance[n] = d
-            out_origin[n, 0] = px
-            out_origin[n, 1] = py
-            out_origin[n, 2] = pz
-            out_direction[n, 0] = ux
-            out_direction[n, 1] = uy
-            out_direction[n, 2] = uz
-            out_lpd[n] = lpd
-            n += 1
+        n_cells = _cells_around(px, py, pz, grid_origin, cell_m, grid_dims, cells)
+        near = 0
+        for c in range(n_cells):
+            low[c], high[c] = cell_start[cells[c]], cell_start[cells[c] + 1]
+            near += high[c] - low[c]
+        # the cells' faces need putting in face order afterwards (some 20 pair tests a
+        # pair): worth it only when they leave most faces out, else every face in order
+        every_face = near * _GRID_WORTH > faces.shape[0]
+        if every_face:
+            n_cells, low[0], high[0] = 1, 0, faces.shape[0]
+        first = n
+        last_face = -1
+        in_order = True
+        for c in range(n_cells):
+            for m in range(low[c], high[c]):
+                i = m if every_face else cell_members[m]
+                f = faces[i]
+                ox = face_xyz[f, 0] - px
+                oy = face_xyz[f, 1] - py
+                oz = face_xyz[f, 2] - pz
+                d2 = ox * ox + oy * oy + oz * oz
+                if d2 > reach2:
+                    continue
+                d = np.sqrt(d2)
+                if d < dof_min_m or d > dof_max_m or d <= 0.0:
+                    continue
+                uz = oz / d
+                if uz < min_sin_elevation or uz > max_sin_elevation:
+                    continue
+                ux, uy = ox / d, oy / d
+                s = abs(ux * face_normal[f, 0] + uy * face_normal[f, 1]
+                        + uz * face_normal[f, 2])
+                k = face_class[i]
+                if s < min_sin_incidence[k]:
+                    continue
+                spacing = angular_step_rad * d
+                lpd = s / (spacing * spacing)
+                if lpd < min_density[k]:
+                    continue
+                out_candidate[n] = first_index + b
+                out_face[n] = f
+                out_distance[n] = d
+                out_origin[n, 0] = px
+                out_origin[n, 1] = py
+                out_origin[n, 2] = pz
+                out_direction[n, 0] = ux
+                out_direction[n, 1] = uy
+                out_direction[n, 2] = uz
+                out_lpd[n] = lpd
+                in_order = in_order and f > last_face
+                last_face = f
+                n += 1
+        if not in_order:  # the cells' faces came one cell after another: put them in order
+            _sort_by_face(first, n, out_face, out_distance, out_lpd, out_direction)
     return n
+
+
+@numba.njit(nogil=True, cache=True)
+def _sort_by_face(first: int, end: int, out_face: NDArray[np.int32],
+                  out_distance: NDArray[np.float32], out_lpd: NDArray[np.float32],
+                  out_direction: NDArray[np.float32]) -> None:
+    """Reorder rows ``first:end`` (one point's pairs, each face once) by face."""
+    m = end - first
+    order = np.argsort(out_face[first:end])
+    face = out_face[first:end].copy()
+    distance = out_distance[first:end].copy()
+    lpd = out_lpd[first:end].copy()
+    direction = out_direction[first:end].copy()
+    for j in range(m):
+        k = order[j]
+        out_face[first + j] = face[k]
+        out_distance[first + j] = distance[k]
+        out_lpd[first + j] = lpd[k]
+        out_direction[first + j, 0] = direction[k, 0]
+        out_direction[first + j, 1] = direction[k, 1]
+        out_direction[first + j, 2] = direction[k, 2]
+
+
+@numba.njit(nogil=True, cache=True)
+def _cells_around(px: float, py: float, pz: float, grid_origin: NDArray[np.float64],
+                  cell_m: float, grid_dims: NDArray[np.int64], out: NDArray[np.int64]) -> int:
+    """Write the ids of the grid cells in the 3 x 3 x 3 block around the point's cell (those
+    inside the grid) into ``out``, in increasing order; returns how many."""
+    cx = int(np.floor((px - grid_origin[0]) / cell_m))
+    cy = int(np.floor((py - grid_origin[1]) / cell_m))
+    cz = int(np.floor((pz - grid_origin[2]) / cell_m))
+    n = 0
+    for gx in range(max(cx - 1, 0), min(cx + 2, grid_dims[0])):
+        for gy in range(max(cy - 1, 0), min(cy + 2, grid_dims[1])):
+            for gz in range(max(cz - 1, 0), min(cz + 2, grid_dims[2])):
+                out[n] = (gx * grid_dims[1] + gy) * grid_dims[2] + gz
+                n += 1
+    return n
+
+
+@numba.njit(nogil=True, cache=True)
+def _cell_members(cell_of: NDArray[np.int32], n_cells: int
+                  ) -> tuple[NDArray[np.int64], NDArray[np.int32]]:
+    """Counting sort of the f faces by cell: (n_cells + 1,) starts and (f,) members, the
+    faces of each cell in increasing order (4 bytes a face, no (f,) int64 argsort)."""
+    start = np.zeros(n_cells + 1, np.int64)
+    for i in range(cell_of.shape[0]):
+        start[cell_of[i] + 1] += 1
+    for c in range(n_cells):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    members = np.empty(cell_of.shape[0], np.int32)
+    for i in range(cell_of.shape[0]):
+        members[fill[cell_of[i]]] = i
+        fill[cell_of[i]] += 1
+    return start, members
+
+
+# the grid is used for a point when its cells hold less than this share of the faces
+_GRID_WORTH = 4
+# most grid cells a pair finder makes (a cell is at least the reach wide): bounds the starts
+_MAX_CELLS = 1 << 21
+# faces per block when each face's grid cell is computed: bounds the scratch
+_CELL_BLOCK_FACES = 1 << 20
+
+
+@dataclass(frozen=True)
+class _FaceGrid:
+    """The target faces' centroids binned in cubes of side ``cell_m`` (at least the reach):
+    the faces a point can reach lie in the 27 cells around its own."""
+
+    origin: NDArray[np.float64]  # (3,) the grid's lowest corner
+    cell_m: float
+    dims: NDArray[np.int64]  # (3,) cells along x, y, z
+    start: NDArray[np.int64]  # (cells + 1,) the members of cell c: members[start[c]:start[c+1]]
+    members: NDArray[np.int32]  # (f,) positions in the finder's target list
+
+    @classmethod
+    def of(cls, face_xyz: NDArray[np.float64], faces: NDArray[np.int32], reach_m: float
+           ) -> _FaceGrid:
+        if len(faces) == 0:
+            return cls(np.zeros(3), 1.0, np.ones(3, np.int64), np.zeros(2, np.int64),
+                       np.zeros(0, np.int32))
+        blocks = range(0, len(faces), _CELL_BLOCK_FACES)
+        low = np.min([face_xyz[faces[s:s + _CELL_BLOCK_FACES]].min(axis=0) for s in blocks],
+                     axis=0)
+        high = np.max([face_xyz[faces[s:s + _CELL_BLOCK_FACES]].max(axis=0) for s in blocks],
+                      axis=0)
+        extent = np.maximum(high - low, 1e-9)
+        # wider than the reach by far more than rounding, so no face in reach is missed
+        cell_m = max(reach_m * (1.0 + 1e-6), float(extent.max()) * 1e-6)
+        while np.prod(np.floor(extent / cell_m) + 1) > _MAX_CELLS:
+            cell_m *= 2.0
+        dims = (np.floor(extent / cell_m) + 1).astype(np.int64)
+        cell_of = np.empty(len(faces), np.int32)
+        for s in blocks:
+            ijk = np.floor((face_xyz[faces[s:s + _CELL_BLOCK_FACES]] - low) / cell_m)
+            ijk = np.minimum(ijk.astype(np.int64), dims - 1)
+            cell_of[s:s + _CELL_BLOCK_FACES] = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] \
+                + ijk[:, 2]
+        start, members = _cell_members(cell_of, int(np.prod(dims)))
+        return cls(low, cell_m, dims, start, members)
 
 
 class PairFinder:
     """Finds the passing pairs of a block of candidates (a compiled loop, GIL released).
 
     Every test is made in float64 exactly as the module docstring states; the loop only
-    saves the memory traffic of C x F temporary arrays.
+    saves the memory traffic of C x F temporary arrays, and a grid of the faces leaves out
+    those beyond reach before any arithmetic.
     """
 
     def __init__(self, scene: Scene, limits: FaceLimits) -> None:
@@ -271,15 +400,18 @@ class PairFinder:
         self._min_sin_incidence = np.sin(np.radians(incidence_deg))
         self._min_sin_elevation = math.sin(math.radians(limits.elevation_min_deg))
         self._max_sin_elevation = math.sin(math.radians(limits.elevation_max_deg))
+        # only the faces within reach of a candidate are tested (on a 10 M-face building
+        # a candidate reaches some thousandths of them): the cells around it
+        self._grid = _FaceGrid.of(self._face_xyz, self._faces, self.reach_m)
 
     def find(self, candidates_xyz: NDArray[np.float64], first_index: int) -> tuple[Pairs, int]:
         """Passing pairs of (B, 3) candidates numbered from ``first_index``.
 
         Returns the pairs, sorted by (candidate, face), and how many pairs were tested.
         """
-        lim = self.limits
+        lim, grid = self.limits, self._grid
         points = np.ascontiguousarray(candidates_xyz, np.float64)
-        capacity = len(points) * len(self._faces)
+        capacity = self.tested(points)
         pairs = Pairs(np.empty(capacity, np.int32), np.empty(capacity, np.int32),
                       np.empty((capacity, 3), np.float32), np.empty((capacity, 3), np.float32),
                       np.empty(capacity, np.float32), np.empty(capacity, np.float32))
@@ -287,12 +419,23 @@ class PairFinder:
             points, first_index, self._faces, self._face_xyz, self._face_normal,
             self._face_class, self._min_sin_incidence, self._min_density, lim.dof_min_m,
             lim.dof_max_m, self._min_sin_elevation, self._max_sin_elevation, self.reach_m,
-            lim.angular_step_rad, pairs.candidate, pairs.face, pairs.origin, pairs.direction,
+            lim.angular_step_rad, grid.origin, grid.cell_m, grid.dims, grid.start,
+            grid.members, pairs.candidate, pairs.face, pairs.origin, pairs.direction,
             pairs.distance_m, pairs.lpd_pts_m2,
         )
         # views of the first n rows: the block's arrays are short-lived
         pairs = pairs.subset(slice(0, n))
         return pairs, capacity
+
+    def tested(self, points: NDArray[np.float64]) -> int:
+        """How many pairs :meth:`find` tests for (B, 3) ``points``: the faces in the cells
+        around each."""
+        grid, cells, total = self._grid, np.empty(27, np.int64), 0
+        for x, y, z in np.asarray(points, np.float64):
+            n = _cells_around(x, y, z, grid.origin, grid.cell_m, grid.dims, cells)
+            near = int((grid.start[cells[:n] + 1] - grid.start[cells[:n]]).sum())
+            total += len(self._faces) if near * _GRID_WORTH > len(self._faces) else near
+        return total
 
 
 # faces per block when the threshold classes are gathered: bounds the (b,) scratch keys
