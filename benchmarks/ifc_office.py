@@ -48,6 +48,7 @@ import ifcopenshell.api.aggregate
 import ifcopenshell.api.context
 import ifcopenshell.api.feature
 import ifcopenshell.api.geometry
+import ifcopenshell.api.owner
 import ifcopenshell.api.project
 import ifcopenshell.api.root
 import ifcopenshell.api.spatial
@@ -78,6 +79,7 @@ STAIR_MAX_RISER_M = 0.18
 STAIR_WAIST_M = 0.2  # thickness of the flight under the nosings
 STAIR_LANDING_M = 1.5  # free floor between the corridor wall and the first riser
 TIMESTAMP = "2000-01-01T00:00:00"
+TIMESTAMP_S = 946_684_800  # the same instant in seconds since 1970 (IfcTimeStamp)
 
 
 @dataclass(frozen=True)
@@ -114,6 +116,11 @@ class _Builder:
     def __init__(self, schema: Schema) -> None:
         self.schema = schema
         self.f = ifcopenshell.api.project.create_file(version=schema)
+        if schema == "IFC2X3":  # owner history is mandatory there; the API finds these
+            ifcopenshell.api.owner.add_application(self.f)
+            ifcopenshell.api.owner.add_person_and_organisation(
+                self.f, person=ifcopenshell.api.owner.add_person(self.f),
+                organisation=ifcopenshell.api.owner.add_organisation(self.f))
         self.project = self.create("IfcProject", "scanplan benchmark office")
         ifcopenshell.api.unit.assign_unit(self.f, length={"is_metric": True, "raw": "METRES"})
         model = ifcopenshell.api.context.add_context(self.f, context_type="Model")
@@ -228,6 +235,10 @@ class _Builder:
             digest = hashlib.sha256(f"scanplan-office-{index}".encode()).digest()[:16]
             root.GlobalId = ifcopenshell.guid.compress(uuid.UUID(bytes=digest).hex)
         self.f.header.file_name.time_stamp = TIMESTAMP
+        for history in self.f.by_type("IfcOwnerHistory"):  # IFC2X3: times of creation
+            history.CreationDate = TIMESTAMP_S
+            if history.LastModifiedDate is not None:
+                history.LastModifiedDate = TIMESTAMP_S
         return self.f
 
 
@@ -411,10 +422,12 @@ def _flight(b: _Builder, layout: OfficeLayout, storey: Entity, name: str,
     top = n * riser
     profile += [(run, top - STAIR_WAIST_M - riser), (2 * g, 0.0)]
     container = b.create("IfcStair", f"Stair {name}", "STRAIGHT_RUN_STAIR")
+    if b.schema == "IFC2X3":  # the shape is a mandatory attribute there
+        container.ShapeType = "STRAIGHT_RUN_STAIR"
     ifcopenshell.api.spatial.assign_container(b.f, products=[container],
                                               relating_structure=storey)
     flight = b.create("IfcStairFlight", f"Flight {name}", "STRAIGHT")
-    flight.NumberOfRisers = n
+    setattr(flight, "NumberOfRiser" if b.schema == "IFC2X3" else "NumberOfRisers", n)
     flight.NumberOfTreads = n - 1
     flight.RiserHeight = riser
     flight.TreadLength = g
