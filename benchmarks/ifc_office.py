@@ -230,7 +230,13 @@ class _Builder:
                                                  relating_object=storey)
 
     def finish(self) -> ifcopenshell.file:
-        """Deterministic GlobalIds and header, so that the same layout gives the same bytes."""
+        """Deterministic GlobalIds, header and members of relationships and unit assignments
+        (the API collects these in sets), so that the same layout gives the same bytes."""
+        for rel in self.f.by_type("IfcRelationship") + self.f.by_type("IfcUnitAssignment"):
+            for index, value in enumerate(rel):
+                if isinstance(value, tuple) and all(
+                        isinstance(v, ifcopenshell.entity_instance) for v in value):
+                    rel[index] = tuple(sorted(value, key=lambda v: v.id()))
         for index, root in enumerate(self.f.by_type("IfcRoot")):
             digest = hashlib.sha256(f"scanplan-office-{index}".encode()).digest()[:16]
             root.GlobalId = ifcopenshell.guid.compress(uuid.UUID(bytes=digest).hex)
