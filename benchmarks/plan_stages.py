@@ -6,11 +6,14 @@ renders the pictures in background threads; here each output is timed alone). Pr
 stage the wall time, the CPU time of the process (user + sys of all its threads, from
 ``getrusage``: on a shared machine wall time is stretched by other work, CPU time much
 less), the peak resident memory during the stage and of the process so far; then the
-planner's own breakdown (``result.stats.seconds``), faces, candidates and stations.
+planner's own breakdown (``result.stats.seconds``), faces, candidates and stations. While
+``plan()`` runs, its progress goes to stderr (a long run can be followed with ``tail``).
 
 Peak memory per stage comes from the kernel's high-water mark (``VmHWM``), reset before each
 stage through ``/proc/self/clear_refs``; where that is not possible only the process peak
-(``ru_maxrss``) is shown. Prints figures, never passes or fails on time::
+is shown. The reset lowers ``ru_maxrss`` too (and what ``/usr/bin/time`` reports at exit), so
+the process peak printed here is the largest stage peak so far. Prints figures, never passes
+or fails on time::
 
     .venv/bin/python benchmarks/plan_stages.py MODEL [--params JSON|FILE] [--out DIR]
         [--json FILE]
@@ -21,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import resource
+import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -47,7 +51,7 @@ def cpu_seconds() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def process_peak_mib() -> float:
+def maxrss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / MIB
 
 
@@ -75,6 +79,7 @@ class StageTimer:
 
     def __init__(self) -> None:
         self.stages: list[StageFigures] = []
+        self.peak_mib = maxrss_mib()  # of the process, whatever the resets
         print(f"{'stage':<22}{'wall s':>9}{'cpu s':>9}{'peak MiB':>10}{'proc peak':>11}"
               f"{'rss after':>11}  note", flush=True)
 
@@ -87,16 +92,35 @@ class StageTimer:
         yield notes
         hwm = _status_kib("VmHWM") if can_reset else None
         rss = _status_kib("VmRSS")
+        self.peak_mib = max(self.peak_mib, maxrss_mib(), 0.0 if hwm is None else hwm / MIB)
         figures = StageFigures(
             stage=name, wall_s=time.perf_counter() - wall, cpu_s=cpu_seconds() - cpu,
             stage_peak_mib=None if hwm is None else hwm / MIB,
-            process_peak_mib=process_peak_mib(),
+            process_peak_mib=self.peak_mib,
             rss_after_mib=0.0 if rss is None else rss / MIB, note=", ".join(notes))
         self.stages.append(figures)
         peak = "-" if figures.stage_peak_mib is None else f"{figures.stage_peak_mib:.0f}"
         print(f"{name:<22}{figures.wall_s:9.1f}{figures.cpu_s:9.1f}{peak:>10}"
               f"{figures.process_peak_mib:11.0f}{figures.rss_after_mib:11.0f}  {figures.note}",
               flush=True)
+
+
+class ProgressLog:
+    """Prints to stderr when ``plan()`` enters a stage and at every tenth of it, with the
+    wall and CPU seconds since the start: on a long run it tells how far it is."""
+
+    def __init__(self) -> None:
+        self.wall, self.cpu = time.perf_counter(), cpu_seconds()
+        self.last: tuple[str, int] = ("", -1)
+
+    def __call__(self, stage: str, fraction: float) -> bool:
+        step = (stage, int(fraction * 10))
+        if step != self.last:
+            self.last = step
+            print(f"  [{time.perf_counter() - self.wall:7.0f} s wall, "
+                  f"{cpu_seconds() - self.cpu:7.0f} s cpu] {stage} {fraction:4.0%}",
+                  file=sys.stderr, flush=True)
+        return False  # never cancel
 
 
 def load_params(value: str | None) -> dict[str, Any]:
@@ -126,7 +150,7 @@ def run(model: Path, params: dict[str, Any], out: Path | None) -> dict[str, Any]
         notes.append(f"{scene.n_faces:,} file faces")
     result: PlanResult
     with timer.stage("plan") as notes:
-        result = plan(scene, spec)
+        result = plan(scene, spec, progress=ProgressLog())
         notes.append(f"{result.scene.n_faces:,} faces after split, "
                      f"{len(result.candidates):,} candidates, "
                      f"{len(result.chosen.stations)} stations")
@@ -161,7 +185,7 @@ def run(model: Path, params: dict[str, Any], out: Path | None) -> dict[str, Any]
     total_wall = sum(s.wall_s for s in timer.stages)
     total_cpu = sum(s.cpu_s for s in timer.stages)
     print(f"{'total':<22}{total_wall:.1f} s wall, {total_cpu:.1f} s CPU, "
-          f"peak {process_peak_mib():.0f} MiB")
+          f"peak {timer.peak_mib:.0f} MiB")
     return {**counts, "plan_seconds": dict(stats.seconds),
             "stages": [asdict(s) for s in timer.stages]}
 
