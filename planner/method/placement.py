@@ -118,7 +118,7 @@ def displaced_positions(scene: Scene, positions: NDArray[np.float64], tolerance_
         ok = has_floor & (hit >= 0)
         ok[ok] = np.abs(scene.normals[hit[ok], 2]) >= steep
         new_floor = heads[:, 2] - drop
-        ok &= np.abs(new_floor - floor_z) <= SAME_FLOOR_M
+        ok[ok] = np.abs(new_floor[ok] - floor_z[ok]) <= SAME_FLOOR_M  # (no -inf - -inf)
         heads[:, 2] = np.where(ok, new_floor + height, heads[:, 2])
         # nothing between just above the floor and clearance_m above the head
         index = np.flatnonzero(ok)
