@@ -37,7 +37,7 @@ from shapely import Polygon, intersects_xy
 
 from planner.errors import NoCandidatesError, ParameterError
 from planner.method.visibility import RayCaster
-from planner.method.walkgraph import HEADROOM_M
+from planner.method.walkgraph import HEADROOM_M, cell_pairs
 from planner.method.winding import winding_numbers
 from planner.parameters import PlanSpec
 from planner.scene import Scene, subdivide
@@ -330,12 +330,7 @@ def storey_levels(
             if dx == 0 and dy == 0:
                 continue
             target = key + dx * width + dy
-            start = np.searchsorted(sorted_key, target, side="left")
-            stop = np.searchsorted(sorted_key, target, side="right")
-            counts = stop - start
-            a = np.repeat(np.arange(n), counts)
-            b = order[np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-                      + np.repeat(start, counts)]
+            a, b = cell_pairs(sorted_key, order, target)
             neighbours.append((a, b))
             close = np.abs(floor_z[a] - floor_z[b]) <= _LEVEL_GAP_M
             rows.append(a[close])

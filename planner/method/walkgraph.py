@@ -310,6 +310,19 @@ def segment_free(caster: RayCaster, a: NDArray[np.float64], b: NDArray[np.float6
     return free
 
 
+
+def cell_pairs(sorted_key: NDArray[np.int64], order: NDArray[np.int64],
+               target: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Every (i, j) with point j in the cell ``target[i]``: (P,) i and (P,) j, for N points
+    whose cell keys, sorted, are the (N,) ``sorted_key`` and ``order`` sorts them."""
+    start = np.searchsorted(sorted_key, target, side="left")
+    stop = np.searchsorted(sorted_key, target, side="right")
+    counts = stop - start
+    a = np.repeat(np.arange(len(target)), counts)
+    b = order[np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+              + np.repeat(start, counts)]
+    return a, b
+
 def build_walk_graph(scene: Scene, caster: RayCaster, *, ground: bool = True) -> WalkGraph:
     """The walk graph of ``scene`` (see the module docstring); ``ground``: add the ground
     nodes of a model without terrain."""
@@ -337,12 +350,7 @@ def build_walk_graph(scene: Scene, caster: RayCaster, *, ground: bool = True) ->
     cols: list[NDArray[np.int64]] = []
     for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
         target = (ix + dx) * width + (iy + dy)
-        start = np.searchsorted(sorted_key, target, side="left")
-        stop = np.searchsorted(sorted_key, target, side="right")
-        counts = stop - start
-        a = np.repeat(np.arange(n), counts)
-        b = by_key[np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-                   + np.repeat(start, counts)]
+        a, b = cell_pairs(sorted_key, by_key, target)
         close = np.abs(floor_xyz[a, 2] - floor_xyz[b, 2]) <= STEP_M
         rows.append(a[close])
         cols.append(b[close])
