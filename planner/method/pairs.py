@@ -202,7 +202,7 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     out_candidate: NDArray[np.int32], out_face: NDArray[np.int32],
     out_origin: NDArray[np.float32], out_direction: NDArray[np.float32],
     out_distance: NDArray[np.float32], out_lpd: NDArray[np.float32],
-) -> int:
+) -> tuple[int, int]:
     """Write the pairs of (B, 3) ``points`` x the candidate faces that pass every limit.
 
     ``face_xyz`` and ``face_normal`` are the scene's (F, 3) centroids and normals, read
@@ -211,9 +211,11 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     and ``min_density`` (K: the distinct pairs of them, 1 without group requirements).
     Only the faces in the 3 x 3 x 3 cells of the grid (:class:`_FaceGrid`) around a point
     are tested: a cell is at least ``reach_m`` wide, so every face within reach is among
-    them. A point's pairs are written in face order. Returns the number of pairs written.
+    them. A point's pairs are written in face order. Returns the number of pairs written
+    and the number tested.
     """
     n = 0
+    tested = 0
     reach2 = reach_m * reach_m * (1.0 + 1e-9)
     cells = np.empty(27, np.int64)
     low, high = np.empty(27, np.int64), np.empty(27, np.int64)
@@ -229,6 +231,7 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
         every_face = near * _GRID_WORTH > faces.shape[0]
         if every_face:
             n_cells, low[0], high[0] = 1, 0, faces.shape[0]
+        tested += faces.shape[0] if every_face else near
         first = n
         last_face = -1
         in_order = True
@@ -273,7 +276,7 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
                 n += 1
         if not in_order:  # the cells' faces came one cell after another: put them in order
             _sort_by_face(first, n, out_face, out_distance, out_lpd, out_direction)
-    return n
+    return n, tested
 
 
 @numba.njit(nogil=True, cache=True)
@@ -411,11 +414,11 @@ class PairFinder:
         """
         lim, grid = self.limits, self._grid
         points = np.ascontiguousarray(candidates_xyz, np.float64)
-        capacity = self.tested(points)
+        capacity = len(points) * len(self._faces)  # untouched pages cost no memory
         pairs = Pairs(np.empty(capacity, np.int32), np.empty(capacity, np.int32),
                       np.empty((capacity, 3), np.float32), np.empty((capacity, 3), np.float32),
                       np.empty(capacity, np.float32), np.empty(capacity, np.float32))
-        n = _pass_limits(
+        n, tested = _pass_limits(
             points, first_index, self._faces, self._face_xyz, self._face_normal,
             self._face_class, self._min_sin_incidence, self._min_density, lim.dof_min_m,
             lim.dof_max_m, self._min_sin_elevation, self._max_sin_elevation, self.reach_m,
@@ -425,17 +428,7 @@ class PairFinder:
         )
         # views of the first n rows: the block's arrays are short-lived
         pairs = pairs.subset(slice(0, n))
-        return pairs, capacity
-
-    def tested(self, points: NDArray[np.float64]) -> int:
-        """How many pairs :meth:`find` tests for (B, 3) ``points``: the faces in the cells
-        around each."""
-        grid, cells, total = self._grid, np.empty(27, np.int64), 0
-        for x, y, z in np.asarray(points, np.float64):
-            n = _cells_around(x, y, z, grid.origin, grid.cell_m, grid.dims, cells)
-            near = int((grid.start[cells[:n] + 1] - grid.start[cells[:n]]).sum())
-            total += len(self._faces) if near * _GRID_WORTH > len(self._faces) else near
-        return total
+        return pairs, tested
 
 
 # faces per block when the threshold classes are gathered: bounds the (b,) scratch keys
