@@ -23,6 +23,7 @@ import numpy as np
 from planner.errors import CancelledError, NothingVisibleError
 from planner.io.orientation import scene_rotation, to_plan
 from planner.memory import release_freed_memory
+from planner.method.bundles import bundle_culler
 from planner.method.candidates import CandidateSet, explicit_candidates, generate_grid
 from planner.method.connectivity import Connectivity
 from planner.method.coverage import CoverageTable, QualifiedPairs
@@ -344,26 +345,35 @@ def qualify_pairs(
     *,
     progress: ProgressCallback | None = None,
     threads: int | None = None,
+    bundles: bool | None = None,
 ) -> Iterator[tuple[QualifiedPairs, int, int]]:
     """The qualified pairs of (C, 3) candidate positions, block by block in candidate order
     (each sorted by (candidate, face)), with the pairs tested and rays cast for it.
+
+    ``bundles``: rule out bundles of pieces hidden behind one occluder with four rays
+    each (:mod:`planner.method.bundles`): None where it pays (a long reach), True always,
+    False never; the same pairs qualify either way.
 
     Blocks of candidates run on a thread pool (the compiled limits loop and Embree both
     release the GIL); they come out in block order, so they do not depend on timing.
     """
     finder = PairFinder(scene, limits)
+    culler = None if bundles is False else bundle_culler(scene, finder.reach_m, occlusion,
+                                                         always=bool(bundles))
     block_size = max(1, min(64, _PAIRS_PER_BLOCK // max(1, int(limits.target.sum()))))
     starts = range(0, len(positions), block_size)
 
     def block(start: int) -> tuple[QualifiedPairs, int, int]:
-        pairs, tested = finder.find(positions[start:start + block_size], start)
+        points = positions[start:start + block_size]
+        hidden, bundle_rays = (None, 0) if culler is None else culler.hidden(points)
+        pairs, tested = finder.find(points, start, hidden)
         visible = occlusion.visible(
             pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
             exact_rays=pairs.exact_rays(positions, scene.centroids),
         )
         qualified = QualifiedPairs(pairs.candidate[visible], pairs.face[visible],
                                    pairs.lpd_pts_m2[visible])
-        return qualified, tested, len(pairs)
+        return qualified, tested, len(pairs) + bundle_rays
 
     return in_block_order(block, starts, threads=threads,
                           notify=lambda fraction: _notify(progress, "visibility", fraction))

@@ -184,6 +184,36 @@ class EmbreeOcclusion:
                               blocked, prim, vertices32, faces32, self._clear_margin_m, clear)
         return clear
 
+    def bundles_hidden(self, origins: NDArray[np.float64], corners: NDArray[np.float64]
+                       ) -> NDArray[np.bool_]:
+        """(P,) bool: the bundles whose (P, 4, 3) ``corners`` all lie clearly behind one
+        occluder seen from the (P, 3) ``origins`` (:mod:`planner.method.bundles`): one
+        robust cast of the four corner rays, the hits checked in float64. The rays start
+        where the pieces' own rays do, at the float32 origin."""
+        hidden = np.zeros(len(origins), bool)
+        if self._empty or len(origins) == 0:
+            return hidden
+        origins32 = np.ascontiguousarray(origins, np.float32)
+        start = origins32.astype(np.float64)
+        offset = corners - start[:, None, :]  # (P, 4, 3)
+        distance_m = np.linalg.norm(offset, axis=2)  # (P, 4)
+        reaches = (distance_m > 0).all(axis=1)
+        if not reaches.all():  # a corner at the origin: not ruled out (its pieces are cast)
+            origins32, start = origins32[reaches], start[reaches]
+            offset, distance_m = offset[reaches], distance_m[reaches]
+            corners = corners[reaches]
+        directions32 = (offset / distance_m[:, :, None]).reshape(-1, 3).astype(np.float32)
+        far = np.multiply(distance_m.ravel(), FAR_LIMIT_FACTOR, dtype=np.float32)
+        prim = np.asarray(self._scene.run(np.repeat(origins32, 4, axis=0), directions32,
+                                          dists=far, query="INTERSECT"), np.int64)
+        vertices32, faces32 = self._corners32
+        ruled_out = np.zeros(len(start), bool)
+        _bundle_hidden_kernel(start, np.ascontiguousarray(corners, np.float64),
+                              prim.reshape(-1, 4), vertices32, faces32, self._clear_margin_m,
+                              ruled_out)
+        hidden[np.flatnonzero(reaches)[ruled_out]] = True
+        return hidden
+
     def _bvh_face(self, faces: NDArray[np.int64]) -> NDArray[np.int64]:
         """The BVH face (file face, or the face itself) of scene faces."""
         return faces if self._source_face is None else self._source_face[faces].astype(np.int64)
@@ -324,6 +354,47 @@ class EmbreeOcclusion:
 
 
 @numba.njit(nogil=True, cache=True)
+def _hit_inside(ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, face: int,
+                vertices32: NDArray[np.float32], faces32: NDArray[np.int32]
+                ) -> tuple[float, float]:
+    """Where the unit ray (o, d) meets BVH triangle ``face`` (its float32 corners, in
+    float64): the distance t along the ray and how far inside the triangle the hit lies
+    (metres to its nearest edge, negative outside); (nan, -inf) for a ray in its plane or a
+    degenerate triangle."""
+    a, b, c = faces32[face, 0], faces32[face, 1], faces32[face, 2]
+    ax, ay, az = float(vertices32[a, 0]), float(vertices32[a, 1]), float(vertices32[a, 2])
+    e1x = float(vertices32[b, 0]) - ax
+    e1y = float(vertices32[b, 1]) - ay
+    e1z = float(vertices32[b, 2]) - az
+    e2x = float(vertices32[c, 0]) - ax
+    e2y = float(vertices32[c, 1]) - ay
+    e2z = float(vertices32[c, 2]) - az
+    # Moller-Trumbore: barycentric (w, u, v) of the hit and its distance t (unit ray)
+    px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    if det == 0.0:
+        return np.nan, -np.inf
+    sx, sy, sz = ox - ax, oy - ay, oz - az
+    u = (sx * px + sy * py + sz * pz) / det
+    qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
+    v = (dx * qx + dy * qy + dz * qz) / det
+    t = (e2x * qx + e2y * qy + e2z * qz) / det
+    w = 1.0 - u - v
+    # distance of the hit to each edge: barycentric coordinate x the height on that edge
+    nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    doubled_area = np.sqrt(nx * nx + ny * ny + nz * nz)
+    fx, fy, fz = e2x - e1x, e2y - e1y, e2z - e1z
+    edge_bc = np.sqrt(fx * fx + fy * fy + fz * fz)
+    edge_ac = np.sqrt(e2x * e2x + e2y * e2y + e2z * e2z)
+    edge_ab = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+    if edge_bc <= 0.0 or edge_ac <= 0.0 or edge_ab <= 0.0:
+        return np.nan, -np.inf
+    inside_m = min(w * doubled_area / edge_bc, u * doubled_area / edge_ac,
+                   v * doubled_area / edge_ab)
+    return t, inside_m
+
+
+@numba.njit(nogil=True, cache=True)
 def _clear_hit_kernel(  # compiled; compared with both casts in tests/planner/test_limits.py
     origins32: NDArray[np.float32], directions32: NDArray[np.float32],
     distances_m: NDArray[np.float64], rays: NDArray[np.int64], prim: NDArray[np.int64],
@@ -335,15 +406,32 @@ def _clear_hit_kernel(  # compiled; compared with both casts in tests/planner/te
     ``distances_m[r]``, in float64 on the float32 ray and corners Embree was given."""
     for k in range(rays.shape[0]):
         r = rays[k]
-        f = prim[r]
-        ox, oy, oz = float(origins32[r, 0]), float(origins32[r, 1]), float(origins32[r, 2])
         dx, dy, dz = (float(directions32[r, 0]), float(directions32[r, 1]),
                       float(directions32[r, 2]))
         length = np.sqrt(dx * dx + dy * dy + dz * dz)
         if length <= 0.0:
             continue
-        dx, dy, dz = dx / length, dy / length, dz / length
-        a, b, c = faces32[f, 0], faces32[f, 1], faces32[f, 2]
+        t, inside_m = _hit_inside(float(origins32[r, 0]), float(origins32[r, 1]),
+                                  float(origins32[r, 2]), dx / length, dy / length,
+                                  dz / length, prim[r], vertices32, faces32)
+        out[r] = inside_m > margin_m and margin_m < t < distances_m[r] - margin_m
+
+
+@numba.njit(nogil=True, cache=True)
+def _bundle_hidden_kernel(  # compiled; compared with the pieces' own rays in test_bundles
+    origins: NDArray[np.float64], corners: NDArray[np.float64], prim: NDArray[np.int64],
+    vertices32: NDArray[np.float32], faces32: NDArray[np.int32], margin_m: float,
+    out: NDArray[np.bool_],
+) -> None:
+    """Set ``out[p]`` where the four rays from ``origins[p]`` (P, 3) to ``corners[p]``
+    (P, 4, 3) all hit BVH triangle T = ``prim[p, 0]`` (P, 4) more than ``margin_m`` inside
+    its edges, the origin lies more than ``margin_m`` in front of T's plane and every
+    corner more than ``margin_m`` behind it (:mod:`planner.method.bundles`)."""
+    for p in range(prim.shape[0]):
+        face = prim[p, 0]
+        if face < 0 or prim[p, 1] != face or prim[p, 2] != face or prim[p, 3] != face:
+            continue
+        a, b, c = faces32[face, 0], faces32[face, 1], faces32[face, 2]
         ax, ay, az = float(vertices32[a, 0]), float(vertices32[a, 1]), float(vertices32[a, 2])
         e1x = float(vertices32[b, 0]) - ax
         e1y = float(vertices32[b, 1]) - ay
@@ -351,26 +439,27 @@ def _clear_hit_kernel(  # compiled; compared with both casts in tests/planner/te
         e2x = float(vertices32[c, 0]) - ax
         e2y = float(vertices32[c, 1]) - ay
         e2z = float(vertices32[c, 2]) - az
-        # Moller-Trumbore: barycentric (w, u, v) of the hit and its distance t (unit ray)
-        px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
-        det = e1x * px + e1y * py + e1z * pz
-        if det == 0.0:
-            continue
-        sx, sy, sz = ox - ax, oy - ay, oz - az
-        u = (sx * px + sy * py + sz * pz) / det
-        qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
-        v = (dx * qx + dy * qy + dz * qz) / det
-        t = (e2x * qx + e2y * qy + e2z * qz) / det
-        w = 1.0 - u - v
-        # distance of the hit to each edge: barycentric coordinate x the height on that edge
         nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-        doubled_area = np.sqrt(nx * nx + ny * ny + nz * nz)
-        fx, fy, fz = e2x - e1x, e2y - e1y, e2z - e1z
-        edge_bc = np.sqrt(fx * fx + fy * fy + fz * fz)
-        edge_ac = np.sqrt(e2x * e2x + e2y * e2y + e2z * e2z)
-        edge_ab = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
-        if edge_bc <= 0.0 or edge_ac <= 0.0 or edge_ab <= 0.0:
+        norm = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if norm <= 0.0:
             continue
-        inside_m = min(w * doubled_area / edge_bc, u * doubled_area / edge_ac,
-                       v * doubled_area / edge_ab)
-        out[r] = inside_m > margin_m and margin_m < t < distances_m[r] - margin_m
+        nx, ny, nz = nx / norm, ny / norm, nz / norm
+        ox, oy, oz = origins[p, 0], origins[p, 1], origins[p, 2]
+        front = (ox - ax) * nx + (oy - ay) * ny + (oz - az) * nz  # the origin's side
+        if abs(front) <= margin_m:
+            continue
+        hidden = True
+        for j in range(4):
+            qx, qy, qz = corners[p, j, 0], corners[p, j, 1], corners[p, j, 2]
+            behind = (qx - ax) * nx + (qy - ay) * ny + (qz - az) * nz
+            if behind * front >= 0.0 or abs(behind) <= margin_m:
+                hidden = False
+                break
+            dx, dy, dz = qx - ox, qy - oy, qz - oz
+            length = np.sqrt(dx * dx + dy * dy + dz * dz)
+            t, inside_m = _hit_inside(ox, oy, oz, dx / length, dy / length, dz / length,
+                                      face, vertices32, faces32)
+            if not (inside_m > margin_m and margin_m < t < length - margin_m):
+                hidden = False
+                break
+        out[p] = hidden

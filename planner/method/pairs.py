@@ -29,7 +29,9 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from planner.method.bundles import HiddenBundles
 from planner.method.density import density_range_m
+from planner.method.grid import PointGrid, cells_around
 from planner.method.visibility import ExactRays
 from planner.parameters import GroupRequirement, PlanSpec
 from planner.scene import Scene
@@ -199,6 +201,7 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     reach_m: float, angular_step_rad: float,
     grid_origin: NDArray[np.float64], cell_m: float, grid_dims: NDArray[np.int64],
     cell_start: NDArray[np.int64], cell_members: NDArray[np.int32],
+    bundle_of: NDArray[np.int32], hidden: NDArray[np.bool_],
     out_candidate: NDArray[np.int32], out_face: NDArray[np.int32],
     out_origin: NDArray[np.float32], out_direction: NDArray[np.float32],
     out_distance: NDArray[np.float32], out_lpd: NDArray[np.float32],
@@ -209,11 +212,14 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     through the f face indices ``faces`` (no per-plan copy: 48 bytes a face saved);
     ``face_class`` (f,) picks each face's thresholds from the (K,) ``min_sin_incidence``
     and ``min_density`` (K: the distinct pairs of them, 1 without group requirements).
-    Only the faces in the 3 x 3 x 3 cells of the grid (:class:`_FaceGrid`) around a point
+    Only the faces in the 3 x 3 x 3 cells of the grid (:class:`PointGrid`) around a point
     are tested: a cell is at least ``reach_m`` wide, so every face within reach is among
-    them. A point's pairs are written in face order. Returns the number of pairs written
-    and the number tested.
+    them. A face of a bundle hidden from the point (``bundle_of`` (F,), empty for none, and
+    ``hidden`` (B, K): :mod:`planner.method.bundles`) is left out untested: its ray would
+    end in the occluder that hides the bundle. A point's pairs are written in face order.
+    Returns the number of pairs written and the number tested.
     """
+    bundled = bundle_of.shape[0] > 0
     n = 0
     tested = 0
     reach2 = reach_m * reach_m * (1.0 + 1e-9)
@@ -221,7 +227,7 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     low, high = np.empty(27, np.int64), np.empty(27, np.int64)
     for b in range(points.shape[0]):
         px, py, pz = points[b, 0], points[b, 1], points[b, 2]
-        n_cells = _cells_around(px, py, pz, grid_origin, cell_m, grid_dims, cells)
+        n_cells = cells_around(px, py, pz, grid_origin, cell_m, grid_dims, cells)
         near = 0
         for c in range(n_cells):
             low[c], high[c] = cell_start[cells[c]], cell_start[cells[c] + 1]
@@ -239,6 +245,8 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
             for m in range(low[c], high[c]):
                 i = m if every_face else cell_members[m]
                 f = faces[i]
+                if bundled and bundle_of[f] >= 0 and hidden[b, bundle_of[f]]:
+                    continue
                 ox = face_xyz[f, 0] - px
                 oy = face_xyz[f, 1] - py
                 oz = face_xyz[f, 2] - pz
@@ -300,85 +308,9 @@ def _sort_by_face(first: int, end: int, out_face: NDArray[np.int32],
         out_direction[first + j, 2] = direction[k, 2]
 
 
-@numba.njit(nogil=True, cache=True)
-def _cells_around(px: float, py: float, pz: float, grid_origin: NDArray[np.float64],
-                  cell_m: float, grid_dims: NDArray[np.int64], out: NDArray[np.int64]) -> int:
-    """Write the ids of the grid cells in the 3 x 3 x 3 block around the point's cell (those
-    inside the grid) into ``out``, in increasing order; returns how many."""
-    cx = int(np.floor((px - grid_origin[0]) / cell_m))
-    cy = int(np.floor((py - grid_origin[1]) / cell_m))
-    cz = int(np.floor((pz - grid_origin[2]) / cell_m))
-    n = 0
-    for gx in range(max(cx - 1, 0), min(cx + 2, grid_dims[0])):
-        for gy in range(max(cy - 1, 0), min(cy + 2, grid_dims[1])):
-            for gz in range(max(cz - 1, 0), min(cz + 2, grid_dims[2])):
-                out[n] = (gx * grid_dims[1] + gy) * grid_dims[2] + gz
-                n += 1
-    return n
-
-
-@numba.njit(nogil=True, cache=True)
-def _cell_members(cell_of: NDArray[np.int32], n_cells: int
-                  ) -> tuple[NDArray[np.int64], NDArray[np.int32]]:
-    """Counting sort of the f faces by cell: (n_cells + 1,) starts and (f,) members, the
-    faces of each cell in increasing order (4 bytes a face, no (f,) int64 argsort)."""
-    start = np.zeros(n_cells + 1, np.int64)
-    for i in range(cell_of.shape[0]):
-        start[cell_of[i] + 1] += 1
-    for c in range(n_cells):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    members = np.empty(cell_of.shape[0], np.int32)
-    for i in range(cell_of.shape[0]):
-        members[fill[cell_of[i]]] = i
-        fill[cell_of[i]] += 1
-    return start, members
-
-
+_NO_BUNDLES = np.zeros(0, np.int32)
 # the grid is used for a point when its cells hold less than this share of the faces
 _GRID_WORTH = 4
-# most grid cells a pair finder makes (a cell is at least the reach wide): bounds the starts
-_MAX_CELLS = 1 << 21
-# faces per block when each face's grid cell is computed: bounds the scratch
-_CELL_BLOCK_FACES = 1 << 20
-
-
-@dataclass(frozen=True)
-class _FaceGrid:
-    """The target faces' centroids binned in cubes of side ``cell_m`` (at least the reach):
-    the faces a point can reach lie in the 27 cells around its own."""
-
-    origin: NDArray[np.float64]  # (3,) the grid's lowest corner
-    cell_m: float
-    dims: NDArray[np.int64]  # (3,) cells along x, y, z
-    start: NDArray[np.int64]  # (cells + 1,) the members of cell c: members[start[c]:start[c+1]]
-    members: NDArray[np.int32]  # (f,) positions in the finder's target list
-
-    @classmethod
-    def of(cls, face_xyz: NDArray[np.float64], faces: NDArray[np.int32], reach_m: float
-           ) -> _FaceGrid:
-        if len(faces) == 0:
-            return cls(np.zeros(3), 1.0, np.ones(3, np.int64), np.zeros(2, np.int64),
-                       np.zeros(0, np.int32))
-        blocks = range(0, len(faces), _CELL_BLOCK_FACES)
-        low = np.min([face_xyz[faces[s:s + _CELL_BLOCK_FACES]].min(axis=0) for s in blocks],
-                     axis=0)
-        high = np.max([face_xyz[faces[s:s + _CELL_BLOCK_FACES]].max(axis=0) for s in blocks],
-                      axis=0)
-        extent = np.maximum(high - low, 1e-9)
-        # wider than the reach by far more than rounding, so no face in reach is missed
-        cell_m = max(reach_m * (1.0 + 1e-6), float(extent.max()) * 1e-6)
-        while np.prod(np.floor(extent / cell_m) + 1) > _MAX_CELLS:
-            cell_m *= 2.0
-        dims = (np.floor(extent / cell_m) + 1).astype(np.int64)
-        cell_of = np.empty(len(faces), np.int32)
-        for s in blocks:
-            ijk = np.floor((face_xyz[faces[s:s + _CELL_BLOCK_FACES]] - low) / cell_m)
-            ijk = np.minimum(ijk.astype(np.int64), dims - 1)
-            cell_of[s:s + _CELL_BLOCK_FACES] = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] \
-                + ijk[:, 2]
-        start, members = _cell_members(cell_of, int(np.prod(dims)))
-        return cls(low, cell_m, dims, start, members)
 
 
 class PairFinder:
@@ -405,15 +337,20 @@ class PairFinder:
         self._max_sin_elevation = math.sin(math.radians(limits.elevation_max_deg))
         # only the faces within reach of a candidate are tested (on a 10 M-face building
         # a candidate reaches some thousandths of them): the cells around it
-        self._grid = _FaceGrid.of(self._face_xyz, self._faces, self.reach_m)
+        self._grid = PointGrid.of(self._face_xyz, self._faces, self.reach_m)
 
-    def find(self, candidates_xyz: NDArray[np.float64], first_index: int) -> tuple[Pairs, int]:
-        """Passing pairs of (B, 3) candidates numbered from ``first_index``.
+    def find(self, candidates_xyz: NDArray[np.float64], first_index: int,
+             hidden: HiddenBundles | None = None) -> tuple[Pairs, int]:
+        """Passing pairs of (B, 3) candidates numbered from ``first_index``, without the
+        faces of the bundles ``hidden`` from them (:meth:`BundleCuller.hidden`: faces whose
+        rays would all end in an occluder, so their pairs never qualify).
 
         Returns the pairs, sorted by (candidate, face), and how many pairs were tested.
         """
         lim, grid = self.limits, self._grid
         points = np.ascontiguousarray(candidates_xyz, np.float64)
+        bundle_of, hidden_mask = ((_NO_BUNDLES, np.zeros((len(points), 0), bool))
+                                  if hidden is None else hidden)
         capacity = len(points) * len(self._faces)  # untouched pages cost no memory
         pairs = Pairs(np.empty(capacity, np.int32), np.empty(capacity, np.int32),
                       np.empty((capacity, 3), np.float32), np.empty((capacity, 3), np.float32),
@@ -423,8 +360,8 @@ class PairFinder:
             self._face_class, self._min_sin_incidence, self._min_density, lim.dof_min_m,
             lim.dof_max_m, self._min_sin_elevation, self._max_sin_elevation, self.reach_m,
             lim.angular_step_rad, grid.origin, grid.cell_m, grid.dims, grid.start,
-            grid.members, pairs.candidate, pairs.face, pairs.origin, pairs.direction,
-            pairs.distance_m, pairs.lpd_pts_m2,
+            grid.members, bundle_of, hidden_mask, pairs.candidate, pairs.face, pairs.origin,
+            pairs.direction, pairs.distance_m, pairs.lpd_pts_m2,
         )
         # views of the first n rows: the block's arrays are short-lived
         pairs = pairs.subset(slice(0, n))

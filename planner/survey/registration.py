@@ -43,6 +43,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
+from planner.method.bundles import bundle_culler
 from planner.method.connectivity import OverlapGraph
 from planner.method.coverage import CoverageTable
 from planner.method.pairs import FaceLimits, PairFinder
@@ -88,6 +89,9 @@ class OverlapRows:
         self._centroids = scene.centroids  # (F, 3), for the float64 rays
         self._occlusion = occlusion
         self._finder = PairFinder(scene, overlap_limits(limits, overlap_density_pts_m2))
+        # a row reaches far (25 m at the default overlap density), mostly into other rooms:
+        # bundles hidden behind a wall are ruled out with four rays instead of one a piece
+        self._culler = bundle_culler(scene, self._finder.reach_m, occlusion)
         self.workers = threads or os.cpu_count() or 1
         self._rows: dict[int, NDArray[np.int32]] = {}  # candidate -> (k,) sorted face ids
         self.seconds = 0.0  # time spent computing rows
@@ -102,11 +106,13 @@ class OverlapRows:
         return len(self._rows)
 
     def _row(self, candidate: int) -> tuple[NDArray[np.int32], int]:
-        pairs, _ = self._finder.find(self._positions[candidate:candidate + 1], candidate)
+        point = self._positions[candidate:candidate + 1]
+        hidden, bundle_rays = (None, 0) if self._culler is None else self._culler.hidden(point)
+        pairs, _ = self._finder.find(point, candidate, hidden)
         visible = self._occlusion.visible(
             pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
             exact_rays=pairs.exact_rays(self._positions, self._centroids))
-        return np.sort(pairs.face[visible]), len(pairs)
+        return np.sort(pairs.face[visible]), len(pairs) + bundle_rays
 
     def ensure(self, candidates: Iterable[int]) -> None:
         """Compute the rows of ``candidates`` not computed yet."""

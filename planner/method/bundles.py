@@ -1,0 +1,278 @@
+"""Bundles: the pieces of one file face in a small square, ruled out by four rays.
+
+A model split into 0.2 m pieces has hundreds of pieces per wall, and from a station most
+walls within the overlap reach (25 m) lie in other rooms: every one of their pieces passes
+the analytic limits and costs a ray that ends in a wall between. A *bundle* is the pieces
+of one file face whose centroids fall in one square of that face's plane (sides
+:data:`BUNDLE_SIDES_M`, coarse to fine, nested); its *corners* are the corners of the
+smallest rectangle (in the plane's own axes) around those centroids. Four rays, from a
+candidate to the corners, rule out the whole bundle when they all hit the same occluding
+triangle T *clearly*:
+
+- each hit lies more than the clear margin inside every edge of T (the margin Embree's
+  rounding cannot cross, as for a single ray in :mod:`planner.method._embree`);
+- the candidate lies more than the margin in front of T's plane, and each corner more
+  than the margin behind it.
+
+Then every ray from the candidate to a point of the rectangle crosses T's plane inside T
+(the crossing points of the four rays span a convex region inside T, and T is convex) and
+before its target (the rectangle lies behind the plane, corners and all): a ray to any
+piece of the bundle hits T first, in float64 and in either float32 mode, so the piece's
+verdict is "hidden" exactly as its own ray would give. The pieces of such a bundle are
+left out before the analytic limits are even computed; nothing else changes, so the
+qualified pairs are the same (``tests/planner/test_bundles.py`` compares them). A bundle
+not ruled out has its quarters tried, down to the finest side; then its pieces get their
+own rays.
+
+Array letters: F faces, K bundles, B candidates of a block, P (candidate, bundle) pairs.
+"""
+
+from __future__ import annotations
+
+import threading
+import weakref
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import NDArray
+
+from planner.method.grid import PointGrid, pairs_in_reach
+from planner.scene import Scene
+
+# sides of the bundles' squares in their face's plane, coarse to fine: a 2 m square of a
+# wall two rooms away usually fits behind one triangle of the wall between; where it does
+# not, its four 1 m quarters are tried, then their 0.5 m quarters, then the pieces
+BUNDLE_SIDES_M = (2.0, 1.0, 0.5)
+# bundles pay where a search reaches far, into other rooms: the overlap rows (25 m at the
+# default overlap density). Measured on a generated 2-storey IFC office (1.28 M pieces):
+# overlap rows 37.5 M rays and 7.5 CPU s without bundles, 13.7 M rays and 3.2 s with; the
+# coverage search (4.7 m) 64.6 M rays and 21.0 s without, 55.4 M rays and 23.4 s with,
+# where most pieces in reach lie in the candidate's own room or just behind one wall
+BUNDLE_MIN_REACH_M = 10.0
+# a bundle of fewer pieces is not worth its four rays: its pieces get their own
+MIN_BUNDLE_PIECES = 8
+# faces per step when the bundle keys are computed: bounds the (b, 3) scratch
+_KEY_BLOCK_FACES = 1 << 20
+# bins per axis of a face's plane at the finest side that a key holds (2 km at 0.5 m; a
+# longer face shares its last bin)
+_BINS = 1 << 12
+
+
+@dataclass(frozen=True, eq=False)
+class BundleLevel:
+    """The bundles of one side (:data:`BUNDLE_SIDES_M`).
+
+    Attributes
+    ----------
+    corners : (K, 4, 3) float64, each bundle's rectangle (metres, plan frame)
+    centre : (K, 3) float64, the rectangle's centre
+    radius_m : (K,) float64, from the centre to the farthest corner
+    pieces : (K,) int64, how many faces the bundle holds
+    parent : (K,) int64, the bundle of the next coarser level that holds it (the coarsest
+        level: -1)
+    """
+
+    corners: NDArray[np.float64]
+    centre: NDArray[np.float64]
+    radius_m: NDArray[np.float64]
+    pieces: NDArray[np.int64]
+    parent: NDArray[np.int64]
+
+    def __len__(self) -> int:
+        return len(self.radius_m)
+
+
+@dataclass(frozen=True, eq=False)
+class Bundles:
+    """The bundles of a scene, level by level from coarse to fine.
+
+    Attributes
+    ----------
+    bundle_of : (F,) int32, each face's bundle of the finest level, -1 for a face in none
+        (a degenerate file face)
+    levels : one :class:`BundleLevel` per side of :data:`BUNDLE_SIDES_M`
+    """
+
+    bundle_of: NDArray[np.int32]
+    levels: tuple[BundleLevel, ...]
+
+    def __len__(self) -> int:
+        return len(self.levels[-1])
+
+
+# (F,) int32 the finest bundle of each face (-1: none) and (B, K) bool the finest bundles
+# hidden from each of B points
+HiddenBundles = tuple[NDArray[np.int32], NDArray[np.bool_]]
+
+_CACHE: weakref.WeakKeyDictionary[Scene, Bundles | None] = weakref.WeakKeyDictionary()
+_CACHE_LOCK = threading.Lock()
+
+
+def bundles_of(scene: Scene) -> Bundles | None:
+    """The bundles of ``scene`` (computed once per scene), or None when it has none: a scene
+    that was never split has one piece per file face, so nothing to bundle."""
+    with _CACHE_LOCK:
+        if scene not in _CACHE:
+            _CACHE[scene] = _make_bundles(scene) if scene.file_faces is not None else None
+        return _CACHE[scene]
+
+
+def _plane_axes(scene: Scene) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                       NDArray[np.float64], NDArray[np.bool_]]:
+    """Each file face's plane: (F0, 3) origin (its first corner), (F0, 3) unit u along its
+    first edge, (F0, 3) unit v = n x u, and (F0,) whether the face has a plane at all."""
+    file_vertices, file_faces = scene.file_mesh
+    corner = file_vertices[file_faces]  # (F0, 3, 3)
+    u_axis = corner[:, 1] - corner[:, 0]
+    normal = np.cross(u_axis, corner[:, 2] - corner[:, 0])
+    length = np.linalg.norm(u_axis, axis=1)
+    doubled = np.linalg.norm(normal, axis=1)
+    usable = (length > 0) & (doubled > 0)
+    u_axis = np.divide(u_axis, length[:, None], out=np.zeros_like(u_axis),
+                       where=usable[:, None])
+    normal = np.divide(normal, doubled[:, None], out=np.zeros_like(normal),
+                       where=usable[:, None])
+    return corner[:, 0].copy(), u_axis, np.cross(normal, u_axis), usable
+
+
+def _piece_uv(scene: Scene, axes: tuple[NDArray[np.float64], NDArray[np.float64],
+                                         NDArray[np.float64], NDArray[np.bool_]], block: slice
+              ) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
+    """(b, 2) the plane coordinates of a block of faces' centroids, and their file face."""
+    origin, u_axis, v_axis, _ = axes
+    source = scene.source_face[block]
+    offset = scene.centroids[block] - origin[source]
+    uv = np.stack([np.einsum("ij,ij->i", offset, u_axis[source]),
+                   np.einsum("ij,ij->i", offset, v_axis[source])], axis=1)
+    return uv, source
+
+
+def _make_bundles(scene: Scene) -> Bundles | None:
+    axes = _plane_axes(scene)
+    origin, u_axis, v_axis, usable = axes
+    finest = BUNDLE_SIDES_M[-1]
+    n = scene.n_faces
+    key = np.empty(n, np.int64)  # file face, then the finest square's bins
+    for start in range(0, n, _KEY_BLOCK_FACES):
+        block = slice(start, start + _KEY_BLOCK_FACES)
+        uv, source = _piece_uv(scene, axes, block)
+        bins = np.clip(np.floor(uv / finest), 0, _BINS - 1).astype(np.int64)
+        key[block] = np.where(usable[source],
+                              (source.astype(np.int64) * _BINS + bins[:, 0]) * _BINS
+                              + bins[:, 1], -1)
+    keys, inverse = np.unique(key, return_inverse=True)
+    del key
+    first = 1 if len(keys) and keys[0] < 0 else 0  # key -1: faces in no bundle
+    if len(keys) == first:
+        return None
+    bundle_of = (inverse.reshape(-1) - first).astype(np.int32)  # -1 where the key was -1
+    del inverse
+    keys = keys[first:]
+    k = len(keys)
+    # the finest bundles' extents in their plane
+    low, high = np.full((k, 2), np.inf), np.full((k, 2), -np.inf)
+    for start in range(0, n, _KEY_BLOCK_FACES):
+        block = slice(start, start + _KEY_BLOCK_FACES)
+        uv, _ = _piece_uv(scene, axes, block)
+        of = bundle_of[block]
+        inside = of >= 0
+        np.minimum.at(low, of[inside], uv[inside])
+        np.maximum.at(high, of[inside], uv[inside])
+    pieces = np.bincount(bundle_of[bundle_of >= 0], minlength=k).astype(np.int64)
+    file_face = keys // (_BINS * _BINS)
+    bins = np.stack([(keys // _BINS) % _BINS, keys % _BINS], axis=1)
+    # coarser levels: a square of side finest * 2^j holds the finest bins >> j (nested)
+    levels: list[BundleLevel] = []
+    coarser_of: NDArray[np.intp] | None = None  # (K,) each finest bundle's, a level up
+    for side in BUNDLE_SIDES_M:
+        shift = round(float(np.log2(side / finest)))
+        level_key = (file_face * _BINS + (bins[:, 0] >> shift)) * _BINS + (bins[:, 1] >> shift)
+        level_keys, member_of = np.unique(level_key, return_inverse=True)
+        member_of = member_of.reshape(-1)  # (K,) each finest bundle's at this level
+        m = len(level_keys)
+        level_low, level_high = np.full((m, 2), np.inf), np.full((m, 2), -np.inf)
+        np.minimum.at(level_low, member_of, low)
+        np.maximum.at(level_high, member_of, high)
+        parent = np.full(m, -1, np.int64)
+        if coarser_of is not None:
+            parent[member_of] = coarser_of
+        levels.append(_level(origin, u_axis, v_axis, level_keys // (_BINS * _BINS),
+                             level_low, level_high,
+                             np.bincount(member_of, weights=pieces, minlength=m)
+                             .astype(np.int64), parent))
+        coarser_of = member_of
+    return Bundles(bundle_of, tuple(levels))
+
+
+def _level(origin: NDArray[np.float64], u_axis: NDArray[np.float64],
+           v_axis: NDArray[np.float64], source: NDArray[np.int64], low: NDArray[np.float64],
+           high: NDArray[np.float64], pieces: NDArray[np.int64], parent: NDArray[np.int64]
+           ) -> BundleLevel:
+    """A level's rectangles from each bundle's file face and (K, 2) extent in its plane."""
+    # the corners in order around the rectangle: (u0, v0), (u1, v0), (u1, v1), (u0, v1)
+    us = np.stack([low[:, 0], high[:, 0], high[:, 0], low[:, 0]], axis=1)  # (K, 4)
+    vs = np.stack([low[:, 1], low[:, 1], high[:, 1], high[:, 1]], axis=1)
+    corners = (origin[source][:, None, :] + us[:, :, None] * u_axis[source][:, None, :]
+               + vs[:, :, None] * v_axis[source][:, None, :])
+    centre = corners.mean(axis=1)
+    radius_m = np.linalg.norm(corners - centre[:, None, :], axis=2).max(axis=1)
+    return BundleLevel(corners, centre, radius_m, pieces, parent)
+
+
+@runtime_checkable
+class BundleRays(Protocol):
+    """The occlusion's side of bundling: whether four rays rule a bundle out."""
+
+    def bundles_hidden(self, origins: NDArray[np.float64], corners: NDArray[np.float64]
+                       ) -> NDArray[np.bool_]:
+        """(P,) bool: from each of the (P, 3) origins, are the (P, 4, 3) corners all behind
+        one occluding triangle, clearly (see the module docstring)?"""
+        ...
+
+
+class BundleCuller:
+    """Which bundles are hidden from a block of candidates, for a pair search of reach
+    ``reach_m``: the coarsest bundles within reach first, then the quarters of those not
+    ruled out, down to the finest level (a bundle inside a hidden one is hidden)."""
+
+    def __init__(self, bundles: Bundles, reach_m: float, rays: BundleRays) -> None:
+        self.bundles = bundles
+        self.reach_m = reach_m
+        self._rays = rays
+        self._grids = [PointGrid.of(level.centre, np.arange(len(level), dtype=np.int32),
+                                    reach_m + float(level.radius_m.max()))
+                       for level in bundles.levels]
+
+    def hidden(self, points: NDArray[np.float64]) -> tuple[HiddenBundles, int]:
+        """The bundles hidden from each of the (B, 3) ``points`` (for
+        :meth:`planner.method.pairs.PairFinder.find`), and the number of rays cast."""
+        points = np.asarray(points, np.float64)
+        hidden = np.zeros((len(points), 0), bool)
+        rays = 0
+        for level, grid in zip(self.bundles.levels, self._grids, strict=True):
+            # (B, K) hidden inside a hidden bundle of the level above
+            hidden = (hidden[:, level.parent] if hidden.shape[1]
+                      else np.zeros((len(points), len(level)), bool))
+            point, bundle = pairs_in_reach(points, level.centre, level.radius_m,
+                                           self.reach_m, grid)
+            todo = (~hidden[point, bundle]) & (level.pieces[bundle] >= MIN_BUNDLE_PIECES)
+            point, bundle = point[todo], bundle[todo]
+            if len(point):
+                ruled_out = self._rays.bundles_hidden(points[point], level.corners[bundle])
+                hidden[point[ruled_out], bundle[ruled_out]] = True
+                rays += 4 * len(point)
+        return (self.bundles.bundle_of, hidden), rays
+
+
+def bundle_culler(scene: Scene, reach_m: float, occlusion: object, *,
+                  always: bool = False) -> BundleCuller | None:
+    """A culler for a pair search of ``reach_m`` on ``scene`` with ``occlusion``; None when
+    the scene has no bundles, the occlusion cannot rule bundles out (the brute force), or
+    the reach is short of :data:`BUNDLE_MIN_REACH_M` (unless ``always``)."""
+    bundles = bundles_of(scene)
+    if bundles is None or not isinstance(occlusion, BundleRays):
+        return None
+    if reach_m < BUNDLE_MIN_REACH_M and not always:
+        return None
+    return BundleCuller(bundles, reach_m, occlusion)

@@ -1,0 +1,136 @@
+"""A uniform grid of points (face centroids, bundle centres) for "what lies within reach".
+
+Cubes of side ``cell_m``, at least the reach: whatever lies within reach of a point is in
+the 3 x 3 x 3 cells around the point's own (:func:`cells_around`). Used by the pair search
+(:mod:`planner.method.pairs`) and the bundles (:mod:`planner.method.bundles`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+
+@numba.njit(nogil=True, cache=True)
+def cells_around(px: float, py: float, pz: float, grid_origin: NDArray[np.float64],
+                 cell_m: float, grid_dims: NDArray[np.int64], out: NDArray[np.int64]) -> int:
+    """Write the ids of the grid cells in the 3 x 3 x 3 block around the point's cell (those
+    inside the grid) into ``out``, in increasing order; returns how many."""
+    cx = int(np.floor((px - grid_origin[0]) / cell_m))
+    cy = int(np.floor((py - grid_origin[1]) / cell_m))
+    cz = int(np.floor((pz - grid_origin[2]) / cell_m))
+    n = 0
+    for gx in range(max(cx - 1, 0), min(cx + 2, grid_dims[0])):
+        for gy in range(max(cy - 1, 0), min(cy + 2, grid_dims[1])):
+            for gz in range(max(cz - 1, 0), min(cz + 2, grid_dims[2])):
+                out[n] = (gx * grid_dims[1] + gy) * grid_dims[2] + gz
+                n += 1
+    return n
+
+
+@numba.njit(nogil=True, cache=True)
+def cell_members(cell_of: NDArray[np.int32], n_cells: int
+                 ) -> tuple[NDArray[np.int64], NDArray[np.int32]]:
+    """Counting sort of the n points by cell: (n_cells + 1,) starts and (n,) members, the
+    points of each cell in increasing order (4 bytes a point, no (n,) int64 argsort)."""
+    start = np.zeros(n_cells + 1, np.int64)
+    for i in range(cell_of.shape[0]):
+        start[cell_of[i] + 1] += 1
+    for c in range(n_cells):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    members = np.empty(cell_of.shape[0], np.int32)
+    for i in range(cell_of.shape[0]):
+        members[fill[cell_of[i]]] = i
+        fill[cell_of[i]] += 1
+    return start, members
+
+
+# most cells a grid has (a cell is at least the reach wide): bounds the starts
+MAX_CELLS = 1 << 21
+# points per block when each point's grid cell is computed: bounds the scratch
+_CELL_BLOCK_POINTS = 1 << 20
+
+
+@dataclass(frozen=True)
+class PointGrid:
+    """Some of the (N, 3) points (``subset``) binned in cubes of side ``cell_m`` (at least
+    the reach): those a point can reach lie in the 27 cells around its own."""
+
+    origin: NDArray[np.float64]  # (3,) the grid's lowest corner
+    cell_m: float
+    dims: NDArray[np.int64]  # (3,) cells along x, y, z
+    start: NDArray[np.int64]  # (cells + 1,) the members of cell c: members[start[c]:start[c+1]]
+    members: NDArray[np.int32]  # (n,) positions in ``subset``
+
+    @classmethod
+    def of(cls, face_xyz: NDArray[np.float64], faces: NDArray[np.int32], reach_m: float
+           ) -> PointGrid:
+        """The grid of ``face_xyz[faces]`` (``faces``: the (n,) subset) for ``reach_m``."""
+        if len(faces) == 0:
+            return cls(np.zeros(3), 1.0, np.ones(3, np.int64), np.zeros(2, np.int64),
+                       np.zeros(0, np.int32))
+        blocks = range(0, len(faces), _CELL_BLOCK_POINTS)
+        low = np.min([face_xyz[faces[s:s + _CELL_BLOCK_POINTS]].min(axis=0) for s in blocks],
+                     axis=0)
+        high = np.max([face_xyz[faces[s:s + _CELL_BLOCK_POINTS]].max(axis=0) for s in blocks],
+                      axis=0)
+        extent = np.maximum(high - low, 1e-9)
+        # wider than the reach by far more than rounding, so no face in reach is missed
+        cell_m = max(reach_m * (1.0 + 1e-6), float(extent.max()) * 1e-6)
+        while np.prod(np.floor(extent / cell_m) + 1) > MAX_CELLS:
+            cell_m *= 2.0
+        dims = (np.floor(extent / cell_m) + 1).astype(np.int64)
+        cell_of = np.empty(len(faces), np.int32)
+        for s in blocks:
+            ijk = np.floor((face_xyz[faces[s:s + _CELL_BLOCK_POINTS]] - low) / cell_m)
+            ijk = np.minimum(ijk.astype(np.int64), dims - 1)
+            cell_of[s:s + _CELL_BLOCK_POINTS] = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] \
+                + ijk[:, 2]
+        start, members = cell_members(cell_of, int(np.prod(dims)))
+        return cls(low, cell_m, dims, start, members)
+
+
+def pairs_in_reach(points: NDArray[np.float64], centre: NDArray[np.float64],
+                   radius_m: NDArray[np.float64], reach_m: float, grid: PointGrid
+                   ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(P,) point and (P,) ball of every (point, ball) pair where the ball (``centre``,
+    ``radius_m``: (N, 3) and (N,); ``grid`` made for reach + the largest radius) comes
+    within ``reach_m`` of one of the (B, 3) ``points``; by point, then ball."""
+    args = (np.ascontiguousarray(points, np.float64), centre, radius_m, reach_m, grid.origin,
+            grid.cell_m, grid.dims, grid.start, grid.members)
+    count = _reach_pairs(*args, np.zeros(0, np.int64), np.zeros(0, np.int64), False)
+    point, ball = np.empty(count, np.int64), np.empty(count, np.int64)
+    _reach_pairs(*args, point, ball, True)
+    return point, ball
+
+
+@numba.njit(nogil=True, cache=True)
+def _reach_pairs(points: NDArray[np.float64], centre: NDArray[np.float64],
+                 radius_m: NDArray[np.float64], reach_m: float, grid_origin: NDArray[np.float64],
+                 cell_m: float, grid_dims: NDArray[np.int64], cell_start: NDArray[np.int64],
+                 cell_member: NDArray[np.int32], out_point: NDArray[np.int64],
+                 out_ball: NDArray[np.int64], fill: bool) -> int:
+    """Count the pairs of :func:`pairs_in_reach`, and with ``fill`` write them."""
+    cells = np.empty(27, np.int64)
+    n = 0
+    for b in range(points.shape[0]):
+        px, py, pz = points[b, 0], points[b, 1], points[b, 2]
+        n_cells = cells_around(px, py, pz, grid_origin, cell_m, grid_dims, cells)
+        first = n
+        for c in range(n_cells):
+            for m in range(cell_start[cells[c]], cell_start[cells[c] + 1]):
+                k = cell_member[m]
+                limit = reach_m + radius_m[k]
+                dx, dy, dz = centre[k, 0] - px, centre[k, 1] - py, centre[k, 2] - pz
+                if dx * dx + dy * dy + dz * dz <= limit * limit:
+                    if fill:
+                        out_point[n] = b
+                        out_ball[n] = k
+                    n += 1
+        if fill:
+            out_ball[first:n] = np.sort(out_ball[first:n])
+    return n

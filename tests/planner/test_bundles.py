@@ -1,0 +1,117 @@
+"""Bundles: four rays rule out the pieces hidden behind one wall, and no verdict changes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from planner.method.bundles import BundleCuller, bundles_of
+from planner.method.pairs import FaceLimits, PairFinder
+from planner.method.visibility import make_occlusion
+from planner.parameters import PlanSpec
+from planner.pipeline import qualify_pairs
+from planner.scene import Scene, build_scene, remesh
+from planner.survey.registration import OverlapRows, overlap_limits
+from tests.planner.buildings import office_building
+
+
+@pytest.fixture(scope="module")
+def office() -> Scene:
+    """Two storeys of the generated office (rooms, corridors, closed doors, stairs, desks),
+    split at 0.2 m as a plan splits it: most pieces in a long reach lie in other rooms."""
+    mesh = office_building(2, 2)
+    return remesh(build_scene(np.asarray(mesh.vertices), np.asarray(mesh.faces)), 0.2)
+
+
+def _stations(scene: Scene) -> np.ndarray:
+    """Some points at scanner height inside the rooms and corridors of both storeys."""
+    low, high = scene.vertices.min(axis=0), scene.vertices.max(axis=0)
+    xs = np.linspace(low[0] + 1.1, high[0] - 1.3, 5)
+    ys = np.linspace(low[1] + 1.7, high[1] - 1.9, 4)
+    zs = low[2] + np.array([1.53, 4.71])
+    return np.array([(x, y, z) for x in xs for y in ys for z in zs])
+
+
+def _qualified(scene: Scene, positions: np.ndarray, limits: FaceLimits, bundles: bool
+               ) -> tuple[tuple[np.ndarray, ...], int]:
+    occlusion = make_occlusion(scene, limits.occludes, "embree", file_faces=True)
+    blocks = list(qualify_pairs(scene, positions, limits, occlusion, bundles=bundles))
+    columns = tuple(np.concatenate([getattr(q, name) for q, _, _ in blocks])
+                    for name in ("candidate", "face", "lpd_pts_m2"))
+    return columns, sum(rays for _, _, rays in blocks)
+
+
+@pytest.mark.parametrize("density_pts_m2", [1600.0, 45_000.0])
+def test_bundles_qualify_the_same_pairs_with_fewer_rays(office: Scene,
+                                                        density_pts_m2: float) -> None:
+    limits = overlap_limits(FaceLimits.from_spec(PlanSpec(), office), density_pts_m2)
+    positions = _stations(office)
+    (plain, plain_rays), (bundled, bundled_rays) = (
+        _qualified(office, positions, limits, bundles) for bundles in (False, True))
+    assert len(plain[0]) > 10_000
+    for a, b in zip(plain, bundled, strict=True):
+        assert np.array_equal(a, b)
+    if density_pts_m2 == 1600.0:  # a 25 m reach: most rays end in another room's wall
+        assert bundled_rays < 0.6 * plain_rays
+
+
+def test_overlap_rows_are_the_same_with_and_without_bundles(office: Scene) -> None:
+    spec = PlanSpec()
+    limits = FaceLimits.from_spec(spec, office)
+    occlusion = make_occlusion(office, limits.occludes, "embree", file_faces=True)
+    positions = _stations(office)[::3]
+    bundled = OverlapRows(office, positions, limits, occlusion, spec.overlap_density_pts_m2,
+                          file_faces=True)
+    plain = OverlapRows(office, positions, limits, occlusion, spec.overlap_density_pts_m2,
+                        file_faces=True)
+    plain._culler = None  # every piece its own ray, as before bundles
+    a, b = bundled.matrix(range(len(positions))), plain.matrix(range(len(positions)))
+    assert a.nnz > 1000
+    assert (a != b).nnz == 0
+    assert bundled.rays_cast < plain.rays_cast
+
+
+def _wall_scene(hole: bool) -> Scene:
+    """A 4 x 3 m target wall 3 m behind a 6 x 4 m screen (two triangles), with or without
+    a 1 x 2 m hole in the screen in front of the target's middle."""
+    target = trimesh.creation.box(extents=(4.0, 0.1, 3.0))
+    target.apply_translation((0.0, 3.0, 1.5))
+    if hole:
+        parts = [trimesh.creation.box(extents=(2.5, 0.1, 4.0)),
+                 trimesh.creation.box(extents=(2.5, 0.1, 4.0)),
+                 trimesh.creation.box(extents=(1.0, 0.1, 2.0))]
+        parts[0].apply_translation((-1.75, 0.0, 2.0))
+        parts[1].apply_translation((1.75, 0.0, 2.0))
+        parts[2].apply_translation((0.0, 0.0, 3.0))
+        screen = trimesh.util.concatenate(parts)
+    else:
+        screen = trimesh.creation.box(extents=(6.0, 0.1, 4.0))
+        screen.apply_translation((0.0, 0.0, 2.0))
+    mesh = trimesh.util.concatenate([target, screen])
+    return remesh(build_scene(np.asarray(mesh.vertices), np.asarray(mesh.faces)), 0.2)
+
+
+@pytest.mark.parametrize("hole", [False, True])
+def test_a_bundle_is_ruled_out_only_where_one_triangle_hides_all_of_it(hole: bool) -> None:
+    scene = _wall_scene(hole)
+    limits = overlap_limits(FaceLimits.from_spec(PlanSpec(), scene), 1600.0)
+    occlusion = make_occlusion(scene, limits.occludes, "embree", file_faces=True)
+    station = np.array([[0.3, -2.0, 1.5]])
+    bundles = bundles_of(scene)
+    assert bundles is not None
+    (bundle_of, hidden), _ = BundleCuller(bundles, 25.0, occlusion).hidden(station)  # type: ignore[arg-type]
+    finder = PairFinder(scene, limits)
+    pairs, _ = finder.find(station, 0)
+    visible = occlusion.visible(pairs.origin, pairs.direction, pairs.distance_m, pairs.face)
+    ruled_out = hidden[0, bundle_of[pairs.face]] & (bundle_of[pairs.face] >= 0)
+    assert not (ruled_out & visible).any()  # never a piece the station sees
+    # the target's facing side: behind the screen, seen through the hole when there is one
+    facing = np.isclose(scene.centroids[pairs.face, 1], 2.95)
+    assert facing.sum() > 100
+    if hole:
+        assert visible[facing].any()
+        assert not ruled_out[facing & visible].any()
+    else:
+        assert not visible[facing].any()
+        assert ruled_out[facing].mean() > 0.3
