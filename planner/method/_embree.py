@@ -37,6 +37,10 @@ _CLEAR_HIT_ULPS = 1024.0
 _EXACT_RAYS_PER_CHUNK = 1024
 
 
+_EMPTY_INT32 = np.zeros(0, np.int32)
+_EMPTY_INT64 = np.zeros(0, np.int64)
+
+
 def _ragged_ranges(starts: NDArray[np.int64], counts: NDArray[np.int64]) -> NDArray[np.int64]:
     """The ranges [starts[i], starts[i] + counts[i]) one after another, as one array."""
     ends = np.cumsum(counts)
@@ -146,13 +150,13 @@ class EmbreeOcclusion:
         visible = self._reaches(prim, targets)
         # the fast-mode cast, for the rays whose robust verdict is not a clear hit on an
         # occluder (a clear hit is found in either mode, so both casts would agree on it)
-        check = prim.copy()
         unsure = np.flatnonzero(~self._clear_hits(origins32, directions32, prim, visible,
                                                   distances_m))
-        if len(unsure):
-            check[unsure] = self._check_scene.run(
-                origins32[unsure], directions32[unsure], dists=far[unsure], query="INTERSECT")
-        doubtful = np.flatnonzero(visible != self._reaches(check, targets))
+        check_unsure = np.asarray(self._check_scene.run(
+            origins32[unsure], directions32[unsure], dists=far[unsure], query="INTERSECT"),
+            np.int64) if len(unsure) else np.zeros(0, np.int64)
+        differ = visible[unsure] != self._reaches(check_unsure, targets[unsure])
+        doubtful, check = unsure[differ], check_unsure[differ]  # check: at the doubtful rays
         if len(doubtful):
             if exact_rays is not None:
                 origins64, directions64 = exact_rays(doubtful)
@@ -161,8 +165,7 @@ class EmbreeOcclusion:
                 directions64 = np.asarray(directions, np.float64)[doubtful]
                 directions64 /= np.linalg.norm(directions64, axis=1)[:, None]
             visible[doubtful] = self._decide_exactly(
-                origins64, directions64, targets[doubtful], prim[doubtful],
-                check[doubtful])
+                origins64, directions64, targets[doubtful], prim[doubtful], check)
         return visible
 
     def _clear_hits(self, origins32: NDArray[np.float32], directions32: NDArray[np.float32],
@@ -221,12 +224,10 @@ class EmbreeOcclusion:
     def _reaches(self, prim: NDArray[np.int64], target_faces: NDArray[np.int64]
                  ) -> NDArray[np.bool_]:
         """Closest-hit verdict of one cast: (P,) Embree primitive ids -> (P,) bool."""
-        target_in_bvh = self._bvh_face(target_faces)
-        if self._all_occlude:  # the BVH's primitive ids are the file's face ids
-            reached: NDArray[np.bool_] = prim == target_in_bvh
-            return reached
-        hit = np.where(prim >= 0, self._faces[np.maximum(prim, 0)], -1)
-        reached = (hit == target_in_bvh) | ((hit < 0) & ~self._occludes[target_faces])
+        reached = np.empty(len(prim), bool)
+        _reach_kernel(prim, target_faces, _EMPTY_INT32 if self._source_face is None
+                      else self._source_face, _EMPTY_INT64 if self._all_occlude
+                      else self._faces, self._occludes, reached)
         return reached
 
     def _vertex_table(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -351,6 +352,28 @@ class EmbreeOcclusion:
             face = np.where(hit, self._first_piece[np.maximum(face, 0)], -1)
         distance = np.where(hit, np.asarray(info["tfar"], np.float64), np.inf)
         return face, distance
+
+
+@numba.njit(nogil=True, cache=True)
+def _reach_kernel(prim: NDArray[np.int64], target_faces: NDArray[np.int64],
+                  source_face: NDArray[np.int32], bvh_face: NDArray[np.int64],
+                  occludes: NDArray[np.bool_], out: NDArray[np.bool_]) -> None:
+    """``out[r]``: ray r's first hit (BVH primitive ``prim[r]``, -1 none) is its target.
+
+    ``source_face`` (F,): the BVH face of each scene face (empty: the scene's own faces);
+    ``bvh_face`` (n,): the BVH face of each primitive (empty: the same numbers, every face
+    occludes). A target that does not occlude is not in the BVH: reached when nothing is
+    hit."""
+    pieces = source_face.shape[0] > 0
+    mapped = bvh_face.shape[0] > 0
+    for r in range(prim.shape[0]):
+        target = target_faces[r]
+        target_in_bvh = source_face[target] if pieces else target
+        hit = prim[r]
+        if hit >= 0 and mapped:
+            hit = bvh_face[hit]
+        # (where every BVH face occludes, the ids are the file's and no target is glass)
+        out[r] = hit == target_in_bvh or (mapped and hit < 0 and not occludes[target])
 
 
 @numba.njit(nogil=True, cache=True)

@@ -32,6 +32,40 @@ def cells_around(px: float, py: float, pz: float, grid_origin: NDArray[np.float6
 
 
 @numba.njit(nogil=True, cache=True)
+def cells_within(px: float, py: float, pz: float, grid_origin: NDArray[np.float64],
+                 cell_m: float, grid_dims: NDArray[np.int64], reach_m: float,
+                 out: NDArray[np.int64]) -> int:
+    """Write the ids of the grid cells (those inside the grid) that come within ``reach_m``
+    of the point into ``out`` (room for :func:`cells_within_room` of them), in increasing
+    order; returns how many. A cell is kept when the nearest point of its cube is within
+    reach (a hair more, for rounding), so no point within reach is missed."""
+    span = int(np.ceil(reach_m / cell_m))
+    cx = int(np.floor((px - grid_origin[0]) / cell_m))
+    cy = int(np.floor((py - grid_origin[1]) / cell_m))
+    cz = int(np.floor((pz - grid_origin[2]) / cell_m))
+    limit2 = reach_m * reach_m * (1.0 + 1e-6) + 1e-12
+    n = 0
+    for gx in range(max(cx - span, 0), min(cx + span + 1, grid_dims[0])):
+        x0 = grid_origin[0] + gx * cell_m
+        dx = max(x0 - px, 0.0, px - (x0 + cell_m))
+        for gy in range(max(cy - span, 0), min(cy + span + 1, grid_dims[1])):
+            y0 = grid_origin[1] + gy * cell_m
+            dy = max(y0 - py, 0.0, py - (y0 + cell_m))
+            for gz in range(max(cz - span, 0), min(cz + span + 1, grid_dims[2])):
+                z0 = grid_origin[2] + gz * cell_m
+                dz = max(z0 - pz, 0.0, pz - (z0 + cell_m))
+                if dx * dx + dy * dy + dz * dz <= limit2:
+                    out[n] = (gx * grid_dims[1] + gy) * grid_dims[2] + gz
+                    n += 1
+    return n
+
+
+def cells_within_room(cell_m: float, reach_m: float) -> int:
+    """How many cell ids :func:`cells_within` may write."""
+    return int((2 * np.ceil(reach_m / cell_m) + 1) ** 3)
+
+
+@numba.njit(nogil=True, cache=True)
 def cell_members(cell_of: NDArray[np.int32], n_cells: int
                  ) -> tuple[NDArray[np.int64], NDArray[np.int32]]:
     """Counting sort of the n points by cell: (n_cells + 1,) starts and (n,) members, the
@@ -67,9 +101,11 @@ class PointGrid:
     members: NDArray[np.int32]  # (n,) positions in ``subset``
 
     @classmethod
-    def of(cls, face_xyz: NDArray[np.float64], faces: NDArray[np.int32], reach_m: float
-           ) -> PointGrid:
-        """The grid of ``face_xyz[faces]`` (``faces``: the (n,) subset) for ``reach_m``."""
+    def of(cls, face_xyz: NDArray[np.float64], faces: NDArray[np.int32], reach_m: float,
+           cells_per_reach: int = 1) -> PointGrid:
+        """The grid of ``face_xyz[faces]`` (``faces``: the (n,) subset) for ``reach_m``:
+        cubes a ``cells_per_reach``-th of it wide (or wider, to stay within
+        :data:`MAX_CELLS`); with more than one, look them up with :func:`cells_within`."""
         if len(faces) == 0:
             return cls(np.zeros(3), 1.0, np.ones(3, np.int64), np.zeros(2, np.int64),
                        np.zeros(0, np.int32))
@@ -80,7 +116,7 @@ class PointGrid:
                       axis=0)
         extent = np.maximum(high - low, 1e-9)
         # wider than the reach by far more than rounding, so no face in reach is missed
-        cell_m = max(reach_m * (1.0 + 1e-6), float(extent.max()) * 1e-6)
+        cell_m = max(reach_m * (1.0 + 1e-6) / cells_per_reach, float(extent.max()) * 1e-6)
         while np.prod(np.floor(extent / cell_m) + 1) > MAX_CELLS:
             cell_m *= 2.0
         dims = (np.floor(extent / cell_m) + 1).astype(np.int64)

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from planner.method.bundles import HiddenBundles
 from planner.method.density import density_range_m
-from planner.method.grid import PointGrid, cells_around
+from planner.method.grid import PointGrid, cells_within
 from planner.method.visibility import ExactRays
 from planner.parameters import GroupRequirement, PlanSpec
 from planner.scene import Scene
@@ -212,9 +212,9 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     through the f face indices ``faces`` (no per-plan copy: 48 bytes a face saved);
     ``face_class`` (f,) picks each face's thresholds from the (K,) ``min_sin_incidence``
     and ``min_density`` (K: the distinct pairs of them, 1 without group requirements).
-    Only the faces in the 3 x 3 x 3 cells of the grid (:class:`PointGrid`) around a point
-    are tested: a cell is at least ``reach_m`` wide, so every face within reach is among
-    them. A face of a bundle hidden from the point (``bundle_of`` (F,), empty for none, and
+    Only the faces in the cells of the grid (:class:`PointGrid`) whose cube comes within
+    ``reach_m`` of a point are tested (:func:`cells_within`), so every face within reach is
+    among them. A face of a bundle hidden from the point (``bundle_of`` (F,), empty for none, and
     ``hidden`` (B, K): :mod:`planner.method.bundles`) is left out untested: its ray would
     end in the occluder that hides the bundle. A point's pairs are written in face order.
     Returns the number of pairs written and the number tested.
@@ -223,11 +223,12 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     n = 0
     tested = 0
     reach2 = reach_m * reach_m * (1.0 + 1e-9)
-    cells = np.empty(27, np.int64)
-    low, high = np.empty(27, np.int64), np.empty(27, np.int64)
+    room = int((2 * np.ceil(reach_m / cell_m) + 1) ** 3)  # as grid.cells_within_room
+    cells = np.empty(room, np.int64)
+    low, high = np.empty(room, np.int64), np.empty(room, np.int64)
     for b in range(points.shape[0]):
         px, py, pz = points[b, 0], points[b, 1], points[b, 2]
-        n_cells = cells_around(px, py, pz, grid_origin, cell_m, grid_dims, cells)
+        n_cells = cells_within(px, py, pz, grid_origin, cell_m, grid_dims, reach_m, cells)
         near = 0
         for c in range(n_cells):
             low[c], high[c] = cell_start[cells[c]], cell_start[cells[c] + 1]
@@ -309,6 +310,9 @@ def _sort_by_face(first: int, end: int, out_face: NDArray[np.int32],
 
 
 _NO_BUNDLES = np.zeros(0, np.int32)
+# grid cells a quarter of the reach wide: the cells that come within reach of a point
+# hold some 2 to 3 times fewer faces than the 3 x 3 x 3 cells of a reach each around it
+_CELLS_PER_REACH = 4
 # the grid is used for a point when its cells hold less than this share of the faces
 _GRID_WORTH = 4
 
@@ -337,7 +341,8 @@ class PairFinder:
         self._max_sin_elevation = math.sin(math.radians(limits.elevation_max_deg))
         # only the faces within reach of a candidate are tested (on a 10 M-face building
         # a candidate reaches some thousandths of them): the cells around it
-        self._grid = PointGrid.of(self._face_xyz, self._faces, self.reach_m)
+        self._grid = PointGrid.of(self._face_xyz, self._faces, self.reach_m,
+                                  cells_per_reach=_CELLS_PER_REACH)
 
     def find(self, candidates_xyz: NDArray[np.float64], first_index: int,
              hidden: HiddenBundles | None = None) -> tuple[Pairs, int]:
