@@ -25,6 +25,7 @@ import argparse
 import json
 import resource
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -107,19 +108,43 @@ class StageTimer:
 
 class ProgressLog:
     """Prints to stderr when ``plan()`` enters a stage and at every tenth of it, with the
-    wall and CPU seconds since the start: on a long run it tells how far it is."""
+    wall and CPU seconds since the start and the resident memory: on a long run it tells
+    how far it is. A thread samples the resident memory every ``SAMPLE_S`` and keeps the
+    largest per progress stage (``peak_mib``), so the stage that sets the plan's peak is
+    known (the stages ``plan()`` reports; the survey runs inside "selection")."""
+
+    SAMPLE_S = 0.1
 
     def __init__(self) -> None:
         self.wall, self.cpu = time.perf_counter(), cpu_seconds()
         self.last: tuple[str, int] = ("", -1)
+        self.stage = "start"
+        self.peak_mib: dict[str, float] = {}
+        self._running = True
+        self._sampler = threading.Thread(target=self._sample, daemon=True)
+        self._sampler.start()
+
+    def _sample(self) -> None:
+        while self._running:
+            rss = _status_kib("VmRSS")
+            if rss is not None:
+                stage = self.stage
+                self.peak_mib[stage] = max(self.peak_mib.get(stage, 0.0), rss / MIB)
+            time.sleep(self.SAMPLE_S)
+
+    def stop(self) -> None:
+        self._running = False
+        self._sampler.join()
 
     def __call__(self, stage: str, fraction: float) -> bool:
+        self.stage = stage
         step = (stage, int(fraction * 10))
         if step != self.last:
             self.last = step
+            rss = _status_kib("VmRSS") or 0.0
             print(f"  [{time.perf_counter() - self.wall:7.0f} s wall, "
-                  f"{cpu_seconds() - self.cpu:7.0f} s cpu] {stage} {fraction:4.0%}",
-                  file=sys.stderr, flush=True)
+                  f"{cpu_seconds() - self.cpu:7.0f} s cpu, {rss / MIB:6.0f} MiB] "
+                  f"{stage} {fraction:4.0%}", file=sys.stderr, flush=True)
         return False  # never cancel
 
 
@@ -149,11 +174,13 @@ def run(model: Path, params: dict[str, Any], out: Path | None) -> dict[str, Any]
                            up_axis=spec.up_axis, split_faces="as_needed")
         notes.append(f"{scene.n_faces:,} file faces")
     result: PlanResult
+    log = ProgressLog()
     with timer.stage("plan") as notes:
-        result = plan(scene, spec, progress=ProgressLog())
+        result = plan(scene, spec, progress=log)
         notes.append(f"{result.scene.n_faces:,} faces after split, "
                      f"{len(result.candidates):,} candidates, "
                      f"{len(result.chosen.stations)} stations")
+    log.stop()
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
     render: Callable[[PlanResult], bytes | None]
@@ -168,6 +195,9 @@ def run(model: Path, params: dict[str, Any], out: Path | None) -> dict[str, Any]
     print("\nplan() stages (result.stats.seconds, wall):")
     for stage, seconds in result.stats.seconds.items():
         print(f"  {stage:<28}{seconds:9.1f}")
+    print("plan() resident memory, largest sample per progress stage (MiB):")
+    for stage, mib in log.peak_mib.items():
+        print(f"  {stage:<28}{mib:9.0f}")
     stats = result.stats
     survey = result.survey
     unreachable = None if survey is None else len(survey.route.unreachable)
@@ -186,7 +216,7 @@ def run(model: Path, params: dict[str, Any], out: Path | None) -> dict[str, Any]
     total_cpu = sum(s.cpu_s for s in timer.stages)
     print(f"{'total':<22}{total_wall:.1f} s wall, {total_cpu:.1f} s CPU, "
           f"peak {timer.peak_mib:.0f} MiB")
-    return {**counts, "plan_seconds": dict(stats.seconds),
+    return {**counts, "plan_seconds": dict(stats.seconds), "plan_peak_mib": log.peak_mib,
             "stages": [asdict(s) for s in timer.stages]}
 
 
