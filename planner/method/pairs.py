@@ -191,6 +191,14 @@ class Pairs:
 _PAIR_COLUMNS = ("candidate", "face", "origin", "direction", "distance_m", "lpd_pts_m2")
 
 
+def sorted_by_face(candidate: NDArray[np.int32], face: NDArray[np.int32]) -> NDArray[np.intp]:
+    """(P,) the order that sorts P pairs, grouped by candidate already, by (candidate,
+    face); a candidate holds a face once, so the order is unique."""
+    key = candidate.astype(np.int64) * (int(face.max(initial=0)) + 1) + face
+    order: NDArray[np.intp] = np.argsort(key)
+    return order
+
+
 @numba.njit(nogil=True, cache=True)
 def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     points: NDArray[np.float64], first_index: int, faces: NDArray[np.int32],
@@ -201,7 +209,7 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     reach_m: float, angular_step_rad: float,
     grid_origin: NDArray[np.float64], cell_m: float, grid_dims: NDArray[np.int64],
     cell_start: NDArray[np.int64], cell_members: NDArray[np.int32],
-    bundle_of: NDArray[np.int32], hidden: NDArray[np.bool_],
+    bundle_of: NDArray[np.int32], hidden: NDArray[np.bool_], ordered: bool,
     out_candidate: NDArray[np.int32], out_face: NDArray[np.int32],
     out_origin: NDArray[np.float32], out_direction: NDArray[np.float32],
     out_distance: NDArray[np.float32], out_lpd: NDArray[np.float32],
@@ -216,7 +224,8 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     ``reach_m`` of a point are tested (:func:`cells_within`), so every face within reach is
     among them. A face of a bundle hidden from the point (``bundle_of`` (F,), empty for none, and
     ``hidden`` (B, K): :mod:`planner.method.bundles`) is left out untested: its ray would
-    end in the occluder that hides the bundle. A point's pairs are written in face order.
+    end in the occluder that hides the bundle. A point's pairs are written in face order
+    when ``ordered``, else in the order the cells gave them.
     Returns the number of pairs written and the number tested.
     """
     bundled = bundle_of.shape[0] > 0
@@ -283,7 +292,7 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
                 in_order = in_order and f > last_face
                 last_face = f
                 n += 1
-        if not in_order:  # the cells' faces came one cell after another: put them in order
+        if ordered and not in_order:  # the cells' faces came one cell after another
             _sort_by_face(first, n, out_face, out_distance, out_lpd, out_direction)
     return n, tested
 
@@ -345,12 +354,15 @@ class PairFinder:
                                   cells_per_reach=_CELLS_PER_REACH)
 
     def find(self, candidates_xyz: NDArray[np.float64], first_index: int,
-             hidden: HiddenBundles | None = None) -> tuple[Pairs, int]:
+             hidden: HiddenBundles | None = None, *, ordered: bool = True
+             ) -> tuple[Pairs, int]:
         """Passing pairs of (B, 3) candidates numbered from ``first_index``, without the
         faces of the bundles ``hidden`` from them (:meth:`BundleCuller.hidden`: faces whose
         rays would all end in an occluder, so their pairs never qualify).
 
-        Returns the pairs, sorted by (candidate, face), and how many pairs were tested.
+        Returns the pairs, by candidate and, when ``ordered``, by face within a candidate
+        (unordered is cheaper where only some pairs are kept and sorted afterwards:
+        :func:`sorted_by_face`), and how many pairs were tested.
         """
         lim, grid = self.limits, self._grid
         points = np.ascontiguousarray(candidates_xyz, np.float64)
@@ -365,8 +377,8 @@ class PairFinder:
             self._face_class, self._min_sin_incidence, self._min_density, lim.dof_min_m,
             lim.dof_max_m, self._min_sin_elevation, self._max_sin_elevation, self.reach_m,
             lim.angular_step_rad, grid.origin, grid.cell_m, grid.dims, grid.start,
-            grid.members, bundle_of, hidden_mask, pairs.candidate, pairs.face, pairs.origin,
-            pairs.direction, pairs.distance_m, pairs.lpd_pts_m2,
+            grid.members, bundle_of, hidden_mask, ordered, pairs.candidate, pairs.face,
+            pairs.origin, pairs.direction, pairs.distance_m, pairs.lpd_pts_m2,
         )
         # views of the first n rows: the block's arrays are short-lived
         pairs = pairs.subset(slice(0, n))

@@ -108,7 +108,7 @@ class OverlapRows:
     def _row(self, candidate: int) -> tuple[NDArray[np.int32], int]:
         point = self._positions[candidate:candidate + 1]
         hidden, bundle_rays = (None, 0) if self._culler is None else self._culler.hidden(point)
-        pairs, _ = self._finder.find(point, candidate, hidden)
+        pairs, _ = self._finder.find(point, candidate, hidden, ordered=False)  # sorted below
         visible = self._occlusion.visible(
             pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
             exact_rays=pairs.exact_rays(self._positions, self._centroids))

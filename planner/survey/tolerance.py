@@ -155,7 +155,8 @@ def _worst_case_network(
             for n in range(shared.shape[0])]
 
     def qualify(positions: NDArray[np.float64], cut: FaceLimits) -> list[QualifiedPairs]:
-        pairs, _ = PairFinder(scene, cut).find(positions, 0)
+        # kept_faces reads them in any order: no sort
+        pairs, _ = PairFinder(scene, cut).find(positions, 0, ordered=False)
         visible = occlusion.visible(pairs.origin, pairs.direction, pairs.distance_m,
                                     pairs.face,
                                     exact_rays=pairs.exact_rays(positions, scene.centroids))
