@@ -1,8 +1,9 @@
 """A uniform grid of points (face centroids, bundle centres) for "what lies within reach".
 
-Cubes of side ``cell_m``, at least the reach: whatever lies within reach of a point is in
-the 3 x 3 x 3 cells around the point's own (:func:`cells_around`). Used by the pair search
-(:mod:`planner.method.pairs`) and the bundles (:mod:`planner.method.bundles`).
+Cubes of side ``cell_m``: with cells at least the reach wide, whatever lies within reach
+of a point is in the 3 x 3 x 3 cells around the point's own (:func:`cells_around`, used by
+the bundles, :mod:`planner.method.bundles`); the pair search (:mod:`planner.method.pairs`)
+makes cells a fraction of the reach and keeps those that come within reach.
 """
 
 from __future__ import annotations
@@ -29,40 +30,6 @@ def cells_around(px: float, py: float, pz: float, grid_origin: NDArray[np.float6
                 out[n] = (gx * grid_dims[1] + gy) * grid_dims[2] + gz
                 n += 1
     return n
-
-
-@numba.njit(nogil=True, cache=True)
-def cells_within(px: float, py: float, pz: float, grid_origin: NDArray[np.float64],
-                 cell_m: float, grid_dims: NDArray[np.int64], reach_m: float,
-                 out: NDArray[np.int64]) -> int:
-    """Write the ids of the grid cells (those inside the grid) that come within ``reach_m``
-    of the point into ``out`` (room for :func:`cells_within_room` of them), in increasing
-    order; returns how many. A cell is kept when the nearest point of its cube is within
-    reach (a hair more, for rounding), so no point within reach is missed."""
-    span = int(np.ceil(reach_m / cell_m))
-    cx = int(np.floor((px - grid_origin[0]) / cell_m))
-    cy = int(np.floor((py - grid_origin[1]) / cell_m))
-    cz = int(np.floor((pz - grid_origin[2]) / cell_m))
-    limit2 = reach_m * reach_m * (1.0 + 1e-6) + 1e-12
-    n = 0
-    for gx in range(max(cx - span, 0), min(cx + span + 1, grid_dims[0])):
-        x0 = grid_origin[0] + gx * cell_m
-        dx = max(x0 - px, 0.0, px - (x0 + cell_m))
-        for gy in range(max(cy - span, 0), min(cy + span + 1, grid_dims[1])):
-            y0 = grid_origin[1] + gy * cell_m
-            dy = max(y0 - py, 0.0, py - (y0 + cell_m))
-            for gz in range(max(cz - span, 0), min(cz + span + 1, grid_dims[2])):
-                z0 = grid_origin[2] + gz * cell_m
-                dz = max(z0 - pz, 0.0, pz - (z0 + cell_m))
-                if dx * dx + dy * dy + dz * dz <= limit2:
-                    out[n] = (gx * grid_dims[1] + gy) * grid_dims[2] + gz
-                    n += 1
-    return n
-
-
-def cells_within_room(cell_m: float, reach_m: float) -> int:
-    """How many cell ids :func:`cells_within` may write."""
-    return int((2 * np.ceil(reach_m / cell_m) + 1) ** 3)
 
 
 @numba.njit(nogil=True, cache=True)
@@ -105,7 +72,8 @@ class PointGrid:
            cells_per_reach: int = 1) -> PointGrid:
         """The grid of ``face_xyz[faces]`` (``faces``: the (n,) subset) for ``reach_m``:
         cubes a ``cells_per_reach``-th of it wide (or wider, to stay within
-        :data:`MAX_CELLS`); with more than one, look them up with :func:`cells_within`."""
+        :data:`MAX_CELLS`); with more than one, look them up by the distance to each
+        cell, as the pair search does."""
         if len(faces) == 0:
             return cls(np.zeros(3), 1.0, np.ones(3, np.int64), np.zeros(2, np.int64),
                        np.zeros(0, np.int32))

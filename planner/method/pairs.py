@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from planner.method.bundles import HiddenBundles
 from planner.method.density import density_range_m
-from planner.method.grid import PointGrid, cells_within
+from planner.method.grid import PointGrid
 from planner.method.visibility import ExactRays
 from planner.parameters import GroupRequirement, PlanSpec
 from planner.scene import Scene
@@ -221,7 +221,7 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     ``face_class`` (f,) picks each face's thresholds from the (K,) ``min_sin_incidence``
     and ``min_density`` (K: the distinct pairs of them, 1 without group requirements).
     Only the faces in the cells of the grid (:class:`PointGrid`) whose cube comes within
-    ``reach_m`` of a point are tested (:func:`cells_within`), so every face within reach is
+    ``reach_m`` of a point are tested (:func:`_cells_within`), so every face within reach is
     among them. A face of a bundle hidden from the point (``bundle_of`` (F,), empty for none, and
     ``hidden`` (B, K): :mod:`planner.method.bundles`) is left out untested: its ray would
     end in the occluder that hides the bundle. A point's pairs are written in face order
@@ -232,12 +232,12 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     n = 0
     tested = 0
     reach2 = reach_m * reach_m * (1.0 + 1e-9)
-    room = int((2 * np.ceil(reach_m / cell_m) + 1) ** 3)  # as grid.cells_within_room
+    room = int((2 * np.ceil(reach_m / cell_m) + 1) ** 3)  # as _cells_within needs
     cells = np.empty(room, np.int64)
     low, high = np.empty(room, np.int64), np.empty(room, np.int64)
     for b in range(points.shape[0]):
         px, py, pz = points[b, 0], points[b, 1], points[b, 2]
-        n_cells = cells_within(px, py, pz, grid_origin, cell_m, grid_dims, reach_m, cells)
+        n_cells = _cells_within(px, py, pz, grid_origin, cell_m, grid_dims, reach_m, cells)
         near = 0
         for c in range(n_cells):
             low[c], high[c] = cell_start[cells[c]], cell_start[cells[c] + 1]
@@ -295,6 +295,36 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
         if ordered and not in_order:  # the cells' faces came one cell after another
             _sort_by_face(first, n, out_face, out_distance, out_lpd, out_direction)
     return n, tested
+
+
+# (beside the kernel that calls it: numba checks a cached function against its own file only)
+@numba.njit(nogil=True, cache=True)
+def _cells_within(px: float, py: float, pz: float, grid_origin: NDArray[np.float64],
+                 cell_m: float, grid_dims: NDArray[np.int64], reach_m: float,
+                 out: NDArray[np.int64]) -> int:
+    """Write the ids of the grid cells (those inside the grid) that come within ``reach_m``
+    of the point into ``out`` (room for (2 ceil(reach / cell) + 1)^3 of them), in
+    increasing order; returns how many. A cell is kept when the nearest point of its cube is within
+    reach (a hair more, for rounding), so no point within reach is missed."""
+    span = int(np.ceil(reach_m / cell_m))
+    cx = int(np.floor((px - grid_origin[0]) / cell_m))
+    cy = int(np.floor((py - grid_origin[1]) / cell_m))
+    cz = int(np.floor((pz - grid_origin[2]) / cell_m))
+    limit2 = reach_m * reach_m * (1.0 + 1e-6) + 1e-12
+    n = 0
+    for gx in range(max(cx - span, 0), min(cx + span + 1, grid_dims[0])):
+        x0 = grid_origin[0] + gx * cell_m
+        dx = max(x0 - px, 0.0, px - (x0 + cell_m))
+        for gy in range(max(cy - span, 0), min(cy + span + 1, grid_dims[1])):
+            y0 = grid_origin[1] + gy * cell_m
+            dy = max(y0 - py, 0.0, py - (y0 + cell_m))
+            for gz in range(max(cz - span, 0), min(cz + span + 1, grid_dims[2])):
+                z0 = grid_origin[2] + gz * cell_m
+                dz = max(z0 - pz, 0.0, pz - (z0 + cell_m))
+                if dx * dx + dy * dy + dz * dz <= limit2:
+                    out[n] = (gx * grid_dims[1] + gy) * grid_dims[2] + gz
+                    n += 1
+    return n
 
 
 @numba.njit(nogil=True, cache=True)
