@@ -377,6 +377,21 @@ def _reach_kernel(prim: NDArray[np.int64], target_faces: NDArray[np.int64],
 
 
 @numba.njit(nogil=True, cache=True)
+def _corner_and_edges(face: int, vertices32: NDArray[np.float32], faces32: NDArray[np.int32]
+                      ) -> tuple[float, float, float, float, float, float, float, float,
+                                 float]:
+    """BVH triangle ``face`` in float64 from its float32 corners a, b, c: a, then the
+    edges b - a and c - a (x, y, z each)."""
+    a, b, c = faces32[face, 0], faces32[face, 1], faces32[face, 2]
+    ax, ay, az = float(vertices32[a, 0]), float(vertices32[a, 1]), float(vertices32[a, 2])
+    return (ax, ay, az,
+            float(vertices32[b, 0]) - ax, float(vertices32[b, 1]) - ay,
+            float(vertices32[b, 2]) - az,
+            float(vertices32[c, 0]) - ax, float(vertices32[c, 1]) - ay,
+            float(vertices32[c, 2]) - az)
+
+
+@numba.njit(nogil=True, cache=True)
 def _hit_inside(ox: float, oy: float, oz: float, dx: float, dy: float, dz: float, face: int,
                 vertices32: NDArray[np.float32], faces32: NDArray[np.int32]
                 ) -> tuple[float, float]:
@@ -384,14 +399,7 @@ def _hit_inside(ox: float, oy: float, oz: float, dx: float, dy: float, dz: float
     float64): the distance t along the ray and how far inside the triangle the hit lies
     (metres to its nearest edge, negative outside); (nan, -inf) for a ray in its plane or a
     degenerate triangle."""
-    a, b, c = faces32[face, 0], faces32[face, 1], faces32[face, 2]
-    ax, ay, az = float(vertices32[a, 0]), float(vertices32[a, 1]), float(vertices32[a, 2])
-    e1x = float(vertices32[b, 0]) - ax
-    e1y = float(vertices32[b, 1]) - ay
-    e1z = float(vertices32[b, 2]) - az
-    e2x = float(vertices32[c, 0]) - ax
-    e2y = float(vertices32[c, 1]) - ay
-    e2z = float(vertices32[c, 2]) - az
+    ax, ay, az, e1x, e1y, e1z, e2x, e2y, e2z = _corner_and_edges(face, vertices32, faces32)
     # Moller-Trumbore: barycentric (w, u, v) of the hit and its distance t (unit ray)
     px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
     det = e1x * px + e1y * py + e1z * pz
@@ -454,14 +462,8 @@ def _bundle_hidden_kernel(  # compiled; compared with the pieces' own rays in te
         face = prim[p, 0]
         if face < 0 or prim[p, 1] != face or prim[p, 2] != face or prim[p, 3] != face:
             continue
-        a, b, c = faces32[face, 0], faces32[face, 1], faces32[face, 2]
-        ax, ay, az = float(vertices32[a, 0]), float(vertices32[a, 1]), float(vertices32[a, 2])
-        e1x = float(vertices32[b, 0]) - ax
-        e1y = float(vertices32[b, 1]) - ay
-        e1z = float(vertices32[b, 2]) - az
-        e2x = float(vertices32[c, 0]) - ax
-        e2y = float(vertices32[c, 1]) - ay
-        e2z = float(vertices32[c, 2]) - az
+        ax, ay, az, e1x, e1y, e1z, e2x, e2y, e2z = _corner_and_edges(face, vertices32,
+                                                                     faces32)
         nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
         norm = np.sqrt(nx * nx + ny * ny + nz * nz)
         if norm <= 0.0:
