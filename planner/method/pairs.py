@@ -134,16 +134,22 @@ def _requirement_masks(
         if key in group_index:
             masks.append((scene.face_group == group_index[key], req))
     if scene.elements:
-        classes = np.array([e.ifc_class for e in scene.elements] + [""])
-        ids = np.array([e.global_id for e in scene.elements] + [""])
-        face_class = classes[scene.face_element]  # -1 picks the trailing ""
-        face_id = ids[scene.face_element]
+        classes = [e.ifc_class for e in scene.elements]
+        ids = [e.global_id for e in scene.elements]
+
+        def faces_of(names: list[str], key: str) -> NDArray[np.bool_]:
+            """(F,) the faces of the elements whose name is ``key``: an (E,) test, then
+            one byte a face (no (F,) array of names: 80 bytes a face on a split model)."""
+            per_element = np.array([name == key for name in names] + [key == ""], bool)
+            mask: NDArray[np.bool_] = per_element[scene.face_element]  # -1: the last entry
+            return mask
+
         for key, req in reqs.items():
-            if key not in group_index and key in set(classes[:-1]):
-                masks.append((face_class == key, req))
+            if key not in group_index and key in set(classes):
+                masks.append((faces_of(classes, key), req))
         for key, req in reqs.items():
-            if key in set(ids[:-1]):
-                masks.append((face_id == key, req))
+            if key in set(ids):
+                masks.append((faces_of(ids, key), req))
     return masks
 
 
