@@ -183,17 +183,22 @@ def test_restart_loses_no_job(tmp_path: Path) -> None:
     hall, small = _scene("hall-full"), _scene("hall-small")
     first = Service(tmp_path / "data", workers=1).start()
     with first.client() as client:
-        running = _submit(client, hall)
+        # every other candidate of hall-full: seconds of planning left when serve stops,
+        # half of the run again after the restart
+        running = _submit(client, hall, candidates=_parameters(hall)["candidates"][::2])
         # queued, they wait all the same: 10 candidates plan as well as all of them
         few = _parameters(small)["candidates"][:10]
         queued = [_submit(client, small, candidates=few) for _ in range(3)]
         _wait_running(first, client, running)
+        started = client.get(f"/jobs/{running}").json()["started"]
     first.stop()  # one job mid-run, three queued
     second = Service(tmp_path / "data", workers=2, port=first.port).start()
     try:
         with second.client() as client:
             for job_id in [running, *queued]:
                 assert wait_for(client, job_id, FINISHED, 150)["status"] == "successful"
+            # the job was stopped mid-run and started again, not finished before the stop
+            assert client.get(f"/jobs/{running}").json()["started"] > started
     finally:
         second.stop()
         first.kill_leftovers()
