@@ -163,7 +163,7 @@ def test_a_3m_face_interior_plans_within_2_gb(tmp_path: Path) -> None:
     instead of 0.5 m (5,550). The face count does not change (3.2 M: every long face has a
     candidate in its room either way, so the same faces are split), nor do the stages that
     hold the peak: reading and splitting the scene (0.8 GB resident) and the survey at the
-    end (1.0 GB, 983-1,012 MB measured at either spacing). What the coarser grid cuts is ray
+    end (1.0 GB, 981-1,012 MB measured at either spacing). What the coarser grid cuts is ray
     work: 13 M qualified pairs instead of 57 M, about half the CPU time of the plan.
     """
     plan_scale = _plan_scale_module()
