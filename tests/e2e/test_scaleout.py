@@ -146,7 +146,6 @@ def _finished(client: httpx.Client, job_id: str, log: Path | None = None) -> str
 
 def test_api_and_separate_workers(backends: dict[str, str], tmp_path: Path) -> None:
     hall = _scene("hall-small")
-    few = {"candidates": _parameters(hall)["candidates"][:10]}  # fast: 2 stations of 10
     data = tmp_path / "shared"
     api = Service(data, workers=0, env=backends).start()  # API only
     env = {**os.environ, **FAST, **backends}
@@ -157,7 +156,7 @@ def test_api_and_separate_workers(backends: dict[str, str], tmp_path: Path) -> N
     try:
         with api.client() as client:
             assert client.get("/readyz").json()["status"] == "ready"
-            job_ids = [_submit(client, hall, **few) for _ in range(2)]
+            job_ids = [_submit(client, hall) for _ in range(2)]
             for job_id in job_ids:
                 status = wait_for(client, job_id, ("successful", "failed"), 120)
                 assert status["status"] == "successful", (
