@@ -50,7 +50,18 @@ def _submit(client: httpx.Client, folder: Path, **extra: Any) -> str:
 
 @pytest.fixture
 def service(tmp_path: Path) -> Any:
+    """A service of the test's own: for the tests that kill its workers."""
     running = Service(tmp_path / "data", workers=2).start()
+    yield running
+    running.stop()
+    running.kill_leftovers()
+
+
+@pytest.fixture(scope="module")
+def shared_service(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    """One service for the tests that leave it as they found it: each waits for its own
+    job to end, none kills a process of the service."""
+    running = Service(tmp_path_factory.mktemp("shared") / "data", workers=2).start()
     yield running
     running.stop()
     running.kill_leftovers()
@@ -96,9 +107,10 @@ def test_stopping_serve_stops_busy_workers_too(tmp_path: Path, stop_signal: int)
         service.kill_leftovers()
 
 
-def test_plan_through_workers_equals_in_process(service: Service, tmp_path: Path) -> None:
+def test_plan_through_workers_equals_in_process(shared_service: Service,
+                                                tmp_path: Path) -> None:
     hall = _scene("hall-small")
-    with service.client() as client:
+    with shared_service.client() as client:
         job_id = _submit(client, hall)
         status = wait_for(client, job_id, FINISHED)
         assert status["status"] == "successful", status
@@ -123,7 +135,7 @@ def _wait_running(service: Service, client: httpx.Client, job_id: str) -> int:
 
 
 def test_sigkilled_worker_job_still_finishes(service: Service) -> None:
-    hall = _scene("hall-full")
+    hall = _scene("hall-small")  # seconds of planning after the kill: it lands mid-run
     with service.client() as client:
         job_id = _submit(client, hall)
         os.kill(_wait_running(service, client, job_id), signal.SIGKILL)
@@ -135,7 +147,7 @@ def test_sigkilled_worker_job_still_finishes(service: Service) -> None:
 def test_sigkilled_planning_process_is_run_again_not_called_out_of_memory(
         service: Service) -> None:
     """What an operator, a container runtime or the host's OOM killer does to the plan."""
-    hall = _scene("hall-full")
+    hall = _scene("hall-small")  # seconds of planning after the kill: it lands mid-run
     with service.client() as client:
         job_id = _submit(client, hall)
         worker = _wait_running(service, client, job_id)
@@ -151,14 +163,15 @@ def test_sigkilled_planning_process_is_run_again_not_called_out_of_memory(
     assert succeeded["outcome"] == "successful"
 
 
-def test_delete_cancels_a_running_job(service: Service) -> None:
+def test_delete_cancels_a_running_job(shared_service: Service) -> None:
+    service = shared_service
     hall = _scene("hall-full")
     with service.client() as client:
         job_id = _submit(client, hall)
         pid = _wait_running(service, client, job_id)
         assert client.delete(f"/jobs/{job_id}").json()["status"] == "dismissed"
         deadline = time.monotonic() + 15
-        while "stopped (dismissed" not in service.log.read_text():
+        while f"job {job_id}: stopped (dismissed" not in service.log.read_text():
             assert time.monotonic() < deadline, "the worker did not stop within 15 s"
             time.sleep(0.2)
         os.kill(pid, 0)  # the worker process itself lives on for the next job
@@ -170,23 +183,30 @@ def test_restart_loses_no_job(tmp_path: Path) -> None:
     hall, small = _scene("hall-full"), _scene("hall-small")
     first = Service(tmp_path / "data", workers=1).start()
     with first.client() as client:
-        running = _submit(client, hall)
-        queued = [_submit(client, small) for _ in range(3)]
+        # every other candidate of hall-full: seconds of planning left when serve stops,
+        # half of the run again after the restart
+        running = _submit(client, hall, candidates=_parameters(hall)["candidates"][::2])
+        # queued, they wait all the same: 10 candidates plan as well as all of them
+        few = _parameters(small)["candidates"][:10]
+        queued = [_submit(client, small, candidates=few) for _ in range(3)]
         _wait_running(first, client, running)
+        started = client.get(f"/jobs/{running}").json()["started"]
     first.stop()  # one job mid-run, three queued
     second = Service(tmp_path / "data", workers=2, port=first.port).start()
     try:
         with second.client() as client:
             for job_id in [running, *queued]:
                 assert wait_for(client, job_id, FINISHED, 150)["status"] == "successful"
+            # the job was stopped mid-run and started again, not finished before the stop
+            assert client.get(f"/jobs/{running}").json()["started"] > started
     finally:
         second.stop()
         first.kill_leftovers()
         second.kill_leftovers()
 
 
-def test_bad_input_keeps_the_service_serving(service: Service) -> None:
-    with service.client() as client:
+def test_bad_input_keeps_the_service_serving(shared_service: Service) -> None:
+    with shared_service.client() as client:
         for body, status in ((b"", 422), (b"\x00garbage" * 100, 415)):
             answer = client.post("/meshes", content=body,
                                  headers={"content-type": "application/octet-stream"})

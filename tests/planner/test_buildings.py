@@ -9,7 +9,6 @@ than doors with a float64 segment test written here (not Embree), at knee height
 from __future__ import annotations
 
 import dataclasses
-import functools
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +34,7 @@ from tests.planner.buildings import (
     office_parts,
     units,
 )
+from tests.planner.ifc_models import read_ifc_once
 from tests.planner.survey_scenes import boxes_scene, room_shell
 
 FLOORS, ROOMS = 2, 2
@@ -210,12 +210,9 @@ def plain_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return tmp_path_factory.mktemp("plain")
 
 
-@functools.cache
 def ifc_reading(path: Path) -> Scene:
-    """The IFC model as IfcOpenShell reads it (once a module: tens of seconds for FZK)."""
-    from planner.io.ifc import read_ifc
-
-    return read_ifc(path)
+    """The IFC model as IfcOpenShell reads it (once a session: seconds for FZK)."""
+    return read_ifc_once(path)
 
 
 def house_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateSet:

@@ -5,7 +5,7 @@ its plan.json position (also for a model read with another up axis), and the wal
 instrument height; plan.pdf has a page per storey at a standard scale, no two station
 markers overlap on a sheet (a storey with a hundred stations), and both are the same bytes
 twice. The two-storey case is the shared FZK-Haus, planned as in test_ifc (0.5 m remesh,
-1 m grid).
+1 m grid) without the placement tolerance report.
 """
 
 from __future__ import annotations
@@ -60,7 +60,9 @@ def fzk(scenes_dir: Path) -> PlanResult:
     pytest.importorskip("ifcopenshell")
     scene = read_scene(scenes_dir / "AC20-FZK-Haus.ifc", max_edge_m=0.5,
                        split_faces="as_needed")
-    return plan(scene, PlanSpec(max_edge_m=0.5, grid_spacing_m=1.0))
+    # no placement tolerance report: its stage was 40 % of this plan, and the FZK tests
+    # read the storeys' layers and sheets (the hall's plan keeps the report)
+    return plan(scene, PlanSpec(max_edge_m=0.5, grid_spacing_m=1.0, placement_tolerance_m=0))
 
 
 def read_dxf(data: bytes) -> Drawing:

@@ -1,7 +1,7 @@
 """IFC input through the real IfcOpenShell: reading, rooms, per-storey plans, BIM outputs.
 
-The shared FZK-Haus is read once per module and remeshed coarsely (0.5 m) with a 1 m grid
-so that the module stays well under a minute on two cores.
+The shared FZK-Haus is read once a session (tests.planner.ifc_models) and remeshed coarsely
+(0.5 m) with a 1 m grid so that the module stays well under a minute on two cores.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from planner.outputs.report import plan_document, write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
 from planner.scene import Element, Scene, build_scene, remesh
+from tests.planner.ifc_models import read_ifc_once
 from tests.planner.ifc_parts import placed
 
 ifcopenshell = pytest.importorskip("ifcopenshell")
@@ -44,7 +45,7 @@ GRID_M = 1.0
 
 @pytest.fixture(scope="module")
 def fzk_raw(scenes_dir: Path) -> Scene:
-    return read_ifc(scenes_dir / f"{FZK}.ifc")
+    return read_ifc_once(scenes_dir / f"{FZK}.ifc")
 
 
 @pytest.fixture(scope="module")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -46,10 +47,20 @@ def test_upload_is_content_addressed(client: TestClient, hall_bytes: bytes) -> N
     assert_problem(client.get(f"/meshes/{mesh['id']}"), 404, "POST /meshes")
 
 
-def test_plan_equals_in_process_plan(client: TestClient, hall: Path, hall_bytes: bytes,
+@pytest.fixture(scope="module")
+def hall_job(tmp_path_factory: pytest.TempPathFactory, hall_bytes: bytes,
+             hall_parameters: dict[str, Any]) -> Iterator[tuple[TestClient, Any]]:
+    """One hall-small job run to its end, and the answer to its submission: for the tests
+    that only read a finished job (the same plan each would run on its own)."""
+    data = tmp_path_factory.mktemp("hall-job")
+    with make_client(data, InlineQueue(), api_keys=[]) as client:
+        mesh_id = upload(client, hall_bytes).json()["id"]
+        yield client, submit(client, mesh_id, hall_parameters)
+
+
+def test_plan_equals_in_process_plan(hall_job: tuple[TestClient, Any], hall: Path,
                                      hall_parameters: dict[str, Any], tmp_path: Path) -> None:
-    mesh_id = upload(client, hall_bytes).json()["id"]
-    created = submit(client, mesh_id, hall_parameters)
+    client, created = hall_job
     assert created.status_code == 201, created.text
     job_id = created.json()["jobID"]
     assert created.headers["location"] == f"/jobs/{job_id}"
@@ -72,10 +83,9 @@ def test_plan_equals_in_process_plan(client: TestClient, hall: Path, hall_bytes:
     assert results["plan"] == json.loads((expected / "plan.json").read_text())
 
 
-def test_output_headers_etag_and_range(client: TestClient, hall_bytes: bytes,
-                                       hall_parameters: dict[str, Any]) -> None:
-    mesh_id = upload(client, hall_bytes).json()["id"]
-    job_id = submit(client, mesh_id, hall_parameters).json()["jobID"]
+def test_output_headers_etag_and_range(hall_job: tuple[TestClient, Any]) -> None:
+    client, created = hall_job
+    job_id = created.json()["jobID"]
     base = f"/jobs/{job_id}/results"
     assert client.get(f"{base}/plan.json").headers["content-type"] == "application/json"
     assert client.get(f"{base}/faces.npz").headers["content-type"] == \
@@ -91,12 +101,12 @@ def test_output_headers_etag_and_range(client: TestClient, hall_bytes: bytes,
     assert_problem(client.get(f"{base}/nope.txt"), 404, "plan.json")
 
 
-def test_cad_outputs_are_served_with_their_media_types(client: TestClient, hall_bytes: bytes,
-                                                       hall_parameters: dict[str, Any]) -> None:
+def test_cad_outputs_are_served_with_their_media_types(
+        hall_job: tuple[TestClient, Any]) -> None:
     """plan.dxf and plan.pdf are job results like the others; plan.ifc and plan.bcf, when a
     job wrote them, are served as STEP and as bytes."""
-    mesh_id = upload(client, hall_bytes).json()["id"]
-    job_id = submit(client, mesh_id, hall_parameters).json()["jobID"]
+    client, created = hall_job
+    job_id = created.json()["jobID"]
     results = client.get(f"/jobs/{job_id}/results").json()
     for name, media, magic in (("plan.dxf", "image/vnd.dxf", b"  0\nSECTION"),
                                ("plan.pdf", "application/pdf", b"%PDF-")):
