@@ -135,7 +135,7 @@ def _wait_running(service: Service, client: httpx.Client, job_id: str) -> int:
 
 
 def test_sigkilled_worker_job_still_finishes(service: Service) -> None:
-    hall = _scene("hall-small")  # seconds of planning after the kill: it lands mid-run
+    hall = _scene("hall-full")  # seconds of planning after the kill: it lands mid-run
     with service.client() as client:
         job_id = _submit(client, hall)
         os.kill(_wait_running(service, client, job_id), signal.SIGKILL)
@@ -147,7 +147,7 @@ def test_sigkilled_worker_job_still_finishes(service: Service) -> None:
 def test_sigkilled_planning_process_is_run_again_not_called_out_of_memory(
         service: Service) -> None:
     """What an operator, a container runtime or the host's OOM killer does to the plan."""
-    hall = _scene("hall-small")  # seconds of planning after the kill: it lands mid-run
+    hall = _scene("hall-full")  # seconds of planning after the kill: it lands mid-run
     with service.client() as client:
         job_id = _submit(client, hall)
         worker = _wait_running(service, client, job_id)
