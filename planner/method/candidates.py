@@ -632,11 +632,18 @@ def closer_than(
     # of the corners, no (F,) array of every face's height range).
     span_low_m = floor_z_m.min() + 0.01
     span_high_m = points[:, 2].max() + radius_m
+    # And only faces whose XY bounding box, widened by radius_m, holds some point: any other
+    # is farther than radius_m from every axis (a few setups around the stations need a few
+    # faces, not per-face arrays over a whole split building).
+    near = _NearPoints(points[:, :2], radius_m)
     parts: list[tuple[NDArray[np.int32], NDArray[np.float64], NDArray[np.float64]]] = []
     for start in range(0, scene.n_faces, _FOOTPRINTS_PER_BLOCK):
-        corner_z = scene.vertices[scene.faces[start:start + _FOOTPRINTS_PER_BLOCK], 2]
-        low, high = corner_z.min(axis=1), corner_z.max(axis=1)  # (B,) each
+        corners = scene.vertices[scene.faces[start:start + _FOOTPRINTS_PER_BLOCK]]  # (B, 3, 3)
+        low, high = corners[:, :, 2].min(axis=1), corners[:, :, 2].max(axis=1)  # (B,) each
         keep = np.flatnonzero((high >= span_low_m) & (low <= span_high_m))
+        keep = keep[near.any_in(corners[keep, :, :2].min(axis=1),
+                                corners[keep, :, :2].max(axis=1))]
+        del corners
         parts.append(((keep + start).astype(np.int32), low[keep], high[keep]))
     useful = np.concatenate([p[0] for p in parts])  # (U,) the faces kept
     z_low = np.concatenate([p[1] for p in parts])  # (U,) their lowest corner
@@ -692,6 +699,44 @@ def closer_than(
             gap = _distance_to_triangles_xy(points[p, :2], footprints(f))
             np.logical_or.at(result, p, gap < radius_m)
     return result
+
+
+class _NearPoints:
+    """Which boxes in the plane, widened by ``radius_m``, hold some of the (N, 2) points:
+    point counts on a grid and their summed-area table. Conservative: a box is tested
+    against the whole cells it touches, so a box that holds a point always says so."""
+
+    _MAX_CELLS = 1 << 22
+
+    def __init__(self, points_xy: NDArray[np.float64], radius_m: float) -> None:
+        self.radius_m = radius_m
+        self.origin = points_xy.min(axis=0)
+        extent = np.maximum(points_xy.max(axis=0) - self.origin, 1e-9)
+        self.cell_m = max(radius_m, float(extent.max()) / 4096.0, 1e-6)
+        while np.prod(np.floor(extent / self.cell_m) + 1) > self._MAX_CELLS:
+            self.cell_m *= 2.0
+        self.dims = (np.floor(extent / self.cell_m) + 1).astype(np.int64)
+        ij = np.minimum(np.floor((points_xy - self.origin) / self.cell_m).astype(np.int64),
+                        self.dims - 1)
+        counts = np.zeros(self.dims, np.int64)
+        np.add.at(counts, (ij[:, 0], ij[:, 1]), 1)
+        self.table = np.zeros(self.dims + 1, np.int64)  # (nx + 1, ny + 1) summed area
+        self.table[1:, 1:] = counts.cumsum(axis=0).cumsum(axis=1)
+
+    def any_in(self, low_xy: NDArray[np.float64], high_xy: NDArray[np.float64]
+               ) -> NDArray[np.bool_]:
+        """(B,) bool: some point lies in the box [low - r, high + r] of each of the (B, 2)
+        ``low_xy`` / ``high_xy`` corners (or in a cell the widened box touches)."""
+        first = np.floor((low_xy - self.radius_m - self.origin) / self.cell_m)
+        last = np.floor((high_xy + self.radius_m - self.origin) / self.cell_m)
+        outside = ((last < 0) | (first > self.dims - 1)).any(axis=1)
+        first = np.clip(first, 0, self.dims - 1).astype(np.int64)
+        last = np.clip(last, 0, self.dims - 1).astype(np.int64) + 1
+        t = self.table
+        inside = (t[last[:, 0], last[:, 1]] - t[first[:, 0], last[:, 1]]
+                  - t[last[:, 0], first[:, 1]] + t[first[:, 0], first[:, 1]])
+        held: NDArray[np.bool_] = (inside > 0) & ~outside
+        return held
 
 
 def _distance_to_triangles_xy(

@@ -1,0 +1,30 @@
+"""The tripod's clearance test looks only at faces near the tripods, and misses none."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from planner.method import candidates
+from planner.scene import build_scene, remesh
+from tests.planner.buildings import office_building
+
+
+@pytest.mark.parametrize("n_points", [40, 3000])
+def test_faces_far_from_every_tripod_change_no_clearance_verdict(
+        monkeypatch: pytest.MonkeyPatch, n_points: int) -> None:
+    """A few setups (the placement tolerance's) or a dense grid (candidates): leaving out
+    the faces whose widened footprint box holds no tripod gives the verdicts of testing
+    every face."""
+    mesh = office_building(2, 2)
+    scene = remesh(build_scene(np.asarray(mesh.vertices), np.asarray(mesh.faces)), 0.2)
+    rng = np.random.default_rng(n_points)
+    low, high = scene.vertices.min(axis=0), scene.vertices.max(axis=0)
+    points = rng.uniform(low, high, size=(n_points, 3))
+    floor_z = points[:, 2] - rng.uniform(0.5, 2.0, n_points)
+    near = candidates.closer_than(scene, points, 0.3, floor_z)
+    monkeypatch.setattr(candidates._NearPoints, "any_in",
+                        lambda self, low_xy, high_xy: np.ones(len(low_xy), bool))
+    every_face = candidates.closer_than(scene, points, 0.3, floor_z)
+    assert 0 < near.sum() < n_points
+    assert np.array_equal(near, every_face)
