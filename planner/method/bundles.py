@@ -48,8 +48,8 @@ BUNDLE_SIDES_M = (2.0, 1.0, 0.5)
 # default overlap density). Measured on a generated 2-storey IFC office (1.28 M pieces):
 # the overlap search of 40 stations 37.5 M rays and 7.5 CPU s without bundles, 13.7 M rays
 # and 3.2 s with; the coverage search (4.7 m) of its 973 candidates 64.6 M rays and 21.0 s
-# without, 55.4 M rays and 23.4 s with,
-# where most pieces in reach lie in the candidate's own room or just behind one wall
+# without, 55.4 M rays and 23.4 s with, where most pieces in reach lie in the candidate's
+# own room or just behind one wall
 BUNDLE_MIN_REACH_M = 10.0
 # a bundle of fewer pieces is not worth its four rays: its pieces get their own
 MIN_BUNDLE_PIECES = 8
@@ -271,9 +271,7 @@ def bundle_culler(scene: Scene, reach_m: float, occlusion: object, *,
     """A culler for a pair search of ``reach_m`` on ``scene`` with ``occlusion``; None when
     the scene has no bundles, the occlusion cannot rule bundles out (the brute force), or
     the reach is short of :data:`BUNDLE_MIN_REACH_M` (unless ``always``)."""
+    if not isinstance(occlusion, BundleRays) or (reach_m < BUNDLE_MIN_REACH_M and not always):
+        return None  # decided before the bundles are made: a short search never needs them
     bundles = bundles_of(scene)
-    if bundles is None or not isinstance(occlusion, BundleRays):
-        return None
-    if reach_m < BUNDLE_MIN_REACH_M and not always:
-        return None
-    return BundleCuller(bundles, reach_m, occlusion)
+    return None if bundles is None else BundleCuller(bundles, reach_m, occlusion)

@@ -638,12 +638,12 @@ def closer_than(
     near = _NearPoints(points[:, :2], radius_m)
     parts: list[tuple[NDArray[np.int32], NDArray[np.float64], NDArray[np.float64]]] = []
     for start in range(0, scene.n_faces, _FOOTPRINTS_PER_BLOCK):
-        corners = scene.vertices[scene.faces[start:start + _FOOTPRINTS_PER_BLOCK]]  # (B, 3, 3)
-        low, high = corners[:, :, 2].min(axis=1), corners[:, :, 2].max(axis=1)  # (B,) each
+        block_faces = scene.faces[start:start + _FOOTPRINTS_PER_BLOCK]
+        corner_z = scene.vertices[block_faces, 2]
+        low, high = corner_z.min(axis=1), corner_z.max(axis=1)  # (B,) each
         keep = np.flatnonzero((high >= span_low_m) & (low <= span_high_m))
-        keep = keep[near.any_in(corners[keep, :, :2].min(axis=1),
-                                corners[keep, :, :2].max(axis=1))]
-        del corners
+        corner_xy = scene.vertices[block_faces[keep], :2]  # (k, 3, 2): the faces kept so far
+        keep = keep[near.any_in(corner_xy.min(axis=1), corner_xy.max(axis=1))]
         parts.append(((keep + start).astype(np.int32), low[keep], high[keep]))
     useful = np.concatenate([p[0] for p in parts])  # (U,) the faces kept
     z_low = np.concatenate([p[1] for p in parts])  # (U,) their lowest corner

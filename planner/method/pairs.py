@@ -227,10 +227,10 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     ``face_class`` (f,) picks each face's thresholds from the (K,) ``min_sin_incidence``
     and ``min_density`` (K: the distinct pairs of them, 1 without group requirements).
     Only the faces in the cells of the grid (:class:`PointGrid`) whose cube comes within
-    ``reach_m`` of a point are tested (:func:`_cells_within`), so every face within reach is
-    among them. A face of a bundle hidden from the point (``bundle_of`` (F,), empty for none, and
-    ``hidden`` (B, K): :mod:`planner.method.bundles`) is left out untested: its ray would
-    end in the occluder that hides the bundle. A point's pairs are written in face order
+    ``reach_m`` of a point are tested (:func:`_cells_within`), so every face within reach
+    is among them. A face of a bundle hidden from the point (``bundle_of`` (F,), empty for
+    none, and ``hidden`` (B, K): :mod:`planner.method.bundles`) is left out untested: its
+    ray would end in the occluder that hides the bundle. A point's pairs are written in face order
     when ``ordered``, else in the order the cells gave them.
     Returns the number of pairs written and the number tested.
     """
@@ -306,12 +306,12 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
 # (beside the kernel that calls it: numba checks a cached function against its own file only)
 @numba.njit(nogil=True, cache=True)
 def _cells_within(px: float, py: float, pz: float, grid_origin: NDArray[np.float64],
-                 cell_m: float, grid_dims: NDArray[np.int64], reach_m: float,
-                 out: NDArray[np.int64]) -> int:
+                  cell_m: float, grid_dims: NDArray[np.int64], reach_m: float,
+                  out: NDArray[np.int64]) -> int:
     """Write the ids of the grid cells (those inside the grid) that come within ``reach_m``
     of the point into ``out`` (room for (2 ceil(reach / cell) + 1)^3 of them), in
-    increasing order; returns how many. A cell is kept when the nearest point of its cube is within
-    reach (a hair more, for rounding), so no point within reach is missed."""
+    increasing order; returns how many. A cell is kept when the nearest point of its cube
+    is within reach (a hair more, for rounding), so no point within reach is missed."""
     span = int(np.ceil(reach_m / cell_m))
     cx = int(np.floor((px - grid_origin[0]) / cell_m))
     cy = int(np.floor((py - grid_origin[1]) / cell_m))
