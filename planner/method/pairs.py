@@ -180,7 +180,7 @@ class Pairs:
     def __len__(self) -> int:
         return len(self.face)
 
-    def subset(self, keep: NDArray[np.bool_] | slice) -> Pairs:
+    def subset(self, keep: NDArray[np.bool_] | NDArray[np.intp] | slice) -> Pairs:
         return Pairs(*(getattr(self, name)[keep] for name in _PAIR_COLUMNS))
 
     def exact_rays(self, positions_xyz: NDArray[np.float64], face_xyz: NDArray[np.float64]
@@ -198,8 +198,8 @@ _PAIR_COLUMNS = ("candidate", "face", "origin", "direction", "distance_m", "lpd_
 
 
 def sorted_by_face(candidate: NDArray[np.int32], face: NDArray[np.int32]) -> NDArray[np.intp]:
-    """(P,) the order that sorts P pairs, grouped by candidate already, by (candidate,
-    face); a candidate holds a face once, so the order is unique."""
+    """(P,) the order that sorts P pairs by (candidate, face); a candidate holds a face
+    once, so the order is unique."""
     key = candidate.astype(np.int64) * (int(face.max(initial=0)) + 1) + face
     order: NDArray[np.intp] = np.argsort(key)
     return order
@@ -215,7 +215,7 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     reach_m: float, angular_step_rad: float,
     grid_origin: NDArray[np.float64], cell_m: float, grid_dims: NDArray[np.int64],
     cell_start: NDArray[np.int64], cell_members: NDArray[np.int32],
-    bundle_of: NDArray[np.int32], hidden: NDArray[np.bool_], ordered: bool,
+    bundle_of: NDArray[np.int32], hidden: NDArray[np.bool_],
     out_candidate: NDArray[np.int32], out_face: NDArray[np.int32],
     out_origin: NDArray[np.float32], out_direction: NDArray[np.float32],
     out_distance: NDArray[np.float32], out_lpd: NDArray[np.float32],
@@ -230,42 +230,59 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     ``reach_m`` of a point are tested (:func:`_cells_within`), so every face within reach
     is among them. A face of a bundle hidden from the point (``bundle_of`` (F,), empty for
     none, and ``hidden`` (B, K): :mod:`planner.method.bundles`) is left out untested: its
-    ray would end in the occluder that hides the bundle. A point's pairs are written in face order
-    when ``ordered``, else in the order the cells gave them.
+    ray would end in the occluder that hides the bundle.
+
+    The search runs cell by cell: each cell's faces are read once and tested against
+    every point of the block that reaches the cell (the block's points stand close
+    together, so they reach mostly the same cells), not read again point after point from
+    memory. A point whose cells would hold most faces tests every face instead. The pairs
+    come out in no particular order (:func:`sorted_by_face` orders them).
     Returns the number of pairs written and the number tested.
     """
-    bundled = bundle_of.shape[0] > 0
+    n_points = points.shape[0]
     n = 0
     tested = 0
+    bundled = bundle_of.shape[0] > 0
     reach2 = reach_m * reach_m * (1.0 + 1e-9)
     room = int((2 * np.ceil(reach_m / cell_m) + 1) ** 3)  # as _cells_within needs
     cells = np.empty(room, np.int64)
-    low, high = np.empty(room, np.int64), np.empty(room, np.int64)
-    for b in range(points.shape[0]):
-        px, py, pz = points[b, 0], points[b, 1], points[b, 2]
-        n_cells = _cells_within(px, py, pz, grid_origin, cell_m, grid_dims, reach_m, cells)
+    every_face = cell_start.shape[0] - 1  # a cell id past the grid's: all the faces
+    keys = np.empty(n_points * room, np.int64)  # cell * B + point, of the points by cell
+    n_keys = 0
+    for b in range(n_points):
+        n_cells = _cells_within(points[b, 0], points[b, 1], points[b, 2], grid_origin,
+                                cell_m, grid_dims, reach_m, cells)
         near = 0
         for c in range(n_cells):
-            low[c], high[c] = cell_start[cells[c]], cell_start[cells[c] + 1]
-            near += high[c] - low[c]
-        # the cells' faces need putting in face order afterwards (some 20 pair tests a
-        # pair): worth it only when they leave most faces out, else every face in order
-        every_face = near * _GRID_WORTH > faces.shape[0]
-        if every_face:
-            n_cells, low[0], high[0] = 1, 0, faces.shape[0]
-        tested += faces.shape[0] if every_face else near
-        first = n
-        last_face = -1
-        in_order = True
+            near += cell_start[cells[c] + 1] - cell_start[cells[c]]
+        if near * _GRID_WORTH > faces.shape[0]:  # the cells hold most faces: test them all
+            n_cells, cells[0] = 1, every_face
+            near = faces.shape[0]
+        tested += near
         for c in range(n_cells):
-            for m in range(low[c], high[c]):
-                i = m if every_face else cell_members[m]
-                f = faces[i]
-                if bundled and bundle_of[f] >= 0 and hidden[b, bundle_of[f]]:
+            keys[n_keys] = cells[c] * n_points + b
+            n_keys += 1
+    keys = np.sort(keys[:n_keys])
+    first = 0
+    while first < n_keys:  # one cell: its points are keys[first:last]
+        cell = keys[first] // n_points
+        last = first
+        while last < n_keys and keys[last] // n_points == cell:
+            last += 1
+        every = cell == every_face
+        low, high = (0, faces.shape[0]) if every else (cell_start[cell], cell_start[cell + 1])
+        for m in range(low, high):
+            i = m if every else cell_members[m]
+            f = faces[i]
+            k = face_class[i]
+            fx, fy, fz = face_xyz[f, 0], face_xyz[f, 1], face_xyz[f, 2]
+            bundle = bundle_of[f] if bundled else -1
+            for key in keys[first:last]:
+                b = key - cell * n_points
+                if bundle >= 0 and hidden[b, bundle]:
                     continue
-                ox = face_xyz[f, 0] - px
-                oy = face_xyz[f, 1] - py
-                oz = face_xyz[f, 2] - pz
+                px, py, pz = points[b, 0], points[b, 1], points[b, 2]
+                ox, oy, oz = fx - px, fy - py, fz - pz
                 d2 = ox * ox + oy * oy + oz * oz
                 if d2 > reach2:
                     continue
@@ -278,7 +295,6 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
                 ux, uy = ox / d, oy / d
                 s = abs(ux * face_normal[f, 0] + uy * face_normal[f, 1]
                         + uz * face_normal[f, 2])
-                k = face_class[i]
                 if s < min_sin_incidence[k]:
                     continue
                 spacing = angular_step_rad * d
@@ -295,11 +311,8 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
                 out_direction[n, 1] = uy
                 out_direction[n, 2] = uz
                 out_lpd[n] = lpd
-                in_order = in_order and f > last_face
-                last_face = f
                 n += 1
-        if ordered and not in_order:  # the cells' faces came one cell after another
-            _sort_by_face(first, n, out_face, out_distance, out_lpd, out_direction)
+        first = last
     return n, tested
 
 
@@ -331,27 +344,6 @@ def _cells_within(px: float, py: float, pz: float, grid_origin: NDArray[np.float
                     out[n] = (gx * grid_dims[1] + gy) * grid_dims[2] + gz
                     n += 1
     return n
-
-
-@numba.njit(nogil=True, cache=True)
-def _sort_by_face(first: int, end: int, out_face: NDArray[np.int32],
-                  out_distance: NDArray[np.float32], out_lpd: NDArray[np.float32],
-                  out_direction: NDArray[np.float32]) -> None:
-    """Reorder rows ``first:end`` (one point's pairs, each face once) by face."""
-    m = end - first
-    order = np.argsort(out_face[first:end])
-    face = out_face[first:end].copy()
-    distance = out_distance[first:end].copy()
-    lpd = out_lpd[first:end].copy()
-    direction = out_direction[first:end].copy()
-    for j in range(m):
-        k = order[j]
-        out_face[first + j] = face[k]
-        out_distance[first + j] = distance[k]
-        out_lpd[first + j] = lpd[k]
-        out_direction[first + j, 0] = direction[k, 0]
-        out_direction[first + j, 1] = direction[k, 1]
-        out_direction[first + j, 2] = direction[k, 2]
 
 
 _NO_BUNDLES = np.zeros(0, np.int32)
@@ -396,9 +388,9 @@ class PairFinder:
         faces of the bundles ``hidden`` from them (:meth:`BundleCuller.hidden`: faces whose
         rays would all end in an occluder, so their pairs never qualify).
 
-        Returns the pairs, by candidate and, when ``ordered``, by face within a candidate
-        (unordered is cheaper where only some pairs are kept and sorted afterwards:
-        :func:`sorted_by_face`), and how many pairs were tested.
+        Returns the pairs, when ``ordered`` sorted by (candidate, face), else in the order
+        the search found them (cheaper where only some pairs are kept and sorted
+        afterwards: :func:`sorted_by_face`), and how many pairs were tested.
         """
         lim, grid = self.limits, self._grid
         points = np.ascontiguousarray(candidates_xyz, np.float64)
@@ -413,11 +405,13 @@ class PairFinder:
             self._face_class, self._min_sin_incidence, self._min_density, lim.dof_min_m,
             lim.dof_max_m, self._min_sin_elevation, self._max_sin_elevation, self.reach_m,
             lim.angular_step_rad, grid.origin, grid.cell_m, grid.dims, grid.start,
-            grid.members, bundle_of, hidden_mask, ordered, pairs.candidate, pairs.face,
+            grid.members, bundle_of, hidden_mask, pairs.candidate, pairs.face,
             pairs.origin, pairs.direction, pairs.distance_m, pairs.lpd_pts_m2,
         )
         # views of the first n rows: the block's arrays are short-lived
         pairs = pairs.subset(slice(0, n))
+        if ordered:
+            pairs = pairs.subset(sorted_by_face(pairs.candidate, pairs.face))
         return pairs, tested
 
 
