@@ -60,9 +60,6 @@ BOUNDED_HEAP_FACES = 2_000_000
 # progress(stage, fraction 0..1) -> True to cancel
 ProgressCallback = Callable[[str, float], bool | None]
 
-# candidate-face pairs per block of work: bounds the block's scratch arrays (~64 MB)
-_PAIRS_PER_BLOCK = 2_000_000
-
 
 @dataclass
 class Stats:
@@ -372,11 +369,11 @@ def qualify_pairs(
     finder = PairFinder(scene, limits)
     culler = None if bundles is False else bundle_culler(scene, finder.reach_m, occlusion,
                                                          always=bool(bundles))
-    block_size = max(1, min(64, _PAIRS_PER_BLOCK // max(1, int(limits.target.sum()))))
-    starts = range(0, len(positions), block_size)
+    # neighbouring candidates in a block share the pair search of their cells
+    stop_of = dict(finder.blocks(positions))
 
     def block(start: int) -> tuple[QualifiedPairs, int, int]:
-        points = positions[start:start + block_size]
+        points = positions[start:stop_of[start]]
         hidden, bundle_rays = (None, 0) if culler is None else culler.hidden(points)
         # unordered: sorting the visible pairs afterwards costs a fraction of sorting all
         pairs, tested = finder.find(points, start, hidden, ordered=False)
@@ -390,5 +387,5 @@ def qualify_pairs(
                                    pairs.lpd_pts_m2[visible[order]])
         return qualified, tested, len(pairs) + bundle_rays
 
-    return in_block_order(block, starts, threads=threads,
+    return in_block_order(block, list(stop_of), threads=threads,
                           notify=lambda fraction: _notify(progress, "visibility", fraction))
