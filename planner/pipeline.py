@@ -314,7 +314,9 @@ def _qualifier(scene: Scene, spec: PlanSpec, occlusion: Occlusion
     """The plan's coverage model for a few displaced setups at a time (one thread each:
     the caller runs positions in parallel)."""
     def qualify(positions: np.ndarray, limits: FaceLimits) -> Iterator[QualifiedPairs]:
-        return _qualified_blocks(scene, spec, positions, limits, occlusion, Stats(), threads=1)
+        # a station's own faces only: bundles would cast rays for every face in reach
+        return _qualified_blocks(scene, spec, positions, limits, occlusion, Stats(), threads=1,
+                                 bundles=False)
     return qualify
 
 
@@ -328,9 +330,11 @@ def _qualified_blocks(
     *,
     progress: ProgressCallback | None = None,
     threads: int | None = None,
+    bundles: bool | None = None,
 ) -> Iterator[QualifiedPairs]:
     """The qualified pairs of (C, 3) candidate positions under the plan's coverage model,
-    block by block in candidate order; counts what was tested in ``stats``."""
+    block by block in candidate order (``bundles``: as :func:`qualify_pairs`); counts what
+    was tested in ``stats``."""
     if spec.coverage_model == "sampled":
         from planner.method.sampled import qualify_sampled_pairs
 
@@ -339,7 +343,7 @@ def _qualified_blocks(
             spec.min_sampled_fraction, progress=progress, threads=threads)
     else:
         blocks = qualify_pairs(scene, positions, limits, occlusion,
-                               progress=progress, threads=threads)
+                               progress=progress, threads=threads, bundles=bundles)
     for qualified, tested, rays in blocks:
         stats.pairs_tested += tested
         stats.rays_cast += rays

@@ -37,8 +37,74 @@ _CLEAR_HIT_ULPS = 1024.0
 _EXACT_RAYS_PER_CHUNK = 1024
 
 
+# bundles may hide behind the convex quad two coplanar triangles make (a wall's face) in a
+# BVH of up to this many triangles (finding the quads costs some 300 bytes a triangle)
+_QUAD_MAX_TRIANGLES = 1 << 20
+# a quad's far corner lies at most this share of the clear margin off the other
+# triangle's plane (float32 corners of one plane: a few micrometres at 50 m)
+_QUAD_PLANE_SHARE = 1e-3
+# and a quad rules a bundle out only for rays that cross its plane at least this steeply
+_QUAD_MIN_SINE = 10 * _QUAD_PLANE_SHARE
+
+
 _EMPTY_INT32 = np.zeros(0, np.int32)
 _EMPTY_INT64 = np.zeros(0, np.int64)
+
+
+def quad_partners(vertices32: NDArray[np.float32], faces32: NDArray[np.int32],
+                  margin_m: float
+                  ) -> tuple[NDArray[np.int32], NDArray[np.int8], NDArray[np.int32]]:
+    """Each of the n triangles' quad partner: the triangle across its longest edge when
+    that edge is the other's longest too (a rectangle's two halves share their diagonal),
+    the two lie in one plane (the far corner within ``_QUAD_PLANE_SHARE`` of ``margin_m``
+    of it) and make a strictly convex quad. (n,) int32 partner (-1: none), (n,) int8 the
+    shared edge (corners j, j + 1) and (n,) int32 the partner's far corner (a vertex).
+
+    Edges are matched by their ends' float32 coordinates, as Embree holds them, so two
+    triangles that repeat a vertex instead of sharing it still match.
+    """
+    n = len(faces32)
+    partner = np.full(n, -1, np.int32)
+    shared_edge = np.zeros(n, np.int8)
+    far_vertex = np.zeros(n, np.int32)
+    corner = vertices32[faces32].astype(np.float64)  # (n, 3, 3)
+    edge = corner[:, [1, 2, 0]] - corner  # (n, 3, 3): corner j to j + 1
+    longest = np.argmax(np.einsum("nij,nij->ni", edge, edge), axis=1)  # (n,)
+    rows = np.arange(n)
+    ends = np.stack([vertices32[faces32[rows, longest]],
+                     vertices32[faces32[rows, (longest + 1) % 3]]], axis=1) + np.float32(0)
+    first_low = _lexicographically_less(ends[:, 0], ends[:, 1])
+    ordered = np.where(first_low[:, None, None], ends, ends[:, ::-1])  # (n, 2, 3)
+    key = np.ascontiguousarray(ordered.reshape(n, 6)).view(np.dtype((np.void, 24))).ravel()
+    _, group, count = np.unique(key, return_inverse=True, return_counts=True)
+    twice = np.flatnonzero(count[group] == 2)  # triangles whose edge one other shares
+    pair = twice[np.argsort(group[twice], kind="stable")].reshape(-1, 2)  # (m, 2)
+    for this, other in ((pair[:, 0], pair[:, 1]), (pair[:, 1], pair[:, 0])):
+        far = faces32[other, (longest[other] + 2) % 3]  # the partner's far corner
+        a = corner[this, 0]
+        normal = np.cross(edge[this, 0], corner[this, 2] - a)
+        normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-300)[:, None]
+        flat = np.abs(np.einsum("mk,mk->m", vertices32[far].astype(np.float64) - a, normal)
+                      ) <= margin_m * _QUAD_PLANE_SHARE
+        j = longest[this]
+        around = np.stack([corner[this, (j + 2) % 3], corner[this, j],
+                           vertices32[far].astype(np.float64), corner[this, (j + 1) % 3]],
+                          axis=1)  # (m, 4, 3): as T runs
+        side = np.roll(around, -1, axis=1) - around
+        turn = np.einsum("mik,mk->mi", np.cross(side, np.roll(side, -1, axis=1)), normal)
+        ok = flat & (turn > 0).all(axis=1)
+        partner[this[ok]] = other[ok]
+        shared_edge[this[ok]] = j[ok]
+        far_vertex[this[ok]] = far[ok]
+    return partner, shared_edge, far_vertex
+
+
+def _lexicographically_less(p: NDArray[np.float32], q: NDArray[np.float32]
+                            ) -> NDArray[np.bool_]:
+    """(n,) whether each of the (n, 3) points ``p`` comes before ``q`` in (x, y, z) order."""
+    less: NDArray[np.bool_] = (p[:, 0] < q[:, 0]) | ((p[:, 0] == q[:, 0]) & (
+        (p[:, 1] < q[:, 1]) | ((p[:, 1] == q[:, 1]) & (p[:, 2] <= q[:, 2]))))
+    return less
 
 
 def _ragged_ranges(starts: NDArray[np.int64], counts: NDArray[np.int64]) -> NDArray[np.int64]:
@@ -122,6 +188,8 @@ class EmbreeOcclusion:
         # (V0 + 1,) and (3 f,): the occluders (indices into self._faces) at each BVH vertex,
         # built the first time a ray needs deciding in float64
         self._vertex_occluders: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None
+        self._quad_partners: tuple[NDArray[np.int32], NDArray[np.int8],
+                                   NDArray[np.int32]] | None = None
         self._lock = threading.Lock()
 
     def visible(
@@ -190,9 +258,10 @@ class EmbreeOcclusion:
     def bundles_hidden(self, origins: NDArray[np.float64], corners: NDArray[np.float64]
                        ) -> NDArray[np.bool_]:
         """(P,) bool: the bundles whose (P, 4, 3) ``corners`` all lie clearly behind one
-        occluder seen from the (P, 3) ``origins`` (:mod:`planner.method.bundles`): one
-        robust cast of the four corner rays, the hits checked in float64. The rays start
-        where the pieces' own rays do, at the float32 origin."""
+        occluding triangle or quad seen from the (P, 3) ``origins``
+        (:mod:`planner.method.bundles`): one robust cast of the four corner rays, the hits
+        checked in float64. The rays start where the pieces' own rays do, at the float32
+        origin."""
         hidden = np.zeros(len(origins), bool)
         if self._empty or len(origins) == 0:
             return hidden
@@ -212,10 +281,23 @@ class EmbreeOcclusion:
         vertices32, faces32 = self._corners32
         ruled_out = np.zeros(len(start), bool)
         _bundle_hidden_kernel(start, np.ascontiguousarray(corners, np.float64),
-                              prim.reshape(-1, 4), vertices32, faces32, self._clear_margin_m,
-                              ruled_out)
+                              prim.reshape(-1, 4), vertices32, faces32, *self._quads(),
+                              self._clear_margin_m, ruled_out)
         hidden[np.flatnonzero(reaches)[ruled_out]] = True
         return hidden
+
+    def _quads(self) -> tuple[NDArray[np.int32], NDArray[np.int8], NDArray[np.int32]]:
+        """The BVH triangles' quad partners (:func:`quad_partners`), found the first time
+        bundles are ruled out; none (empty arrays) for a BVH of more than
+        :data:`_QUAD_MAX_TRIANGLES`."""
+        with self._lock:
+            if self._quad_partners is None:
+                vertices32, faces32 = self._corners32
+                self._quad_partners = (
+                    quad_partners(vertices32, faces32, self._clear_margin_m)
+                    if len(faces32) <= _QUAD_MAX_TRIANGLES
+                    else (np.zeros(0, np.int32), np.zeros(0, np.int8), np.zeros(0, np.int32)))
+            return self._quad_partners
 
     def _bvh_face(self, faces: NDArray[np.int64]) -> NDArray[np.int64]:
         """The BVH face (file face, or the face itself) of scene faces."""
@@ -451,16 +533,27 @@ def _clear_hit_kernel(  # compiled; compared with both casts in tests/planner/te
 @numba.njit(nogil=True, cache=True)
 def _bundle_hidden_kernel(  # compiled; compared with the pieces' own rays in test_bundles
     origins: NDArray[np.float64], corners: NDArray[np.float64], prim: NDArray[np.int64],
-    vertices32: NDArray[np.float32], faces32: NDArray[np.int32], margin_m: float,
-    out: NDArray[np.bool_],
+    vertices32: NDArray[np.float32], faces32: NDArray[np.int32],
+    partner: NDArray[np.int32], shared_edge: NDArray[np.int8], far_vertex: NDArray[np.int32],
+    margin_m: float, out: NDArray[np.bool_],
 ) -> None:
     """Set ``out[p]`` where the four rays from ``origins[p]`` (P, 3) to ``corners[p]``
-    (P, 4, 3) all hit BVH triangle T = ``prim[p, 0]`` (P, 4) more than ``margin_m`` inside
-    its edges, the origin lies more than ``margin_m`` in front of T's plane and every
-    corner more than ``margin_m`` behind it (:mod:`planner.method.bundles`)."""
+    (P, 4, 3) all hit BVH triangle T = ``prim[p, 0]`` (P, 4), or T and its quad partner
+    (``partner``, ``shared_edge``, ``far_vertex``: :func:`quad_partners`), more than
+    ``margin_m`` inside the edges of T (of the convex quad the two make); the origin
+    lies more than ``margin_m`` in front of T's plane and every corner more than
+    ``margin_m`` behind it (:mod:`planner.method.bundles`)."""
     for p in range(prim.shape[0]):
         face = prim[p, 0]
-        if face < 0 or prim[p, 1] != face or prim[p, 2] != face or prim[p, 3] != face:
+        if face < 0:
+            continue
+        quad = False  # some ray hit T's partner: the quad's edges count, not T's
+        for j in range(1, 4):
+            if prim[p, j] != face:
+                quad = partner.shape[0] > 0 and prim[p, j] == partner[face]
+                if not quad:
+                    break
+        if not quad and (prim[p, 1] != face or prim[p, 2] != face or prim[p, 3] != face):
             continue
         ax, ay, az, e1x, e1y, e1z, e2x, e2y, e2z = _corner_and_edges(face, vertices32,
                                                                      faces32)
@@ -482,9 +575,50 @@ def _bundle_hidden_kernel(  # compiled; compared with the pieces' own rays in te
                 break
             dx, dy, dz = qx - ox, qy - oy, qz - oz
             length = np.sqrt(dx * dx + dy * dy + dz * dz)
-            t, inside_m = _hit_inside(ox, oy, oz, dx / length, dy / length, dz / length,
-                                      face, vertices32, faces32)
+            dx, dy, dz = dx / length, dy / length, dz / length
+            if quad:
+                # where the ray crosses T's plane, and how far inside the quad's edges; a
+                # ray steeper than _QUAD_MIN_SINE meets the partner's plane (at most
+                # _QUAD_PLANE_SHARE margins off) less than a tenth of a margin away
+                sine = dx * nx + dy * ny + dz * nz
+                if abs(sine) < _QUAD_MIN_SINE:
+                    hidden = False
+                    break
+                t = -front / sine
+                inside_m = _inside_quad(ox + t * dx, oy + t * dy, oz + t * dz, face,
+                                        int(shared_edge[face]), int(far_vertex[face]),
+                                        nx, ny, nz, vertices32, faces32)
+            else:
+                t, inside_m = _hit_inside(ox, oy, oz, dx, dy, dz, face, vertices32, faces32)
             if not (inside_m > margin_m and margin_m < t < length - margin_m):
                 hidden = False
                 break
         out[p] = hidden
+
+
+@numba.njit(nogil=True, cache=True)
+def _inside_quad(x: float, y: float, z: float, face: int, edge: int, far: int,
+                 nx: float, ny: float, nz: float, vertices32: NDArray[np.float32],
+                 faces32: NDArray[np.int32]) -> float:
+    """How far the point (x, y, z) of T's plane lies inside the quad of BVH triangle T =
+    ``face`` and its partner across T's edge ``edge`` (corners ``edge``, ``edge + 1``),
+    whose far corner is vertex ``far``: the least distance to the quad's four edges,
+    negative outside. The quad runs as T does around its unit normal (nx, ny, nz)."""
+    around = (faces32[face, (edge + 2) % 3], faces32[face, edge], far,
+              faces32[face, (edge + 1) % 3])
+    least = np.inf
+    for k in range(4):
+        a, b = around[k], around[(k + 1) % 4]
+        px, py, pz = (float(vertices32[a, 0]), float(vertices32[a, 1]),
+                      float(vertices32[a, 2]))
+        ux, uy, uz = (float(vertices32[b, 0]) - px, float(vertices32[b, 1]) - py,
+                      float(vertices32[b, 2]) - pz)
+        length = np.sqrt(ux * ux + uy * uy + uz * uz)
+        if length <= 0.0:
+            return -np.inf
+        wx, wy, wz = x - px, y - py, z - pz
+        # (u x w) . n / |u|: the distance to the edge's line, positive on the quad's side
+        side = ((uy * wz - uz * wy) * nx + (uz * wx - ux * wz) * ny
+                + (ux * wy - uy * wx) * nz) / length
+        least = min(least, side)
+    return least

@@ -18,11 +18,20 @@ Then every ray from the candidate to a point of the rectangle crosses T's plane 
 (the crossing points of the four rays span a convex region inside T, and T is convex) and
 before its target (the rectangle lies behind the plane, corners and all): a ray to any
 piece of the bundle hits T first, in float64 and in either float32 mode, so the piece's
-verdict is "hidden" exactly as its own ray would give. The pieces of such a bundle are
-left out before the analytic limits are even computed; nothing else changes, so the
-qualified pairs are the same (``tests/planner/test_bundles.py`` compares them). A bundle
-not ruled out has its quarters tried, down to the finest side; then its pieces get their
-own rays.
+verdict is "hidden" exactly as its own ray would give.
+
+T may also be the convex quad of two triangles of one plane that share their longest
+edge (:func:`planner.method._embree.quad_partners`: a wall's rectangle, whose diagonal
+would otherwise split most bundles behind it), when the four rays hit one or the other;
+the margins are then taken from the quad's outer edges. A ray that crosses the quad well
+inside them hits one of the two triangles in Embree's robust (watertight) mode; where the
+fast mode slips through the shared diagonal the two casts disagree and float64 decides,
+with edges widened, that the ray is hidden, so again the verdict is "hidden".
+
+The pieces of a bundle ruled out are left out before the analytic limits are even
+computed; nothing else changes, so the qualified pairs are the same
+(``tests/planner/test_bundles.py`` compares them). A bundle not ruled out has its quarters
+tried, down to the finest side; then its pieces get their own rays.
 
 Array letters: F faces, K bundles, B candidates of a block, P (candidate, bundle) pairs.
 """
@@ -44,13 +53,13 @@ from planner.scene import Scene
 # wall two rooms away usually fits behind one triangle of the wall between; where it does
 # not, its four 1 m quarters are tried, then their 0.5 m quarters, then the pieces
 BUNDLE_SIDES_M = (2.0, 1.0, 0.5)
-# bundles pay where a search reaches far, into other rooms: the overlap rows (25 m at the
-# default overlap density). Measured on a generated 2-storey IFC office (1.28 M pieces):
-# the overlap search of 40 stations 37.5 M rays and 7.5 CPU s without bundles, 13.7 M rays
-# and 3.2 s with; the coverage search (4.7 m) of its 973 candidates 64.6 M rays and 21.0 s
-# without, 55.4 M rays and 23.4 s with, where most pieces in reach lie in the candidate's
-# own room or just behind one wall
-BUNDLE_MIN_REACH_M = 10.0
+# bundles pay where a search reaches into other rooms. Measured on generated IFC offices:
+# the overlap search (25 m at the default overlap density) of 40 stations of a 2-storey
+# office (1.28 M pieces) 37.5 M rays and 7.5 CPU s without bundles, 13.7 M rays and 3.2 s
+# with; the coverage search (4.7 m) of 497 of the 2,977 candidates of a larger one (3.7 M
+# pieces) 32.5 M rays and 8.7 CPU s without, 24.5 M rays and 7.6 s with (27.1 M and 8.2 s
+# before bundles could hide behind a quad, when they did not pay at this reach)
+BUNDLE_MIN_REACH_M = 4.0
 # a bundle of fewer pieces is not worth its four rays: its pieces get their own
 MIN_BUNDLE_PIECES = 8
 # faces per step when the bundle keys are computed: bounds the (b, 3) scratch
@@ -237,7 +246,7 @@ class BundleRays(Protocol):
     def bundles_hidden(self, origins: NDArray[np.float64], corners: NDArray[np.float64]
                        ) -> NDArray[np.bool_]:
         """(P,) bool: from each of the (P, 3) origins, are the (P, 4, 3) corners all behind
-        one occluding triangle, clearly (see the module docstring)?"""
+        one occluding triangle or quad, clearly (see the module docstring)?"""
         ...
 
 
