@@ -269,7 +269,7 @@ def plan(
     # the faces it is credited with chooses its setting (planner.scanners)
     densities = _qualified_blocks(
         scene, spec, candidates.positions[list(chosen.stations)], limits, occlusion, stats,
-        threads=threads)
+        threads=threads, bundles=False)  # a few stations: not worth making the bundles again
     if spec.robust:
         densities = within_table(densities, table, chosen.stations)
     faces = coverage_state(table, chosen.stations, densities,
