@@ -682,10 +682,12 @@ def closer_than(
     for level in np.unique(spread_class):
         members = np.flatnonzero(spread_class == level)
         reach = radius_m + float(spread[members].max()) + 1e-9
-        tree = cKDTree(centre_xy[members])
+        # (an unbalanced tree builds faster; the queries return their indices sorted, so
+        # the pairs do not depend on the tree's shape or the query's threads)
+        tree = cKDTree(centre_xy[members], balanced_tree=False, compact_nodes=False)
         for s in range(0, len(points), _POINTS_PER_QUERY):
             chunk = np.arange(s, min(s + _POINTS_PER_QUERY, len(points)))
-            lists = tree.query_ball_point(points[chunk, :2], reach)
+            lists = tree.query_ball_point(points[chunk, :2], reach, workers=-1)
             counts = np.array([len(x) for x in lists])
             if counts.sum() == 0:
                 continue
