@@ -114,7 +114,8 @@ class Scene:
             )
         n = len(self.faces)
         centroids, normals, areas = np.empty((n, 3)), np.zeros((n, 3)), np.empty(n)
-        for start in range(0, n, _DERIVE_BLOCK_FACES):
+
+        def derive(start: int) -> None:
             block = slice(start, start + _DERIVE_BLOCK_FACES)
             triangles = self.vertices[self.faces[block]]  # (B, 3, 3)
             cross = np.cross(triangles[:, 1] - triangles[:, 0],
@@ -123,6 +124,10 @@ class Scene:
             np.divide(cross, doubled[:, None], out=normals[block], where=doubled[:, None] > 0)
             centroids[block] = triangles.mean(axis=1)
             areas[block] = doubled / 2.0
+
+        # blocks on a few threads (numpy releases the GIL), each into its own rows
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+            list(pool.map(derive, range(0, n, _DERIVE_BLOCK_FACES)))
         object.__setattr__(self, "centroids", _frozen(centroids))
         object.__setattr__(self, "normals", _frozen(normals))
         object.__setattr__(self, "areas", _frozen(areas))
