@@ -368,7 +368,7 @@ _NO_BUNDLES = np.zeros(0, np.int32)
 _KEY_BLOCK_POINTS = 256
 # pair tests a block of candidates makes at most (a block of one candidate may make
 # more): its scratch pairs are 40 bytes each, of which some quarter pass and are written
-TESTS_PER_BLOCK = 4_000_000
+TESTS_PER_BLOCK = 2_000_000
 # grid cells a quarter of the reach wide: the cells that come within reach of a point
 # hold some 2 to 3 times fewer faces than the 3 x 3 x 3 cells of a reach each around it
 _CELLS_PER_REACH = 4

@@ -435,18 +435,26 @@ def shared_faces_only(overlap: sp.csr_matrix) -> sp.csr_matrix:
     interior of ``benchmarks/plan_scale.py`` they are 78 % of the 42 stations' entries.)"""
     overlap = overlap.tocsr()
     overlap.sort_indices()
-    return _shared_only([overlap.indices[overlap.indptr[r]:overlap.indptr[r + 1]]
-                         for r in range(overlap.shape[0])], overlap.shape[1])
+    rows = [overlap.indices[overlap.indptr[r]:overlap.indptr[r + 1]]
+            for r in range(overlap.shape[0])]
+    if overlap.dtype == bool and _held_twice(rows, overlap.shape[1])[overlap.indices].all():
+        return overlap  # cut already (the survey's rows are): no copy of every entry
+    return _shared_only(rows, overlap.shape[1])
+
+
+def _held_twice(rows: list[NDArray[np.int32]], n_faces: int) -> NDArray[np.bool_]:
+    """(F,) bool: the faces two or more of the rows (ascending face ids) hold."""
+    seen = np.zeros(n_faces, bool)  # (F,) in some row so far
+    twice = np.zeros(n_faces, bool)
+    for row in rows:
+        twice[row] |= seen[row]
+        seen[row] = True
+    return twice
 
 
 def _shared_only(rows: list[NDArray[np.int32]], n_faces: int) -> sp.csr_matrix:
     """:func:`shared_faces_only` of the rows given as ascending face ids, one array each."""
-    seen = np.zeros(n_faces, bool)  # (F,) in some row so far
-    twice = np.zeros(n_faces, bool)  # (F,) in two rows or more
-    for row in rows:
-        twice[row] |= seen[row]
-        seen[row] = True
-    del seen
+    twice = _held_twice(rows, n_faces)
     kept = [row[twice[row]] for row in rows]
     indptr = np.zeros(len(kept) + 1, np.int64)
     np.cumsum([len(row) for row in kept], out=indptr[1:])

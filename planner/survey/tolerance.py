@@ -25,6 +25,7 @@ station and 8 points on the circle, those that stand on its floor). Definitions:
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -46,6 +47,11 @@ from planner.survey.registration import (
     shared_faces_only,
     station_registration,
 )
+
+# pair tests of a station's displaced setups made at a time by the worst-case network:
+# a station shares up to some 10^5 faces with its neighbours, and almost all of them pass
+# from every setup, at some 70 bytes a pair until its ray is cast (two threads run)
+NETWORK_TESTS_PER_BLOCK = 1_000_000
 
 
 @dataclass(frozen=True)
@@ -154,14 +160,17 @@ def _worst_case_network(
     rows = [np.asarray(shared.indices[shared.indptr[n]:shared.indptr[n + 1]], np.int32)
             for n in range(shared.shape[0])]
 
-    def qualify(positions: NDArray[np.float64], cut: FaceLimits) -> list[QualifiedPairs]:
-        # kept_faces reads them in any order: no sort
-        pairs, _ = PairFinder(scene, cut).find(positions, 0, ordered=False)
-        visible = occlusion.visible(pairs.origin, pairs.direction, pairs.distance_m,
-                                    pairs.face,
-                                    exact_rays=pairs.exact_rays(positions, scene.centroids))
-        return [QualifiedPairs(pairs.candidate[visible], pairs.face[visible],
-                               pairs.lpd_pts_m2[visible])]
+    def qualify(positions: NDArray[np.float64], cut: FaceLimits) -> Iterator[QualifiedPairs]:
+        # kept_faces reads them in any order: no sort. Nearly every shared face passes the
+        # limits from every setup, so the setups go a few at a time (NETWORK_TESTS_PER_BLOCK)
+        finder = PairFinder(scene, cut)
+        for start, stop in finder.blocks(positions, most_tests=NETWORK_TESTS_PER_BLOCK):
+            pairs, _ = finder.find(positions[start:stop], start, ordered=False)
+            visible = occlusion.visible(
+                pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
+                exact_rays=pairs.exact_rays(positions, scene.centroids))
+            yield QualifiedPairs(pairs.candidate[visible], pairs.face[visible],
+                                 pairs.lpd_pts_m2[visible])
 
     def components(tested: list[NDArray[np.int32]]) -> tuple[tuple[int, ...], ...]:
         kept_rows = [faces[kept.all(axis=0)] for faces, kept in
