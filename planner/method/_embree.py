@@ -550,7 +550,8 @@ def _bundle_hidden_kernel(  # compiled; compared with the pieces' own rays in te
         quad = False  # some ray hit T's partner: the quad's edges count, not T's
         for j in range(1, 4):
             if prim[p, j] != face:
-                quad = partner.shape[0] > 0 and prim[p, j] == partner[face]
+                # (a miss, -1, is no partner: a triangle without one has -1 too)
+                quad = partner.shape[0] > 0 and partner[face] >= 0 and prim[p, j] == partner[face]
                 if not quad:
                     break
         if not quad and (prim[p, 1] != face or prim[p, 2] != face or prim[p, 3] != face):

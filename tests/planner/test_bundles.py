@@ -123,6 +123,20 @@ def test_a_bundle_is_ruled_out_only_where_one_triangle_or_quad_hides_all_of_it(h
         assert ruled_out[facing].all()
 
 
+def test_a_bundle_whose_corner_rays_miss_is_not_ruled_out() -> None:
+    """Two corner rays that hit a lone triangle (no quad partner) and two that hit nothing
+    (a bundle's rectangle reaches past a triangular face) rule nothing out."""
+    screen = np.array([[-3.0, 0.0, 0.0], [3.0, 0.0, 0.0], [0.0, 0.0, 4.0]])
+    scene = build_scene(screen, np.array([[0, 1, 2]]))
+    occlusion = make_occlusion(scene, np.ones(1, bool), "embree")
+    origin = np.array([[0.0, -3.0, 1.0]])
+    behind = np.array([[[-0.5, 3.0, 0.5], [0.5, 3.0, 0.5], [0.5, 3.0, 1.5], [-0.5, 3.0, 1.5]]])
+    past = behind.copy()
+    past[0, 1:3, 0] += 20.0  # two corners far to the side: their rays miss the screen
+    assert occlusion.bundles_hidden(origin, behind).tolist() == [True]  # type: ignore[attr-defined]
+    assert occlusion.bundles_hidden(origin, past).tolist() == [False]  # type: ignore[attr-defined]
+
+
 def test_quads_are_the_convex_halves_of_one_plane() -> None:
     """A rectangle's two halves make a quad; two triangles that share their longest edge
     but bend at it, or fold onto the same side of it, do not."""
