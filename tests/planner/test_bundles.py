@@ -125,14 +125,16 @@ def test_a_bundle_is_ruled_out_only_where_one_triangle_or_quad_hides_all_of_it(h
 
 def test_a_bundle_whose_corner_rays_miss_is_not_ruled_out() -> None:
     """Two corner rays that hit a lone triangle (no quad partner) and two that hit nothing
-    (a bundle's rectangle reaches past a triangular face) rule nothing out."""
-    screen = np.array([[-3.0, 0.0, 0.0], [3.0, 0.0, 0.0], [0.0, 0.0, 4.0]])
-    scene = build_scene(screen, np.array([[0, 1, 2]]))
+    (a bundle's rectangle reaches past a triangular face) rule nothing out, wherever the
+    model's other vertices lie (here vertex 0 would make a quad with the triangle that
+    holds where the two rays cross the screen's plane)."""
+    vertices = np.array([[10.0, 0.0, -10.0], [-3.0, 0.0, 0.0], [3.0, 0.0, 0.0], [0.0, 0.0, 4.0]])
+    scene = build_scene(vertices, np.array([[1, 2, 3]]))
     occlusion = make_occlusion(scene, np.ones(1, bool), "embree")
     origin = np.array([[0.0, -3.0, 1.0]])
     behind = np.array([[[-0.5, 3.0, 0.5], [0.5, 3.0, 0.5], [0.5, 3.0, 1.5], [-0.5, 3.0, 1.5]]])
     past = behind.copy()
-    past[0, 1:3, 0] += 20.0  # two corners far to the side: their rays miss the screen
+    past[0, 1:3] = [[8.0, 3.0, -6.0], [8.5, 3.0, -6.0]]  # their rays pass below the screen
     assert occlusion.bundles_hidden(origin, behind).tolist() == [True]  # type: ignore[attr-defined]
     assert occlusion.bundles_hidden(origin, past).tolist() == [False]  # type: ignore[attr-defined]
 
