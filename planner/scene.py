@@ -27,10 +27,12 @@ IndexArray = NDArray[np.int32]
 # Per-face arrays are derived, and faces remeshed, a block at a time: the temporaries are
 # (B, 3, 3) floats, not (F, 3, 3), so a 10 M-face model needs no 720 MB scratch arrays.
 _DERIVE_BLOCK_FACES = 1 << 20
-# remesh: at most about this many pieces per call of trimesh (its scratch is some 800 bytes
-# a piece; smaller blocks are faster too: 3.6 s instead of 4.7 s for the 3.8 M pieces of a
-# generated two-storey office, 198 instead of 340 MiB over the scene)
-_REMESH_BLOCK_PIECES = 1 << 18
+# remesh: at most about this many pieces per call of trimesh (its scratch is some 450
+# bytes a piece, two blocks at a time). The blocks decide which vertices are stored twice,
+# and the plan's identities hash the vertices (planner.outputs.stations.namespace), so the
+# size is part of the output: smaller blocks would split faster (3.8 M pieces of a 2-storey
+# office: 1.8 instead of 2.6 s) but give every large model new GlobalIds.
+_REMESH_BLOCK_PIECES = 1 << 20
 
 
 def _frozen(array: NDArray[Any]) -> NDArray[Any]:
