@@ -28,7 +28,13 @@ from planner.method.candidates import CandidateSet, explicit_candidates, generat
 from planner.method.connectivity import Connectivity
 from planner.method.coverage import CoverageTable, QualifiedPairs
 from planner.method.optimal import OptimalResult, choose_stations
-from planner.method.pairs import FaceLimits, PairFinder, in_block_order, sorted_by_face
+from planner.method.pairs import (
+    TESTS_PER_BLOCK,
+    FaceLimits,
+    PairFinder,
+    in_block_order,
+    sorted_by_face,
+)
 from planner.method.placement import (
     at_heights,
     displaced_positions,
@@ -267,9 +273,11 @@ def plan(
     # the table keeps no densities: the chosen stations' pairs are qualified again, alone,
     # and read block by block; with a scanner, each station's least density margin over
     # the faces it is credited with chooses its setting (planner.scanners)
+    # a few stations: not worth making the bundles again; small blocks, as the per-face
+    # results they fill are made beside them where the plan's memory peaks
     densities = _qualified_blocks(
         scene, spec, candidates.positions[list(chosen.stations)], limits, occlusion, stats,
-        threads=threads, bundles=False)  # a few stations: not worth making the bundles again
+        threads=threads, bundles=False, most_tests=TESTS_PER_BLOCK // 4)
     if spec.robust:
         densities = within_table(densities, table, chosen.stations)
     faces = coverage_state(table, chosen.stations, densities,
@@ -331,10 +339,11 @@ def _qualified_blocks(
     progress: ProgressCallback | None = None,
     threads: int | None = None,
     bundles: bool | None = None,
+    most_tests: int = TESTS_PER_BLOCK,
 ) -> Iterator[QualifiedPairs]:
     """The qualified pairs of (C, 3) candidate positions under the plan's coverage model,
-    block by block in candidate order (``bundles``: as :func:`qualify_pairs`); counts what
-    was tested in ``stats``."""
+    block by block in candidate order (``bundles``, ``most_tests``: as
+    :func:`qualify_pairs`); counts what was tested in ``stats``."""
     if spec.coverage_model == "sampled":
         from planner.method.sampled import qualify_sampled_pairs
 
@@ -342,8 +351,8 @@ def _qualified_blocks(
             scene, positions, limits, occlusion, spec.samples_per_face,
             spec.min_sampled_fraction, progress=progress, threads=threads)
     else:
-        blocks = qualify_pairs(scene, positions, limits, occlusion,
-                               progress=progress, threads=threads, bundles=bundles)
+        blocks = qualify_pairs(scene, positions, limits, occlusion, progress=progress,
+                               threads=threads, bundles=bundles, most_tests=most_tests)
     for qualified, tested, rays in blocks:
         stats.pairs_tested += tested
         stats.rays_cast += rays
@@ -359,13 +368,15 @@ def qualify_pairs(
     progress: ProgressCallback | None = None,
     threads: int | None = None,
     bundles: bool | None = None,
+    most_tests: int = TESTS_PER_BLOCK,
 ) -> Iterator[tuple[QualifiedPairs, int, int]]:
     """The qualified pairs of (C, 3) candidate positions, block by block in candidate order
     (each sorted by (candidate, face)), with the pairs tested and rays cast for it.
 
     ``bundles``: rule out bundles of pieces hidden behind one occluder with four rays
     each (:mod:`planner.method.bundles`): None where it pays (a long reach), True always,
-    False never; the same pairs qualify either way.
+    False never; the same pairs qualify either way. ``most_tests``: the pair tests a block
+    of candidates makes at most (:meth:`PairFinder.blocks`), which bounds its scratch.
 
     Blocks of candidates run on a thread pool (the compiled limits loop and Embree both
     release the GIL); they come out in block order, so they do not depend on timing.
@@ -374,7 +385,7 @@ def qualify_pairs(
     culler = None if bundles is False else bundle_culler(scene, finder.reach_m, occlusion,
                                                          always=bool(bundles))
     # neighbouring candidates in a block share the pair search of their cells
-    stop_of = dict(finder.blocks(positions))
+    stop_of = dict(finder.blocks(positions, most_tests=most_tests))
 
     def block(start: int) -> tuple[QualifiedPairs, int, int]:
         points = positions[start:stop_of[start]]

@@ -127,6 +127,7 @@ def placement_tolerance(
             setups=int(displaced.valid[s].sum()),
             critical=bool(covered_area_m2 - float(lost_m2[worst]) < limit)))
     worst_case_m2 = float(scene.areas[surely].sum())
+    del rows, holders, surely  # (F,) arrays and every station's faces: not held below
     components = _worst_case_network(
         scene, displaced, limits, station_overlap, min_overlap_m2, overlap_density_pts_m2,
         occlusion, file_faces, threads)
