@@ -547,14 +547,17 @@ def _bundle_hidden_kernel(  # compiled; compared with the pieces' own rays in te
         face = prim[p, 0]
         if face < 0:
             continue
+        other = partner[face] if partner.shape[0] > 0 else -1  # -1: T has no partner
         quad = False  # some ray hit T's partner: the quad's edges count, not T's
+        on_t_or_quad = True
         for j in range(1, 4):
-            if prim[p, j] != face:
-                # (a miss, -1, is no partner: a triangle without one has -1 too)
-                quad = partner.shape[0] > 0 and partner[face] >= 0 and prim[p, j] == partner[face]
-                if not quad:
-                    break
-        if not quad and (prim[p, 1] != face or prim[p, 2] != face or prim[p, 3] != face):
+            if prim[p, j] == face:
+                continue
+            if other < 0 or prim[p, j] != other:  # a miss (-1) or another face
+                on_t_or_quad = False
+                break
+            quad = True
+        if not on_t_or_quad:
             continue
         ax, ay, az, e1x, e1y, e1z, e2x, e2y, e2z = _corner_and_edges(face, vertices32,
                                                                      faces32)

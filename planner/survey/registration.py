@@ -437,9 +437,10 @@ def shared_faces_only(overlap: sp.csr_matrix) -> sp.csr_matrix:
     overlap.sort_indices()
     rows = [overlap.indices[overlap.indptr[r]:overlap.indptr[r + 1]]
             for r in range(overlap.shape[0])]
-    if overlap.dtype == bool and _held_twice(rows, overlap.shape[1])[overlap.indices].all():
+    twice = _held_twice(rows, overlap.shape[1])
+    if overlap.dtype == bool and twice[overlap.indices].all():
         return overlap  # cut already (the survey's rows are): no copy of every entry
-    return _shared_only(rows, overlap.shape[1])
+    return _shared_only(rows, overlap.shape[1], twice)
 
 
 def _held_twice(rows: list[NDArray[np.int32]], n_faces: int) -> NDArray[np.bool_]:
@@ -452,9 +453,12 @@ def _held_twice(rows: list[NDArray[np.int32]], n_faces: int) -> NDArray[np.bool_
     return twice
 
 
-def _shared_only(rows: list[NDArray[np.int32]], n_faces: int) -> sp.csr_matrix:
-    """:func:`shared_faces_only` of the rows given as ascending face ids, one array each."""
-    twice = _held_twice(rows, n_faces)
+def _shared_only(rows: list[NDArray[np.int32]], n_faces: int,
+                 twice: NDArray[np.bool_] | None = None) -> sp.csr_matrix:
+    """:func:`shared_faces_only` of the rows given as ascending face ids, one array each
+    (``twice``: their :func:`_held_twice`, when the caller has it already)."""
+    if twice is None:
+        twice = _held_twice(rows, n_faces)
     kept = [row[twice[row]] for row in rows]
     indptr = np.zeros(len(kept) + 1, np.int64)
     np.cumsum([len(row) for row in kept], out=indptr[1:])
