@@ -32,7 +32,6 @@ from planner.method.pairs import (
     TESTS_PER_BLOCK,
     FaceLimits,
     PairFinder,
-    in_block_order,
     sorted_by_face,
 )
 from planner.method.placement import (
@@ -55,6 +54,7 @@ from planner.scene import Scene, remesh
 from planner.survey.fieldwork import Survey, survey
 from planner.survey.registration import OverlapRows, connected_greedy, overlap_graph
 from planner.survey.tolerance import Tolerance, placement_tolerance
+from planner.threads import in_block_order
 
 # from this many faces on, the survey and the outputs keep their arrays out of the heap
 # (planner.memory.bound_heap), where the plan's peak is: a fresh page costs a fault at first

@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -18,6 +16,7 @@ from numpy.typing import NDArray
 
 from planner.errors import SceneError
 from planner.memory import GrowingArray
+from planner.threads import in_block_order
 
 FloatArray = NDArray[np.float64]
 # face and label indices: int32 (4 bytes a face each instead of 8; a model has fewer than
@@ -128,8 +127,7 @@ class Scene:
             areas[block] = doubled / 2.0
 
         # blocks on a few threads (numpy releases the GIL), each into its own rows
-        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-            list(pool.map(derive, range(0, n, _DERIVE_BLOCK_FACES)))
+        list(in_block_order(derive, range(0, n, _DERIVE_BLOCK_FACES)))
         object.__setattr__(self, "centroids", _frozen(centroids))
         object.__setattr__(self, "normals", _frozen(normals))
         object.__setattr__(self, "areas", _frozen(areas))
@@ -362,15 +360,14 @@ def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
     out_faces = GrowingArray(np.int32)  # (3 F',) flat
     out_source = GrowingArray(np.int32)  # (F',)
     n_vertices = 0
-    # blocks are split on a few threads (trimesh's numpy work mostly releases the GIL) and
-    # joined in block order, so the pieces do not depend on the threads
-    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-        blocks = zip(starts.tolist(), stops.tolist(), strict=True)
-        for start, (block_vertices, block_faces, index) in zip(
-                starts.tolist(), pool.map(pieces_of, blocks), strict=True):
-            out_vertices.append(block_vertices.reshape(-1))
-            out_faces.append((block_faces + n_vertices).astype(np.int32).reshape(-1))
-            out_source.append(index + start)
-            n_vertices += len(block_vertices)
+    # split on a few threads (trimesh's numpy work mostly releases the GIL) and joined
+    # in block order, so the pieces do not depend on the threads
+    blocks = list(zip(starts.tolist(), stops.tolist(), strict=True))
+    for start, (block_vertices, block_faces, index) in zip(
+            starts.tolist(), in_block_order(pieces_of, blocks), strict=True):
+        out_vertices.append(block_vertices.reshape(-1))
+        out_faces.append((block_faces + n_vertices).astype(np.int32).reshape(-1))
+        out_source.append(index + start)
+        n_vertices += len(block_vertices)
     return (out_vertices.done().reshape(-1, 3), out_faces.done().reshape(-1, 3),
             out_source.done())

@@ -49,10 +49,11 @@ from planner.method.candidates import (
     unclear_mask,
 )
 from planner.method.coverage import CoverageTable, QualifiedPairs
-from planner.method.pairs import FaceLimits, in_block_order
+from planner.method.pairs import FaceLimits
 from planner.method.visibility import RayCaster
 from planner.parameters import PlanSpec
 from planner.scene import Scene
+from planner.threads import in_block_order
 
 OFFSET_DIRECTIONS = 8
 # a displaced setup stands on the position's own floor when the two floors are this close

@@ -35,9 +35,10 @@ from numpy.typing import NDArray
 
 from planner.errors import CancelledError
 from planner.method.coverage import QualifiedPairs
-from planner.method.pairs import FaceLimits, PairFinder, Pairs, in_block_order
+from planner.method.pairs import FaceLimits, PairFinder, Pairs
 from planner.method.visibility import Occlusion
 from planner.scene import Scene
+from planner.threads import in_block_order
 
 ProgressCallback = Callable[[str, float], bool | None]
 

@@ -43,8 +43,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.method.pairs import in_block_order
 from planner.outputs.canonical import canonical_json
+from planner.threads import in_block_order
 
 if TYPE_CHECKING:
     from planner.pipeline import PlanResult

@@ -1,0 +1,48 @@
+"""Work split in blocks and run on a thread pool, read back in block order.
+
+The compiled loops, Embree and most of numpy release the GIL, so a few threads keep every
+core busy; results come back in the order the blocks were given, so nothing a plan
+computes depends on timing or on the number of threads.
+"""
+
+from __future__ import annotations
+
+import collections
+import os
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
+
+_Item = TypeVar("_Item")
+_Block = TypeVar("_Block")
+
+
+def in_block_order(work: Callable[[_Item], _Block], starts: Sequence[_Item], *,
+                   threads: int | None = None,
+                   notify: Callable[[float], None] | None = None) -> Iterator[_Block]:
+    """``work(start)`` of every start, run on a thread pool (``threads``, default: the
+    machine's cores) and yielded in the order of ``starts``, so nothing depends on timing.
+    A single start runs in the calling thread (no pool to start for a small model).
+
+    Each result is let go once read (its future is dropped: a pool's futures would hold
+    every block to the end); ``notify`` gets the fraction read after each block and may
+    raise to stop. Blocks not read yet are cancelled when the reader stops.
+    """
+    if len(starts) <= 1:
+        for start in starts:
+            yield work(start)
+            if notify is not None:
+                notify(1.0)
+        return
+    workers = threads or os.cpu_count() or 1
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        futures = collections.deque(pool.submit(work, start) for start in starts)
+        n_blocks = len(futures)
+        try:
+            while futures:
+                yield futures.popleft().result()
+                if notify is not None:
+                    notify(1.0 - len(futures) / n_blocks)
+        finally:
+            for future in futures:
+                future.cancel()
