@@ -42,6 +42,7 @@ from planner.method.visibility import Occlusion, make_occlusion
 from planner.method.walkgraph import door_faces
 from planner.scene import Scene
 from planner.survey.registration import (
+    MIN_CONSTRAINT,
     Registration,
     overlap_limits,
     shared_faces_only,
@@ -142,15 +143,20 @@ def placement_tolerance(
 def _worst_case_network(
     scene: Scene, displaced: Displaced, limits: FaceLimits, station_overlap: sp.csr_matrix,
     min_overlap_m2: float | None, overlap_density_pts_m2: float, occlusion: Occlusion,
-    file_faces: bool, threads: int | None,
+    file_faces: bool, threads: int | None, *, forest_first: bool = True,
 ) -> tuple[tuple[int, ...], ...]:
     """Components (station ids) of the registration network when every station keeps only
     the shared overlap faces it qualifies for from all its setups.
 
-    Connectivity needs a spanning tree only: the faces each station shares with its
-    neighbours on the strongest spanning tree of the nominal network (most overlap) are
-    tested first; when every tree edge survives, the network holds. Otherwise every shared
-    face is tested and the components are those of the whole worst-case network.
+    The components need a spanning forest only. The faces each station shares with its
+    neighbours on the strongest spanning forest of the nominal network (most overlap, one
+    tree per nominal component) are tested first. When every forest edge survives and no
+    edge between two nominal components can ever pass (:func:`_apart_for_good`), the
+    worst-case components are the nominal ones. Otherwise every shared face is tested and
+    the components are those of the whole worst-case network. On the 9.7 M-face office of
+    ``benchmarks/ifc_office.py`` (two nominal components) the forest is tested in about a
+    third of the rays of every shared face. ``forest_first`` false tests every shared face
+    straight away (the reference the forest is checked against).
     """
     doors = door_faces(scene)
     overlap = overlap_limits(limits, overlap_density_pts_m2)
@@ -173,39 +179,154 @@ def _worst_case_network(
             yield QualifiedPairs(pairs.candidate[visible], pairs.face[visible],
                                  pairs.lpd_pts_m2[visible])
 
+    def kept_rows(tested: list[NDArray[np.int32]]) -> list[NDArray[np.int32]]:
+        """Per station, the faces of ``tested`` (ascending) kept from every setup."""
+        return [faces[kept.all(axis=0)] for faces, kept in
+                kept_faces(scene, displaced, tested.__getitem__, overlap, qualify,
+                           threads=threads)]
+
     def components(tested: list[NDArray[np.int32]]) -> tuple[tuple[int, ...], ...]:
-        kept_rows = [faces[kept.all(axis=0)] for faces, kept in
-                     kept_faces(scene, displaced, tested.__getitem__, overlap, qualify,
-                                threads=threads)]
-        indptr = np.zeros(len(kept_rows) + 1, np.int64)
-        np.cumsum([len(r) for r in kept_rows], out=indptr[1:])
-        indices = np.concatenate(kept_rows) if kept_rows else np.zeros(0, np.int32)
+        kept = kept_rows(tested)
+        indptr = np.zeros(len(kept) + 1, np.int64)
+        np.cumsum([len(r) for r in kept], out=indptr[1:])
+        indices = np.concatenate(kept) if kept else np.zeros(0, np.int32)
         worst = sp.csr_matrix((np.ones(len(indices), bool), indices, indptr),
-                              shape=(len(kept_rows), scene.n_faces))
+                              shape=(len(kept), scene.n_faces))
         return station_registration(scene, worst, min_overlap_m2,
                                     overlap_density_pts_m2).components
 
     nominal = station_registration(scene, shared, min_overlap_m2, overlap_density_pts_m2)
-    if len(rows) > 1 and len(nominal.components) == 1:
-        neighbours = _strongest_tree(nominal, len(rows))
-        tree_rows = [np.intersect1d(rows[n], np.concatenate([rows[m] for m in neighbours[n]]),
-                                    assume_unique=False) for n in range(len(rows))]
-        found = components(tree_rows)
-        if len(found) == 1:
-            return found
+    if forest_first and len(rows) > 1 and _apart_for_good(scene, nominal, rows, min_overlap_m2):
+        forest = _strongest_forest(nominal, len(rows))
+        edge_faces = [np.intersect1d(rows[a], rows[b]) for a, b in forest]
+        samples = [_sample(scene, faces) for faces in edge_faces]
+        tested: list[list[NDArray[np.int32]]] = [[] for _ in rows]
+        for (a, b), sample in zip(forest, samples, strict=True):
+            tested[a].append(sample)
+            tested[b].append(sample)
+        first = [np.unique(np.concatenate(t)) if t else np.zeros(0, np.int32) for t in tested]
+        kept = kept_rows(first)
+        unproven = [i for i, ((a, b), faces, sample) in enumerate(
+            zip(forest, edge_faces, samples, strict=True))
+            if not _holds(scene, faces, sample, kept[a], kept[b], min_overlap_m2)]
+        if unproven:  # their other faces too, then each such edge is judged on all of them
+            rest: list[list[NDArray[np.int32]]] = [[] for _ in rows]
+            for i in unproven:
+                for n in forest[i]:
+                    rest[n].append(edge_faces[i])
+            more = kept_rows([np.setdiff1d(np.concatenate(t), first[n], assume_unique=False)
+                              if t else np.zeros(0, np.int32) for n, t in enumerate(rest)])
+            kept = [np.union1d(k, m) for k, m in zip(kept, more, strict=True)]
+        if all(_holds(scene, edge_faces[i], edge_faces[i], kept[forest[i][0]],
+                      kept[forest[i][1]], min_overlap_m2) for i in unproven):
+            return nominal.components
     return components(rows)
 
 
-def _strongest_tree(registration: Registration, n: int) -> list[list[int]]:
-    """Per station (0-based), its neighbours on a spanning tree of the ok edges that keeps
-    the largest overlaps (a minimum spanning tree of the reversed overlaps)."""
+# the share of an edge's normal scatter (its trace) a sample keeps in every direction: a
+# forest edge is proven when its sample's kept faces alone give MIN_CONSTRAINT against the
+# whole edge's area, so this leaves room for some of the sample to be lost
+_SAMPLE_CONSTRAINT = 2.0 * MIN_CONSTRAINT
+
+
+def _scatter(scene: Scene, faces: NDArray[np.int32]) -> NDArray[np.float64]:
+    """(3, 3) float64: the area-weighted normal scatter of ``faces``."""
+    normals = scene.normals[faces]
+    scatter: NDArray[np.float64] = (normals * scene.areas[faces][:, None]).T @ normals
+    return scatter
+
+
+def _sample(scene: Scene, faces: NDArray[np.int32]) -> NDArray[np.int32]:
+    """(s,) ascending: some of an edge's shared ``faces`` whose normal scatter carries at
+    least ``_SAMPLE_CONSTRAINT`` of the edge's whole area in every direction (every face
+    when no smaller sample is found). Along each axis of the edge's own scatter, the faces
+    facing it most are taken until they carry that share; among equals (the pieces of one
+    wall) in a pseudo-random order, so a sample spreads over the surface."""
+    if not len(faces):
+        return faces
+    area_m2 = scene.areas[faces]
+    need_m2 = _SAMPLE_CONSTRAINT * float(area_m2.sum())
+    axes = np.linalg.eigh(_scatter(scene, faces))[1]  # (3, 3) columns
+    along_m2 = (scene.normals[faces] @ axes) ** 2 * area_m2[:, None]  # (n, 3)
+    spread = (faces.astype(np.uint64) * np.uint64(2654435761)) % np.uint64(1 << 32)
+    picked = np.zeros(len(faces), bool)
+    for axis in range(3):
+        order = np.lexsort((spread, -np.round(along_m2[:, axis], 12)))
+        enough = int(np.searchsorted(np.cumsum(along_m2[order, axis]), need_m2)) + 1
+        picked[order[:enough]] = True
+    sample = faces[picked]
+    if np.linalg.eigvalsh(_scatter(scene, sample))[0] < need_m2:
+        return faces
+    return sample
+
+
+def _holds(scene: Scene, faces: NDArray[np.int32], sample: NDArray[np.int32],
+           kept_a: NDArray[np.int32], kept_b: NDArray[np.int32],
+           min_overlap_m2: float | None) -> bool:
+    """Whether the edge whose shared faces are ``faces`` surely holds in the worst case,
+    from its ``sample`` tested only: ``kept_a`` and ``kept_b`` are the tested faces each
+    station keeps from all its setups.
+
+    The worst-case shared faces K hold the sample's faces both keep (K_s) and some of the
+    untested ones U. Adding faces adds a positive semi-definite scatter, so K's smallest
+    eigenvalue is at least K_s's; K's trace (its area) is at most K_s's plus U's. When
+    ``MIN_CONSTRAINT`` times that bound is still below K_s's smallest eigenvalue, and K_s
+    alone has the minimum overlap, the edge passes whatever U keeps (a relative margin of
+    1e-9 covers rounding)."""
+    both = np.intersect1d(np.intersect1d(sample, kept_a, assume_unique=True), kept_b,
+                          assume_unique=True)
+    kept_m2 = float(scene.areas[both].sum())
+    if not kept_m2 > 0 or (min_overlap_m2 is not None
+                           and kept_m2 < min_overlap_m2 * (1 + 1e-9)):
+        return False
+    untested_m2 = float(scene.areas[faces].sum()) - float(scene.areas[sample].sum())
+    smallest = float(np.linalg.eigvalsh(_scatter(scene, both))[0])
+    return smallest >= MIN_CONSTRAINT * (kept_m2 + max(untested_m2, 0.0)) * (1 + 1e-9)
+
+
+def _apart_for_good(scene: Scene, nominal: Registration, rows: list[NDArray[np.int32]],
+                    min_overlap_m2: float | None) -> bool:
+    """Whether no two stations of different nominal components can have an ok edge in the
+    worst case, whatever faces the setups lose: only then do the components of the
+    worst-case network follow from its nominal forest (see :func:`_worst_case_network`).
+
+    The worst-case faces K two stations share are some of their nominal shared faces N.
+    The area of K is at most N's. For any unit vector e, the smallest eigenvalue of K's
+    normal scatter is at most e^T M_K e <= e^T M_N e, and K's trace (its area) is at least
+    the smallest face of N: with e N's weakest direction, an edge whose N carries there
+    less than half of ``MIN_CONSTRAINT`` times that face can never pass the constraint
+    test (the half absorbs rounding). Such edges are the common ones between components:
+    stations on two floors that share only a stair opening's coplanar faces.
+    """
+    label = {s: k for k, component in enumerate(nominal.components) for s in component}
+    for edge in nominal.edges:
+        if label[edge.a] == label[edge.b]:
+            continue
+        faces = np.intersect1d(rows[edge.a - 1], rows[edge.b - 1])
+        if not len(faces):
+            continue
+        area_m2 = scene.areas[faces]
+        if min_overlap_m2 is not None and float(area_m2.sum()) < min_overlap_m2 * (1 - 1e-9):
+            continue
+        normals = scene.normals[faces]
+        scatter = (normals * area_m2[:, None]).T @ normals  # (3, 3)
+        weakest = np.linalg.eigh(scatter)[1][:, 0]
+        along_m2 = float(((normals @ weakest) ** 2) @ area_m2)
+        if along_m2 >= 0.5 * MIN_CONSTRAINT * float(area_m2.min()):
+            return False
+    return True
+
+
+def _strongest_forest(registration: Registration, n: int) -> list[tuple[int, int]]:
+    """(a, b) 0-based station pairs, a < b: a spanning forest of the ok edges that keeps
+    the largest overlaps (a minimum spanning forest of the reversed overlaps; one tree per
+    component of the nominal network)."""
     ok = [e for e in registration.edges if e.ok]
+    if not ok:
+        return []
     top = max(e.overlap_m2 for e in ok)
     weights = sp.coo_matrix(([top + 1.0 - e.overlap_m2 for e in ok],
                              ([e.a - 1 for e in ok], [e.b - 1 for e in ok])), shape=(n, n))
     tree = minimum_spanning_tree(weights.tocsr()).tocoo()
-    neighbours: list[list[int]] = [[] for _ in range(n)]
-    for a, b in zip(tree.row.tolist(), tree.col.tolist(), strict=True):
-        neighbours[a].append(b)
-        neighbours[b].append(a)
-    return neighbours
+    return sorted((min(a, b), max(a, b))
+                  for a, b in zip(tree.row.tolist(), tree.col.tolist(), strict=True))

@@ -23,11 +23,15 @@ from trimesh.ray.ray_pyembree import RayMeshIntersector
 from planner.errors import ParameterError
 from planner.io.readers import read_scene
 from planner.method.candidates import read_candidates_csv
-from planner.method.placement import OFFSET_DIRECTIONS, offsets_m
+from planner.method.pairs import FaceLimits
+from planner.method.placement import OFFSET_DIRECTIONS, displaced_positions, offsets_m
+from planner.method.visibility import make_occlusion, make_ray_caster
 from planner.outputs.report import faces_npz, plan_document
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
-from tests.planner.survey_scenes import boxes_scene, room_shell
+from planner.survey.registration import OverlapRows, station_registration
+from planner.survey.tolerance import _worst_case_network
+from tests.planner.survey_scenes import boxes_scene, room_shell, two_rooms
 
 TOLERANCE_M = 0.25
 
@@ -277,3 +281,43 @@ def test_bad_parameters_name_themselves(params: dict[str, object], name: str) ->
     with pytest.raises(ParameterError) as error:
         PlanSpec.from_mapping(params)
     assert error.value.parameter == name
+
+
+# two_rooms stations: three in room A, three in room B; A's first and B's second see into
+# the other room through the door; A's last two and B's first and last share with the other
+# room only faces of one plane (constraint 0)
+_ROOM_STATIONS = ((1.0, 1.0, 1.5), (3.0, 3.0, 1.5), (2.0, 3.2, 1.5),
+                  (5.2, 3.0, 1.5), (7.2, 1.0, 1.5), (6.2, 2.0, 1.5))
+
+
+@pytest.mark.parametrize(("chosen", "min_overlap_m2", "nominal_components"), [
+    ((0, 1, 2, 3, 4, 5), None, 1),
+    ((0, 1, 2, 3, 4, 5), 13.0, 2),  # what the rooms share through the door is too small
+    ((1, 2, 3, 5), None, 2),  # they share faces of one plane: no constraint
+])
+def test_worst_case_network_from_its_forest_equals_every_shared_face(
+        chosen: tuple[int, ...], min_overlap_m2: float | None, nominal_components: int) -> None:
+    """The worst-case components found from the strongest forest alone are those of
+    testing every shared face: with the nominal network one component, and with the two
+    rooms' stations apart (by the minimum overlap, or by the constraint)."""
+    scene = two_rooms()
+    stations = np.array([_ROOM_STATIONS[i] for i in chosen])
+    spec = PlanSpec(candidates=tuple(map(tuple, stations)), max_edge_m=None,
+                    min_overlap_m2=min_overlap_m2)
+    limits = FaceLimits.from_spec(spec, scene)
+    occlusion = make_occlusion(scene, limits.occludes, "embree")
+    overlap = OverlapRows(scene, stations, limits, occlusion, spec.overlap_density_pts_m2
+                          ).shared_matrix(range(len(stations)))
+    nominal = station_registration(scene, overlap, min_overlap_m2, spec.overlap_density_pts_m2)
+    assert len(nominal.components) == nominal_components
+    found = []
+    for tolerance_m in (0.25, 0.6):
+        caster = make_ray_caster(scene, limits.occludes)
+        displaced = displaced_positions(scene, stations, tolerance_m, spec.clearance_m, caster)
+        for forest_first in (True, False):
+            found.append(_worst_case_network(
+                scene, displaced, limits, overlap, min_overlap_m2,
+                spec.overlap_density_pts_m2, occlusion, False, None,
+                forest_first=forest_first))
+        assert found[-2] == found[-1], tolerance_m
+    assert found[0] == nominal.components
