@@ -256,18 +256,18 @@ def plan(
             stats.seconds["overlap"] = time.perf_counter() - t_rows
         forget_bundles(scene)  # only the overlap rows reach far enough to use them
         t_tolerance, cpu_tolerance = time.perf_counter(), time.process_time()
+        displaced = displaced_positions(
+            scene, candidates.positions[list(chosen.stations)], spec.placement_tolerance_m,
+            spec.clearance_m, _caster(scene, spec, limits, occlusion))
+        stats.seconds["tolerance_setups"] = time.perf_counter() - t_tolerance
         tolerance = placement_tolerance(
-            scene, table, chosen.stations, displaced_positions(
-                scene, candidates.positions[list(chosen.stations)],
-                spec.placement_tolerance_m, spec.clearance_m,
-                _caster(scene, spec, limits, occlusion)),
-            limits, _qualifier(scene, spec, occlusion),
+            scene, table, chosen.stations, displaced, limits, _qualifier(scene, spec, occlusion),
             tolerance_m=spec.placement_tolerance_m,
             covered_area_m2=chosen.covered_area_m2[-1] if chosen.stations else 0.0,
             goal_area_m2=spec.coverage_goal * table.max_achievable_area_m2,
             station_overlap=station_overlap, min_overlap_m2=min_overlap_m2,
             overlap_density_pts_m2=spec.overlap_density_pts_m2, occlusion=occlusion,
-            file_faces=spec.occluders == "file", threads=threads)
+            file_faces=spec.occluders == "file", threads=threads, seconds=stats.seconds)
         stats.seconds["tolerance"] = time.perf_counter() - t_tolerance
         stats.cpu_seconds["tolerance"] = time.process_time() - cpu_tolerance
     # the table keeps no densities: the chosen stations' pairs are qualified again, alone,

@@ -25,6 +25,7 @@ station and 8 points on the circle, those that stand on its floor). Definitions:
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -48,6 +49,7 @@ from planner.survey.registration import (
     shared_faces_only,
     station_registration,
 )
+from planner.threads import in_block_order
 
 # pair tests of a station's displaced setups made at a time by the worst-case network:
 # a station shares up to some 10^5 faces with its neighbours, and almost all of them pass
@@ -100,13 +102,14 @@ def placement_tolerance(
     goal_area_m2: float,
     station_overlap: sp.csr_matrix, min_overlap_m2: float | None,
     overlap_density_pts_m2: float, occlusion: Occlusion, file_faces: bool,
-    threads: int | None = None,
+    threads: int | None = None, seconds: dict[str, float] | None = None,
 ) -> Tolerance:
     """The tolerance report of the chosen ``stations`` (candidate indices into ``table``),
     at their ``displaced`` setups (N = S), with ``qualify`` the plan's coverage model.
 
     ``covered_area_m2`` is the plan's covered area and ``goal_area_m2`` the area the goal
     asks for; ``station_overlap`` the stations' (S, F) overlap rows (as the survey has them).
+    ``seconds`` gets the wall time of the worst-case network (``tolerance_network``).
     """
     rows = [table.faces_of(c) for c in stations]
     holders = np.zeros(scene.n_faces, np.int32)  # (F,) chosen stations covering each face
@@ -129,9 +132,12 @@ def placement_tolerance(
             critical=bool(covered_area_m2 - float(lost_m2[worst]) < limit)))
     worst_case_m2 = float(scene.areas[surely].sum())
     del rows, holders, surely  # (F,) arrays and every station's faces: not held below
+    started = time.perf_counter()
     components = _worst_case_network(
         scene, displaced, limits, station_overlap, min_overlap_m2, overlap_density_pts_m2,
         occlusion, file_faces, threads)
+    if seconds is not None:
+        seconds["tolerance_network"] = time.perf_counter() - started
     return Tolerance(
         placement_tolerance_m=tolerance_m,
         setups_per_station=len(displaced.offsets_m), stations=tuple(per_station),
@@ -198,8 +204,13 @@ def _worst_case_network(
     nominal = station_registration(scene, shared, min_overlap_m2, overlap_density_pts_m2)
     if forest_first and len(rows) > 1 and _apart_for_good(scene, nominal, rows, min_overlap_m2):
         forest = _strongest_forest(nominal, len(rows))
-        edge_faces = [np.intersect1d(rows[a], rows[b]) for a, b in forest]
-        samples = [_sample(scene, faces) for faces in edge_faces]
+
+        def edge(pair: tuple[int, int]) -> tuple[NDArray[np.int32], NDArray[np.int32]]:
+            faces = _common(rows[pair[0]], rows[pair[1]])
+            return faces, _sample(scene, faces)
+
+        edge_faces, samples = (list(column) for column in zip(
+            *in_block_order(edge, forest, threads=threads), strict=True)) if forest else ([], [])
         tested: list[list[NDArray[np.int32]]] = [[] for _ in rows]
         for (a, b), sample in zip(forest, samples, strict=True):
             tested[a].append(sample)
@@ -229,6 +240,16 @@ def _worst_case_network(
 _SAMPLE_CONSTRAINT = 2.0 * MIN_CONSTRAINT
 
 
+def _common(a: NDArray[np.int32], b: NDArray[np.int32]) -> NDArray[np.int32]:
+    """The faces both ascending face lists hold, ascending (no sort: one binary search
+    per face of ``a``)."""
+    if not len(a) or not len(b):
+        return np.zeros(0, np.int32)
+    at = np.minimum(np.searchsorted(b, a), len(b) - 1)
+    both: NDArray[np.int32] = a[b[at] == a]
+    return both
+
+
 def _scatter(scene: Scene, faces: NDArray[np.int32]) -> NDArray[np.float64]:
     """(3, 3) float64: the area-weighted normal scatter of ``faces``."""
     normals = scene.normals[faces]
@@ -248,10 +269,11 @@ def _sample(scene: Scene, faces: NDArray[np.int32]) -> NDArray[np.int32]:
     need_m2 = _SAMPLE_CONSTRAINT * float(area_m2.sum())
     axes = np.linalg.eigh(_scatter(scene, faces))[1]  # (3, 3) columns
     along_m2 = (scene.normals[faces] @ axes) ** 2 * area_m2[:, None]  # (n, 3)
-    spread = (faces.astype(np.uint64) * np.uint64(2654435761)) % np.uint64(1 << 32)
+    # the faces in a pseudo-random order, then stably by weight along each axis
+    spread = np.argsort((faces.astype(np.uint64) * np.uint64(2654435761)) % np.uint64(1 << 32))
     picked = np.zeros(len(faces), bool)
     for axis in range(3):
-        order = np.lexsort((spread, -np.round(along_m2[:, axis], 12)))
+        order = spread[np.argsort(-np.round(along_m2[spread, axis], 12), kind="stable")]
         enough = int(np.searchsorted(np.cumsum(along_m2[order, axis]), need_m2)) + 1
         picked[order[:enough]] = True
     sample = faces[picked]
@@ -273,8 +295,7 @@ def _holds(scene: Scene, faces: NDArray[np.int32], sample: NDArray[np.int32],
     ``MIN_CONSTRAINT`` times that bound is still below K_s's smallest eigenvalue, and K_s
     alone has the minimum overlap, the edge passes whatever U keeps (a relative margin of
     1e-9 covers rounding)."""
-    both = np.intersect1d(np.intersect1d(sample, kept_a, assume_unique=True), kept_b,
-                          assume_unique=True)
+    both = _common(_common(sample, kept_a), kept_b)
     kept_m2 = float(scene.areas[both].sum())
     if not kept_m2 > 0 or (min_overlap_m2 is not None
                            and kept_m2 < min_overlap_m2 * (1 + 1e-9)):
@@ -302,7 +323,7 @@ def _apart_for_good(scene: Scene, nominal: Registration, rows: list[NDArray[np.i
     for edge in nominal.edges:
         if label[edge.a] == label[edge.b]:
             continue
-        faces = np.intersect1d(rows[edge.a - 1], rows[edge.b - 1])
+        faces = _common(rows[edge.a - 1], rows[edge.b - 1])
         if not len(faces):
             continue
         area_m2 = scene.areas[faces]
