@@ -15,9 +15,8 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 
@@ -52,7 +51,7 @@ from planner.method.visibility import (
 )
 from planner.parameters import PlanSpec
 from planner.scene import Scene, remesh
-from planner.survey.fieldwork import Survey, survey, walk_route
+from planner.survey.fieldwork import Survey, survey
 from planner.survey.registration import OverlapRows, connected_greedy, overlap_graph
 from planner.survey.tolerance import Tolerance, placement_tolerance
 from planner.threads import in_block_order
@@ -245,58 +244,49 @@ def plan(
     release_freed_memory()
     if scene.n_faces >= BOUNDED_HEAP_FACES:
         bound_heap()  # from here on freed arrays leave the process at once, not at a trim
-    stations_xyz = candidates.positions[list(chosen.stations)]
-    caster = _caster(scene, spec, limits, occlusion)
-    # the walking route needs only the stations: it is made on a thread of its own while
-    # the overlap rows, the tolerance and the densities run (the walk graph's shortest
-    # paths take one core, where those stages leave some of the second one idle)
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="scanplan-route") as background:
-        routing = background.submit(_timed, stats.seconds, "walk graph", walk_route, scene,
-                                    spec, stations_xyz, limits, caster)
-        tolerance = None
-        if spec.placement_tolerance_m > 0:
-            if station_overlap is None:  # the survey's rows, made once for both (its "overlap"),
-                # cut to the faces two stations share as the survey cuts them (no whole matrix)
-                t_rows = time.perf_counter()
-                station_overlap = OverlapRows(
-                    scene, stations_xyz, limits, occlusion,
-                    spec.overlap_density_pts_m2, threads=threads,
-                    file_faces=spec.occluders == "file").shared_matrix(range(len(chosen.stations)))
-                stats.seconds["overlap"] = time.perf_counter() - t_rows
-            forget_bundles(scene)  # only the overlap rows reach far enough to use them
-            t_tolerance, cpu_tolerance = time.perf_counter(), time.process_time()
-            displaced = displaced_positions(
-                scene, stations_xyz, spec.placement_tolerance_m,
-                spec.clearance_m, caster)
-            stats.seconds["tolerance_setups"] = time.perf_counter() - t_tolerance
-            tolerance = placement_tolerance(
-                scene, table, chosen.stations, displaced, limits,
-                _qualifier(scene, spec, occlusion),
-                tolerance_m=spec.placement_tolerance_m,
-                covered_area_m2=chosen.covered_area_m2[-1] if chosen.stations else 0.0,
-                goal_area_m2=spec.coverage_goal * table.max_achievable_area_m2,
-                station_overlap=station_overlap, min_overlap_m2=min_overlap_m2,
-                overlap_density_pts_m2=spec.overlap_density_pts_m2, occlusion=occlusion,
-                file_faces=spec.occluders == "file", threads=threads, seconds=stats.seconds)
-            stats.seconds["tolerance"] = time.perf_counter() - t_tolerance
-            stats.cpu_seconds["tolerance"] = time.process_time() - cpu_tolerance
-        # the table keeps no densities: the chosen stations' pairs are qualified again, alone,
-        # and read block by block; with a scanner, each station's least density margin over
-        # the faces it is credited with chooses its setting (planner.scanners)
-        # a few stations: not worth making the bundles again; small blocks, as the per-face
-        # results they fill are made beside them where the plan's memory peaks
-        densities = _qualified_blocks(
-            scene, spec, stations_xyz, limits, occlusion, stats,
-            threads=threads, bundles=False, most_tests=TESTS_PER_BLOCK // 4)
-        if spec.robust:
-            densities = within_table(densities, table, chosen.stations)
-        faces = coverage_state(table, chosen.stations, densities,
-                               None if spec.scanner is None else limits.min_density_pts_m2)
-        margins = faces.pop("density_margin", None)
-        plan_survey = survey(scene, spec, stations_xyz, limits, occlusion, caster, stats.seconds,
-                             station_overlap=station_overlap, threads=threads,
-                             density_margins=None if margins is None else margins.tolist(),
-                             route=routing.result())
+    tolerance = None
+    if spec.placement_tolerance_m > 0:
+        if station_overlap is None:  # the survey's rows, made once for both (its "overlap"),
+            # cut to the faces two stations share as the survey cuts them (no whole matrix)
+            t_rows = time.perf_counter()
+            station_overlap = OverlapRows(
+                scene, candidates.positions[list(chosen.stations)], limits, occlusion,
+                spec.overlap_density_pts_m2, threads=threads,
+                file_faces=spec.occluders == "file").shared_matrix(range(len(chosen.stations)))
+            stats.seconds["overlap"] = time.perf_counter() - t_rows
+        forget_bundles(scene)  # only the overlap rows reach far enough to use them
+        t_tolerance, cpu_tolerance = time.perf_counter(), time.process_time()
+        displaced = displaced_positions(
+            scene, candidates.positions[list(chosen.stations)], spec.placement_tolerance_m,
+            spec.clearance_m, _caster(scene, spec, limits, occlusion))
+        stats.seconds["tolerance_setups"] = time.perf_counter() - t_tolerance
+        tolerance = placement_tolerance(
+            scene, table, chosen.stations, displaced, limits, _qualifier(scene, spec, occlusion),
+            tolerance_m=spec.placement_tolerance_m,
+            covered_area_m2=chosen.covered_area_m2[-1] if chosen.stations else 0.0,
+            goal_area_m2=spec.coverage_goal * table.max_achievable_area_m2,
+            station_overlap=station_overlap, min_overlap_m2=min_overlap_m2,
+            overlap_density_pts_m2=spec.overlap_density_pts_m2, occlusion=occlusion,
+            file_faces=spec.occluders == "file", threads=threads, seconds=stats.seconds)
+        stats.seconds["tolerance"] = time.perf_counter() - t_tolerance
+        stats.cpu_seconds["tolerance"] = time.process_time() - cpu_tolerance
+    # the table keeps no densities: the chosen stations' pairs are qualified again, alone,
+    # and read block by block; with a scanner, each station's least density margin over
+    # the faces it is credited with chooses its setting (planner.scanners)
+    # a few stations: not worth making the bundles again; small blocks, as the per-face
+    # results they fill are made beside them where the plan's memory peaks
+    densities = _qualified_blocks(
+        scene, spec, candidates.positions[list(chosen.stations)], limits, occlusion, stats,
+        threads=threads, bundles=False, most_tests=TESTS_PER_BLOCK // 4)
+    if spec.robust:
+        densities = within_table(densities, table, chosen.stations)
+    faces = coverage_state(table, chosen.stations, densities,
+                           None if spec.scanner is None else limits.min_density_pts_m2)
+    margins = faces.pop("density_margin", None)
+    plan_survey = survey(scene, spec, candidates.positions[list(chosen.stations)], limits,
+                         occlusion, _caster(scene, spec, limits, occlusion), stats.seconds,
+                         station_overlap=station_overlap, threads=threads,
+                         density_margins=None if margins is None else margins.tolist())
     forget_bundles(scene)
     _new_stage(progress, "report")
     stats.cpu_seconds["plan"] = time.process_time() - cpu0
@@ -305,19 +295,6 @@ def plan(
                       faces=faces, stats=stats, optimal_curve=outcome.curve,
                       selection_report=outcome.report, survey=plan_survey,
                       tolerance=tolerance)
-
-
-_Result = TypeVar("_Result")
-
-
-def _timed(seconds: dict[str, float], stage: str, work: Callable[..., _Result],
-           *args: Any) -> _Result:
-    """``work(*args)``, its wall time put in ``seconds[stage]``."""
-    started = time.perf_counter()
-    try:
-        return work(*args)
-    finally:
-        seconds[stage] = time.perf_counter() - started
 
 
 def _split_as_needed(scene: Scene, spec: PlanSpec, positions: np.ndarray, limits: FaceLimits,

@@ -137,31 +137,15 @@ def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces
     return make_ray_caster(scene, blocks, file_faces=file_faces)
 
 
-def walk_route(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceLimits,
-               caster: RayCaster) -> Route:
-    """The walking route through the (S, 3) stations over the building's walk graph
-    (``spec.route_start``, in model coordinates, as the first point when given). Needs
-    nothing of the survey but the stations, so a plan can make it beside other work."""
-    walk_caster = _walk_caster(scene, limits, caster, spec.occluders == "file")
-    graph = build_walk_graph(scene, walk_caster)
-    start = spec.route_start
-    if start is not None:  # given in model coordinates, like every position (up_axis)
-        x, y, z = to_plan(scene_rotation(scene.metadata), np.asarray([start], np.float64))[0]
-        start = (float(x), float(y), float(z))
-    return plan_route(graph, walk_caster, stations_xyz, start)
-
-
 def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceLimits,
            occlusion: Occlusion, caster: RayCaster, seconds: dict[str, float],
            station_overlap: sp.csr_matrix | None = None,
-           threads: int | None = None, density_margins: list[float] | None = None,
-           route: Route | None = None) -> Survey:
+           threads: int | None = None, density_margins: list[float] | None = None) -> Survey:
     """Registration, route and field time of the (S, 3) stations, in selection order.
 
     ``station_overlap``: the stations' (S, F) overlap rows when the selection already made
-    them; ``density_margins``: see :func:`scans_of`; ``route``: the stations'
-    :func:`walk_route` when made already; ``seconds`` gains the stages "overlap" and
-    (when the route is made here) "walk graph".
+    them; ``density_margins``: see :func:`scans_of`; ``seconds`` gains the stages "overlap"
+    and "walk graph".
     """
     t0 = time.perf_counter()
     # only what two stations share counts: the rows are cut to it before the registration's
@@ -181,8 +165,13 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     del shared
     t1 = time.perf_counter()
     seconds["overlap"] = seconds.get("overlap", 0.0) + t1 - t0
-    if route is None:
-        route = walk_route(scene, spec, stations_xyz, limits, caster)
-        seconds["walk graph"] = time.perf_counter() - t1
+    walk_caster = _walk_caster(scene, limits, caster, spec.occluders == "file")
+    graph = build_walk_graph(scene, walk_caster)
+    start = spec.route_start
+    if start is not None:  # given in model coordinates, like every position (up_axis)
+        x, y, z = to_plan(scene_rotation(scene.metadata), np.asarray([start], np.float64))[0]
+        start = (float(x), float(y), float(z))
+    route = plan_route(graph, walk_caster, stations_xyz, start)
+    seconds["walk graph"] = time.perf_counter() - t1
     scans = scans_of(spec, density_margins, len(stations_xyz))
     return Survey(registration, route, field_time(spec, len(stations_xyz), route, scans), scans)
