@@ -90,6 +90,7 @@ _UP_NZ = 0.3  # faces whose normal has at least this upward part are drawn from 
 CHUNK_FACES = 1 << 20
 _SHADE_FACES = 1 << 18  # face_rgb's chunk: a few (n, 3) float64 at once
 _DRAW_FACES = 1 << 16  # floor triangles made into paths and drawn at a time
+_PATH_TRIANGLES = 1 << 12  # floor triangles filled as one path at most
 # a face is handed to the exact cut when it has a corner above the section plane and one
 # below this much above it (trimesh counts corners within 1e-8 m as on the plane)
 _SECTION_MARGIN_M = 1e-6
@@ -420,6 +421,7 @@ def draw_surfaces(ax: Axes, result: PlanResult, below: NDArray[np.int64],
 
     if len(below):
         ax.add_collection(_FloorFaces(scene.vertices, scene.faces[below], rgb(below),
+                                      scene.centroids[below, 2],
                                       linewidths=0.0, antialiased=False, zorder=1,
                                       rasterized=rasterized), autolim=False)
     if len(segments):
@@ -467,30 +469,35 @@ class _Paths(Sequence[Path]):
 
 class _FloorFaces(PolyCollection):
     """Triangles filled in their colours, kept as (T, 3) corner indices into (V, 3)
-    ``vertices`` and (T, 3) uint8 sRGB colours; their corners, float colours and paths are
-    made inside :meth:`draw`, ``_DRAW_FACES`` triangles at a time, and let go after.
+    ``vertices``, (T, 3) uint8 sRGB colours and (T,) centroid heights, in the order they
+    are painted (lowest first); their paths are made inside :meth:`draw`, ``_DRAW_FACES``
+    triangles at a time, and let go after.
 
-    Drawn, it gives the pixels of a PolyCollection of the (T, 3, 2) corners with face and
-    edge colours ``rgb / 255`` (a renderer fills the paths of a collection one by one, in
-    order, so consecutive runs of them fill the same pixels); but that holds 130 bytes of
-    arrays and a ~400-byte path per triangle for as long as the figure lives, and a
-    preview holds several storeys' floors.
+    The triangles of one height and one colour in a run are filled as one path of many
+    closed triangles (turned counter-clockwise, so under the non-zero rule overlapping ones
+    never cancel), runs of heights lowest first. A path a triangle (as a PolyCollection
+    would have it) cost ~5 us each to make and fill: 4 s per drawing of the floors of a
+    10 M-face office, twice (preview and PDF). Filled together, the pixels a triangle
+    shares with its neighbours of the same colour are filled once their coverage adds up,
+    where one at a time each could stay under Agg's half-pixel threshold; the colour a
+    triangle shows is its own (``test_floor_colours_match_faces_npz``). At most
+    ``_PATH_TRIANGLES`` go in one path, well within Agg's cell memory.
     """
 
     def __init__(self, vertices: NDArray[np.float64], corners: NDArray[np.integer[Any]],
-                 rgb: NDArray[np.uint8], **kwargs: Any) -> None:
+                 rgb: NDArray[np.uint8], height_m: NDArray[np.float64], **kwargs: Any) -> None:
         super().__init__([], **kwargs)
         self._scene_vertices = vertices
         self._corner_indices = corners
         self._rgb = rgb
+        self._height_m = height_m
 
     @allow_rasterization  # type: ignore[untyped-decorator]  # matplotlib's is untyped
     def draw(self, renderer: RendererBase) -> None:
         n = len(self._corner_indices)
         ends = [*range(_DRAW_FACES, n, _DRAW_FACES), n]
         if len(ends) > 1 and ends[-1] - ends[-2] == 1:
-            # a lone path is drawn as a marker (another code path): never one alone
-            del ends[-2]
+            del ends[-2]  # never a run of one triangle (see _draw_run)
         start = 0
         try:
             for end in ends:
@@ -502,15 +509,35 @@ class _FloorFaces(PolyCollection):
             self.set_edgecolor([])
 
     def _draw_run(self, renderer: RendererBase, run: slice) -> None:
-        corners = self._corner_indices[run]
-        xy = np.empty((len(corners), 4, 2))  # closed: the first corner again, as PolyCollection
-        xy[:, :3] = self._scene_vertices[corners, :2]
-        xy[:, 3] = xy[:, 0]
-        colours = self._rgb[run] / 255.0
+        xy = self._scene_vertices[self._corner_indices[run], :2]  # (t, 3, 2)
+        turn = ((xy[:, 1, 0] - xy[:, 0, 0]) * (xy[:, 2, 1] - xy[:, 0, 1])
+                - (xy[:, 1, 1] - xy[:, 0, 1]) * (xy[:, 2, 0] - xy[:, 0, 0]))
+        xy[turn < 0] = xy[turn < 0][:, ::-1]  # counter-clockwise
+        rgb = self._rgb[run]
+        height = self._height_m[run]
+        # (t,) which group each triangle paints in: heights in paint order, then colours
+        level = np.concatenate([[0], np.cumsum(height[1:] != height[:-1])])
+        colour = (rgb[:, 0].astype(np.int64) << 16) | (rgb[:, 1].astype(np.int64) << 8) | rgb[:, 2]
+        order = np.argsort((level << 24) | colour, kind="stable")
+        key = ((level << 24) | colour)[order]
+        starts = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))
+        bounds = [(a, min(a + _PATH_TRIANGLES, b)) for a, b in
+                  zip(starts.tolist(), [*starts[1:].tolist(), len(key)], strict=True)
+                  for a in range(a, b, _PATH_TRIANGLES)]
+        if len(bounds) == 1 and len(order) > 1:
+            # a lone path is drawn as a marker (another code path, snapped to pixels)
+            bounds = [(0, len(order) // 2), (len(order) // 2, len(order))]
+        closed = np.empty((len(order), 4, 2))  # the first corner again, as PolyCollection
+        closed[:, :3] = xy[order]
+        closed[:, 3] = closed[:, 0]
+        codes = np.tile(np.array([Path.MOVETO, Path.LINETO, Path.LINETO, Path.CLOSEPOLY],
+                                 Path.code_type), _PATH_TRIANGLES)
+        paths = [Path(closed[a:b].reshape(-1, 2), codes[:4 * (b - a)]) for a, b in bounds]
+        colours = rgb[order[[a for a, _ in bounds]]] / 255.0
         self.set_facecolor(colours)  # type: ignore[arg-type]  # stubs: sequences only
         self.set_edgecolor(colours)  # type: ignore[arg-type]
-        Collection.set_paths(self, _Paths(xy, closed=True))
-        del xy, colours
+        Collection.set_paths(self, paths)
+        del xy, closed, colours
         super().draw(renderer)
 
 
