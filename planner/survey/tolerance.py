@@ -113,14 +113,20 @@ def placement_tolerance(
     """
     rows = [table.faces_of(c) for c in stations]
     holders = np.zeros(scene.n_faces, np.int32)  # (F,) chosen stations covering each face
-    for faces in rows:
-        holders[faces] += 1
+    first = np.zeros(scene.n_faces, np.int32)  # (F,) the first of them
+    for s in reversed(range(len(rows))):
+        holders[rows[s]] += 1
+        first[rows[s]] = s
     surely = np.zeros(scene.n_faces, bool)  # (F,) kept from every setup of some station
+    # A face another station covers too matters only for ``surely``: its first station
+    # tests it, and the others only where that one loses it from some setup (a face is
+    # surely covered when any of them keeps it)
+    firsts = [faces[first[faces] == s] for s, faces in enumerate(rows)]
     per_station = []
     limit = goal_area_m2 - GOAL_SLACK_M2
-    for s, (faces, kept) in enumerate(kept_faces(scene, displaced, rows.__getitem__, limits,
+    for s, (faces, kept) in enumerate(kept_faces(scene, displaced, firsts.__getitem__, limits,
                                                  qualify, threads=threads)):
-        alone = holders[faces] == 1
+        alone = holders[faces] == 1  # all of a station's faces no other covers are here
         lost_m2 = (~kept & alone) @ scene.areas[faces]  # (K,) per setup
         worst = int(np.argmax(lost_m2))
         surely[faces[kept.all(axis=0)]] = True
@@ -130,6 +136,12 @@ def placement_tolerance(
                             float(displaced.offsets_m[worst, 1])),
             setups=int(displaced.valid[s].sum()),
             critical=bool(covered_area_m2 - float(lost_m2[worst]) < limit)))
+    del firsts
+    others = [faces[(first[faces] != s) & ~surely[faces]] for s, faces in enumerate(rows)]
+    for faces, kept in kept_faces(scene, displaced, others.__getitem__, limits, qualify,
+                                  threads=threads):
+        surely[faces[kept.all(axis=0)]] = True
+    del others, first
     worst_case_m2 = float(scene.areas[surely].sum())
     del rows, holders, surely  # (F,) arrays and every station's faces: not held below
     started = time.perf_counter()
