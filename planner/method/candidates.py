@@ -41,6 +41,7 @@ from planner.method.walkgraph import HEADROOM_M, cell_pairs
 from planner.method.winding import winding_numbers
 from planner.parameters import PlanSpec
 from planner.scene import Scene, subdivide
+from planner.threads import in_block_order
 
 DROP_REASONS = (
     "outside_area_of_interest",
@@ -669,11 +670,15 @@ def closer_than(
 
     centre_xy = np.empty((len(useful), 2))
     spread = np.empty(len(useful))
-    for start in range(0, len(useful), _FOOTPRINTS_PER_BLOCK):
+
+    def footprint_extent(start: int) -> None:
+        """The centre and spread of a block of the faces, into their own rows."""
         block = np.arange(start, min(start + _FOOTPRINTS_PER_BLOCK, len(useful)))
         tri_xy = footprints(block)
         centre_xy[block] = tri_xy.mean(axis=1)
         spread[block] = np.linalg.norm(tri_xy - centre_xy[block, None, :], axis=2).max(axis=1)
+
+    list(in_block_order(footprint_extent, range(0, len(useful), _FOOTPRINTS_PER_BLOCK)))
     # Faces are searched by their centre within radius + their own spread. One search
     # radius for all (the largest spread) would pair every point with every face of a
     # model that has one huge face; classes of similar spread keep the pairs local.
@@ -685,12 +690,17 @@ def closer_than(
         # (an unbalanced tree builds faster; the queries return their indices sorted, so
         # the pairs do not depend on the tree's shape or the query's threads)
         tree = cKDTree(centre_xy[members], balanced_tree=False, compact_nodes=False)
-        for s in range(0, len(points), _POINTS_PER_QUERY):
+
+        def blocked(s: int, tree: cKDTree = tree, reach: float = reach,
+                    members: NDArray[np.intp] = members) -> NDArray[np.int64]:
+            """The points of a chunk with a face of this class closer than radius_m
+            (the class's tree, reach and faces bound here: the chunks are all read
+            before the next class)."""
             chunk = np.arange(s, min(s + _POINTS_PER_QUERY, len(points)))
-            lists = tree.query_ball_point(points[chunk, :2], reach, workers=-1)
+            lists = tree.query_ball_point(points[chunk, :2], reach)
             counts = np.array([len(x) for x in lists])
             if counts.sum() == 0:
-                continue
+                return np.zeros(0, np.int64)
             point_of_pair = np.repeat(chunk, counts)
             face_of_pair = members[np.concatenate([np.asarray(x, np.int64) for x in lists
                                                    if x])]
@@ -699,7 +709,12 @@ def closer_than(
             in_span = (z_high[face_of_pair] >= span_low) & (z_low[face_of_pair] <= span_high)
             p, f = point_of_pair[in_span], face_of_pair[in_span]
             gap = _distance_to_triangles_xy(points[p, :2], footprints(f))
-            np.logical_or.at(result, p, gap < radius_m)
+            close: NDArray[np.int64] = p[gap < radius_m]
+            return close
+
+        # chunks of points on the thread pool, each querying the tree on its own thread
+        for close in in_block_order(blocked, range(0, len(points), _POINTS_PER_QUERY)):
+            result[close] = True
     return result
 
 
