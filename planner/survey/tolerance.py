@@ -169,15 +169,15 @@ def _worst_case_network(
     The components need a spanning forest only: the strongest spanning forest of the
     nominal network (most overlap, one tree per nominal component). Each forest edge is
     first judged on a sample of the faces its stations share (:func:`_sample`), which
-    proves it holds whatever the other faces do (:func:`_holds`);
-    an edge the sample cannot prove is judged on all its shared faces. When every forest
-    edge holds and no edge between two nominal components can ever pass
-    (:func:`_apart_for_good`), the worst-case components are the nominal ones. Otherwise
-    every shared face is tested and the components are those of the whole worst-case
-    network. On the 3.7 M-face office of ``benchmarks/ifc_office.py`` (``--width-m 25
-    --depth-m 37 --storeys 2``) the network cast 7.1 M rays instead of 36.0 M, the same
-    components. ``forest_first`` false tests every shared face
-    straight away (the reference the forest is checked against).
+    can prove that it holds whatever the other faces do (:func:`_holds`); an edge its
+    sample cannot prove is judged on all its shared faces. When every forest edge holds
+    and no edge between two nominal components can ever pass (:func:`_apart_for_good`),
+    the worst-case components are the nominal ones. Otherwise every shared face is tested
+    and the components are those of the whole worst-case network. On the 3.7 M-face
+    office of ``benchmarks/ifc_office.py`` (``--width-m 25 --depth-m 37 --storeys 2``)
+    the network cast 7.1 M rays instead of 36.0 M, with the same components.
+    ``forest_first`` false tests every shared face straight away (the reference the
+    forest is checked against).
     """
     doors = door_faces(scene)
     overlap = overlap_limits(limits, overlap_density_pts_m2)
@@ -230,8 +230,9 @@ def _worst_case_network(
         for (a, b), sample in zip(forest, samples, strict=True):
             tested[a].append(sample)
             tested[b].append(sample)
-        first = [np.unique(np.concatenate(t)) if t else np.zeros(0, np.int32) for t in tested]
-        kept = kept_rows(first)
+        sampled = [np.unique(np.concatenate(t)) if t else np.zeros(0, np.int32)
+                   for t in tested]
+        kept = kept_rows(sampled)
         unproven = [i for i, ((a, b), faces, sample) in enumerate(
             zip(forest, edge_faces, samples, strict=True))
             if not _holds(scene, faces, sample, kept[a], kept[b], min_overlap_m2)]
@@ -240,7 +241,7 @@ def _worst_case_network(
             for i in unproven:
                 for n in forest[i]:
                     rest[n].append(edge_faces[i])
-            more = kept_rows([np.setdiff1d(np.concatenate(t), first[n], assume_unique=False)
+            more = kept_rows([np.setdiff1d(np.concatenate(t), sampled[n])
                               if t else np.zeros(0, np.int32) for n, t in enumerate(rest)])
             kept = [np.union1d(k, m) for k, m in zip(kept, more, strict=True)]
         if all(_holds(scene, edge_faces[i], edge_faces[i], kept[forest[i][0]],
