@@ -11,6 +11,7 @@ import functools
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
@@ -184,15 +185,12 @@ class CoverageTable:
         """(F,) int32: how many candidates qualify for each face (k_f), kept once made
         (4 bytes a face: there are fewer than 2**31 candidates).
 
-        Every run adds 1 from its first face on and takes it off after its last; the steps
-        are added ``_SUM_BLOCK_PAIRS`` runs at a time, in place (``np.add.at``: no (F,)
-        int64 ``np.bincount`` per block).
+        Every run adds 1 from its first face on and takes it off after its last: the steps
+        are added in place by a compiled loop (``np.add.at`` took 3.5 s for the 9.7 M-face
+        office's runs, while both greedy heuristics waited for it), then summed.
         """
         steps = np.zeros(self.n_faces + 1, np.int32)
-        for at in range(0, self.n_runs, _SUM_BLOCK_PAIRS):
-            start = self.run_start[at:at + _SUM_BLOCK_PAIRS]
-            np.add.at(steps, start, 1)
-            np.subtract.at(steps, start + self.run_length[at:at + _SUM_BLOCK_PAIRS], 1)
+        _add_run_steps(self.run_start, self.run_length, steps)
         counts: NDArray[np.int32] = np.cumsum(steps[:-1], dtype=np.int32)
         counts.flags.writeable = False  # shared: the plan's faces.npz holds it as is
         return counts
@@ -225,3 +223,12 @@ class CoverageTable:
             rows = np.repeat(np.arange(last - first), np.diff(self.pair_ptr[first:last + 1]))
             sums[first:last] = np.bincount(rows, weights=per_face[faces], minlength=last - first)
         return sums
+
+
+@numba.njit(nogil=True, cache=True)
+def _add_run_steps(run_start: NDArray[np.int32], run_length: NDArray[np.int32],
+                   steps: NDArray[np.int32]) -> None:  # compiled; see test_optimal (the table)
+    """``steps[start] += 1`` and ``steps[start + length] -= 1`` for every run."""
+    for r in range(len(run_start)):
+        steps[run_start[r]] += 1
+        steps[run_start[r] + run_length[r]] -= 1
