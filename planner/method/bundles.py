@@ -43,11 +43,13 @@ import weakref
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from planner.method.grid import PointGrid, pairs_in_reach
 from planner.scene import Scene
+from planner.threads import in_block_order
 
 # sides of the bundles' squares in their face's plane, coarse to fine: a 2 m square of a
 # wall two rooms away usually fits behind one triangle of the wall between; where it does
@@ -171,33 +173,45 @@ def _make_bundles(scene: Scene) -> Bundles | None:
     finest = BUNDLE_SIDES_M[-1]
     n = scene.n_faces
     # each piece's key: its file face, then the finest square's bins; the bundles are the
-    # distinct keys in ascending order. A block of whole file faces holds keys no other
-    # block has, so they are numbered a block at a time (no sort of F int64 keys)
+    # distinct keys in ascending order
     bundle_of = np.empty(n, np.int32)  # -1: a piece in no bundle (its face has no plane)
-    block_keys: list[NDArray[np.int64]] = []
-    k = 0
-    for block in scene.file_face_blocks(_KEY_BLOCK_FACES):
+
+    def keyed(block: slice) -> tuple[NDArray[np.int64], NDArray[np.int64],
+                                     NDArray[np.float64], NDArray[np.float64]]:
+        """A block's distinct keys (ascending, the faces in no bundle left out), each
+        piece's index among them (-1: in no bundle) and each key's (k, 2) extent."""
         uv, source = _piece_uv(scene, axes, block)
         bins = np.clip(np.floor(uv / finest), 0, _BINS - 1).astype(np.int64)
         key = np.where(usable[source],
                        (source.astype(np.int64) * _BINS + bins[:, 0]) * _BINS + bins[:, 1], -1)
         keys, inverse = np.unique(key, return_inverse=True)
         first = 1 if len(keys) and keys[0] < 0 else 0  # key -1: faces in no bundle
-        bundle_of[block] = np.where(key < 0, -1, inverse.reshape(-1) - first + k)
-        block_keys.append(keys[first:])
-        k += len(keys) - first
+        index = np.where(key < 0, -1, inverse.reshape(-1) - first)
+        low, high = np.full((len(keys) - first, 2), np.inf), np.full((len(keys) - first, 2),
+                                                                     -np.inf)
+        _extents(index, uv, low, high)
+        return keys[first:], index, low, high
+
+    # blocks of whole file faces hold keys no other block has: keyed on the thread pool (no
+    # sort of F int64 keys), then numbered one block after the other
+    blocks = scene.file_face_blocks(_KEY_BLOCK_FACES)
+    block_keys: list[NDArray[np.int64]] = []
+    lows: list[NDArray[np.float64]] = []
+    highs: list[NDArray[np.float64]] = []
+    k = 0
+    for block, (keys, index, block_low, block_high) in zip(
+            blocks, in_block_order(keyed, blocks), strict=True):
+        bundle_of[block] = np.where(index < 0, -1, index + k)
+        block_keys.append(keys)
+        lows.append(block_low)
+        highs.append(block_high)
+        k += len(keys)
     if k == 0:
         return None
     keys = np.concatenate(block_keys)
     # the finest bundles' extents in their plane
-    low, high = np.full((k, 2), np.inf), np.full((k, 2), -np.inf)
-    for start in range(0, n, _KEY_BLOCK_FACES):
-        block = slice(start, start + _KEY_BLOCK_FACES)
-        uv, _ = _piece_uv(scene, axes, block)
-        of = bundle_of[block]
-        inside = of >= 0
-        np.minimum.at(low, of[inside], uv[inside])
-        np.maximum.at(high, of[inside], uv[inside])
+    low, high = np.concatenate(lows), np.concatenate(highs)
+    del lows, highs
     pieces = np.bincount(bundle_of[bundle_of >= 0], minlength=k).astype(np.int64)
     file_face = keys // (_BINS * _BINS)
     bins = np.stack([(keys // _BINS) % _BINS, keys % _BINS], axis=1)
@@ -293,3 +307,20 @@ def bundle_culler(scene: Scene, reach_m: float, occlusion: object, *,
         return None  # decided before the bundles are made: a short search never needs them
     bundles = bundles_of(scene)
     return None if bundles is None else BundleCuller(bundles, reach_m, occlusion)
+
+
+@numba.njit(nogil=True, cache=True)
+def _extents(index: NDArray[np.int64], uv: NDArray[np.float64], low: NDArray[np.float64],
+             high: NDArray[np.float64]) -> None:  # compiled; see test_bundles
+    """The (k, 2) ``low`` and ``high`` corners of the (n, 2) ``uv`` of each of k groups
+    (``index``: each point's group, -1 for none), lowered and raised in place."""
+    for i in range(len(index)):
+        g = index[i]
+        if g < 0:
+            continue
+        for axis in range(2):
+            value = uv[i, axis]
+            if value < low[g, axis]:
+                low[g, axis] = value
+            if value > high[g, axis]:
+                high[g, axis] = value
