@@ -142,7 +142,7 @@ def test_floor_drawn_in_runs_gives_the_same_picture(result: PlanResult, run: str
     monkeypatch.setattr(drawing, "_DRAW_FACES", 7 if run == "short" else n - 1)
     parts = decode(drawing.preview_png(result))
     differ = np.any(parts != whole, axis=2)
-    # hall-small: 0.9 % of the pixels with runs of 7 triangles, each a neighbour's colour
+    # hall-small: 0.9 % of the pixels with runs of 7 triangles, from one floor colour to another
     assert differ.mean() < 0.02
 def test_one_panel_per_level(result: PlanResult) -> None:
     upper = result.candidates.positions + np.array([0.0, 0.0, 3.0])
