@@ -241,6 +241,7 @@ def plan(
     stats.seconds["selection"] = time.perf_counter() - t2 - stats.seconds.get("overlap", 0.0)
     for step, seconds in outcome.seconds.items():
         stats.seconds[f"selection_{step}"] = seconds
+    stations_xyz = candidates.positions[list(chosen.stations)]  # (S, 3)
     release_freed_memory()
     if scene.n_faces >= BOUNDED_HEAP_FACES:
         bound_heap()  # from here on freed arrays leave the process at once, not at a trim
@@ -250,14 +251,14 @@ def plan(
             # cut to the faces two stations share as the survey cuts them (no whole matrix)
             t_rows = time.perf_counter()
             station_overlap = OverlapRows(
-                scene, candidates.positions[list(chosen.stations)], limits, occlusion,
+                scene, stations_xyz, limits, occlusion,
                 spec.overlap_density_pts_m2, threads=threads,
                 file_faces=spec.occluders == "file").shared_matrix(range(len(chosen.stations)))
             stats.seconds["overlap"] = time.perf_counter() - t_rows
         forget_bundles(scene)  # only the overlap rows reach far enough to use them
         t_tolerance, cpu_tolerance = time.perf_counter(), time.process_time()
         displaced = displaced_positions(
-            scene, candidates.positions[list(chosen.stations)], spec.placement_tolerance_m,
+            scene, stations_xyz, spec.placement_tolerance_m,
             spec.clearance_m, _caster(scene, spec, limits, occlusion))
         stats.seconds["tolerance_setups"] = time.perf_counter() - t_tolerance
         tolerance = placement_tolerance(
@@ -276,14 +277,14 @@ def plan(
     # a few stations: not worth making the bundles again; small blocks, as the per-face
     # results they fill are made beside them where the plan's memory peaks
     densities = _qualified_blocks(
-        scene, spec, candidates.positions[list(chosen.stations)], limits, occlusion, stats,
+        scene, spec, stations_xyz, limits, occlusion, stats,
         threads=threads, bundles=False, most_tests=TESTS_PER_BLOCK // 4)
     if spec.robust:
         densities = within_table(densities, table, chosen.stations)
     faces = coverage_state(table, chosen.stations, densities,
                            None if spec.scanner is None else limits.min_density_pts_m2)
     margins = faces.pop("density_margin", None)
-    plan_survey = survey(scene, spec, candidates.positions[list(chosen.stations)], limits,
+    plan_survey = survey(scene, spec, stations_xyz, limits,
                          occlusion, _caster(scene, spec, limits, occlusion), stats.seconds,
                          station_overlap=station_overlap, threads=threads,
                          density_margins=None if margins is None else margins.tolist())

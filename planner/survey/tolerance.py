@@ -345,10 +345,8 @@ def _apart_for_good(scene: Scene, nominal: Registration, rows: list[NDArray[np.i
         area_m2 = scene.areas[faces]
         if min_overlap_m2 is not None and float(area_m2.sum()) < min_overlap_m2 * (1 - 1e-9):
             continue
-        normals = scene.normals[faces]
-        scatter = (normals * area_m2[:, None]).T @ normals  # (3, 3)
-        weakest = np.linalg.eigh(scatter)[1][:, 0]
-        along_m2 = float(((normals @ weakest) ** 2) @ area_m2)
+        weakest = np.linalg.eigh(_scatter(scene, faces))[1][:, 0]
+        along_m2 = float(((scene.normals[faces] @ weakest) ** 2) @ area_m2)
         if along_m2 >= 0.5 * MIN_CONSTRAINT * float(area_m2.min()):
             return False
     return True
