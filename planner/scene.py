@@ -8,7 +8,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import trimesh
@@ -22,6 +22,7 @@ FloatArray = NDArray[np.float64]
 # face and label indices: int32 (4 bytes a face each instead of 8; a model has fewer than
 # 2**31 vertices, faces and groups, which Scene checks)
 IndexArray = NDArray[np.int32]
+_Value = TypeVar("_Value", bound=np.generic)
 
 # Per-face arrays are derived, and faces remeshed, a block at a time: the temporaries are
 # (B, 3, 3) floats, not (F, 3, 3), so a 10 M-face model needs no 720 MB scratch arrays.
@@ -58,16 +59,23 @@ class Scene:
     ----------
     vertices : (V, 3) float64, metres
     faces : (F, 3) int32, indices into ``vertices``
-    face_group : (F,) int32, index into ``groups``
+    file_face_group : (F0,) int32, each file face's index into ``groups`` (a face's group
+        is its file face's: :attr:`face_group`)
     groups : tuple of G group names ("" when the file has none)
     source_face : (F,) int32, the face of the file each face comes from (remeshing splits)
-    face_element : (F,) int32, index into ``elements``, -1 when the file has no elements
+    file_face_element : (F0,) int32, each file face's index into ``elements``, -1 when the
+        file has no elements (:attr:`face_element`)
     elements : BIM elements of an IFC model, empty otherwise
     metadata : plain data the reader wants to pass on (format, IFC spaces, storeys, ...)
     file_vertices : (V0, 3) float64, the model as read before remeshing (None: ``vertices``)
     file_faces : (F0, 3) int32, the faces ``source_face`` indexes (None: ``faces``, and
         ``source_face`` is then the identity); occlusion rays are cast against these, so
         the ray caster stays the size of the file however finely the targets are split
+
+    Groups and elements are kept per file face, so the pieces of a remeshed scene carry no
+    (F,) copies of them (on a 9.7 M-face office two such arrays were 74 MB of every stage's
+    memory): :attr:`face_group` and :attr:`face_element` look them up through
+    ``source_face`` when asked.
     split_max_edge_m : faces longer than this are still to be split (a scene read with
         ``split_faces="as_needed"``): :func:`planner.pipeline.plan` splits, once it knows the
         candidates, only the faces some candidate can qualify part of
@@ -76,10 +84,10 @@ class Scene:
 
     vertices: FloatArray
     faces: IndexArray
-    face_group: IndexArray
+    file_face_group: IndexArray
     groups: tuple[str, ...]
     source_face: IndexArray
-    face_element: IndexArray
+    file_face_element: IndexArray
     elements: tuple[Element, ...] = ()
     metadata: dict[str, Any] = field(default_factory=dict)
     file_vertices: FloatArray | None = None
@@ -97,7 +105,7 @@ class Scene:
             raise SceneError("the model has no triangles; export it with its faces")
         if self.faces.min() < 0 or self.faces.max() >= len(self.vertices):
             raise SceneError("a face refers to a vertex that does not exist; the file is broken")
-        for name in ("vertices", "faces", "face_group", "source_face", "face_element",
+        for name in ("vertices", "faces", "file_face_group", "source_face", "file_face_element",
                      "file_vertices", "file_faces"):
             value = getattr(self, name)
             if value is None:
@@ -107,6 +115,9 @@ class Scene:
             object.__setattr__(self, name, _frozen(value))
         if (self.file_vertices is None) != (self.file_faces is None):
             raise ValueError("file_vertices and file_faces come together or not at all")
+        n_file_faces = len(self.faces if self.file_faces is None else self.file_faces)
+        if len(self.file_face_group) != n_file_faces or len(self.file_face_element) != n_file_faces:
+            raise ValueError("file_face_group and file_face_element hold one value a file face")
         if not np.isfinite(self.vertices).all():
             bad = int(np.flatnonzero(~np.isfinite(self.vertices).all(axis=1))[0])
             raise SceneError(
@@ -135,6 +146,24 @@ class Scene:
     @property
     def n_faces(self) -> int:
         return len(self.faces)
+
+    @property
+    def face_group(self) -> IndexArray:
+        """(F,) int32, each face's index into ``groups`` (a new array on a remeshed scene:
+        read it once, not in a loop)."""
+        return self.of_file_faces(self.file_face_group)
+
+    @property
+    def face_element(self) -> IndexArray:
+        """(F,) int32, each face's index into ``elements``, -1 for none (a new array on a
+        remeshed scene: read it once, not in a loop)."""
+        return self.of_file_faces(self.file_face_element)
+
+    def of_file_faces(self, per_file_face: NDArray[_Value]) -> NDArray[_Value]:
+        """(F,) the value of (F0,) ``per_file_face`` on each face: its file face's (the
+        array itself when the scene was never remeshed). The inverse of
+        :meth:`on_file_faces`."""
+        return per_file_face if self.file_faces is None else per_file_face[self.source_face]
 
     @property
     def triangles(self) -> FloatArray:
@@ -246,11 +275,11 @@ def build_scene(
     return Scene(
         vertices=np.asarray(vertices, dtype=np.float64).reshape(-1, 3),
         faces=faces,
-        face_group=np.zeros(n, np.int32) if face_group is None
+        file_face_group=np.zeros(n, np.int32) if face_group is None
         else np.asarray(face_group, np.int32),
         groups=groups,
         source_face=np.arange(n, dtype=np.int32),
-        face_element=np.full(n, -1, np.int32) if face_element is None
+        file_face_element=np.full(n, -1, np.int32) if face_element is None
         else np.asarray(face_element, np.int32),
         elements=elements,
         metadata=dict(metadata or {}),
@@ -285,10 +314,10 @@ def remesh(scene: Scene, max_edge_m: float, split: NDArray[np.bool_] | None = No
     return Scene(
         vertices=new_vertices,
         faces=new_faces,
-        face_group=scene.face_group[index],
+        file_face_group=scene.file_face_group,
         groups=scene.groups,
         source_face=scene.source_face[index],
-        face_element=scene.face_element[index],
+        file_face_element=scene.file_face_element,
         elements=scene.elements,
         metadata=scene.metadata,
         file_vertices=file_vertices,

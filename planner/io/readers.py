@@ -195,10 +195,10 @@ def _with(scene: Scene, vertices: np.ndarray, metadata: dict[str, Any]) -> Scene
     return Scene(
         vertices=vertices,
         faces=scene.faces,
-        face_group=scene.face_group,
+        file_face_group=scene.file_face_group,
         groups=scene.groups,
         source_face=scene.source_face,
-        face_element=scene.face_element,
+        file_face_element=scene.file_face_element,
         elements=scene.elements,
         metadata=metadata,
     )
@@ -208,10 +208,10 @@ def _scaled(scene: Scene, unit_scale: float) -> Scene:
     return Scene(
         vertices=scene.vertices * unit_scale,
         faces=scene.faces,
-        face_group=scene.face_group,
+        file_face_group=scene.file_face_group,
         groups=scene.groups,
         source_face=scene.source_face,
-        face_element=scene.face_element,
+        file_face_element=scene.file_face_element,
         elements=scene.elements,
         metadata=scene.metadata,
         file_vertices=None if scene.file_vertices is None else scene.file_vertices * unit_scale,

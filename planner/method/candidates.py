@@ -790,7 +790,7 @@ def inside_closed_groups(scene: Scene, points: NDArray[np.float64]) -> NDArray[n
     """
     result = np.zeros(len(points), bool)
     triangles = scene.file_triangles
-    face_group = scene.on_file_faces(scene.face_group)
+    face_group = scene.file_face_group
     for g in range(len(scene.groups)):
         faces = np.flatnonzero(face_group == g)
         if len(faces) == 0:

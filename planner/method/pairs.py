@@ -128,7 +128,7 @@ def _requirement_masks(
     group_index = {name: i for i, name in enumerate(scene.groups)}
     for key, req in reqs.items():
         if key in group_index:
-            masks.append((scene.face_group == group_index[key], req))
+            masks.append((scene.of_file_faces(scene.file_face_group == group_index[key]), req))
     if scene.elements:
         classes = [e.ifc_class for e in scene.elements]
         ids = [e.global_id for e in scene.elements]
@@ -137,8 +137,8 @@ def _requirement_masks(
             """(F,) the faces of the elements whose name is ``key``: an (E,) test, then
             one byte a face (no (F,) array of names: 80 bytes a face on a split model)."""
             per_element = np.array([name == key for name in names] + [key == ""], bool)
-            mask: NDArray[np.bool_] = per_element[scene.face_element]  # -1: the last entry
-            return mask
+            # -1 (no element) picks the last entry
+            return scene.of_file_faces(per_element[scene.file_face_element])
 
         for key, req in reqs.items():
             if key not in group_index and key in set(classes):
@@ -195,10 +195,35 @@ _PAIR_COLUMNS = ("candidate", "face", "origin", "direction", "distance_m", "lpd_
 
 def sorted_by_face(candidate: NDArray[np.int32], face: NDArray[np.int32]) -> NDArray[np.intp]:
     """(P,) the order that sorts P pairs by (candidate, face); a candidate holds a face
-    once, so the order is unique."""
-    key = candidate.astype(np.int64) * (int(face.max(initial=0)) + 1) + face
-    order: NDArray[np.intp] = np.argsort(key)
-    return order
+    once, so the order is unique.
+
+    Where the candidate (less the lowest), the face and the pair's index fit in 63 bits
+    (a block of candidates: some 6 + 24 + 24 bits on a 10 M-face model), the index rides in
+    the low bits of the key and the keys themselves are sorted, which numpy does several
+    times faster than an argsort (2.4 CPU s less over the 9.7 M-face office's 127 M
+    visible pairs); the order is the same, as no two keys are equal.
+    """
+    n = len(face)
+    if n == 0:
+        return np.zeros(0, np.intp)
+    low = int(candidate.min())
+    index_bits = (n - 1).bit_length()
+    face_bits = int(face.max()).bit_length()
+    if (int(candidate.max()) - low).bit_length() + face_bits + index_bits > 63:
+        key = candidate.astype(np.int64) * (int(face.max()) + 1) + face
+        order: NDArray[np.intp] = np.argsort(key)
+        return order
+    packed = candidate.astype(np.int64)
+    packed -= low
+    packed <<= face_bits + index_bits
+    shifted_face = face.astype(np.int64)
+    shifted_face <<= index_bits
+    packed |= shifted_face
+    del shifted_face
+    packed |= np.arange(n, dtype=np.int64)
+    packed.sort()
+    packed &= (1 << index_bits) - 1
+    return packed.astype(np.intp, copy=False)
 
 
 @numba.njit(nogil=True, cache=True)
@@ -327,6 +352,36 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
                 n += 1
         first = last
     return n
+
+
+def lpd_of_faces(scene: Scene, limits: FaceLimits, point_xyz: NDArray[np.float64],
+                 faces: NDArray[np.int32]) -> NDArray[np.float32]:
+    """(k,) float32 LPD in pts/m^2 of ``faces`` seen from the (3,) ``point_xyz``: the value
+    the limits kernel (:func:`_pass_limits`) writes for these pairs, bit for bit (the same
+    float64 operations in the same order), without the search or the rays. For faces the
+    point is known to qualify for, such as a station's row of the coverage table."""
+    out = np.empty(len(faces), np.float32)
+    _face_lpd(np.ascontiguousarray(point_xyz, np.float64), np.asarray(faces, np.int32),
+              scene.centroids, scene.normals, limits.angular_step_rad, out)
+    return out
+
+
+@numba.njit(nogil=True, cache=True)
+def _face_lpd(point: NDArray[np.float64], faces: NDArray[np.int32],
+              face_xyz: NDArray[np.float64], face_normal: NDArray[np.float64],
+              angular_step_rad: float, out: NDArray[np.float32]
+              ) -> None:  # compiled; compared with the limits kernel in test_limits
+    """The LPD of :func:`_pass_limits` for each of ``faces`` from ``point``, into ``out``."""
+    px, py, pz = point[0], point[1], point[2]
+    for i in range(faces.shape[0]):
+        f = faces[i]
+        ox, oy, oz = face_xyz[f, 0] - px, face_xyz[f, 1] - py, face_xyz[f, 2] - pz
+        d = np.sqrt(ox * ox + oy * oy + oz * oz)
+        uz = oz / d
+        ux, uy = ox / d, oy / d
+        s = abs(ux * face_normal[f, 0] + uy * face_normal[f, 1] + uz * face_normal[f, 2])
+        spacing = angular_step_rad * d
+        out[i] = s / (spacing * spacing)
 
 
 # (beside the kernel that calls it: numba checks a cached function against its own file only)

@@ -250,7 +250,7 @@ def inside_elements(scene: Scene, points: NDArray[np.float64]) -> NDArray[np.boo
     if not scene.elements:
         return inside_closed_groups(scene, points)
     result = np.zeros(len(points), bool)
-    triangles, owner = scene.file_triangles, scene.on_file_faces(scene.face_element)
+    triangles, owner = scene.file_triangles, scene.file_face_element
     order = np.argsort(owner, kind="stable")
     bounds = np.searchsorted(owner[order], np.arange(len(scene.elements) + 1))
     for e in range(len(scene.elements)):

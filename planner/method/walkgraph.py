@@ -75,7 +75,8 @@ def door_faces(scene: Scene, caster: RayCaster | None = None) -> NDArray[np.bool
             return np.zeros(scene.n_faces, bool)
         return mesh_door_faces(scene, caster)
     door = np.array([e.ifc_class in OPEN_DOOR_CLASSES for e in scene.elements] + [False])
-    result: NDArray[np.bool_] = door[scene.face_element]  # -1 picks the trailing False
+    # -1 picks the trailing False
+    result: NDArray[np.bool_] = scene.of_file_faces(door[scene.file_face_element])
     return result
 
 

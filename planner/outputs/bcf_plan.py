@@ -183,10 +183,11 @@ def _uncoverable(result: PlanResult) -> list[tuple[dict[str, Any], tuple[
     rotation = scene_rotation(scene.metadata)
     candidates = result.candidates.positions
     out = []
+    face_element = scene.face_element  # (F,), made once for every row
     for row in element_rows(result):
         if row["uncoverable_reason"] is None:
             continue
-        faces = scene.face_element == index[row["global_id"]]
+        faces = face_element == index[row["global_id"]]
         weights = scene.areas[faces]
         centre = (scene.centroids[faces] * weights[:, None]).sum(axis=0) / max(
             float(weights.sum()), 1e-12)

@@ -149,11 +149,12 @@ def uncoverable_reasons(result: PlanResult, elements: NDArray[np.int64]
     scene, limits = result.scene, result.limits
     if len(elements) == 0:
         return {}
-    faces = np.flatnonzero(np.isin(scene.face_element, elements) & limits.target)
+    face_element = scene.face_element  # (F,), made once
+    faces = np.flatnonzero(np.isin(face_element, elements) & limits.target)
     codes = face_reasons(result, faces)
     out: dict[int, dict[str, float]] = {}
     area = np.zeros((len(scene.elements), len(REASONS)))
-    np.add.at(area, (scene.face_element[faces], codes), scene.areas[faces])
+    np.add.at(area, (face_element[faces], codes), scene.areas[faces])
     for e in elements.tolist():
         out[int(e)] = {REASONS[k]: float(a) for k, a in enumerate(area[e]) if a > 0}
     return out

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from planner.io.readers import read_scene
+from planner.method.candidates import read_candidates_csv
 from planner.method.density import density_range_m, local_point_density
+from planner.method.pairs import FaceLimits, PairFinder, lpd_of_faces
 from planner.parameters import GroupRequirement, PlanSpec
 from planner.pipeline import plan
 from tests.planner.scenes import scene_of, small_triangle, square
@@ -148,3 +152,18 @@ def test_each_face_keeps_its_own_groups_incidence_and_density() -> None:
             "c": {"min_incidence_deg": 10, "min_density_pts_m2": 30_000},  # both pass
         }})  # d: the defaults, 15 deg and 45 000: 38 000 too few
     assert qualified_faces(scene, spec) == {1, 3, 4, 5, 7}
+
+
+def test_lpd_of_faces_is_the_limits_kernels_value_bit_for_bit(scenes_dir: Path) -> None:
+    # the plan's per-face densities are computed again from the stations' table rows with
+    # lpd_of_faces: they must be the very float32 values the pair search wrote
+    scene = read_scene(scenes_dir / "hall-small/hall.obj", max_edge_m=0.2, split_faces="all")
+    limits = FaceLimits.from_spec(PlanSpec(max_edge_m=0.2), scene)
+    positions = read_candidates_csv(scenes_dir / "hall-small/candidates.csv")[::25]
+    pairs, _ = PairFinder(scene, limits).find(positions, 0)
+    assert len(pairs) > 10_000
+    for c, point in enumerate(positions):
+        mine = pairs.candidate == c
+        lpd = lpd_of_faces(scene, limits, point, pairs.face[mine])
+        assert lpd.dtype == np.float32
+        np.testing.assert_array_equal(lpd.view(np.int32), pairs.lpd_pts_m2[mine].view(np.int32))
