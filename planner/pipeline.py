@@ -282,7 +282,7 @@ def plan(
     # results they fill are made beside them where the plan's memory peaks
     if spec.coverage_model == "centroid":
         # a station's faces are its row of the table (robust or not): only their LPDs,
-        # without the pair search and the rays again (the office's 218 stations: 13 M rays)
+        # without the pair search and the rays again (the office's 218 stations: 20 M rays)
         densities: Iterator[QualifiedPairs] = _table_densities(
             scene, limits, table, chosen.stations, stations_xyz)
     else:
