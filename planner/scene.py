@@ -71,15 +71,15 @@ class Scene:
     file_faces : (F0, 3) int32, the faces ``source_face`` indexes (None: ``faces``, and
         ``source_face`` is then the identity); occlusion rays are cast against these, so
         the ray caster stays the size of the file however finely the targets are split
+    split_max_edge_m : faces longer than this are still to be split (a scene read with
+        ``split_faces="as_needed"``): :func:`planner.pipeline.plan` splits, once it knows the
+        candidates, only the faces some candidate can qualify part of
+        (:mod:`planner.method.splitting`); None: the faces are final
 
     Groups and elements are kept per file face, so the pieces of a remeshed scene carry no
     (F,) copies of them (on a 9.7 M-face office two such arrays were 74 MB of every stage's
     memory): :attr:`face_group` and :attr:`face_element` look them up through
     ``source_face`` when asked.
-    split_max_edge_m : faces longer than this are still to be split (a scene read with
-        ``split_faces="as_needed"``): :func:`planner.pipeline.plan` splits, once it knows the
-        candidates, only the faces some candidate can qualify part of
-        (:mod:`planner.method.splitting`); None: the faces are final
     """
 
     vertices: FloatArray

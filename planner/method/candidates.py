@@ -613,6 +613,34 @@ def unclear_mask(
     return keep
 
 
+def _merged_spans(low_m: NDArray[np.float64], high_m: NDArray[np.float64]
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The union of the N height spans ``[low_m[i], high_m[i]]`` as (k,) ascending, disjoint
+    spans (those that overlap or touch merged into one)."""
+    spans = np.unique(np.column_stack([low_m, high_m]), axis=0)  # (u, 2) by low, then high
+    lows: list[float] = []
+    highs: list[float] = []
+    for low, high in spans.tolist():
+        if highs and low <= highs[-1]:
+            highs[-1] = max(highs[-1], high)
+        else:
+            lows.append(low)
+            highs.append(high)
+    return np.array(lows), np.array(highs)
+
+
+def _in_spans(low_m: NDArray[np.float64], high_m: NDArray[np.float64],
+              span_low_m: NDArray[np.float64], span_high_m: NDArray[np.float64]
+              ) -> NDArray[np.bool_]:
+    """(B,) bool: the height range ``[low_m, high_m]`` of each of B faces reaches into one of
+    the disjoint ascending spans (:func:`_merged_spans`): the first span that ends at or
+    above the face's lowest point starts at or below its highest."""
+    first = np.searchsorted(span_high_m, low_m, side="left")  # spans[first].high >= low
+    inside = first < len(span_low_m)
+    inside[inside] = span_low_m[first[inside]] <= high_m[inside]
+    return inside
+
+
 def closer_than(
     scene: Scene, points: NDArray[np.float64], radius_m: float, floor_z_m: NDArray[np.float64]
 ) -> NDArray[np.bool_]:
@@ -630,9 +658,10 @@ def closer_than(
         return result
     # Only faces reaching into some tripod's height span can be obstacles: their height
     # range, XY centre and spread, gathered a block of faces at a time (no (F, 3, 3) copy
-    # of the corners, no (F,) array of every face's height range).
-    span_low_m = floor_z_m.min() + 0.01
-    span_high_m = points[:, 2].max() + radius_m
+    # of the corners, no (F,) array of every face's height range). The spans of all the
+    # tripods, merged: a storey's floor and the slab under the next lie between two
+    # storeys' spans, in none (on a 3-storey office most of the pieces a split would make)
+    span_low_m, span_high_m = _merged_spans(floor_z_m + 0.01, points[:, 2] + radius_m)
     # And only faces whose XY bounding box, widened by radius_m, holds some point: any other
     # is farther than radius_m from every axis (a few setups around the stations need a few
     # faces, not per-face arrays over a whole split building).
@@ -642,7 +671,7 @@ def closer_than(
         block_faces = scene.faces[start:start + _FOOTPRINTS_PER_BLOCK]
         corner_z = scene.vertices[block_faces, 2]
         low, high = corner_z.min(axis=1), corner_z.max(axis=1)  # (B,) each
-        keep = np.flatnonzero((high >= span_low_m) & (low <= span_high_m))
+        keep = np.flatnonzero(_in_spans(low, high, span_low_m, span_high_m))
         corner_xy = scene.vertices[block_faces[keep], :2]  # (k, 3, 2): the faces kept so far
         keep = keep[near.any_in(corner_xy.min(axis=1), corner_xy.max(axis=1))]
         parts.append(((keep + start).astype(np.int32), low[keep], high[keep]))
@@ -660,7 +689,7 @@ def closer_than(
             vertices, faces, _ = pieces
             corner_z = vertices[faces, 2]  # (pieces, 3)
             low, high = corner_z.min(axis=1), corner_z.max(axis=1)
-            keep = np.flatnonzero((high >= span_low_m) & (low <= span_high_m))
+            keep = np.flatnonzero(_in_spans(low, high, span_low_m, span_high_m))
             useful, z_low, z_high = keep.astype(np.int32), low[keep], high[keep]
             del corner_z, low, high
 

@@ -50,10 +50,38 @@ def cell_members(cell_of: NDArray[np.int32], n_cells: int
     return start, members
 
 
+@numba.njit(nogil=True, cache=True)
+def _bounds(points: NDArray[np.float64], subset: NDArray[np.int32],
+            low: NDArray[np.float64], high: NDArray[np.float64]) -> None:
+    """The lowest and highest coordinate of the (n,) ``subset`` of the (N, 3) points, per
+    axis, into the (3,) ``low`` and ``high`` (one pass, no (n, 3) gathered copy)."""
+    for axis in range(3):
+        low[axis] = points[subset[0], axis]
+        high[axis] = points[subset[0], axis]
+    for i in range(subset.shape[0]):
+        for axis in range(3):
+            value = points[subset[i], axis]
+            low[axis] = min(low[axis], value)
+            high[axis] = max(high[axis], value)
+
+
+@numba.njit(nogil=True, cache=True)
+def _cells_of(points: NDArray[np.float64], subset: NDArray[np.int32],
+              low: NDArray[np.float64], cell_m: float, grid_dims: NDArray[np.int64],
+              out: NDArray[np.int32]) -> None:
+    """The cell of each point of the (n,) ``subset`` into ``out``: along each axis
+    floor((x - low) / cell_m), at most the last cell."""
+    for i in range(subset.shape[0]):
+        cell = 0
+        for axis in range(3):
+            index = min(int(np.floor((points[subset[i], axis] - low[axis]) / cell_m)),
+                        grid_dims[axis] - 1)
+            cell = cell * grid_dims[axis] + index
+        out[i] = cell
+
+
 # most cells a grid has (a cell is at least the reach wide): bounds the starts
 MAX_CELLS = 1 << 21
-# points per block when each point's grid cell is computed: bounds the scratch
-_CELL_BLOCK_POINTS = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -77,11 +105,8 @@ class PointGrid:
         if len(faces) == 0:
             return cls(np.zeros(3), 1.0, np.ones(3, np.int64), np.zeros(2, np.int64),
                        np.zeros(0, np.int32))
-        blocks = range(0, len(faces), _CELL_BLOCK_POINTS)
-        low = np.min([face_xyz[faces[s:s + _CELL_BLOCK_POINTS]].min(axis=0) for s in blocks],
-                     axis=0)
-        high = np.max([face_xyz[faces[s:s + _CELL_BLOCK_POINTS]].max(axis=0) for s in blocks],
-                      axis=0)
+        low, high = np.empty(3), np.empty(3)
+        _bounds(face_xyz, faces, low, high)
         extent = np.maximum(high - low, 1e-9)
         # wider than the reach by far more than rounding, so no face in reach is missed
         cell_m = max(reach_m * (1.0 + 1e-6) / cells_per_reach, float(extent.max()) * 1e-6)
@@ -89,11 +114,7 @@ class PointGrid:
             cell_m *= 2.0
         dims = (np.floor(extent / cell_m) + 1).astype(np.int64)
         cell_of = np.empty(len(faces), np.int32)
-        for s in blocks:
-            ijk = np.floor((face_xyz[faces[s:s + _CELL_BLOCK_POINTS]] - low) / cell_m)
-            ijk = np.minimum(ijk.astype(np.int64), dims - 1)
-            cell_of[s:s + _CELL_BLOCK_POINTS] = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] \
-                + ijk[:, 2]
+        _cells_of(face_xyz, faces, low, cell_m, dims, cell_of)
         start, members = cell_members(cell_of, int(np.prod(dims)))
         return cls(low, cell_m, dims, start, members)
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numba
 import numpy as np
@@ -524,8 +524,19 @@ def _consecutive_blocks(tests: NDArray[np.int64], most_points: int, most_tests: 
     return blocks
 
 
+_Number = TypeVar("_Number", bound=np.number[Any])
+
 # faces per block when the threshold classes are gathered: bounds the (b,) scratch keys
 _CLASS_BLOCK_FACES = 1 << 20
+
+
+def _distinct(values: NDArray[_Number]) -> NDArray[_Number]:
+    """``np.unique(values)``, without its sort when every value is the same (a model
+    without per-group requirements: each of a 10 M-face plan's pair searches sorted three
+    (F,) arrays for one value, some 1.5 s before its threads could start)."""
+    if len(values) and values.min() == values.max():
+        return values[:1].copy()
+    return np.unique(values)
 
 
 def threshold_classes(
@@ -541,16 +552,16 @@ def threshold_classes(
     """
     blocks = [faces[s:s + _CLASS_BLOCK_FACES] for s in range(0, len(faces), _CLASS_BLOCK_FACES)]
     incidence_values = np.unique(np.concatenate(
-        [np.unique(incidence_deg[b]) for b in blocks] or [np.zeros(0)]))
+        [_distinct(incidence_deg[b]) for b in blocks] or [np.zeros(0)]))
     density_values = np.unique(np.concatenate(
-        [np.unique(density_pts_m2[b]) for b in blocks] or [np.zeros(0)]))
+        [_distinct(density_pts_m2[b]) for b in blocks] or [np.zeros(0)]))
 
     def keys(block: NDArray[np.int32]) -> NDArray[np.int64]:
         """(b,) incidence rank x number of densities + density rank."""
         return (np.searchsorted(incidence_values, incidence_deg[block]).astype(np.int64)
                 * len(density_values) + np.searchsorted(density_values, density_pts_m2[block]))
 
-    present = np.unique(np.concatenate([np.unique(keys(b)) for b in blocks]
+    present = np.unique(np.concatenate([_distinct(keys(b)) for b in blocks]
                                        or [np.zeros(0, np.int64)]))
     dtype = np.uint16 if len(present) <= np.iinfo(np.uint16).max else np.int32
     face_class: NDArray[np.integer[Any]] = np.empty(len(faces), dtype)
