@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from planner.method import candidates
 from planner.scene import build_scene, remesh
-from tests.planner.buildings import office_building
+from tests.planner.buildings import STOREY_M, office_building
 
 
 @pytest.mark.parametrize("n_points", [40, 3000])
@@ -28,3 +30,25 @@ def test_faces_far_from_every_tripod_change_no_clearance_verdict(
     every_face = candidates.closer_than(scene, points, 0.3, floor_z)
     assert 0 < near.sum() < n_points
     assert np.array_equal(near, every_face)
+
+
+def test_faces_between_the_storeys_spans_change_no_clearance_verdict(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Tripods on two storeys: only faces reaching into some tripod's own span are split
+    and searched (a floor and the slab under the next storey lie between the spans); the
+    verdicts are those of the whole range from the lowest floor to the highest tripod."""
+    mesh = office_building(2, 2)
+    scene = dataclasses.replace(
+        build_scene(np.asarray(mesh.vertices), np.asarray(mesh.faces)), split_max_edge_m=0.2)
+    rng = np.random.default_rng(7)
+    low, high = scene.vertices.min(axis=0), scene.vertices.max(axis=0)
+    floor_z = STOREY_M * rng.integers(0, 2, 2000)
+    points = np.column_stack([rng.uniform(low[:2], high[:2], size=(2000, 2)), floor_z + 1.5])
+    spans = candidates._merged_spans(floor_z + 0.01, points[:, 2] + 0.3)
+    assert len(spans[0]) == 2  # one span a storey
+    near = candidates.closer_than(scene, points, 0.3, floor_z)
+    monkeypatch.setattr(candidates, "_merged_spans", lambda lows, highs: (
+        np.array([lows.min()]), np.array([highs.max()])))
+    hull = candidates.closer_than(scene, points, 0.3, floor_z)
+    assert 0 < near.sum() < len(points)
+    assert np.array_equal(near, hull)
