@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+import trimesh
 
 from planner.method import candidates
 from planner.scene import build_scene, remesh
@@ -36,14 +37,23 @@ def test_faces_between_the_storeys_spans_change_no_clearance_verdict(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Tripods on two storeys: only faces reaching into some tripod's own span are split
     and searched (a floor and the slab under the next storey lie between the spans); the
-    verdicts are those of the whole range from the lowest floor to the highest tripod."""
-    mesh = office_building(2, 2)
+    verdicts are those of the whole range from the lowest floor to the highest tripod. A
+    shelf hangs in the top of each storey's spans (1.5 - 1.7 m over the floor, the tripods'
+    spans reaching 1.8 m), another between them (2.2 - 2.4 m), with tripods around both."""
+    office = office_building(2, 2)
+    low, high = office.bounds
+    shelf_xy = (low[:2] + high[:2]) / 2 + [1.0, 0.0]
+    shelves = [trimesh.creation.box(extents=[0.6, 0.4, 0.2], transform=trimesh.transformations
+                                    .translation_matrix([*shelf_xy, storey + z]))
+               for storey in (0.0, STOREY_M) for z in (1.6, 2.3)]
+    mesh = trimesh.util.concatenate([office, *shelves])
     scene = dataclasses.replace(
         build_scene(np.asarray(mesh.vertices), np.asarray(mesh.faces)), split_max_edge_m=0.2)
     rng = np.random.default_rng(7)
-    low, high = scene.vertices.min(axis=0), scene.vertices.max(axis=0)
-    floor_z = STOREY_M * rng.integers(0, 2, 2000)
-    points = np.column_stack([rng.uniform(low[:2], high[:2], size=(2000, 2)), floor_z + 1.5])
+    xy = np.vstack([rng.uniform(low[:2], high[:2], size=(2000, 2)),
+                    shelf_xy + rng.uniform(-1.0, 1.0, size=(400, 2))])
+    floor_z = STOREY_M * rng.integers(0, 2, len(xy))
+    points = np.column_stack([xy, floor_z + 1.5])
     spans = candidates._merged_spans(floor_z + 0.01, points[:, 2] + 0.3)
     assert len(spans[0]) == 2  # one span a storey
     near = candidates.closer_than(scene, points, 0.3, floor_z)
