@@ -5,19 +5,22 @@ the end. :func:`release_freed_memory` runs between the stages of a plan: glibc k
 freed blocks below its (growing, up to 32 MB) mmap threshold in the heap for reuse, so
 the many mid-sized arrays a stage frees (a block of pairs, a station's overlap row) would
 stay in the worker's RSS under the next stage's peak. ``malloc_trim`` hands back every
-whole free page. :func:`bound_heap` keeps such arrays out of the heap in the first place.
-Elsewhere (musl, macOS) both do nothing.
+whole free page, and :func:`released_every` calls it within a stage, every so many
+results its threads hand over. :func:`bound_heap` keeps such arrays out of the heap in the
+first place. Elsewhere (musl, macOS) both do nothing.
 """
 
 from __future__ import annotations
 
 import ctypes
 import functools
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
+
+_Item = TypeVar("_Item")
 
 
 @functools.cache
@@ -61,6 +64,21 @@ def release_freed_memory() -> None:
     trim = _malloc_trim()
     if trim is not None:
         trim(0)
+
+
+def released_every(items: Iterable[_Item], every: int) -> Iterator[_Item]:
+    """``items`` as they come, the heap's free pages handed back
+    (:func:`release_freed_memory`) after every ``every`` items, and once more at the end
+    when more than ``every`` came. For results made on worker threads: each thread frees
+    its scratch into a heap of its own, where it stays resident until a trim."""
+    count = 0
+    for count, item in enumerate(items, start=1):
+        yield item
+        del item  # let go before the trim: the reader has it, or has dropped it
+        if count % every == 0:
+            release_freed_memory()
+    if count > every and count % every:
+        release_freed_memory()
 
 
 class GrowingArray:

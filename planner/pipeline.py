@@ -22,7 +22,7 @@ import numpy as np
 
 from planner.errors import CancelledError, NothingVisibleError
 from planner.io.orientation import scene_rotation, to_plan
-from planner.memory import bound_heap, release_freed_memory
+from planner.memory import bound_heap, release_freed_memory, released_every
 from planner.method.bundles import bundle_culler, forget_bundles
 from planner.method.candidates import CandidateSet, explicit_candidates, generate_grid
 from planner.method.connectivity import Connectivity
@@ -171,8 +171,9 @@ def plan(
     t1 = time.perf_counter()
     _new_stage(progress, "visibility")
     table = CoverageTable.from_blocks(
-        _trimmed(_qualified_blocks(scene, spec, candidates.positions, limits, occlusion, stats,
-                                   progress=progress, threads=threads)),
+        released_every(_qualified_blocks(scene, spec, candidates.positions, limits, occlusion,
+                                         stats, progress=progress, threads=threads),
+                       TRIM_EVERY_BLOCKS),
         len(candidates), scene.areas)
     stats.qualified_pairs = table.n_pairs
     stats.seconds["visibility"] = time.perf_counter() - t1
@@ -275,17 +276,19 @@ def plan(
         # its threads' freed scratch, still in their arenas (the office: 320 MB), before the
         # densities and the per-face results make the next peak
         release_freed_memory()
-    # the table keeps no densities: the chosen stations' pairs are qualified again, alone,
-    # and read block by block; with a scanner, each station's least density margin over
-    # the faces it is credited with chooses its setting (planner.scanners)
-    # a few stations: not worth making the bundles again; small blocks, as the per-face
-    # results they fill are made beside them where the plan's memory peaks
+    # the table keeps no densities: the chosen stations' are computed again for the
+    # per-face results, a station or a block at a time; with a scanner, each station's
+    # least density margin over the faces it is credited with chooses its setting
+    # (planner.scanners)
     if spec.coverage_model == "centroid":
         # a station's faces are its row of the table (robust or not): only their LPDs,
         # without the pair search and the rays again (the office's 218 stations: 20 M rays)
         densities: Iterator[QualifiedPairs] = _table_densities(
             scene, limits, table, chosen.stations, stations_xyz)
     else:
+        # the sampled model's pairs qualified again, alone: a few stations, not worth
+        # making the bundles again; small blocks, as the per-face results they fill are
+        # made beside them where the plan's memory peaks
         densities = _qualified_blocks(
             scene, spec, stations_xyz, limits, occlusion, stats,
             threads=threads, bundles=False, most_tests=TESTS_PER_BLOCK // 4)
@@ -320,26 +323,15 @@ def _table_densities(scene: Scene, limits: FaceLimits, table: CoverageTable,
                              lpd_of_faces(scene, limits, stations_xyz[order], faces))
 
 
-# blocks of qualified pairs read between two trims of the heap in the visibility stage
+# blocks of qualified pairs read between two trims of the heap in the visibility stage.
+# Its threads free mid-sized scratch (a block's visible pairs, its sort order: 1 to 32 MB)
+# into their own arenas, where it stays resident among the blocks still in use. Measured
+# on the 9.7 M-face office, the stage alone: a peak of 1,910 and 1,962 MiB without trims,
+# 1,796 with one every 64 blocks (1,793 every 16), CPU time the same within the runs'
+# spread (122.6-126.8 s without, 125.7 s with). Keeping such arrays out of the heap
+# altogether (planner.memory.bound_heap, from the selection on) costs a fresh page at
+# every first touch instead.
 TRIM_EVERY_BLOCKS = 64
-
-
-def _trimmed(blocks: Iterator[QualifiedPairs], every: int = TRIM_EVERY_BLOCKS
-             ) -> Iterator[QualifiedPairs]:
-    """``blocks`` as they come, the heap's free pages handed back every ``every`` blocks.
-
-    The visibility's threads free mid-sized scratch (a block's visible pairs, its sort
-    order: 1 to 32 MB) into their own arenas, where it stays resident among the blocks
-    still in use. Measured on the 9.7 M-face office, the stage alone: a peak of 1,910 and
-    1,962 MiB without trims, 1,796 with one every 64 blocks (1,793 every 16), CPU time the
-    same within the runs' spread (122.6-126.8 s without, 125.7 s with). Keeping such arrays
-    out of the heap altogether (:func:`planner.memory.bound_heap`, from the selection on)
-    costs a fresh page at every first touch instead.
-    """
-    for count, block in enumerate(blocks, start=1):
-        yield block
-        if count % every == 0:
-            release_freed_memory()
 
 
 def _split_as_needed(scene: Scene, spec: PlanSpec, positions: np.ndarray, limits: FaceLimits,

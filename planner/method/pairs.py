@@ -199,9 +199,9 @@ def sorted_by_face(candidate: NDArray[np.int32], face: NDArray[np.int32]) -> NDA
 
     Where the candidate (less the lowest), the face and the pair's index fit in 63 bits
     (a block of candidates: some 6 + 24 + 24 bits on a 10 M-face model), the index rides in
-    the low bits of the key and the keys themselves are sorted, which numpy does several
-    times faster than an argsort (2.4 CPU s less over the 9.7 M-face office's 127 M
-    visible pairs); the order is the same, as no two keys are equal.
+    the low bits of the key and the keys themselves are sorted, which numpy does faster
+    than an argsort (600,000 pairs of 16 candidates on a 9.7 M-face model: 6.1 ms instead
+    of 14.3 ms); the order is the same, as no two keys are equal.
     """
     n = len(face)
     if n == 0:

@@ -43,7 +43,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
-from planner.memory import release_freed_memory
+from planner.memory import released_every
 from planner.method.bundles import bundle_culler
 from planner.method.connectivity import OverlapGraph
 from planner.method.coverage import CoverageTable
@@ -132,11 +132,10 @@ class OverlapRows:
         with ThreadPoolExecutor(max_workers=min(self.workers, len(todo))) as pool:
             parallel = len(todo) > 1 and self.workers > 1
             results = pool.map(self._row, todo) if parallel else map(self._row, todo)
-            for count, (c, (faces, rays)) in enumerate(zip(todo, results, strict=True), 1):
+            for c, (faces, rays) in zip(todo, released_every(results, _TRIM_EVERY_ROWS),
+                                        strict=True):
                 self._rows[c] = faces
                 self.rays_cast += rays
-                if count % _TRIM_EVERY_ROWS == 0 or count == len(todo) > _TRIM_EVERY_ROWS:
-                    release_freed_memory()
         self.seconds += time.perf_counter() - started
 
     def shared_matrix(self, candidates: Sequence[int] | NDArray[np.integer[Any]]
