@@ -20,9 +20,10 @@ install: $(STAMP)  ## create .venv and install the project with its dev tools
 serve: $(STAMP)  ## start the API and its workers on the embedded default (SQLite, no Redis)
 	$(BIN)/scanplan serve
 
-test: $(STAMP)  ## run the whole test suite (lint, types, tests)
+test: $(STAMP)  ## run the whole test suite (lint, types, layering, tests)
 	$(BIN)/ruff check planner service tests benchmarks
 	$(BIN)/mypy
+	$(BIN)/lint-imports
 	$(BIN)/python -m pytest
 
 lint: $(STAMP)  ## ruff only

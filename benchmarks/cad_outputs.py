@@ -26,8 +26,8 @@ NEW = ("plan.dxf", "plan.pdf")
 
 
 def make_plan(name: str) -> object:
+    from planner.candidates.grid import read_candidates_csv
     from planner.io.readers import read_scene
-    from planner.method.candidates import read_candidates_csv
     from planner.parameters import PlanSpec
     from planner.pipeline import plan
 

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
+from planner.candidates.grid import read_candidates_csv
 from planner.errors import PlannerError
 from planner.io.readers import read_scene
-from planner.method.candidates import read_candidates_csv
 from planner.outputs.report import write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan

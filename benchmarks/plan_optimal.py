@@ -18,11 +18,11 @@ import sys
 import time
 from pathlib import Path
 
+from planner.candidates.grid import read_candidates_csv
 from planner.io.readers import read_scene
-from planner.method.candidates import read_candidates_csv
-from planner.method.optimal import choose_stations
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
+from planner.selection.optimal import choose_stations
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 

@@ -28,17 +28,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 import planner.truth.simulation as simulation
+from planner.candidates.grid import read_candidates_csv
 from planner.io.readers import read_scene
-from planner.method.candidates import read_candidates_csv
-from planner.method.coverage import CoverageTable, QualifiedPairs
-from planner.method.pairs import FaceLimits
-from planner.method.sampled import (
+from planner.parameters import PlanSpec
+from planner.rays import make_occlusion
+from planner.selection.greedy import greedy
+from planner.truth.simulation import ScanPattern, simulate_scan
+from planner.visibility.coverage import CoverageTable, QualifiedPairs
+from planner.visibility.pairs import FaceLimits
+from planner.visibility.sampled import (
     SampledQualifier,
 )
-from planner.method.selection import greedy
-from planner.method.visibility import make_occlusion
-from planner.parameters import PlanSpec
-from planner.truth.simulation import ScanPattern, simulate_scan
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 

@@ -25,14 +25,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np
 
+from planner.candidates.grid import read_candidates_csv
+from planner.candidates.placement import displaced_positions, offsets_m
 from planner.io.readers import read_scene
-from planner.method.candidates import read_candidates_csv
-from planner.method.placement import displaced_positions, offsets_m
-from planner.method.visibility import make_ray_caster
 from planner.parameters import PlanSpec
-from planner.pipeline import PlanResult, _qualifier, plan
-from planner.survey.registration import OverlapRows
+from planner.pipeline import PlanResult, plan
+from planner.rays import make_ray_caster
 from planner.survey.tolerance import placement_tolerance
+from planner.visibility import Sight
+from planner.visibility.overlap import OverlapRows
 
 SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 
@@ -59,7 +60,7 @@ def worst_losses(result: PlanResult, offsets: np.ndarray) -> list[float]:
         scene, result.table, result.chosen.stations,
         displaced_positions(scene, stations, spec.placement_tolerance_m, spec.clearance_m,
                             caster, offsets),
-        limits, _qualifier(scene, spec, occlusion),  # type: ignore[arg-type]
+        limits, Sight(scene, spec, limits, occlusion, "embree").qualifier(),
         tolerance_m=spec.placement_tolerance_m,
         covered_area_m2=result.chosen.covered_area_m2[-1],
         goal_area_m2=spec.coverage_goal * result.table.max_achievable_area_m2,

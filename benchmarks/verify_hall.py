@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from planner.candidates.grid import read_candidates_csv
 from planner.io.readers import read_scene
-from planner.method.candidates import read_candidates_csv
 from planner.parameters import COVERAGE_MODELS, PlanSpec
 from planner.pipeline import plan
 from planner.truth.verification import verify

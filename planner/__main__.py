@@ -64,8 +64,8 @@ def load_params(path: str | None) -> dict[str, Any]:
 def run_plan(args: argparse.Namespace) -> int:
     # imported here, not at the top: they bring numpy, scipy, trimesh and numba, which
     # ``scanplan --help`` and the service's subcommands do not need
+    from planner.candidates.grid import read_candidates_csv
     from planner.io.readers import read_scene
-    from planner.method.candidates import read_candidates_csv
     from planner.outputs.report import absent_outputs, write_outputs
     from planner.pipeline import plan
 
@@ -93,7 +93,7 @@ def run_plan(args: argparse.Namespace) -> int:
     if not args.quiet:
         plan_doc = json.loads(written[0].read_text())
         totals = plan_doc["totals"]
-        from planner.method.candidates import levels_line
+        from planner.candidates.grid import levels_line
 
         line = levels_line(plan_doc["candidates"].get("levels"))
         if line:

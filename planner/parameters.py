@@ -75,7 +75,7 @@ class PlanSpec:
     min_density_pts_m2: float = 45_000.0
     coverage_goal: float = 0.8
     group_requirements: Mapping[str, GroupRequirement] = field(default_factory=dict)
-    # coverage model (planner.method.sampled): "centroid" is the paper's one ray per face
+    # coverage model (planner.visibility.sampled): "centroid" is the paper's one ray per face
     coverage_model: CoverageModel = "centroid"
     samples_per_face: int = 16
     min_sampled_fraction: float = 1.0
@@ -123,7 +123,7 @@ class PlanSpec:
     route_start: tuple[float, float, float] | None = None  # null: the route chooses
     setup_time_s: float | None = None  # per station; null: the preset's, else 60 s
     walking_speed_m_s: float = 0.8
-    # placement tolerance (planner.method.placement): the report of what each station keeps
+    # placement tolerance (planner.candidates.placement): the report of what each station keeps
     # when set up anywhere within this radius (0: no report), and robust planning (a face
     # counts for a candidate only when it qualifies from every displaced position)
     placement_tolerance_m: float = 0.25

@@ -74,7 +74,7 @@ class Scene:
     split_max_edge_m : faces longer than this are still to be split (a scene read with
         ``split_faces="as_needed"``): :func:`planner.pipeline.plan` splits, once it knows the
         candidates, only the faces some candidate can qualify part of
-        (:mod:`planner.method.splitting`); None: the faces are final
+        (:mod:`planner.visibility.splitting`); None: the faces are final
 
     Groups and elements are kept per file face, so the pieces of a remeshed scene carry no
     (F,) copies of them (on a 9.7 M-face office two such arrays were 74 MB of every stage's

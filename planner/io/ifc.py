@@ -49,10 +49,7 @@ floor_z_m, area_m2, polygon, holes}]``, one per IfcSpace with geometry, ordered 
 then name. The floor polygon is the outline of the space's volume projected on the XY
 plane (union of its projected triangles), its floor the lowest point of the volume.
 
-Candidates from rooms
----------------------
-:func:`room_candidates` lives in :mod:`planner.method.rooms` and is re-exported here, where the
-pipeline looks for it.
+The candidates in those rooms are made by :mod:`planner.candidates.rooms`.
 """
 
 from __future__ import annotations
@@ -68,10 +65,9 @@ from numpy.typing import NDArray
 from shapely import MultiPolygon, Polygon
 
 from planner.errors import SceneError
-from planner.method.rooms import room_candidates, select_spaces
 from planner.scene import Element, Scene, build_scene
 
-__all__ = ["default_requirements", "read_ifc", "room_candidates", "select_spaces"]
+__all__ = ["default_requirements", "read_ifc"]
 
 SUPPORTED_SCHEMAS = ("IFC2X3", "IFC4", "IFC4X3")
 NON_PHYSICAL = ("IfcSpace", "IfcOpeningElement", "IfcVirtualElement", "IfcAnnotation",

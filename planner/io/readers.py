@@ -94,7 +94,7 @@ def read_scene(
     split_faces : "all" splits every face longer than ``max_edge_m`` now; "as_needed" keeps
         the file's faces and leaves the split to :func:`planner.pipeline.plan`, which splits
         only the faces a candidate can qualify part of (``Scene.split_max_edge_m``,
-        :mod:`planner.method.splitting`)
+        :mod:`planner.visibility.splitting`)
     unit_scale : multiply coordinates by this (0.001 for a model in millimetres); must be
         1 for IFC, which is converted from its own length unit
     up_axis : the model's up, one of :data:`planner.io.orientation.UP_AXES`; None follows the

@@ -16,7 +16,7 @@ site).
 Why an element cannot be covered
 --------------------------------
 For an element with target area but no coverable face, every target face is tested again
-against every candidate with the analytic limits of :mod:`planner.method.pairs`. Each pair fails
+against every candidate with the analytic limits of :mod:`planner.visibility.pairs`. Each pair fails
 some of four checks:
 
 - ``too_close``: nearer than ``dof_min_m``;

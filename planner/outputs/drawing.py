@@ -50,12 +50,12 @@ from matplotlib.path import Path
 from matplotlib.ticker import MaxNLocator
 from numpy.typing import NDArray
 
+from planner.candidates.grid import levels_line
 from planner.io.orientation import scene_rotation, to_model
 from planner.memory import release_freed_memory
-from planner.method.candidates import levels_line
-from planner.method.curve import coverage_curve
-from planner.method.density import density_range_m
 from planner.pipeline import PlanResult
+from planner.selection.curve import coverage_curve
+from planner.visibility.density import density_range_m
 
 # --- face classes and their colours (sRGB 0-255) -------------------------------------------
 

@@ -41,10 +41,10 @@ import numpy as np
 
 from planner.io.orientation import scene_rotation, to_model
 from planner.memory import release_freed_memory
-from planner.method.curve import coverage_curve
-from planner.method.selection import GOAL_SLACK_M2
 from planner.outputs.canonical import canonical_json as canonical_json  # re-exported
 from planner.pipeline import PlanResult
+from planner.selection.curve import coverage_curve
+from planner.selection.greedy import GOAL_SLACK_M2
 
 FORMAT_VERSION = 1
 _AREA_DECIMALS = 6

@@ -16,19 +16,15 @@ import scipy.sparse as sp
 
 from planner.io.orientation import scene_rotation, to_plan
 from planner.memory import release_freed_memory
-from planner.method.pairs import FaceLimits
-from planner.method.visibility import Occlusion, RayCaster, make_ray_caster
-from planner.method.walkgraph import build_walk_graph, door_faces
 from planner.parameters import DEFAULT_ANGULAR_STEP_RAD, PlanSpec
+from planner.rays import Occlusion, RayCaster, make_ray_caster
 from planner.scanners import StationScan, missing_duration_reason, station_scans, step_note
 from planner.scene import Scene
-from planner.survey.registration import (
-    OverlapRows,
-    Registration,
-    shared_faces_only,
-    station_registration,
-)
+from planner.survey.registration import Registration, station_registration
 from planner.survey.route import Route, plan_route
+from planner.visibility.overlap import OverlapRows, shared_faces_only
+from planner.visibility.pairs import FaceLimits
+from planner.walkgraph import build_walk_graph, door_faces
 
 DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the scanner gives one
 

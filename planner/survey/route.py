@@ -1,6 +1,6 @@
 """The walking route: the order to visit the stations, and the path of every leg.
 
-Each station is attached to the walk graph (:mod:`planner.method.walkgraph`) at the nearest floor
+Each station is attached to the walk graph (:mod:`planner.walkgraph`) at the nearest floor
 sample below it whose knee-height segment to the station's foot is free; shortest paths on
 the graph come from ``scipy.sparse.csgraph.dijkstra``. The visiting order is a shortest
 open tour (a path, no return) over those distances: exact (Held-Karp) up to
@@ -28,8 +28,8 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from planner.errors import ParameterError
-from planner.method.visibility import RayCaster
-from planner.method.walkgraph import KNEE_HEIGHT_M, STEP_M, WalkGraph, segment_free
+from planner.rays import RayCaster
+from planner.walkgraph import KNEE_HEIGHT_M, STEP_M, WalkGraph, segment_free
 
 # a station attaches to a floor sample at most this far away horizontally (grid units)
 _ATTACH_CELLS = 2.0

@@ -1,6 +1,6 @@
 """What a plan keeps when each tripod lands up to ``placement_tolerance_m`` off its station.
 
-Every station is evaluated at its displaced setups (:mod:`planner.method.placement`: the
+Every station is evaluated at its displaced setups (:mod:`planner.candidates.placement`: the
 station and 8 points on the circle, those that stand on its floor). Definitions:
 
 - A station's *area lost* at a setup: the area of the faces the plan covers from that
@@ -35,21 +35,21 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import minimum_spanning_tree
 
-from planner.method.coverage import CoverageTable, QualifiedPairs
-from planner.method.pairs import FaceLimits, PairFinder
-from planner.method.placement import Displaced, Qualify, kept_faces
-from planner.method.selection import GOAL_SLACK_M2
-from planner.method.visibility import Occlusion, make_occlusion
-from planner.method.walkgraph import door_faces
+from planner.candidates.placement import Displaced, displaced_positions
+from planner.progress import Stats
+from planner.rays import Occlusion, make_occlusion
 from planner.scene import Scene
-from planner.survey.registration import (
-    MIN_CONSTRAINT,
-    Registration,
-    overlap_limits,
-    shared_faces_only,
-    station_registration,
-)
+from planner.selection.connected import MIN_CONSTRAINT
+from planner.selection.greedy import GOAL_SLACK_M2, Selection
+from planner.survey.registration import Registration, station_registration
 from planner.threads import in_block_order
+from planner.visibility.bundles import forget_bundles
+from planner.visibility.coverage import CoverageTable, QualifiedPairs
+from planner.visibility.overlap import OverlapRows, overlap_limits, shared_faces_only
+from planner.visibility.pairs import FaceLimits, PairFinder
+from planner.visibility.qualify import Sight
+from planner.visibility.robust import Qualify, kept_faces
+from planner.walkgraph import door_faces
 
 # pair tests of a station's displaced setups made at a time by the worst-case network:
 # a station shares up to some 10^5 faces with its neighbours, and almost all of them pass
@@ -365,3 +365,38 @@ def _strongest_forest(registration: Registration, n: int) -> list[tuple[int, int
     tree = minimum_spanning_tree(weights.tocsr()).tocoo()
     return sorted((min(a, b), max(a, b))
                   for a, b in zip(tree.row.tolist(), tree.col.tolist(), strict=True))
+
+
+def plan_tolerance(sight: Sight, table: CoverageTable, chosen: Selection,
+                   stations_xyz: NDArray[np.float64], station_overlap: sp.csr_matrix | None,
+                   stats: Stats, *, threads: int | None = None
+                   ) -> tuple[Tolerance, sp.csr_matrix]:
+    """The tolerance report of the plan's ``chosen`` stations at (S, 3) ``stations_xyz``,
+    and the stations' overlap rows it was judged with (``station_overlap`` when the
+    selection made them; otherwise made here, cut to the faces two stations share as the
+    survey cuts them, so the survey reuses them)."""
+    scene, spec = sight.scene, sight.spec
+    if station_overlap is None:  # the survey's rows, made once for both (its "overlap"),
+        # cut to the faces two stations share as the survey cuts them (no whole matrix)
+        t_rows = time.perf_counter()
+        station_overlap = OverlapRows(
+            scene, stations_xyz, sight.limits, sight.occlusion,
+            spec.overlap_density_pts_m2, threads=threads,
+            file_faces=sight.file_faces).shared_matrix(range(len(chosen.stations)))
+        stats.seconds["overlap"] = time.perf_counter() - t_rows
+    forget_bundles(scene)  # only the overlap rows reach far enough to use them
+    t_tolerance, cpu_tolerance = time.perf_counter(), time.process_time()
+    displaced = displaced_positions(
+        scene, stations_xyz, spec.placement_tolerance_m, spec.clearance_m, sight.caster)
+    stats.seconds["tolerance_setups"] = time.perf_counter() - t_tolerance
+    tolerance = placement_tolerance(
+        scene, table, chosen.stations, displaced, sight.limits, sight.qualifier(),
+        tolerance_m=spec.placement_tolerance_m,
+        covered_area_m2=chosen.covered_area_m2[-1] if chosen.stations else 0.0,
+        goal_area_m2=spec.coverage_goal * table.max_achievable_area_m2,
+        station_overlap=station_overlap, min_overlap_m2=spec.min_overlap_m2,
+        overlap_density_pts_m2=spec.overlap_density_pts_m2, occlusion=sight.occlusion,
+        file_faces=sight.file_faces, threads=threads, seconds=stats.seconds)
+    stats.seconds["tolerance"] = time.perf_counter() - t_tolerance
+    stats.cpu_seconds["tolerance"] = time.process_time() - cpu_tolerance
+    return tolerance, station_overlap

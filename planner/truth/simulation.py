@@ -44,9 +44,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import CancelledError
-from planner.method.pairs import FaceLimits
 from planner.parameters import PlanSpec
 from planner.scene import Scene
+from planner.visibility.pairs import FaceLimits
 
 # Longest edge of a hole bin: 0.1 m is the size of a target or a bolt a survey must not
 # miss, and still holds ~100 returns at the paper's 45,000 pts/m^2 requirement.
@@ -173,7 +173,7 @@ def simulate_scan(
     threads: int | None = None,
 ) -> ScanCounts:
     """Fire the pattern from every (S, 3) station and count the returns per face and bin."""
-    from planner.method._embree import EmbreeOcclusion
+    from planner.rays.embree import EmbreeOcclusion
 
     caster = EmbreeOcclusion(scene, limits.occludes)
     stations = np.asarray(stations_xyz, np.float64).reshape(-1, 3)

@@ -34,7 +34,6 @@ from numpy.typing import NDArray
 
 from planner.errors import PlannerError
 from planner.io.orientation import scene_rotation, to_plan
-from planner.method.pairs import FaceLimits
 from planner.parameters import PlanSpec
 from planner.scene import Scene, remesh
 from planner.truth.simulation import (
@@ -45,6 +44,7 @@ from planner.truth.simulation import (
     ScanPattern,
     simulate_scan,
 )
+from planner.visibility.pairs import FaceLimits
 
 VERIFICATION_FORMAT_VERSION = 1
 _DECIMALS = 6
@@ -262,7 +262,7 @@ def read_plan_dir(plan_dir: str | Path) -> PlanFiles:
 def split_as_planned(scene: Scene, files: PlanFiles) -> Scene:
     """``scene`` (read with ``split_faces="as_needed"``) split as the plan in ``files`` split
     it: a file face in more than one piece of faces.npz ``source_face`` was split, the others
-    were kept whole (:mod:`planner.method.splitting`)."""
+    were kept whole (:mod:`planner.visibility.splitting`)."""
     if scene.split_max_edge_m is None:
         return scene
     source_face = files.faces.get("source_face")

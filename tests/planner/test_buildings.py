@@ -15,14 +15,14 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
+from planner.candidates.grid import CandidateSet, generate_grid, levels_line
 from planner.io.readers import read_scene
-from planner.method.candidates import CandidateSet, generate_grid, levels_line
-from planner.method.pairs import FaceLimits
-from planner.method.visibility import RayCaster, make_ray_caster
-from planner.method.walkgraph import build_walk_graph, door_faces
 from planner.parameters import PlanSpec
+from planner.rays import RayCaster, make_ray_caster
 from planner.scene import Scene, build_scene
 from planner.survey.route import Route, plan_route
+from planner.visibility.pairs import FaceLimits
+from planner.walkgraph import build_walk_graph, door_faces
 from tests.planner import buildings
 from tests.planner.buildings import (
     CORRIDOR_Y_M,
@@ -217,7 +217,7 @@ def ifc_reading(path: Path) -> Scene:
 
 def house_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateSet:
     if scene.metadata.get("spaces"):
-        from planner.io.ifc import room_candidates
+        from planner.candidates.rooms import room_candidates
 
         return room_candidates(scene, spec, caster)
     return generate_grid(scene, spec, caster)

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 import trimesh
 
-from planner.method._embree import quad_partners
-from planner.method.bundles import BundleCuller, bundles_of
-from planner.method.pairs import FaceLimits, PairFinder
-from planner.method.visibility import make_occlusion
 from planner.parameters import PlanSpec
-from planner.pipeline import qualify_pairs
+from planner.rays import make_occlusion
+from planner.rays.embree import quad_partners
 from planner.scene import Scene, build_scene, remesh
-from planner.survey.registration import OverlapRows, overlap_limits
+from planner.visibility import qualify_pairs
+from planner.visibility.bundles import BundleCuller, bundles_of
+from planner.visibility.overlap import OverlapRows, overlap_limits
+from planner.visibility.pairs import FaceLimits, PairFinder
 from tests.planner.buildings import office_building
 
 
@@ -195,7 +195,7 @@ def test_bundles_made_a_block_of_file_faces_at_a_time_are_those_made_at_once(
     """The bundles are numbered a block of whole file faces at a time; blocks of any size,
     and one block (pieces not in file order), give the same bundles, and the first piece of
     each file face is the one a sort of every piece finds."""
-    from planner.method import bundles as module
+    from planner.visibility import bundles as module
 
     shuffled = dataclasses.replace(office, source_face=office.source_face[::-1].copy())
     assert len(office.file_face_blocks(5_000)) > 10

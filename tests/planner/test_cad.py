@@ -28,13 +28,13 @@ import trimesh
 from ezdxf.document import Drawing
 from pypdf import PdfReader
 
+from planner.candidates.grid import CandidateSet, read_candidates_csv
 from planner.io.readers import read_scene
-from planner.method.candidates import CandidateSet, read_candidates_csv
-from planner.method.selection import Selection
 from planner.outputs import cad, drawing, printset
 from planner.outputs.report import plan_document, write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
+from planner.selection.greedy import Selection
 
 A3_PT = (420 / 25.4 * 72, 297 / 25.4 * 72)
 

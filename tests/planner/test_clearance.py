@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from planner.method import candidates
+from planner.candidates import grid as candidates
 from planner.scene import build_scene, remesh
 from tests.planner.buildings import STOREY_M, office_building
 

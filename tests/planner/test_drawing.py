@@ -12,8 +12,8 @@ import pytest
 from PIL import Image
 from scipy import ndimage
 
+from planner.candidates.grid import CandidateSet, read_candidates_csv
 from planner.io.readers import read_scene
-from planner.method.candidates import CandidateSet, read_candidates_csv
 from planner.outputs import drawing
 from planner.outputs.report import OUTPUTS, PICTURE_GROUPS, faces_npz, write_outputs
 from planner.parameters import PlanSpec

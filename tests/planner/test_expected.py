@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from planner.candidates.grid import read_candidates_csv
 from planner.io.readers import read_scene
-from planner.method.candidates import read_candidates_csv
-from planner.method.curve import GOALS
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
+from planner.selection.curve import GOALS
 
 
 def run_hall(scenes_dir: Path, name: str) -> tuple[PlanResult, dict]:

@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from planner.candidates.grid import read_candidates_csv
 from planner.errors import ParameterError
 from planner.io.readers import read_scene
-from planner.method.candidates import read_candidates_csv
 from planner.outputs.report import plan_document, stations_csv
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan

@@ -19,18 +19,18 @@ import pytest
 import trimesh
 from shapely import Polygon, intersects_xy
 
+from planner.candidates.grid import DROP_REASONS
+from planner.candidates.rooms import inside_elements, room_candidates
+from planner.candidates.winding import winding_numbers
 from planner.errors import NoCandidatesError, ParameterError, SceneError
-from planner.io.ifc import read_ifc, room_candidates
+from planner.io.ifc import read_ifc
 from planner.io.readers import read_scene
-from planner.method.candidates import DROP_REASONS
-from planner.method.pairs import FaceLimits
-from planner.method.rooms import inside_elements
-from planner.method.winding import winding_numbers
 from planner.outputs import bim
 from planner.outputs.report import plan_document, write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
 from planner.scene import Element, Scene, build_scene, remesh
+from planner.visibility.pairs import FaceLimits
 from tests.planner.ifc_models import read_ifc_once
 from tests.planner.ifc_parts import placed
 
@@ -64,7 +64,7 @@ def _spec(**changes: Any) -> PlanSpec:
 
 
 def _caster(scene: Scene, spec: PlanSpec) -> object:
-    from planner.method._embree import EmbreeOcclusion
+    from planner.rays.embree import EmbreeOcclusion
 
     return EmbreeOcclusion(scene, FaceLimits.from_spec(spec, scene).occludes)
 

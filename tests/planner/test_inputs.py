@@ -14,14 +14,14 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from planner.candidates.grid import generate_grid
+from planner.candidates.winding import _Cells, _direct
 from planner.errors import ParameterError
 from planner.io.readers import read_scene
-from planner.method.candidates import generate_grid
-from planner.method.visibility import make_ray_caster
-from planner.method.winding import _Cells, _direct
 from planner.outputs.report import plan_document, write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
+from planner.rays import make_ray_caster
 from planner.scene import Scene, build_scene, remesh
 from tests.planner.scenes import scene_of
 

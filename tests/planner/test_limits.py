@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from planner.candidates.grid import read_candidates_csv
 from planner.io.readers import read_scene
-from planner.method.candidates import read_candidates_csv
-from planner.method.density import density_range_m, local_point_density
-from planner.method.pairs import FaceLimits, PairFinder, lpd_of_faces
 from planner.parameters import GroupRequirement, PlanSpec
 from planner.pipeline import plan
+from planner.visibility.density import density_range_m, local_point_density
+from planner.visibility.pairs import FaceLimits, PairFinder, lpd_of_faces
 from tests.planner.scenes import scene_of, small_triangle, square
 
 ORIGIN = (0.0, 0.0, 0.0)

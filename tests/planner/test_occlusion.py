@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from planner.candidates.grid import read_candidates_csv
 from planner.io.readers import read_scene
-from planner.method import _embree
-from planner.method.candidates import read_candidates_csv
-from planner.method.pairs import FaceLimits, PairFinder
-from planner.method.visibility import make_occlusion
 from planner.parameters import PlanSpec
+from planner.rays import embree as _embree
+from planner.rays import make_occlusion
+from planner.visibility.pairs import FaceLimits, PairFinder
 
 
 @pytest.mark.parametrize("model", ["hall-small/hall.obj", "IfcOpenHouse_IFC4.ifc"])

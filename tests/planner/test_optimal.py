@@ -10,15 +10,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import planner.method.optimal as optimal
+import planner.selection.optimal as optimal
+from planner.candidates.fixed import fixed_candidates
+from planner.candidates.grid import read_candidates_csv
 from planner.errors import CancelledError, ParameterError
 from planner.io.readers import read_scene
-from planner.method.candidates import read_candidates_csv
-from planner.method.coverage import CoverageTable, QualifiedPairs
-from planner.method.selection import GainOrder, fixed_candidates, gain_units, greedy, replay
 from planner.outputs.report import plan_document
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
+from planner.selection.greedy import GainOrder, gain_units, greedy, replay
+from planner.visibility.coverage import CoverageTable, QualifiedPairs
 
 
 def table_of(sets: list[list[int]], n_faces: int) -> CoverageTable:
@@ -256,7 +257,7 @@ def test_the_table_gives_back_every_candidates_faces(monkeypatch: pytest.MonkeyP
     """The table keeps runs of consecutive faces; rows, counts per face and sums per
     candidate are those of the pairs it was built from, whatever runs they make: a run
     that ends where the next candidate's begins, runs split over two blocks, empty rows."""
-    import planner.method.coverage as coverage
+    import planner.visibility.coverage as coverage
 
     monkeypatch.setattr(coverage, "_SUM_BLOCK_PAIRS", 7)  # many blocks of candidates
     rng = np.random.default_rng(3)

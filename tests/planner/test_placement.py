@@ -20,17 +20,18 @@ import trimesh
 from numpy.typing import NDArray
 from trimesh.ray.ray_pyembree import RayMeshIntersector
 
+from planner.candidates.grid import read_candidates_csv
+from planner.candidates.placement import OFFSET_DIRECTIONS, displaced_positions, offsets_m
 from planner.errors import ParameterError
 from planner.io.readers import read_scene
-from planner.method.candidates import read_candidates_csv
-from planner.method.pairs import FaceLimits
-from planner.method.placement import OFFSET_DIRECTIONS, displaced_positions, offsets_m
-from planner.method.visibility import make_occlusion, make_ray_caster
 from planner.outputs.report import faces_npz, plan_document
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
-from planner.survey.registration import OverlapRows, station_registration
+from planner.rays import make_occlusion, make_ray_caster
+from planner.survey.registration import station_registration
 from planner.survey.tolerance import _worst_case_network
+from planner.visibility.overlap import OverlapRows
+from planner.visibility.pairs import FaceLimits
 from tests.planner.survey_scenes import boxes_scene, room_shell, two_rooms
 
 TOLERANCE_M = 0.25

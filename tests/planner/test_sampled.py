@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from planner.errors import ParameterError
-from planner.method.sampled import sample_stages, sample_weights
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
 from planner.scene import Scene
+from planner.visibility.sampled import sample_stages, sample_weights
 from tests.planner.scenes import scene_of, small_triangle, square
 
 SCANNER = [[0.0, 0.0, 0.0]]

@@ -14,13 +14,13 @@ import pytest
 import trimesh
 
 from planner import scene as scene_module
+from planner.candidates.grid import read_candidates_csv
 from planner.io.readers import read_scene
-from planner.method.candidates import read_candidates_csv
-from planner.method.pairs import FaceLimits, PairFinder
-from planner.method.visibility import make_occlusion
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
+from planner.rays import make_occlusion
 from planner.scene import build_scene, remesh
+from planner.visibility.pairs import FaceLimits, PairFinder
 
 ROOT = Path(__file__).resolve().parents[2]
 

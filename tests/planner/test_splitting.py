@@ -1,4 +1,4 @@
-"""Faces that no candidate can qualify any part of are kept whole (planner.method.splitting)."""
+"""Faces that no candidate can qualify any part of are kept whole (planner.visibility.splitting)."""
 
 from __future__ import annotations
 

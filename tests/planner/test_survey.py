@@ -10,22 +10,19 @@ import numpy as np
 import pytest
 
 from planner.__main__ import main
+from planner.candidates.grid import read_candidates_csv
 from planner.errors import ParameterError
 from planner.io.readers import read_scene
-from planner.method import connectivity
-from planner.method.candidates import read_candidates_csv
-from planner.method.visibility import make_occlusion, make_ray_caster
-from planner.method.walkgraph import KNEE_HEIGHT_M, build_walk_graph, segment_free
 from planner.outputs.report import plan_document, stations_csv
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
-from planner.survey.registration import (
-    MIN_CONSTRAINT,
-    overlap_matrix,
-    shared_faces_only,
-    station_registration,
-)
+from planner.rays import make_occlusion, make_ray_caster
+from planner.selection import connectivity
+from planner.selection.connected import MIN_CONSTRAINT
+from planner.survey.registration import station_registration
 from planner.survey.route import exact_open_tour, open_tour, plan_route
+from planner.visibility.overlap import overlap_matrix, shared_faces_only
+from planner.walkgraph import KNEE_HEIGHT_M, build_walk_graph, segment_free
 from tests.planner.survey_scenes import (
     MEZZANINE_Z_M,
     boxes_scene,
@@ -333,7 +330,7 @@ def test_shared_sums_equal_the_dense_masked_product() -> None:
     also for an empty station row and rows that share nothing."""
     import scipy.sparse as sp
 
-    from planner.survey.registration import _shared_with
+    from planner.selection.connected import _shared_with
 
     rng = np.random.default_rng(3)
     n_faces = 500
@@ -358,7 +355,8 @@ def test_station_pair_sums_equal_the_dense_masked_products() -> None:
     nothing, a row with no face, normals whose products cancel."""
     import scipy.sparse as sp
 
-    from planner.survey.registration import _SCATTER_TERMS, _shared_sums
+    from planner.selection.connected import SCATTER_TERMS
+    from planner.survey.registration import _shared_sums
 
     rng = np.random.default_rng(5)
     n_faces = 400
@@ -366,14 +364,14 @@ def test_station_pair_sums_equal_the_dense_masked_products() -> None:
     normals = rng.normal(size=(n_faces, 3))
     normals[::7, 0] = 0.0  # x products of exactly zero, some sums of +-0.0
     normals /= np.linalg.norm(normals, axis=1)[:, None]
-    weights6 = np.stack([normals[:, i] * normals[:, j] * area for i, j in _SCATTER_TERMS], 1)
+    weights6 = np.stack([normals[:, i] * normals[:, j] * area for i, j in SCATTER_TERMS], 1)
     rows = [np.sort(rng.choice(n_faces, k, replace=False)) for k in (120, 0, 300, 5, 200)]
     rows.append(np.setdiff1d(np.arange(n_faces), rows[0]))  # shares nothing with row 0
     matrix = sp.csr_matrix((np.ones(sum(map(len, rows))), np.concatenate(rows),
                             np.r_[0, np.cumsum([len(r) for r in rows])]),
                            shape=(len(rows), n_faces))
     sums = _shared_sums(matrix.indptr.astype(np.int32), matrix.indices.astype(np.int32),
-                        n_faces, area, normals, np.array(_SCATTER_TERMS))
+                        n_faces, area, normals, np.array(SCATTER_TERMS))
     assert sums.shape == (len(rows), len(rows), 7)
     for a, faces in enumerate(rows):
         mask = np.zeros(n_faces)

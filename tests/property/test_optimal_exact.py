@@ -10,10 +10,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.sparse.csgraph import breadth_first_order
 
-from planner.method.connectivity import OverlapGraph
-from planner.method.coverage import CoverageTable, QualifiedPairs
-from planner.method.optimal import solve_optimal
-from planner.method.selection import GOAL_SLACK_M2, greedy, replay
+from planner.selection.connectivity import OverlapGraph
+from planner.selection.greedy import GOAL_SLACK_M2, greedy, replay
+from planner.selection.optimal import solve_optimal
+from planner.visibility.coverage import CoverageTable, QualifiedPairs
 
 
 def table_of(sets: list[list[int]], areas: list[float]) -> CoverageTable:

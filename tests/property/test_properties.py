@@ -45,7 +45,7 @@ def first_hit_is_undefined(scene: Scene, candidate: np.ndarray, face: int) -> bo
     """The ray to ``face`` has no well-defined first hit: it grazes an occluder's edge (hit
     or miss depends on a 1e-6 tolerance), or another face lies at the target's distance
     (a duplicated surface, where either may count as first)."""
-    from planner.method._bruteforce import ray_triangle_distance
+    from planner.rays.bruteforce import ray_triangle_distance
 
     offset = scene.centroids[face] - candidate
     distance = float(np.linalg.norm(offset))

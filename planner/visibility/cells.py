@@ -2,7 +2,7 @@
 
 Cubes of side ``cell_m``: with cells at least the reach wide, whatever lies within reach
 of a point is in the 3 x 3 x 3 cells around the point's own (:func:`cells_around`, used by
-the bundles, :mod:`planner.method.bundles`); the pair search (:mod:`planner.method.pairs`)
+the bundles, :mod:`planner.visibility.bundles`); the pair search (:mod:`planner.visibility.pairs`)
 makes cells a fraction of the reach and keeps those that come within reach.
 """
 

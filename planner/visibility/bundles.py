@@ -10,7 +10,7 @@ candidate to the corners, rule out the whole bundle when they all hit the same o
 triangle T *clearly*:
 
 - each hit lies more than the clear margin inside every edge of T (the margin Embree's
-  rounding cannot cross, as for a single ray in :mod:`planner.method._embree`);
+  rounding cannot cross, as for a single ray in :mod:`planner.rays.embree`);
 - the candidate lies more than the margin in front of T's plane, and each corner more
   than the margin behind it.
 
@@ -21,7 +21,7 @@ piece of the bundle hits T first, in float64 and in either float32 mode, so the 
 verdict is "hidden" exactly as its own ray would give.
 
 T may also be the convex quad of two triangles of one plane that share their longest
-edge (:func:`planner.method._embree.quad_partners`: a wall's rectangle, whose diagonal
+edge (:func:`planner.rays.embree.quad_partners`: a wall's rectangle, whose diagonal
 would otherwise split most bundles behind it), when the four rays hit one or the other;
 the margins are then taken from the quad's outer edges. A ray that crosses the quad well
 inside them hits one of the two triangles in Embree's robust (watertight) mode; where the
@@ -47,9 +47,9 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.method.grid import PointGrid, pairs_in_reach
 from planner.scene import Scene
 from planner.threads import in_block_order
+from planner.visibility.cells import PointGrid, pairs_in_reach
 
 # sides of the bundles' squares in their face's plane, coarse to fine: a 2 m square of a
 # wall two rooms away usually fits behind one triangle of the wall between; where it does
@@ -279,7 +279,7 @@ class BundleCuller:
 
     def hidden(self, points: NDArray[np.float64]) -> tuple[HiddenBundles, int]:
         """The bundles hidden from each of the (B, 3) ``points`` (for
-        :meth:`planner.method.pairs.PairFinder.find`), and the number of rays cast."""
+        :meth:`planner.visibility.pairs.PairFinder.find`), and the number of rays cast."""
         points = np.asarray(points, np.float64)
         hidden = np.zeros((len(points), 0), bool)
         rays = 0

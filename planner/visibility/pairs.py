@@ -25,12 +25,12 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.method.bundles import HiddenBundles
-from planner.method.density import density_range_m
-from planner.method.grid import PointGrid
-from planner.method.visibility import ExactRays
 from planner.parameters import GroupRequirement, PlanSpec
+from planner.rays import ExactRays
 from planner.scene import Scene
+from planner.visibility.bundles import HiddenBundles
+from planner.visibility.cells import PointGrid
+from planner.visibility.density import density_range_m
 
 
 @dataclass(frozen=True, eq=False)
@@ -286,7 +286,7 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     and ``min_density`` (K: the distinct pairs of them, 1 without group requirements).
     Each point tests the faces of the cells its ``keys`` name (:func:`_cell_keys`). A
     face of a bundle hidden from the point (``bundle_of`` (F,), empty for none, and
-    ``hidden`` (B, K): :mod:`planner.method.bundles`) is left out untested: its ray would
+    ``hidden`` (B, K): :mod:`planner.visibility.bundles`) is left out untested: its ray would
     end in the occluder that hides the bundle.
 
     The search runs cell by cell: each cell's faces are read once and tested against

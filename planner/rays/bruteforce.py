@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from planner.scene import Scene
 
 if TYPE_CHECKING:
-    from planner.method.visibility import ExactRays
+    from planner.rays.protocols import ExactRays
 
 _CHUNK_WORK = 1_000_000  # ray-triangle tests per numpy step (~200 MB of temporaries)
 

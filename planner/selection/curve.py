@@ -10,10 +10,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
-from planner.method.selection import Selection
+from planner.selection.greedy import Selection
 
 if TYPE_CHECKING:
-    from planner.method.optimal import OptimalResult
+    from planner.selection.optimal import OptimalResult
 
 GOALS: tuple[float, ...] = tuple(round(0.05 * i, 2) for i in range(1, 21))
 

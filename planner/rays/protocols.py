@@ -1,9 +1,6 @@
-"""Occlusion: is the segment from a candidate to a face centroid free of other faces?
+"""What a ray caster answers: the occlusion test of the coverage pairs and first hits.
 
-One "reverse" ray per pair that passed the analytic limits, never a fixed angular pattern,
-so no face is missed by chance. Faces are two-sided. Backends share one protocol:
-``embree`` (the fast one, :mod:`planner.method._embree`) and ``bruteforce`` (the reference,
-:mod:`planner.method._bruteforce`: every occluder tested, closest hit must be the target).
+Array letters: P rays (one per candidate-face pair), R arbitrary rays.
 """
 
 from __future__ import annotations
@@ -14,9 +11,8 @@ from typing import Any, Literal, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.scene import Scene
-
 Backend = Literal["embree", "bruteforce"]
+
 
 # Rays end this factor past the target's distance: far enough for float32 rounding at the
 # target's surface (5 um at 5 m), near enough that nothing behind it is traversed.
@@ -56,33 +52,3 @@ class RayCaster(Protocol):
     ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
         """The face each (R, 3) ray hits first and its distance; -1 and inf for a miss."""
         ...
-
-
-def make_ray_caster(scene: Scene, occludes: NDArray[np.bool_], *,
-                    file_faces: bool = False) -> RayCaster:
-    """An Embree first-hit caster over the faces where ``occludes`` (F,) is true.
-
-    ``file_faces``: cast against the model's faces before remeshing (``scene.file_mesh``).
-    """
-    from planner.method._embree import EmbreeOcclusion
-
-    return EmbreeOcclusion(scene, occludes, file_faces=file_faces)
-
-
-def make_occlusion(scene: Scene, occludes: NDArray[np.bool_], backend: Backend, *,
-                   file_faces: bool = False) -> Occlusion:
-    """The occlusion test over the faces where ``occludes`` (F,) is true.
-
-    ``file_faces`` (Embree only): the rays are tested against the model's faces before
-    remeshing, and a hit on the target's ``source_face`` counts as reaching the target.
-    The brute-force reference always tests the scene's own (remeshed) faces.
-    """
-    if backend == "embree":
-        from planner.method._embree import EmbreeOcclusion
-
-        return EmbreeOcclusion(scene, occludes, file_faces=file_faces)
-    if backend == "bruteforce":
-        from planner.method._bruteforce import BruteForceOcclusion
-
-        return BruteForceOcclusion(scene, occludes)
-    raise ValueError(f"unknown visibility backend {backend!r}; use 'embree' or 'bruteforce'")

@@ -13,7 +13,7 @@ bottom is the floor: ``CandidateSet.floor_from_space`` names those rooms;
 ``blocked_above_floor``: a table, a stair under the scanner), when it is inside a closed
 object (``inside_geometry``), or when the tripod lacks ``clearance_m`` of room around its
 axis from that floor to above the scanner (``too_close``, as
-:func:`planner.method.candidates.closer_than` measures it). A point on the boundary shared by two
+:func:`planner.candidates.grid.closer_than` measures it). A point on the boundary shared by two
 rooms belongs to the first. Order: rooms as in
 ``metadata["spaces"]``, then grid rows (y, then x).
 """
@@ -26,17 +26,17 @@ import numpy as np
 from numpy.typing import NDArray
 from shapely import Polygon, intersects_xy
 
-from planner.errors import NoCandidatesError, ParameterError
-from planner.method.candidates import (
+from planner.candidates.grid import (
     DROP_REASONS,
     CandidateSet,
     closer_than,
     grid_points_xy,
     inside_closed_groups,
 )
-from planner.method.visibility import RayCaster
-from planner.method.winding import winding_numbers
+from planner.candidates.winding import winding_numbers
+from planner.errors import NoCandidatesError, ParameterError
 from planner.parameters import PlanSpec
+from planner.rays import RayCaster
 from planner.scene import Scene
 
 FLOOR_TOLERANCE_M = 0.3
@@ -220,7 +220,7 @@ def _clear(scene: Scene, positions: NDArray[np.float64], clearance_m: float,
            ) -> NDArray[np.bool_]:
     """(C,) bool: not inside an element's solid, and the tripod has ``clearance_m`` of room.
 
-    The room is measured as :func:`planner.method.candidates.closer_than` does, from the floor
+    The room is measured as :func:`planner.candidates.grid.closer_than` does, from the floor
     found under the scanner.
     """
     ok = np.ones(len(positions), bool)
@@ -240,7 +240,7 @@ def _clear(scene: Scene, positions: NDArray[np.float64], clearance_m: float,
 def inside_elements(scene: Scene, points: NDArray[np.float64]) -> NDArray[np.bool_]:
     """(N,) bool: inside some element's closed solid (winding number above one half).
 
-    Per element rather than per group (:func:`planner.method.candidates.inside_closed_groups`):
+    Per element rather than per group (:func:`planner.candidates.grid.inside_closed_groups`):
     an element's box holds few points. And on the file's triangles
     (:attr:`planner.scene.Scene.file_triangles`): the pieces of a triangle subtend the same
     solid angle as the triangle, so the winding number is the same at a fraction of the

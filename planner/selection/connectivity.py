@@ -26,17 +26,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import breadth_first_order, connected_components
 
-from planner.method.selection import Selection
-
-if TYPE_CHECKING:
-    from planner.method.optimal import ProgramBuilder
+from planner.selection.greedy import Selection
+from planner.selection.program import ProgramBuilder
 
 # above this many overlap edges (4 rows and 2 variables each) the MILP is not attempted
 MAX_FLOW_EDGES = 50_000
@@ -75,7 +72,7 @@ class OverlapGraph:
 
 @dataclass(frozen=True)
 class Connectivity:
-    """The constraint for :func:`planner.method.optimal.choose_stations`: the candidate
+    """The constraint for :func:`planner.selection.optimal.choose_stations`: the candidate
     overlap graph and the connected greedy plans (greedy, weighted greedy) to start from."""
 
     graph: OverlapGraph

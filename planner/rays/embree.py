@@ -13,8 +13,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import PlannerError
-from planner.method._bruteforce import ray_triangle_distance
-from planner.method.visibility import FAR_LIMIT_FACTOR, ExactRays
+from planner.rays.bruteforce import ray_triangle_distance
+from planner.rays.protocols import FAR_LIMIT_FACTOR, ExactRays
 from planner.scene import Scene
 
 try:
@@ -259,7 +259,7 @@ class EmbreeOcclusion:
                        ) -> NDArray[np.bool_]:
         """(P,) bool: the bundles whose (P, 4, 3) ``corners`` all lie clearly behind one
         occluding triangle or quad seen from the (P, 3) ``origins``
-        (:mod:`planner.method.bundles`): one robust cast of the four corner rays, the hits
+        (:mod:`planner.visibility.bundles`): one robust cast of the four corner rays, the hits
         checked in float64. The rays start where the pieces' own rays do, at the float32
         origin."""
         hidden = np.zeros(len(origins), bool)
@@ -542,7 +542,7 @@ def _bundle_hidden_kernel(  # compiled; compared with the pieces' own rays in te
     (``partner``, ``shared_edge``, ``far_vertex``: :func:`quad_partners`), more than
     ``margin_m`` inside the edges of T (of the convex quad the two make); the origin
     lies more than ``margin_m`` in front of T's plane and every corner more than
-    ``margin_m`` behind it (:mod:`planner.method.bundles`)."""
+    ``margin_m`` behind it (:mod:`planner.visibility.bundles`)."""
     for p in range(prim.shape[0]):
         face = prim[p, 0]
         if face < 0:

@@ -35,13 +35,13 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from shapely import Polygon, intersects_xy
 
+from planner.candidates.winding import winding_numbers
 from planner.errors import NoCandidatesError, ParameterError
-from planner.method.visibility import RayCaster
-from planner.method.walkgraph import HEADROOM_M, cell_pairs
-from planner.method.winding import winding_numbers
 from planner.parameters import PlanSpec
+from planner.rays import RayCaster
 from planner.scene import Scene, subdivide
 from planner.threads import in_block_order
+from planner.walkgraph import HEADROOM_M, cell_pairs
 
 DROP_REASONS = (
     "outside_area_of_interest",
@@ -239,7 +239,7 @@ def walkable_levels(
     The lowest *surface* under a point is the underside of a thick ground slab in many
     exported models, where "lowest" finds no floor at all; the lowest *level* is the first
     flat surface with head room. Reachable means: the candidate's floor point lies on a
-    node of the walk graph (:mod:`planner.method.walkgraph`: floor samples linked within a
+    node of the walk graph (:mod:`planner.walkgraph`: floor samples linked within a
     step and free at knee height, so stairs join storeys) whose connected component also
     holds a floor point of the lowest level. A machine or table top is a flat surface with
     head room, but no step leads onto it.
@@ -247,7 +247,7 @@ def walkable_levels(
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
-    from planner.method.walkgraph import build_walk_graph
+    from planner.walkgraph import build_walk_graph
 
     levels_dropped = dict.fromkeys(DROP_REASONS, 0)
     positions, level_of = place_on_levels(scene, xy, spec, caster, levels_dropped)

@@ -8,7 +8,7 @@ The selection stage (:func:`choose_stations`) runs both greedy heuristics, and f
    stations by one, and (partial goals) swap one for another where that covers more, which
    may let a later drop succeed. So even a plan stopped at the time limit is as good as it
    cheaply gets;
-3. HiGHS, in a child process killed at the deadline (:mod:`planner.method.highs_worker`):
+3. HiGHS, in a child process killed at the deadline (:mod:`planner.selection.highs_worker`):
 
    - goal 100 %: the set cover ``min sum x_c  s.t.  sum_{c covers k} x_c >= 1`` over face
      classes (faces seen by exactly the same candidates merge into one row). Most rows are
@@ -36,7 +36,7 @@ covered, the programs are solved for what is still missing, and they are never d
 Registration connectivity (``min_overlap_m2``, a ``graph`` for :func:`solve_optimal`): the
 incumbents are the connected greedy plans, every local-search move and repair must keep the
 chosen stations connected on the overlap graph, and every program gets the single-commodity
-flow of :mod:`planner.method.connectivity` (a MIP start from the incumbent included).
+flow of :mod:`planner.selection.connectivity` (a MIP start from the incumbent included).
 
 A hook for other side constraints: ``constraint_hooks`` are called with every program before
 it is solved (:class:`ProgramBuilder`; the first variables are the candidates' ``x``). The
@@ -57,10 +57,11 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from planner.method.connectivity import Connectivity, OverlapGraph, add_flow
-from planner.method.coverage import CoverageTable
-from planner.method.highs_worker import Answer, HighsProcess, Program
-from planner.method.selection import GOAL_SLACK_M2, Selection, greedy, replay
+from planner.selection.connectivity import Connectivity, OverlapGraph, add_flow
+from planner.selection.greedy import GOAL_SLACK_M2, Selection, greedy, replay
+from planner.selection.highs_worker import Answer, HighsProcess
+from planner.selection.program import ProgramBuilder
+from planner.visibility.coverage import CoverageTable
 
 # Above this many nonzeros HiGHS's presolve alone outlasts any sensible time limit (hall-full:
 # 10.5 M); face classes are then merged per voxel into a relaxation (see relaxed_classes).
@@ -114,67 +115,6 @@ class OptimalResult:
             "status": self.status,
             "face_classes": self.face_classes,
         }
-
-
-# --- programs --------------------------------------------------------------------------
-
-
-class ProgramBuilder:
-    """A MILP under construction. Variables 0..C-1 are the candidates' ``x`` (1: chosen).
-
-    ``add_variables`` returns the index of the first new variable; ``add_rows`` takes rows
-    over the variables that exist so far (fewer columns are padded with zeros).
-    """
-
-    def __init__(self, n_candidates: int) -> None:
-        self.n_candidates = n_candidates
-        self._cost: list[NDArray[np.float64]] = []
-        self._integrality: list[NDArray[np.float64]] = []
-        self._lower: list[NDArray[np.float64]] = []
-        self._upper: list[NDArray[np.float64]] = []
-        self._rows: list[tuple[sp.csr_matrix, NDArray[np.float64], NDArray[np.float64]]] = []
-        self.n_variables = 0
-        # (V,) a feasible solution HiGHS starts from (dropped if hooks add variables later)
-        self.start: NDArray[np.float64] | None = None
-        self.add_variables(np.zeros(n_candidates), integer=True, lower=0.0, upper=1.0)
-
-    def add_variables(self, cost: NDArray[np.float64], *, integer: bool,
-                      lower: float | NDArray[np.float64],
-                      upper: float | NDArray[np.float64]) -> int:
-        n = len(cost)
-        first = self.n_variables
-        self._cost.append(np.asarray(cost, np.float64))
-        self._integrality.append(np.full(n, 1.0 if integer else 0.0))
-        self._lower.append(np.broadcast_to(np.asarray(lower, np.float64), (n,)).copy())
-        self._upper.append(np.broadcast_to(np.asarray(upper, np.float64), (n,)).copy())
-        self.n_variables += n
-        return first
-
-    def set_cost(self, first: int, cost: NDArray[np.float64]) -> None:
-        """Replace the cost of variables ``first``, ``first + 1``, ..."""
-        full = np.concatenate(self._cost)
-        full[first:first + len(cost)] = cost
-        self._cost = [full]
-
-    def add_rows(self, rows: sp.spmatrix, lower: float | NDArray[np.float64],
-                 upper: float | NDArray[np.float64]) -> None:
-        rows = sp.csr_matrix(rows)
-        n = rows.shape[0]
-        self._rows.append((rows, np.broadcast_to(np.asarray(lower, np.float64), (n,)).copy(),
-                           np.broadcast_to(np.asarray(upper, np.float64), (n,)).copy()))
-
-    def build(self) -> Program:
-        width = self.n_variables
-        blocks = [sp.csr_matrix((r.data, r.indices, r.indptr), shape=(r.shape[0], width))
-                  for r, _, _ in self._rows]
-        rows = sp.vstack(blocks, format="csr") if blocks else sp.csr_matrix((0, width))
-        return Program(
-            cost=np.concatenate(self._cost), integrality=np.concatenate(self._integrality),
-            lower=np.concatenate(self._lower), upper=np.concatenate(self._upper), rows=rows,
-            row_lower=np.concatenate([lo for _, lo, _ in self._rows]) if blocks else np.zeros(0),
-            row_upper=np.concatenate([hi for _, _, hi in self._rows]) if blocks else np.zeros(0),
-            start=self.start if self.start is not None and len(self.start) == width else None,
-        )
 
 
 # builder -> None: adds side constraints (see the module docstring)
@@ -462,7 +402,7 @@ def solve_optimal(
     (or the earlier ``deadline``, ``time.monotonic()`` seconds). ``tick`` is called about
     twice a second while HiGHS works and may raise to cancel.
 
-    ``graph`` (registration overlap, :mod:`planner.method.connectivity`): every plan must be
+    ``graph`` (registration overlap, :mod:`planner.selection.connectivity`): every plan must be
     connected on it. The incumbents must then be connected plans (connected greedy), the
     local search keeps connectivity and the MILPs carry the flow rows; a graph too big for
     them leaves the local search's plan.
@@ -728,7 +668,7 @@ def choose_stations(table: CoverageTable, *, method: str, goal: float, time_limi
 
     ``connectivity`` (``min_overlap_m2``, no fixed stations): ``optimal`` starts from its
     connected greedy plans and keeps every plan connected on its overlap graph
-    (:mod:`planner.method.connectivity`); the report then says how (``connectivity``) and
+    (:mod:`planner.selection.connectivity`); the report then says how (``connectivity``) and
     its heuristics are the connected ones.
     """
     start = time.monotonic()

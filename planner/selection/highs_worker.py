@@ -124,7 +124,7 @@ class HighsProcess:
         if self._child is None or self._child.poll() is not None:
             self._child = subprocess.Popen(
                 [sys.executable, "-c",
-                 f"from planner.method.highs_worker import main; main({os.getpid()})"],
+                 f"from planner.selection.highs_worker import main; main({os.getpid()})"],
                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
             )
 

@@ -1,0 +1,96 @@
+"""The selection stage: the plan's stations from the coverage table, registrable if asked.
+
+Takes the coverage table, the (C, 3) candidate positions and the fixed stations; gives a
+:class:`Choice`: every method's full order, the chosen stations up to the goal (the plan's
+method; with ``min_overlap_m2`` a network every station registers into) and, when they
+were computed, the stations' overlap rows, which the survey reuses.
+
+Array letters: C candidates, F faces, S stations.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from planner.progress import ProgressCallback, Stats, notify
+from planner.selection.connected import connected_greedy, overlap_graph
+from planner.selection.connectivity import Connectivity
+from planner.selection.greedy import Selection
+from planner.selection.optimal import SelectionOutcome, choose_stations
+from planner.visibility.coverage import CoverageTable
+from planner.visibility.overlap import OverlapRows
+from planner.visibility.qualify import Sight
+
+
+@dataclass(frozen=True, eq=False)
+class Choice:
+    """What the selection stage decided.
+
+    Attributes
+    ----------
+    outcome : every method's order, the optimal result and its curve, the report
+    chosen : the plan: the chosen method up to the goal (registrable with
+        ``min_overlap_m2``)
+    station_overlap : (S, F) CSR of the chosen stations' overlap rows, when the selection
+        computed them (``min_overlap_m2`` set), else None
+    """
+
+    outcome: SelectionOutcome
+    chosen: Selection
+    station_overlap: sp.csr_matrix | None
+
+
+def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tuple[int, ...],
+           stats: Stats, *, progress: ProgressCallback | None = None,
+           threads: int | None = None) -> Choice:
+    """The stations of the plan under ``sight.spec`` (method, goal, overlap)."""
+    scene, spec = sight.scene, sight.spec
+    started = time.perf_counter()
+    rows = None
+    connectivity = None
+    min_overlap_m2 = spec.min_overlap_m2
+    if min_overlap_m2 is not None:
+        # the overlap rows (faces each candidate qualifies for at the overlap density) are
+        # computed when a method first needs them: the connected greedy asks for a few
+        rows = OverlapRows(scene, positions, sight.limits, sight.occlusion,
+                           spec.overlap_density_pts_m2, threads=threads,
+                           file_faces=sight.file_faces)
+        if spec.method == "optimal" and not fixed:
+            # optimal keeps the overlap graph connected: a flow MILP from connected greedy,
+            # on the graph of every candidate's row
+            t_graph = time.perf_counter()
+            top_goal = max((spec.coverage_goal, *(spec.curve_goals or ())))
+            connectivity = Connectivity(
+                overlap_graph(rows.matrix(range(len(rows))), scene, min_overlap_m2),
+                *(connected_greedy(table, rows, scene, positions,
+                                   min_overlap_m2, weighted=w, goal=top_goal)
+                  for w in (False, True)))
+            stats.seconds["overlap_graph"] = time.perf_counter() - t_graph - rows.seconds
+    outcome = choose_stations(
+        table, method=spec.method, goal=spec.coverage_goal,
+        time_limit_s=spec.optimal_time_limit_s, centroids=scene.centroids, fixed=fixed,
+        curve_goals=spec.curve_goals,
+        progress=lambda fraction: notify(progress, "selection", fraction),
+        connectivity=connectivity)
+    chosen = outcome.chosen
+    station_overlap = None
+    if rows is not None and min_overlap_m2 is not None:
+        if spec.method != "optimal":
+            # registration constraint: every station after the first overlaps a chosen one
+            chosen = connected_greedy(
+                table, rows, scene, positions, min_overlap_m2,
+                weighted=spec.method == "weighted_greedy", goal=spec.coverage_goal,
+            ).truncated(spec.coverage_goal)
+        station_overlap = rows.matrix(list(chosen.stations))
+        stats.seconds["overlap"] = rows.seconds
+        stats.overlap_rows = rows.n_computed
+        rows = None  # its cached rows (and bundles) are not needed any more
+    # selection without the overlap rows computed in it
+    stats.seconds["selection"] = time.perf_counter() - started - stats.seconds.get("overlap", 0.0)
+    for step, seconds in outcome.seconds.items():
+        stats.seconds[f"selection_{step}"] = seconds
+    return Choice(outcome, chosen, station_overlap)

@@ -1,0 +1,74 @@
+"""A mixed-integer linear program under construction, handed to HiGHS as a
+:class:`~planner.selection.highs_worker.Program`.
+
+The set-cover programs of :mod:`planner.selection.optimal` and the registration flow of
+:mod:`planner.selection.connectivity` add their variables and rows to one builder.
+
+Array letters: C candidates, V variables.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from planner.selection.highs_worker import Program
+
+
+class ProgramBuilder:
+    """A MILP under construction. Variables 0..C-1 are the candidates' ``x`` (1: chosen).
+
+    ``add_variables`` returns the index of the first new variable; ``add_rows`` takes rows
+    over the variables that exist so far (fewer columns are padded with zeros).
+    """
+
+    def __init__(self, n_candidates: int) -> None:
+        self.n_candidates = n_candidates
+        self._cost: list[NDArray[np.float64]] = []
+        self._integrality: list[NDArray[np.float64]] = []
+        self._lower: list[NDArray[np.float64]] = []
+        self._upper: list[NDArray[np.float64]] = []
+        self._rows: list[tuple[sp.csr_matrix, NDArray[np.float64], NDArray[np.float64]]] = []
+        self.n_variables = 0
+        # (V,) a feasible solution HiGHS starts from (dropped if hooks add variables later)
+        self.start: NDArray[np.float64] | None = None
+        self.add_variables(np.zeros(n_candidates), integer=True, lower=0.0, upper=1.0)
+
+    def add_variables(self, cost: NDArray[np.float64], *, integer: bool,
+                      lower: float | NDArray[np.float64],
+                      upper: float | NDArray[np.float64]) -> int:
+        n = len(cost)
+        first = self.n_variables
+        self._cost.append(np.asarray(cost, np.float64))
+        self._integrality.append(np.full(n, 1.0 if integer else 0.0))
+        self._lower.append(np.broadcast_to(np.asarray(lower, np.float64), (n,)).copy())
+        self._upper.append(np.broadcast_to(np.asarray(upper, np.float64), (n,)).copy())
+        self.n_variables += n
+        return first
+
+    def set_cost(self, first: int, cost: NDArray[np.float64]) -> None:
+        """Replace the cost of variables ``first``, ``first + 1``, ..."""
+        full = np.concatenate(self._cost)
+        full[first:first + len(cost)] = cost
+        self._cost = [full]
+
+    def add_rows(self, rows: sp.spmatrix, lower: float | NDArray[np.float64],
+                 upper: float | NDArray[np.float64]) -> None:
+        rows = sp.csr_matrix(rows)
+        n = rows.shape[0]
+        self._rows.append((rows, np.broadcast_to(np.asarray(lower, np.float64), (n,)).copy(),
+                           np.broadcast_to(np.asarray(upper, np.float64), (n,)).copy()))
+
+    def build(self) -> Program:
+        width = self.n_variables
+        blocks = [sp.csr_matrix((r.data, r.indices, r.indptr), shape=(r.shape[0], width))
+                  for r, _, _ in self._rows]
+        rows = sp.vstack(blocks, format="csr") if blocks else sp.csr_matrix((0, width))
+        return Program(
+            cost=np.concatenate(self._cost), integrality=np.concatenate(self._integrality),
+            lower=np.concatenate(self._lower), upper=np.concatenate(self._upper), rows=rows,
+            row_lower=np.concatenate([lo for _, lo, _ in self._rows]) if blocks else np.zeros(0),
+            row_upper=np.concatenate([hi for _, _, hi in self._rows]) if blocks else np.zeros(0),
+            start=self.start if self.start is not None and len(self.start) == width else None,
+        )
