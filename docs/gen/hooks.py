@@ -10,6 +10,8 @@ replaces it:
   the group requirements and the coordinates;
 - ``<!-- generated: service-settings -->``: every field of ``service.config.Settings`` with
   its environment variable, default and description;
+- ``<!-- generated: cli-help -->``: the ``--help`` of ``scanplan`` and of each subcommand
+  (the service's ``serve`` and ``worker`` included, through their entry point);
 - ``<!-- generated: benchmark-matrix -->``: the rows of ``benchmarks/matrix_baseline.json``
   when the file exists.
 """
@@ -146,6 +148,32 @@ def service_settings_table() -> str:
     return "\n".join(rows)
 
 
+def cli_help() -> str:
+    """``scanplan --help`` and each subcommand's, as the command prints them."""
+    import argparse
+    import os
+
+    _import_root()
+    from planner.__main__ import build_parser
+
+    columns = os.environ.get("COLUMNS")
+    os.environ["COLUMNS"] = "92"  # argparse wraps to the terminal's width
+    try:
+        parser = build_parser()
+        parts = ["```text", parser.format_help().rstrip(), "```"]
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    parts += ["", f"### `scanplan {name}`", "", "```text",
+                              sub.format_help().rstrip(), "```"]
+    finally:
+        if columns is None:
+            os.environ.pop("COLUMNS", None)
+        else:
+            os.environ["COLUMNS"] = columns
+    return "\n".join(parts)
+
+
 def benchmark_matrix() -> str:
     """The matrix's rows as a table; tolerant of a format still being settled."""
     name = "benchmarks/matrix_baseline.json"
@@ -186,6 +214,7 @@ GENERATORS: dict[str, Callable[[], str]] = {
     "plan-parameters": plan_parameters_table,
     "nested-ranges": nested_ranges_table,
     "service-settings": service_settings_table,
+    "cli-help": cli_help,
     "benchmark-matrix": benchmark_matrix,
 }
 
