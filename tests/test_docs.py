@@ -80,9 +80,11 @@ def test_benchmark_matrix_table_is_tolerant(tmp_path: Path) -> None:
     hooks.MATRIX = tmp_path / "matrix_baseline.json"
     assert "not been recorded yet" in hooks.benchmark_matrix()
     hooks.MATRIX.write_text(json.dumps({"machine": "2 cores", "rows": [
-        {"model": "hall-full", "wall_s": 6.5}, {"model": "office", "peak_mib": 1750}]}))
+        {"model": "hall-full", "wall_s": 6.5, "stages": {"visibility": {"wall_s": 2.6}}},
+        {"model": "office", "peak_mib": 1750}]}))
     table = hooks.benchmark_matrix()
-    assert "| model | wall_s | peak_mib |" in table
-    assert "| office |  | 1750 |" in table and "2 cores" in table
+    assert "| model | wall_s | stages | peak_mib |" in table
+    assert "| hall-full | 6.5 | visibility wall_s 2.6 |  |" in table
+    assert "| office |  |  | 1750 |" in table and "2 cores" in table
     hooks.MATRIX.write_text(json.dumps([1, 2, 3]))  # a shape not settled yet: no table
     assert "|" not in hooks.benchmark_matrix()

@@ -174,6 +174,19 @@ def cli_help() -> str:
     return "\n".join(parts)
 
 
+def _flat(value: Any) -> str:
+    """A cell's text: numbers as they read (1750, 6.5, 1e+09), objects as ``key value; ...``."""
+    if isinstance(value, bool) or value is None:
+        return json.dumps(value)
+    if isinstance(value, float):
+        return f"{value:g}"
+    if isinstance(value, dict):
+        return "; ".join(f"{k} {_flat(v)}" for k, v in value.items())
+    if isinstance(value, list):
+        return ", ".join(_flat(v) for v in value)
+    return str(value)
+
+
 def benchmark_matrix() -> str:
     """The matrix's rows as a table; tolerant of a format still being settled."""
     name = "benchmarks/matrix_baseline.json"
@@ -194,9 +207,9 @@ def benchmark_matrix() -> str:
     for row in rows:
         columns += [key for key in row if key not in columns]
     lines = []
-    about = {k: v for k, v in data.items() if k != "rows" and not isinstance(v, dict | list)}
+    about = {k: v for k, v in data.items() if k != "rows" and v not in ("", None)}
     for key, value in about.items():
-        lines.append(f"- **{_cell(key)}**: {_cell(value)}")
+        lines.append(f"- **{_cell(key)}**: {_cell(_flat(value))}")
     if lines:
         lines.append("")
     if not rows:
@@ -204,9 +217,7 @@ def benchmark_matrix() -> str:
     lines.append("| " + " | ".join(_cell(c) for c in columns) + " |")
     lines.append("|" + "---|" * len(columns))
     for row in rows:
-        cells = [row.get(c, "") for c in columns]
-        lines.append("| " + " | ".join(
-            _cell(json.dumps(v) if isinstance(v, dict | list) else v) for v in cells) + " |")
+        lines.append("| " + " | ".join(_cell(_flat(row.get(c, ""))) for c in columns) + " |")
     return "\n".join(lines)
 
 
