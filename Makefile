@@ -2,9 +2,11 @@
 PYTHON ?= python3.11
 VENV   ?= .venv
 BIN    := $(VENV)/bin
+# MkDocs plugins print a banner about a future MkDocs 2 on every build; these silence it
+MKDOCS := NO_MKDOCS_2_WARNING=1 DISABLE_MKDOCS_2_WARNING=true $(BIN)/mkdocs
 STAMP  := $(VENV)/.installed
 
-.PHONY: help install serve test lint typecheck bench openapi clean
+.PHONY: help install serve test docs lint typecheck bench openapi clean
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-10s %s\n", $$1, $$2}'
@@ -20,11 +22,15 @@ install: $(STAMP)  ## create .venv and install the project with its dev tools
 serve: $(STAMP)  ## start the API and its workers on the embedded default (SQLite, no Redis)
 	$(BIN)/scanplan serve
 
-test: $(STAMP)  ## run the whole test suite (lint, types, layering, tests)
+test: $(STAMP)  ## run the whole test suite (lint, types, layering, documentation, tests)
 	$(BIN)/ruff check planner service tests benchmarks
 	$(BIN)/mypy
 	$(BIN)/lint-imports
+	$(MKDOCS) build --strict --site-dir site
 	$(BIN)/python -m pytest
+
+docs: $(STAMP)  ## serve the documentation on http://127.0.0.1:8001/, rebuilt on every change
+	$(MKDOCS) serve --dev-addr 127.0.0.1:8001
 
 lint: $(STAMP)  ## ruff only
 	$(BIN)/ruff check planner service tests benchmarks
@@ -40,4 +46,4 @@ openapi: $(STAMP)  ## re-export openapi/openapi.json from the app
 	$(BIN)/python -m service.openapi_export openapi/openapi.json
 
 clean:  ## remove the virtual environment and caches
-	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache
+	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache site

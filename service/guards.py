@@ -6,7 +6,7 @@ parameters, so it costs nothing per request:
 - faces after remeshing: a triangle whose edges are all at most ``max_edge_m`` has at most
   the area of the equilateral one, (√3/4)·max_edge_m², so a mesh with every face split has
   at least ``total area / ((√3/4)·max_edge_m²)`` faces. The plan splits only the faces a
-  candidate can qualify part of (:mod:`planner.method.splitting`), which the upload cannot
+  candidate can qualify part of (:mod:`planner.visibility.splitting`), which the upload cannot
   know: on a model with much area out of every candidate's reach the estimate is high;
 - grid points: the model's XY bounding box (or the area of interest's) divided by
   ``grid_spacing_m``², the grid the candidate stage walks before it drops points;

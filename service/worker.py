@@ -209,9 +209,9 @@ def _child_ended(ctx: WorkerContext, job: JobRecord, token: str,
 
 def _done_message(ctx: WorkerContext, job_id: str) -> str:
     """"done", then the storeys planned and what was left out when there is more than one
-    level (:func:`planner.method.candidates.levels_line`), and why there is no plan.ifc for
+    level (:func:`planner.candidates.grid.levels_line`), and why there is no plan.ifc for
     an input that is not IFC, each in a clause of its own."""
-    from planner.method.candidates import levels_line
+    from planner.candidates.grid import levels_line
     from planner.outputs.ifc_plan import reason_without_ifc
 
     try:
