@@ -32,8 +32,8 @@ from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
 from planner.rays import make_ray_caster
 from planner.survey.tolerance import placement_tolerance
-from planner.visibility import Sight
 from planner.visibility.overlap import OverlapRows
+from planner.visibility.qualify import Sight
 
 SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
 

@@ -19,19 +19,22 @@ from typing import Any
 
 import numpy as np
 
-from planner.candidates import CandidateSet, plan_candidates
+from planner.candidates.generate import plan_candidates
+from planner.candidates.grid import CandidateSet
 from planner.memory import bound_heap, release_freed_memory
 from planner.parameters import PlanSpec
 from planner.progress import ProgressCallback, Stats, new_stage
 from planner.rays import Backend
 from planner.scene import Scene, remesh
-from planner.selection import Selection, choose, coverage_state
+from planner.selection.choose import choose
+from planner.selection.greedy import Selection, coverage_state
 from planner.selection.optimal import OptimalResult
 from planner.survey.fieldwork import Survey, survey
 from planner.survey.tolerance import Tolerance, plan_tolerance
-from planner.visibility import CoverageTable, Sight, coverage_table, station_densities
 from planner.visibility.bundles import forget_bundles
+from planner.visibility.coverage import CoverageTable
 from planner.visibility.pairs import FaceLimits
+from planner.visibility.qualify import Sight, coverage_table, station_densities
 
 __all__ = ["PlanResult", "ProgressCallback", "Stats", "plan"]
 

@@ -11,8 +11,3 @@ programs in :mod:`planner.selection.program`, solved in a child process by
 the stations needed per goal (:mod:`planner.selection.curve`). The stage itself is
 :mod:`planner.selection.choose`.
 """
-
-from planner.selection.choose import Choice, choose
-from planner.selection.greedy import Selection, coverage_state
-
-__all__ = ["Choice", "Selection", "choose", "coverage_state"]

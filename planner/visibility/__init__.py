@@ -14,14 +14,3 @@ of them (:mod:`planner.visibility.splitting`); the sampled coverage model is
 :mod:`planner.visibility.sampled`; the robust table :mod:`planner.visibility.robust`; the
 overlap rows :mod:`planner.visibility.overlap`.
 """
-
-from planner.visibility.coverage import CoverageTable, QualifiedPairs
-from planner.visibility.qualify import (
-    Sight,
-    coverage_table,
-    qualify_pairs,
-    station_densities,
-)
-
-__all__ = ["CoverageTable", "QualifiedPairs", "Sight", "coverage_table", "qualify_pairs",
-           "station_densities"]

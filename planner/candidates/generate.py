@@ -1,0 +1,43 @@
+"""The candidate stage: explicit, from IFC rooms or on a grid, at every scanner height, with
+the stations already scanned among them (see :mod:`planner.candidates`)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from planner.candidates.fixed import fixed_candidates
+from planner.candidates.grid import CandidateSet, explicit_candidates, generate_grid
+from planner.candidates.placement import at_heights
+from planner.candidates.rooms import room_candidates
+from planner.io.orientation import scene_rotation, to_plan
+from planner.parameters import PlanSpec
+from planner.rays import RayCaster
+from planner.scene import Scene
+
+
+def plan_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster
+                    ) -> tuple[CandidateSet, tuple[int, ...]]:
+    """The plan's candidates and the candidate index of each of ``spec.fixed_stations``."""
+    if spec.candidates is not None:
+        # given in model coordinates; the planner works Z-up (up_axis, planner.io.orientation)
+        candidates = explicit_candidates(
+            to_plan(scene_rotation(scene.metadata), np.asarray(spec.candidates)))
+    elif scene.metadata.get("spaces"):
+        candidates = at_heights(spec, lambda at: room_candidates(scene, at, caster))
+    else:
+        candidates = at_heights(spec, lambda at: generate_grid(scene, at, caster))
+    fixed: tuple[int, ...] = ()
+    if spec.fixed_stations:  # re-scan: stations already scanned are candidates too
+        fixed_xyz = to_plan(scene_rotation(scene.metadata), np.asarray(spec.fixed_stations))
+        positions, fixed = fixed_candidates(
+            candidates.positions, tuple((float(x), float(y), float(z)) for x, y, z in fixed_xyz))
+        if len(positions) > len(candidates):
+            added = len(positions) - len(candidates)
+            candidates = dataclasses.replace(
+                candidates, positions=positions,
+                labels=candidates.labels + ({},) * added if candidates.labels else (),
+                heights_m=None if candidates.heights_m is None
+                else np.r_[candidates.heights_m, np.full(added, np.nan)])
+    return candidates, fixed
