@@ -74,8 +74,11 @@ def status_info(job: JobRecord) -> StatusInfo:
     )
 
 
-def _job(services: ServicesDep, owner: str, job_id: str) -> JobRecord:
-    """The caller's job; a dismissed one is gone (OGC dismiss), as one that never was."""
+def visible_job(services: ServicesDep, owner: str, job_id: str) -> JobRecord:
+    """The caller's job; a dismissed one is gone (OGC dismiss), as one that never was.
+
+    Every ``/jobs/{job_id}/...`` route finds its job here, so all of them answer the same
+    404 once the job is dismissed or deleted."""
     job = services.jobs.get(job_id, owner)
     if job is None:
         raise NoSuchJobError(f"no job {job_id}; GET /jobs lists yours")
@@ -112,7 +115,7 @@ def list_jobs(
 @router.get("/{job_id}", response_model=StatusInfo)
 def get_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInfo:
     """Status, progress 0-100, the stage in ``message``, timestamps and links."""
-    return status_info(_job(services, owner, job_id))
+    return status_info(visible_job(services, owner, job_id))
 
 
 @router.delete("/{job_id}", response_model=StatusInfo)
@@ -121,12 +124,12 @@ def delete_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInf
     stops within a second or two), a finished one is deleted with its results. Either way
     the answer is its last status document, ``dismissed``, and from then on every
     ``/jobs/{id}`` request answers 404."""
-    job = _job(services, owner, job_id)
+    job = visible_job(services, owner, job_id)
     if job.status in ACTIVE and services.jobs.dismiss(job_id):
         dismissed = services.jobs.get(job_id, owner)
         assert dismissed is not None  # the row stays: the worker learns of the dismissal
         return status_info(dismissed)
-    job = _job(services, owner, job_id)  # it may have finished meanwhile
+    job = visible_job(services, owner, job_id)  # it may have finished meanwhile
     if services.jobs.delete(job_id):
         services.store.delete_prefix(results_prefix(job_id))
     document = status_info(job)
@@ -139,7 +142,7 @@ def delete_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInf
             responses=problem_responses(409))
 def get_results(job_id: str, services: ServicesDep, owner: OwnerDep) -> JobResults | Response:
     """The plan inline and every output by href; a failed job's problem."""
-    job = _job(services, owner, job_id)
+    job = visible_job(services, owner, job_id)
     if job.status == FAILED and job.problem is not None:
         return JSONResponse(job.problem, status_code=int(job.problem.get("status", 500)),
                             media_type=MEDIA_TYPE)
@@ -165,7 +168,7 @@ def get_output(job_id: str, output: str, request: Request, services: ServicesDep
     image/png, ``coverage.glb`` model/gltf-binary, ``plan.dxf`` image/vnd.dxf, ``plan.pdf``
     application/pdf, ``plan.ifc`` application/x-step, ``plan.bcf`` (a zip) and ``faces.npz``
     application/octet-stream."""
-    job = _job(services, owner, job_id)
+    job = visible_job(services, owner, job_id)
     if job.status != SUCCESSFUL or job.outputs is None:
         raise ResultNotReadyError(f"job {job_id} is {job.status}; results come once it is "
                                   "successful")

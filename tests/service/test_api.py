@@ -239,6 +239,44 @@ def test_delete_of_a_finished_job_removes_it_and_its_files(
     assert_problem(client.delete(f"/jobs/{job_id}"), 404)
 
 
+def test_callbacks_of_a_dismissed_job_are_gone(tmp_path: Path, hall_bytes: bytes) -> None:
+    """POST an execution, DELETE the job, GET its callbacks: 404 like its status."""
+    with make_client(tmp_path, InlineQueue(hold=True), api_keys=[]) as client:
+        mesh_id = upload(client, hall_bytes).json()["id"]
+        job_id = submit(client, mesh_id, {}).json()["jobID"]
+        assert client.get(f"/jobs/{job_id}/callbacks").json() == {
+            "subscriber": None, "deliveries": []}
+        assert client.delete(f"/jobs/{job_id}").json()["status"] == "dismissed"
+        assert_problem(client.get(f"/jobs/{job_id}"), 404, "dismissed")
+        assert_problem(client.get(f"/jobs/{job_id}/callbacks"), 404, "dismissed")
+
+
+def _job_operations(client: TestClient) -> list[tuple[str, str]]:
+    """Every (method, path template) the OpenAPI document lists under /jobs/{job_id}."""
+    paths = client.get("/openapi.json").json()["paths"]
+    return sorted((method, path) for path, operations in paths.items()
+                  if path.startswith("/jobs/{job_id}") for method in operations)
+
+
+@pytest.mark.parametrize("finished", [False, True], ids=["queued", "finished"])
+def test_every_job_route_answers_404_once_the_job_is_dismissed(
+        tmp_path: Path, hall_bytes: bytes, hall_parameters: dict[str, Any],
+        finished: bool) -> None:
+    """Dismissed (queued) or deleted (finished): every documented /jobs/{id} operation,
+    present and future, answers 404 with a problem document."""
+    with make_client(tmp_path, InlineQueue(hold=not finished), api_keys=[]) as client:
+        mesh_id = upload(client, hall_bytes).json()["id"]
+        job_id = submit(client, mesh_id, hall_parameters).json()["jobID"]
+        assert client.get(f"/jobs/{job_id}").json()["status"] == (
+            "successful" if finished else "accepted")
+        assert client.delete(f"/jobs/{job_id}").status_code == 200
+        operations = _job_operations(client)
+        assert ("get", "/jobs/{job_id}/callbacks") in operations
+        for method, template in operations:
+            path = template.replace("{job_id}", job_id).replace("{output}", "plan.json")
+            assert_problem(client.request(method, path), 404)
+
+
 def test_job_list_filters_and_pages(tmp_path: Path, hall_bytes: bytes) -> None:
     with make_client(tmp_path, InlineQueue(hold=True), api_keys=[]) as client:
         mesh_id = upload(client, hall_bytes).json()["id"]
