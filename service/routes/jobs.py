@@ -8,6 +8,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query, Request, Response, status
 from fastapi.responses import FileResponse, JSONResponse
 
+from planner.outputs.report import OUTPUTS
 from service.deps import OwnerDep, ServicesDep
 from service.job_store import ACTIVE, DISMISSED, FAILED, STATUSES, SUCCESSFUL, JobRecord
 from service.problems import MEDIA_TYPE, NoSuchJobError, ResultNotReadyError, problem_responses
@@ -42,6 +43,33 @@ MEDIA_TYPES = {
     ".ifc": "application/x-step", ".bcf": "application/octet-stream",
     ".dxf": "image/vnd.dxf", ".pdf": "application/pdf",
 }
+
+
+# OpenAPI links (https://spec.openapis.org/oas/v3.1.0#link-object): from a response naming a
+# job to what a client does next with it. Stateful clients and Schemathesis follow them; the
+# parameters are runtime expressions (where the response or the request holds the job's id).
+def job_links(job_id: str) -> dict[str, dict[str, Any]]:
+    """Links to the job's status, results, callbacks and dismissal; ``job_id`` is the
+    runtime expression of its id."""
+    by_id = {"job_id": job_id}
+    return {
+        "get_job": {"operationId": "get_job", "parameters": by_id,
+                    "description": "the job's status and progress"},
+        "get_results": {"operationId": "get_results", "parameters": by_id,
+                        "description": "the results document once the job has finished"},
+        "get_callbacks": {"operationId": "get_callbacks", "parameters": by_id,
+                          "description": "what was POSTed to the job's subscriber"},
+        "delete_job": {"operationId": "delete_job", "parameters": by_id,
+                       "description": "dismiss the job (cancel it, or delete its results)"},
+    }
+
+
+def output_links(job_id: str) -> dict[str, dict[str, Any]]:
+    """A link to each output file a plan may have (the results document lists those of one
+    job); ``job_id`` is the runtime expression of the job's id."""
+    return {f"get_output_{name}": {
+        "operationId": "get_output", "parameters": {"job_id": job_id, "output": name},
+        "description": f"the output {name} once the job has succeeded"} for name in OUTPUTS}
 
 
 def media_type(name: str) -> str:
@@ -112,7 +140,12 @@ def list_jobs(
     return JobList(jobs=[status_info(r) for r in records], numberMatched=total, links=links)
 
 
-@router.get("/{job_id}", response_model=StatusInfo)
+@router.get("/{job_id}", response_model=StatusInfo, responses={200: {"links": {
+    **{name: link for name, link in job_links("$request.path.job_id").items()
+       if name != "get_job"},
+    **output_links("$request.path.job_id"),
+    "get_mesh": {"operationId": "get_mesh", "parameters": {"mesh_id": "$response.body#/mesh"},
+                 "description": "the mesh the job plans on"}}}})
 def get_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInfo:
     """Status, progress 0-100, the stage in ``message``, timestamps and links."""
     return status_info(visible_job(services, owner, job_id))
@@ -139,7 +172,8 @@ def delete_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInf
 
 
 @router.get("/{job_id}/results", response_model=JobResults,
-            responses=problem_responses(409))
+            responses={200: {"links": output_links("$request.path.job_id")},
+                       **problem_responses(409)})
 def get_results(job_id: str, services: ServicesDep, owner: OwnerDep) -> JobResults | Response:
     """The plan inline and every output by href; a failed job's problem."""
     job = visible_job(services, owner, job_id)
