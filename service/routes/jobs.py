@@ -192,8 +192,12 @@ def get_results(job_id: str, services: ServicesDep, owner: OwnerDep) -> JobResul
     return JobResults(document)
 
 
+# every media type an output is served with (parameters such as charset aside), for OpenAPI
+OUTPUT_MEDIA_TYPES = sorted({media.split(";")[0] for media in MEDIA_TYPES.values()})
+
+
 @router.get("/{job_id}/results/{output}", response_class=FileResponse,
-            responses={200: {"content": {"application/octet-stream": {}}}, 304: {}})
+            responses={200: {"content": {media: {} for media in OUTPUT_MEDIA_TYPES}}, 304: {}})
 def get_output(job_id: str, output: str, request: Request, services: ServicesDep,
                owner: OwnerDep) -> Response:
     """One output file, with ETag (its sha256) and Range support.

@@ -285,6 +285,7 @@ class LinkWalker:
     def __init__(self, client: TestClient) -> None:
         self.client = client
         document = client.get("/openapi.json").json()
+        self.document = document
         self.operations = {operation["operationId"]: (method, path)
                            for path, methods in document["paths"].items()
                            for method, operation in methods.items()}
@@ -359,6 +360,9 @@ def test_a_client_following_links_reaches_every_mesh_and_job_operation(
     assert results.status_code == 200
     outputs = set(results.json()) - {"plan"}
     assert outputs >= {"plan.json", "faces.npz", "stations.csv", "coverage.glb"}
+    # each file comes with a media type the document lists for it
+    documented = walker.document["paths"]["/jobs/{job_id}/results/{output}"]["get"][
+        "responses"]["200"]["content"]
     for source, answer in (("get_job", status), ("get_results", results)):
         linked = [name for name in walker.names(source, 200) if name.startswith("get_output")]
         served = set()
@@ -367,6 +371,8 @@ def test_a_client_following_links_reaches_every_mesh_and_job_operation(
             output_name = output.request.url.path.rsplit("/", 1)[-1]
             if output.status_code == 200:
                 assert output.content == client.get(results.json()[output_name]["href"]).content
+                media = output.headers["content-type"].split(";")[0]
+                assert media in documented, (output_name, media)
                 served.add(output_name)
             else:  # a file only other plans have (plan.ifc of an IFC model, ...)
                 assert_problem(output, 404, output_name)
