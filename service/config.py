@@ -11,6 +11,7 @@ import ipaddress
 import os
 from pathlib import Path
 from typing import Annotated, Literal
+from urllib.parse import urlsplit
 
 from pydantic import Field, SecretStr, field_validator
 from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
@@ -35,6 +36,18 @@ def _memory_bytes() -> int | None:
     except OSError:
         pass
     return min(sizes) if sizes else None
+
+
+def parse_store_url(url: str) -> tuple[str, str]:
+    """``s3://bucket/prefix`` -> (bucket, prefix). Raises ValueError with the fix.
+
+    Here, not in :mod:`service.store`, so that the settings check the URL without importing
+    the store, and the store imports the settings, never the other way round."""
+    parts = urlsplit(url)
+    if parts.scheme != "s3" or not parts.netloc or parts.query or parts.fragment:
+        raise ValueError(f"SCANPLAN_STORE_URL must look like s3://bucket/prefix (got {url!r}); "
+                         "leave it unset to keep files in the data directory")
+    return parts.netloc, parts.path.strip("/")
 
 
 class Settings(BaseSettings):
@@ -133,10 +146,9 @@ class Settings(BaseSettings):
     @classmethod
     def _check_store_url(cls, value: str | None) -> str | None:
         if value:
-            from service.store import parse_store_url
-
             parse_store_url(value)  # ValueError naming the expected form
         return value or None
+
     @field_validator("callback_allow")
     @classmethod
     def _check_networks(cls, value: list[str]) -> list[str]:

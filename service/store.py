@@ -38,15 +38,15 @@ import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
-from urllib.parse import quote, urlsplit
+from urllib.parse import quote
 
 from starlette.responses import FileResponse, Response, StreamingResponse
+
+from service.config import Settings, parse_store_url
 
 if TYPE_CHECKING:  # boto3 is imported only by the scale-out store
     from mypy_boto3_s3 import S3Client
     from mypy_boto3_s3.type_defs import ObjectIdentifierTypeDef
-
-    from service.config import Settings
 
 _CHUNK_BYTES = 1 << 20
 # one range as S3's GetObject takes it; several ranges are answered with the whole object
@@ -280,15 +280,6 @@ def _error_code(exc: Exception) -> str:
 
 def _is_missing(exc: Exception) -> bool:
     return _error_code(exc) in ("NoSuchKey", "404", "NotFound")
-
-
-def parse_store_url(url: str) -> tuple[str, str]:
-    """``s3://bucket/prefix`` -> (bucket, prefix). Raises ValueError with the fix."""
-    parts = urlsplit(url)
-    if parts.scheme != "s3" or not parts.netloc or parts.query or parts.fragment:
-        raise ValueError(f"SCANPLAN_STORE_URL must look like s3://bucket/prefix (got {url!r}); "
-                         "leave it unset to keep files in the data directory")
-    return parts.netloc, parts.path.strip("/")
 
 
 def open_store(settings: Settings) -> ObjectStore:

@@ -13,8 +13,8 @@ from pydantic import BaseModel, Field
 from service.callbacks import URI_FIELDS
 from service.deps import OwnerDep, ServicesDep
 from service.job_store import SUCCESSFUL, JobRecord
-from service.problems import NoSuchJobError, problem_responses
-from service.routes.jobs import media_type, status_info
+from service.problems import problem_responses
+from service.routes.jobs import media_type, status_info, visible_job
 from service.schemas import Link, StatusInfo
 
 router = APIRouter(prefix="/jobs", tags=["jobs"], responses=problem_responses(401, 404, 422,
@@ -72,8 +72,7 @@ class CallbackRecord(BaseModel):
 @router.get("/{job_id}/callbacks", response_model=CallbackRecord)
 def get_callbacks(job_id: str, services: ServicesDep, owner: OwnerDep) -> CallbackRecord:
     """The job's callbacks: each POST to its subscriber, attempts, status codes, errors."""
-    if services.jobs.get(job_id, owner) is None:
-        raise NoSuchJobError(f"no job {job_id}; GET /jobs lists yours")
+    visible_job(services, owner, job_id)  # 404 for an unknown or dismissed job
     subscription = services.callbacks.subscription(job_id)
     subscriber = None if subscription is None else {
         URI_FIELDS[event]: uri for event, uri in subscription.uris.items() if uri is not None}

@@ -8,6 +8,7 @@ from typing import Annotated, Any
 from fastapi import APIRouter, Query, Request, Response, status
 from fastapi.responses import FileResponse, JSONResponse
 
+from planner.outputs.report import OUTPUTS
 from service.deps import OwnerDep, ServicesDep
 from service.job_store import ACTIVE, DISMISSED, FAILED, STATUSES, SUCCESSFUL, JobRecord
 from service.problems import MEDIA_TYPE, NoSuchJobError, ResultNotReadyError, problem_responses
@@ -44,6 +45,33 @@ MEDIA_TYPES = {
 }
 
 
+# OpenAPI links (https://spec.openapis.org/oas/v3.1.0#link-object): from a response naming a
+# job to what a client does next with it. Stateful clients and Schemathesis follow them; the
+# parameters are runtime expressions (where the response or the request holds the job's id).
+def job_links(job_id: str) -> dict[str, dict[str, Any]]:
+    """Links to the job's status, results, callbacks and dismissal; ``job_id`` is the
+    runtime expression of its id."""
+    by_id = {"job_id": job_id}
+    return {
+        "get_job": {"operationId": "get_job", "parameters": by_id,
+                    "description": "the job's status and progress"},
+        "get_results": {"operationId": "get_results", "parameters": by_id,
+                        "description": "the results document once the job has finished"},
+        "get_callbacks": {"operationId": "get_callbacks", "parameters": by_id,
+                          "description": "what was POSTed to the job's subscriber"},
+        "delete_job": {"operationId": "delete_job", "parameters": by_id,
+                       "description": "dismiss the job (cancel it, or delete its results)"},
+    }
+
+
+def output_links(job_id: str) -> dict[str, dict[str, Any]]:
+    """A link to each output file a plan may have (the results document lists those of one
+    job); ``job_id`` is the runtime expression of the job's id."""
+    return {f"get_output_{name}": {
+        "operationId": "get_output", "parameters": {"job_id": job_id, "output": name},
+        "description": f"the output {name} once the job has succeeded"} for name in OUTPUTS}
+
+
 def media_type(name: str) -> str:
     """The media type served for an output file name."""
     suffix = name[name.rfind("."):].lower() if "." in name else ""
@@ -74,8 +102,11 @@ def status_info(job: JobRecord) -> StatusInfo:
     )
 
 
-def _job(services: ServicesDep, owner: str, job_id: str) -> JobRecord:
-    """The caller's job; a dismissed one is gone (OGC dismiss), as one that never was."""
+def visible_job(services: ServicesDep, owner: str, job_id: str) -> JobRecord:
+    """The caller's job; a dismissed one is gone (OGC dismiss), as one that never was.
+
+    Every ``/jobs/{job_id}/...`` route finds its job here, so all of them answer the same
+    404 once the job is dismissed or deleted."""
     job = services.jobs.get(job_id, owner)
     if job is None:
         raise NoSuchJobError(f"no job {job_id}; GET /jobs lists yours")
@@ -109,10 +140,15 @@ def list_jobs(
     return JobList(jobs=[status_info(r) for r in records], numberMatched=total, links=links)
 
 
-@router.get("/{job_id}", response_model=StatusInfo)
+@router.get("/{job_id}", response_model=StatusInfo, responses={200: {"links": {
+    **{name: link for name, link in job_links("$request.path.job_id").items()
+       if name != "get_job"},
+    **output_links("$request.path.job_id"),
+    "get_mesh": {"operationId": "get_mesh", "parameters": {"mesh_id": "$response.body#/mesh"},
+                 "description": "the mesh the job plans on"}}}})
 def get_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInfo:
     """Status, progress 0-100, the stage in ``message``, timestamps and links."""
-    return status_info(_job(services, owner, job_id))
+    return status_info(visible_job(services, owner, job_id))
 
 
 @router.delete("/{job_id}", response_model=StatusInfo)
@@ -121,12 +157,12 @@ def delete_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInf
     stops within a second or two), a finished one is deleted with its results. Either way
     the answer is its last status document, ``dismissed``, and from then on every
     ``/jobs/{id}`` request answers 404."""
-    job = _job(services, owner, job_id)
+    job = visible_job(services, owner, job_id)
     if job.status in ACTIVE and services.jobs.dismiss(job_id):
         dismissed = services.jobs.get(job_id, owner)
         assert dismissed is not None  # the row stays: the worker learns of the dismissal
         return status_info(dismissed)
-    job = _job(services, owner, job_id)  # it may have finished meanwhile
+    job = visible_job(services, owner, job_id)  # it may have finished meanwhile
     if services.jobs.delete(job_id):
         services.store.delete_prefix(results_prefix(job_id))
     document = status_info(job)
@@ -136,10 +172,11 @@ def delete_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInf
 
 
 @router.get("/{job_id}/results", response_model=JobResults,
-            responses=problem_responses(409))
+            responses={200: {"links": output_links("$request.path.job_id")},
+                       **problem_responses(409)})
 def get_results(job_id: str, services: ServicesDep, owner: OwnerDep) -> JobResults | Response:
     """The plan inline and every output by href; a failed job's problem."""
-    job = _job(services, owner, job_id)
+    job = visible_job(services, owner, job_id)
     if job.status == FAILED and job.problem is not None:
         return JSONResponse(job.problem, status_code=int(job.problem.get("status", 500)),
                             media_type=MEDIA_TYPE)
@@ -155,8 +192,12 @@ def get_results(job_id: str, services: ServicesDep, owner: OwnerDep) -> JobResul
     return JobResults(document)
 
 
+# every media type an output is served with (parameters such as charset aside), for OpenAPI
+OUTPUT_MEDIA_TYPES = sorted({media.split(";")[0] for media in MEDIA_TYPES.values()})
+
+
 @router.get("/{job_id}/results/{output}", response_class=FileResponse,
-            responses={200: {"content": {"application/octet-stream": {}}}, 304: {}})
+            responses={200: {"content": {media: {} for media in OUTPUT_MEDIA_TYPES}}, 304: {}})
 def get_output(job_id: str, output: str, request: Request, services: ServicesDep,
                owner: OwnerDep) -> Response:
     """One output file, with ETag (its sha256) and Range support.
@@ -165,7 +206,7 @@ def get_output(job_id: str, output: str, request: Request, services: ServicesDep
     image/png, ``coverage.glb`` model/gltf-binary, ``plan.dxf`` image/vnd.dxf, ``plan.pdf``
     application/pdf, ``plan.ifc`` application/x-step, ``plan.bcf`` (a zip) and ``faces.npz``
     application/octet-stream."""
-    job = _job(services, owner, job_id)
+    job = visible_job(services, owner, job_id)
     if job.status != SUCCESSFUL or job.outputs is None:
         raise ResultNotReadyError(f"job {job_id} is {job.status}; results come once it is "
                                   "successful")

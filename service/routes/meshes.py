@@ -41,11 +41,21 @@ _UPLOAD_BODY: dict[str, Any] = {
 }
 
 
-# OpenAPI link: what a client does with an uploaded mesh (Schemathesis follows it)
-_EXECUTE_LINK = {"execute": {
-    "operationId": "execute", "parameters": {"process_id": "scan-plan"},
-    "requestBody": {"inputs": {"mesh": "$response.body#/id"}},
-    "description": "plan on the uploaded mesh"}}
+# OpenAPI links (https://spec.openapis.org/oas/v3.1.0#link-object): what a client does with
+# a mesh it uploaded or looked up (stateful clients and Schemathesis follow them)
+_BY_ID = {"mesh_id": "$response.body#/id"}
+_MESH_LINKS: dict[str, dict[str, Any]] = {
+    "get_mesh": {"operationId": "get_mesh", "parameters": _BY_ID,
+                 "description": "faces, bounds and groups of the mesh"},
+    "get_mesh_content": {"operationId": "get_mesh_content", "parameters": _BY_ID,
+                         "description": "the uploaded bytes"},
+    "delete_mesh": {"operationId": "delete_mesh", "parameters": _BY_ID,
+                    "description": "forget the mesh"},
+    "execute": {"operationId": "execute", "parameters": {"process_id": "scan-plan"},
+                "requestBody": {"inputs": {"mesh": "$response.body#/id"}},
+                "description": "plan on the mesh"},
+}
+_LOOKUP_LINKS = {name: link for name, link in _MESH_LINKS.items() if name != "get_mesh"}
 
 
 def mesh_info(record: MeshRecord) -> MeshInfo:
@@ -68,9 +78,9 @@ def _not_found(mesh_id: str) -> NotFoundError:
 
 @router.post("", status_code=status.HTTP_201_CREATED, response_model=MeshInfo,
              openapi_extra=_UPLOAD_BODY,
-             responses={201: {"links": _EXECUTE_LINK},
+             responses={201: {"links": _MESH_LINKS},
                         200: {"model": MeshInfo, "description": "already uploaded",
-                              "links": _EXECUTE_LINK},
+                              "links": _MESH_LINKS},
                         **problem_responses(400, 413, 415)})
 async def upload_mesh(
     request: Request, response: Response, services: ServicesDep, owner: OwnerDep,
@@ -98,7 +108,7 @@ async def upload_mesh(
     return mesh_info(record)
 
 
-@router.get("/{mesh_id}", response_model=MeshInfo)
+@router.get("/{mesh_id}", response_model=MeshInfo, responses={200: {"links": _LOOKUP_LINKS}})
 def get_mesh(mesh_id: str, response: Response, services: ServicesDep,
              owner: OwnerDep) -> MeshInfo:
     """Faces, bounds, groups, format and size of an uploaded mesh."""

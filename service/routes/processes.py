@@ -24,7 +24,7 @@ from service.problems import (
     problem_responses,
 )
 from service.routes.callbacks import callback_router
-from service.routes.jobs import PLAN_OUTPUT, media_type, status_info
+from service.routes.jobs import PLAN_OUTPUT, job_links, media_type, status_info
 from service.schemas import ExecuteRequest, PlanParameters, StatusInfo
 
 router = APIRouter(prefix="/processes", tags=["processes"],
@@ -47,10 +47,7 @@ _SUMMARY: dict[str, Any] = {
 
 
 # OpenAPI links from a new job to what a client does next (Schemathesis follows them)
-_JOB_LINKS = {
-    operation: {"operationId": operation, "parameters": {"job_id": "$response.body#/jobID"}}
-    for operation in ("get_job", "get_results", "delete_job")
-}
+_JOB_LINKS = job_links("$response.body#/jobID")
 
 
 # past the key's cap of jobs queued or running (service.tenants)
@@ -111,7 +108,8 @@ def _check_process(process_id: str) -> None:
 @router.post("/{process_id}/execution", status_code=status.HTTP_201_CREATED,
              response_model=StatusInfo,
              responses={201: {"links": _JOB_LINKS},
-                        200: {"model": StatusInfo, "description": "Idempotency-Key replay"},
+                        200: {"model": StatusInfo, "description": "Idempotency-Key replay",
+                              "links": _JOB_LINKS},
                         **problem_responses(400, 413), 429: _BUSY},
              callbacks=callback_router.routes)
 async def execute(

@@ -239,6 +239,156 @@ def test_delete_of_a_finished_job_removes_it_and_its_files(
     assert_problem(client.delete(f"/jobs/{job_id}"), 404)
 
 
+def test_callbacks_of_a_dismissed_job_are_gone(tmp_path: Path, hall_bytes: bytes) -> None:
+    """POST an execution, DELETE the job, GET its callbacks: 404 like its status."""
+    with make_client(tmp_path, InlineQueue(hold=True), api_keys=[]) as client:
+        mesh_id = upload(client, hall_bytes).json()["id"]
+        job_id = submit(client, mesh_id, {}).json()["jobID"]
+        assert client.get(f"/jobs/{job_id}/callbacks").json() == {
+            "subscriber": None, "deliveries": []}
+        assert client.delete(f"/jobs/{job_id}").json()["status"] == "dismissed"
+        assert_problem(client.get(f"/jobs/{job_id}"), 404, "dismissed")
+        assert_problem(client.get(f"/jobs/{job_id}/callbacks"), 404, "dismissed")
+
+
+def _job_operations(client: TestClient) -> list[tuple[str, str]]:
+    """Every (method, path template) the OpenAPI document lists under /jobs/{job_id}."""
+    paths = client.get("/openapi.json").json()["paths"]
+    return sorted((method, path) for path, operations in paths.items()
+                  if path.startswith("/jobs/{job_id}") for method in operations)
+
+
+@pytest.mark.parametrize("finished", [False, True], ids=["queued", "finished"])
+def test_every_job_route_answers_404_once_the_job_is_dismissed(
+        tmp_path: Path, hall_bytes: bytes, hall_parameters: dict[str, Any],
+        finished: bool) -> None:
+    """Dismissed (queued) or deleted (finished): every documented /jobs/{id} operation,
+    present and future, answers 404 with a problem document."""
+    with make_client(tmp_path, InlineQueue(hold=not finished), api_keys=[]) as client:
+        mesh_id = upload(client, hall_bytes).json()["id"]
+        job_id = submit(client, mesh_id, hall_parameters).json()["jobID"]
+        assert client.get(f"/jobs/{job_id}").json()["status"] == (
+            "successful" if finished else "accepted")
+        assert client.delete(f"/jobs/{job_id}").status_code == 200
+        operations = _job_operations(client)
+        assert ("get", "/jobs/{job_id}/callbacks") in operations
+        for method, template in operations:
+            path = template.replace("{job_id}", job_id).replace("{output}", "plan.json")
+            assert_problem(client.request(method, path), 404)
+
+
+class LinkWalker:
+    """A stateful client: it only follows the OpenAPI links of the app's own document,
+    resolving their runtime expressions ($response.body#/..., $request.path.<name>)
+    against the response they leave from."""
+
+    def __init__(self, client: TestClient) -> None:
+        self.client = client
+        document = client.get("/openapi.json").json()
+        self.document = document
+        self.operations = {operation["operationId"]: (method, path)
+                           for path, methods in document["paths"].items()
+                           for method, operation in methods.items()}
+        self.links = {operation["operationId"]: {
+            int(code): answer.get("links", {})
+            for code, answer in operation["responses"].items() if code.isdigit()}
+            for methods in document["paths"].values() for operation in methods.values()}
+        self.followed: set[str] = set()
+
+    def names(self, source: str, status: int) -> list[str]:
+        return sorted(self.links[source].get(status, {}))
+
+    def follow(self, source: str, answer: Any, name: str) -> tuple[str, Any]:
+        """Follow link ``name`` of operation ``source`` from its response ``answer``."""
+        link = self.links[source][answer.status_code][name]
+        method, template = self.operations[link["operationId"]]
+        path_parameters = self._path_parameters(source, answer)
+
+        def resolve(value: Any) -> Any:
+            if isinstance(value, dict):
+                return {key: resolve(item) for key, item in value.items()}
+            if not isinstance(value, str) or not value.startswith("$"):
+                return value
+            if value.startswith("$request.path."):
+                return path_parameters[value.removeprefix("$request.path.")]
+            assert value.startswith("$response.body#/"), value
+            found = answer.json()
+            for key in value.removeprefix("$response.body#/").split("/"):
+                found = found[key]
+            return found
+
+        path = template
+        for parameter, expression in link["parameters"].items():
+            assert "{" + parameter + "}" in path, (name, parameter, template)
+            path = path.replace("{" + parameter + "}", str(resolve(expression)))
+        assert "{" not in path, (name, path)
+        body = resolve(link["requestBody"]) if "requestBody" in link else None
+        self.followed.add(link["operationId"])
+        return link["operationId"], self.client.request(method, path, json=body)
+
+    def _path_parameters(self, source: str, answer: Any) -> dict[str, str]:
+        template = self.operations[source][1].split("/")
+        sent = answer.request.url.path.split("/")
+        return {part[1:-1]: value for part, value in zip(template, sent, strict=True)
+                if part.startswith("{")}
+
+
+def test_a_client_following_links_reaches_every_mesh_and_job_operation(
+        client: TestClient, hall_bytes: bytes, hall_parameters: dict[str, Any]) -> None:
+    """From an upload, the document's links alone lead to the mesh, its bytes, a job, its
+    status, results, every output it has, its callbacks, and both deletions."""
+    walker = LinkWalker(client)
+    uploaded = upload(client, hall_bytes)
+    assert uploaded.status_code == 201
+    assert walker.names("upload_mesh", 201) == walker.names("upload_mesh", 200) == [
+        "delete_mesh", "execute", "get_mesh", "get_mesh_content"]
+    _, mesh = walker.follow("upload_mesh", uploaded, "get_mesh")
+    assert mesh.status_code == 200 and mesh.json()["faces"] == 14724
+    _, content = walker.follow("get_mesh", mesh, "get_mesh_content")
+    assert content.content == hall_bytes
+    # the execute link names the mesh; the plan's own parameters are the client's
+    link = walker.links["upload_mesh"][201]["execute"]
+    link["requestBody"]["inputs"]["parameters"] = hall_parameters
+    _, created = walker.follow("upload_mesh", uploaded, "execute")
+    assert created.status_code == 201, created.text
+    job_id = created.json()["jobID"]
+    _, status = walker.follow("execute", created, "get_job")
+    assert status.status_code == 200 and status.json()["status"] == "successful"
+    _, callbacks = walker.follow("execute", created, "get_callbacks")
+    assert callbacks.json() == {"subscriber": None, "deliveries": []}
+    _, results = walker.follow("get_job", status, "get_results")
+    assert results.status_code == 200
+    outputs = set(results.json()) - {"plan"}
+    assert outputs >= {"plan.json", "faces.npz", "stations.csv", "coverage.glb"}
+    # each file comes with a media type the document lists for it
+    documented = walker.document["paths"]["/jobs/{job_id}/results/{output}"]["get"][
+        "responses"]["200"]["content"]
+    for source, answer in (("get_job", status), ("get_results", results)):
+        linked = [name for name in walker.names(source, 200) if name.startswith("get_output")]
+        served = set()
+        for name in linked:
+            _, output = walker.follow(source, answer, name)
+            output_name = output.request.url.path.rsplit("/", 1)[-1]
+            if output.status_code == 200:
+                assert output.content == client.get(results.json()[output_name]["href"]).content
+                media = output.headers["content-type"].split(";")[0]
+                assert media in documented, (output_name, media)
+                served.add(output_name)
+            else:  # a file only other plans have (plan.ifc of an IFC model, ...)
+                assert_problem(output, 404, output_name)
+        assert served == outputs, source  # a link to every output the job has
+    _, mesh_of_job = walker.follow("get_job", status, "get_mesh")
+    assert mesh_of_job.json()["id"] == mesh.json()["id"]
+    _, dismissed = walker.follow("get_job", status, "delete_job")
+    assert dismissed.json()["status"] == "dismissed"
+    assert_problem(client.get(f"/jobs/{job_id}"), 404)
+    _, deleted = walker.follow("get_mesh", mesh, "delete_mesh")
+    assert deleted.status_code == 204
+    assert walker.followed == {"get_mesh", "get_mesh_content", "execute", "get_job",
+                               "get_callbacks", "get_results", "get_output", "delete_job",
+                               "delete_mesh"}
+
+
 def test_job_list_filters_and_pages(tmp_path: Path, hall_bytes: bytes) -> None:
     with make_client(tmp_path, InlineQueue(hold=True), api_keys=[]) as client:
         mesh_id = upload(client, hall_bytes).json()["id"]

@@ -7,6 +7,8 @@ bucket (moto's server on 127.0.0.1) and compare every byte with the embedded mod
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -144,6 +146,14 @@ def test_the_store_url_is_checked_at_startup(tmp_path: Path) -> None:
         Settings(data_dir=tmp_path, store_url="https://bucket.example.com/prefix")
     assert isinstance(open_store(Settings(data_dir=tmp_path)), LocalStore)
 
+
+
+def test_the_settings_load_without_the_store() -> None:
+    """Imports go one way: the store reads the settings, the settings never the store."""
+    code = ("import sys; from service.config import Settings; "
+            "Settings(store_url='s3://bucket/prefix'); "
+            "sys.exit('service.store' in sys.modules)")
+    assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
 
 # ---- the service on an S3 store ---------------------------------------------------------
 
