@@ -58,3 +58,8 @@ class SchedulerUnreachableError(ClusterError):
             "SCANPLAN_DASK_SCHEDULER (or --dask-scheduler), that the scheduler runs and "
             "that this machine can open a connection to it")
         self.address = address
+        self.reason = reason
+
+    def __reduce__(self) -> tuple[type[SchedulerUnreachableError], tuple[str, str]]:
+        # rebuilt from its own arguments (a job's plan runs in a child process)
+        return type(self), (self.address, str(self.reason))

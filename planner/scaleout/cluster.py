@@ -79,8 +79,8 @@ class DaskFanout:
         self.address = address
         self.tile_candidates = tile_candidates
         try:
-            self._client: Client = Client(address, timeout=connect_timeout_s,
-                                          set_as_default=False)
+            self._client: Client = Client(  # type: ignore[no-untyped-call]
+                address, timeout=connect_timeout_s, set_as_default=False)
         except (OSError, TimeoutError, ValueError, TypeError) as exc:
             raise SchedulerUnreachableError(address, exc) from exc
         self._token = uuid.uuid4().hex[:12]
@@ -97,7 +97,7 @@ class DaskFanout:
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
-            self._client.close()
+            self._client.close()  # type: ignore[no-untyped-call]
 
     @property
     def client(self) -> Client:
@@ -107,7 +107,8 @@ class DaskFanout:
     def threads(self) -> int:
         """The cluster's worker threads now (at least 1)."""
         try:
-            return max(1, sum(self._client.nthreads().values()))
+            nthreads = self._client.nthreads()  # type: ignore[no-untyped-call]
+            return max(1, int(sum(nthreads.values())))
         except Exception as exc:
             raise self._failed(exc) from exc
 
@@ -158,7 +159,7 @@ class DaskFanout:
                     raise
                 except Exception as exc:
                     raise self._failed(exc) from exc
-                future.release()
+                future.release()  # type: ignore[no-untyped-call]
                 del future
                 for item in itertools.islice(pending, 1):
                     futures.append(submit(item))
@@ -170,7 +171,7 @@ class DaskFanout:
         finally:
             if futures:
                 with contextlib.suppress(Exception):
-                    client.cancel(list(futures))
+                    client.cancel(list(futures))  # type: ignore[no-untyped-call]
 
     def coverage_blocks(self, sight: Sight, positions: NDArray[np.float64],
                         progress: ProgressCallback | None

@@ -36,6 +36,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -86,11 +87,12 @@ class Tile:
     def nbytes(self) -> int:
         """The size of the tile's arrays (what a worker receives)."""
         scene = self.scene
-        arrays = [scene.vertices, scene.faces, scene.source_face, scene.file_face_group,
-                  scene.file_face_element, scene.centroids, scene.normals, scene.areas,
-                  self.faces, self.positions, self.candidates, self.limits.target,
-                  self.limits.occludes, self.limits.min_density_pts_m2,
-                  self.limits.min_incidence_deg]
+        arrays: list[NDArray[Any]] = [
+            scene.vertices, scene.faces, scene.source_face, scene.file_face_group,
+            scene.file_face_element, scene.centroids, scene.normals, scene.areas,
+            self.faces, self.positions, self.candidates, self.limits.target,
+            self.limits.occludes, self.limits.min_density_pts_m2,
+            self.limits.min_incidence_deg]
         if scene.file_vertices is not None and scene.file_faces is not None:
             arrays += [scene.file_vertices, scene.file_faces]
         if self.bvh.bvh_occludes is not None:
