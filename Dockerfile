@@ -14,7 +14,7 @@ WORKDIR /app
 COPY pyproject.toml README.md ./
 COPY planner ./planner
 COPY service ./service
-RUN pip install --no-cache-dir . \
+RUN pip install --no-cache-dir ".[dask]" \
     && groupadd --gid 10001 scanplan \
     && useradd --uid 10001 --gid 10001 --no-create-home --shell /usr/sbin/nologin scanplan \
     && mkdir -p /data \

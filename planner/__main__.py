@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from importlib.metadata import entry_points
@@ -79,7 +80,7 @@ def run_plan(args: argparse.Namespace) -> int:
     scene = read_scene(args.scene, max_edge_m=spec.max_edge_m, unit_scale=spec.unit_scale,
                        up_axis=spec.up_axis, split_faces="as_needed")
     try:
-        result = plan(scene, spec, progress=progress)
+        result = plan(scene, spec, progress=progress, dask_scheduler=args.dask_scheduler)
         progress("writing", 1.0)
         written = write_outputs(result, args.out)
         if spec.verify:  # as `scanplan verify` would, on the plan just written
@@ -181,6 +182,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--params", help="JSON object of parameters (names as in the API)")
     p.add_argument("--out", required=True, help="directory for plan.json, faces.npz, ...")
     p.add_argument("--quiet", action="store_true", help="print nothing on success")
+    p.add_argument("--dask-scheduler", metavar="ADDRESS",
+                   default=os.environ.get("SCANPLAN_DASK_SCHEDULER") or None,
+                   help="run the visibility and the overlap rows on the workers of the Dask "
+                        "scheduler at ADDRESS (tcp://host:8786; default: "
+                        "$SCANPLAN_DASK_SCHEDULER); the plan's files are the same")
     p.set_defaults(handler=run_plan)
     s = sub.add_parser("scanners", help="list the scanner presets (the scanner parameter)")
     s.add_argument("--json", action="store_true", help="print the presets with their sources")

@@ -42,3 +42,24 @@ class NothingVisibleError(PlannerError):
 
 class CancelledError(PlannerError):
     """The progress callback asked the pipeline to stop."""
+
+
+class ClusterError(PlannerError):
+    """The Dask cluster a plan was fanned out over failed it (``--dask-scheduler``,
+    ``SCANPLAN_DASK_SCHEDULER``)."""
+
+
+class SchedulerUnreachableError(ClusterError):
+    """The Dask scheduler cannot be reached: the plan does not start."""
+
+    def __init__(self, address: str, reason: object) -> None:
+        super().__init__(
+            f"the Dask scheduler at {address} cannot be reached: {reason}; check "
+            "SCANPLAN_DASK_SCHEDULER (or --dask-scheduler), that the scheduler runs and "
+            "that this machine can open a connection to it")
+        self.address = address
+        self.reason = reason
+
+    def __reduce__(self) -> tuple[type[SchedulerUnreachableError], tuple[str, str]]:
+        # rebuilt from its own arguments (a job's plan runs in a child process)
+        return type(self), (self.address, str(self.reason))

@@ -25,6 +25,7 @@ from planner.memory import bound_heap, release_freed_memory
 from planner.parameters import PlanSpec
 from planner.progress import ProgressCallback, Stats, new_stage
 from planner.rays import Backend
+from planner.scaleout import DaskFanout, fanout_over
 from planner.scene import Scene, remesh
 from planner.selection.choose import choose
 from planner.selection.greedy import Selection, coverage_state
@@ -73,6 +74,7 @@ def plan(
     progress: ProgressCallback | None = None,
     backend: Backend = "embree",
     threads: int | None = None,
+    dask_scheduler: str | None = None,
 ) -> PlanResult:
     """Plan the stations for ``scene`` under ``spec``.
 
@@ -82,7 +84,18 @@ def plan(
         cancels the plan with :class:`~planner.errors.CancelledError`
     backend : "embree" (default) or "bruteforce" (the slow reference)
     threads : worker threads for visibility (default: the machine's cores)
+    dask_scheduler : address of a Dask scheduler (``tcp://host:8786``): the visibility and
+        the overlap rows run on its workers (:mod:`planner.scaleout`), the plan's bytes are
+        the same; raises :class:`~planner.errors.SchedulerUnreachableError` when it cannot
+        be reached
     """
+    with fanout_over(dask_scheduler) as fanout:
+        return _plan(scene, spec, progress=progress, backend=backend, threads=threads,
+                     fanout=fanout)
+
+
+def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
+          backend: Backend, threads: int | None, fanout: DaskFanout | None) -> PlanResult:
     stats = Stats()
     t0, cpu0 = time.perf_counter(), time.process_time()
     if scene.split_max_edge_m is not None and (spec.occluders != "file" or backend != "embree"):
@@ -98,10 +111,10 @@ def plan(
         stats.seconds["split"] = time.perf_counter() - t_split
     new_stage(progress, "visibility")
     table = coverage_table(sight, candidates.positions, stats, progress=progress,
-                           threads=threads)
+                           threads=threads, fanout=fanout)
     new_stage(progress, "selection")
     choice = choose(sight, table, candidates.positions, fixed, stats, progress=progress,
-                    threads=threads)
+                    threads=threads, fanout=fanout)
     chosen, station_overlap = choice.chosen, choice.station_overlap
     stations_xyz = candidates.positions[list(chosen.stations)]  # (S, 3)
     release_freed_memory()
@@ -110,7 +123,8 @@ def plan(
     tolerance = None
     if spec.placement_tolerance_m > 0:
         tolerance, station_overlap = plan_tolerance(
-            sight, table, chosen, stations_xyz, station_overlap, stats, threads=threads)
+            sight, table, chosen, stations_xyz, station_overlap, stats, threads=threads,
+            fanout=fanout)
         # its threads' freed scratch, still in their arenas (the office: 320 MB), before the
         # densities and the per-face results make the next peak
         release_freed_memory()
@@ -123,7 +137,7 @@ def plan(
     margins = faces.pop("density_margin", None)
     plan_survey = survey(sight.scene, spec, stations_xyz, sight.limits, sight.occlusion,
                          sight.caster, stats.seconds, station_overlap=station_overlap,
-                         threads=threads,
+                         threads=threads, fanout=fanout,
                          density_margins=None if margins is None else margins.tolist())
     forget_bundles(sight.scene)
     new_stage(progress, "report")

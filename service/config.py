@@ -84,6 +84,11 @@ class Settings(BaseSettings):
     max_attempts: int = Field(default=3, ge=1, description="runs of a job before it fails as lost")
     progress_interval_s: float = Field(
         default=0.5, gt=0, description="least time between progress writes (and cancel checks)")
+    dask_scheduler: str | None = Field(
+        default=None,
+        description="address of a Dask scheduler (tcp://host:8786): each plan's visibility "
+                    "and overlap rows run on its workers, the plan's bytes the same; a "
+                    "scheduler that cannot be reached fails the job naming it")
     plan_threads: int | None = Field(
         default=None, ge=1, description="visibility threads per job (default: cores / workers)")
     worker_health_interval_s: float = Field(

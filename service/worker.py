@@ -237,6 +237,7 @@ def _run_plan(ctx: WorkerContext, job: JobRecord, reporter: ProgressReporter,
     if mesh_path is None:
         raise SceneError(f"mesh {job.mesh_id} is no longer stored; upload it again")
     threads = ctx.settings.threads_per_job
+    dask_scheduler = ctx.settings.dask_scheduler  # None: the plan runs in this worker
 
     def work(progress: Progress) -> tuple[dict[str, dict[str, Any]], dict[str, float]]:
         timings: dict[str, float] = {}
@@ -245,7 +246,8 @@ def _run_plan(ctx: WorkerContext, job: JobRecord, reporter: ProgressReporter,
         scene = read_scene(mesh_path, max_edge_m=spec.max_edge_m, unit_scale=spec.unit_scale,
                            up_axis=spec.up_axis, split_faces="as_needed")
         timings["reading"] = time.perf_counter() - started
-        result = plan(scene, spec, progress=progress, threads=threads)
+        result = plan(scene, spec, progress=progress, threads=threads,
+                      dask_scheduler=dask_scheduler)
         timings.update(result.stats.seconds)
         progress("writing", 0.0)
         started = time.perf_counter()

@@ -6,6 +6,7 @@ A missing embreex is a loud error: there is no silent slow path.
 from __future__ import annotations
 
 import threading
+from dataclasses import dataclass
 from typing import Any
 
 import numba
@@ -114,6 +115,45 @@ def _ragged_ranges(starts: NDArray[np.int64], counts: NDArray[np.int64]) -> NDAr
                                                                  else 0)
 
 
+@dataclass(frozen=True)
+class BvhPart:
+    """What makes a BVH over a part of a model's faces decide as the whole model's BVH
+    does (a tile of the model sent to another machine, :mod:`planner.visibility.tiles`).
+
+    Attributes
+    ----------
+    bvh_occludes : (n,) bool, which of the part's BVH faces occlude (the file faces of a
+        remeshed part, whose pieces are not all in it; None: from the pieces' ``occludes``)
+    scale_m : the largest coordinate of the whole BVH, which sets the clear-hit margin
+    quads : whether bundles may hide behind quads (the whole BVH's size decides)
+    """
+
+    bvh_occludes: NDArray[np.bool_] | None
+    scale_m: float
+    quads: bool
+
+
+@dataclass(frozen=True, eq=False)
+class BvhFaces:
+    """The faces an :class:`EmbreeOcclusion` casts against, for cutting a part of them.
+
+    Attributes
+    ----------
+    vertices : (V, 3) float64 and ``faces`` (B, 3) int32: the BVH's mesh (the file's mesh
+        with ``file_faces`` on a remeshed scene, else the scene's own)
+    occluding : (b,) int64, the BVH faces that occlude, ascending
+    file_faces : the BVH holds the file's faces of a remeshed scene
+    scale_m, quads : as :class:`BvhPart`
+    """
+
+    vertices: NDArray[np.float64]
+    faces: NDArray[np.int32]
+    occluding: NDArray[np.int64]
+    file_faces: bool
+    scale_m: float
+    quads: bool
+
+
 class EmbreeOcclusion:
     """Occlusion test against the occluding faces of a scene, one Embree BVH.
 
@@ -148,24 +188,31 @@ class EmbreeOcclusion:
     65.9 M rays took 32.6 CPU s instead of 40.8, every verdict the same
     (tests/planner/test_occlusion.py compares them ray by ray).
 
+    ``part_of`` (:class:`BvhPart`): the scene is a part of a larger model (a tile, cut
+    with every occluder a ray of the part can meet); which BVH faces occlude, the clear
+    margin and the quads are then the whole model's, so the part's verdicts are its.
+
     ``visible`` releases the GIL inside Embree, so threads calling it run in parallel.
     """
 
     def __init__(self, scene: Scene, occludes: NDArray[np.bool_], *,
-                 file_faces: bool = False) -> None:
+                 file_faces: bool = False, part_of: BvhPart | None = None) -> None:
         remeshed = file_faces and scene.file_faces is not None
         bvh_vertices, bvh_faces = scene.file_mesh if remeshed else (scene.vertices, scene.faces)
         # (F,) the BVH face each scene face is part of (the identity on an unremeshed scene)
         self._source_face = scene.source_face if remeshed else None
-        if remeshed:
+        if part_of is not None and part_of.bvh_occludes is not None:
+            file_occludes = np.asarray(part_of.bvh_occludes, bool)
+        elif remeshed:
             file_occludes = np.zeros(len(bvh_faces), bool)
             file_occludes[scene.source_face[occludes]] = True
+        else:
+            file_occludes = occludes
+        if remeshed:
             # (F0,) a scene face of every file face (its first piece), for first_hit
             self._first_piece = np.full(len(bvh_faces), -1, np.int64)
             pieces_of, first = scene.first_pieces()
             self._first_piece[pieces_of] = first
-        else:
-            file_occludes = occludes
         self._scene = rtcore_scene.EmbreeScene(robust=True)
         # the same faces in Embree's fast mode: where the two casts disagree, float64 decides
         self._check_scene = rtcore_scene.EmbreeScene(robust=False)
@@ -179,8 +226,12 @@ class EmbreeOcclusion:
             self._check_mesh = TriangleMesh(self._check_scene, vertices32, faces32)
             # the corners as Embree holds them (float32), for the clear-hit test
             self._corners32 = (vertices32, faces32)
-            scale_m = float(np.abs(vertices32).max(initial=1.0))
+            scale_m = (float(np.abs(vertices32).max(initial=1.0)) if part_of is None
+                       else part_of.scale_m)
+            self._scale_m = scale_m
             self._clear_margin_m = _CLEAR_HIT_ULPS * float(np.spacing(np.float32(scale_m)))
+        self._quads_allowed = (len(self._faces) <= _QUAD_MAX_TRIANGLES if part_of is None
+                               else part_of.quads)
         self._occludes = occludes
         self._all_occlude = bool(file_occludes.all())
         self._scene_faces = (scene.vertices, scene.faces)
@@ -191,6 +242,13 @@ class EmbreeOcclusion:
         self._quad_partners: tuple[NDArray[np.int32], NDArray[np.int8],
                                    NDArray[np.int32]] | None = None
         self._lock = threading.Lock()
+
+    def bvh_faces(self) -> BvhFaces:
+        """The faces this occlusion casts against (see :class:`BvhFaces`)."""
+        vertices, faces = self._bvh_mesh
+        return BvhFaces(vertices, faces, self._faces.astype(np.int64),
+                        self._source_face is not None,
+                        getattr(self, "_scale_m", 1.0), self._quads_allowed)
 
     def visible(
         self,
@@ -295,7 +353,7 @@ class EmbreeOcclusion:
                 vertices32, faces32 = self._corners32
                 self._quad_partners = (
                     quad_partners(vertices32, faces32, self._clear_margin_m)
-                    if len(faces32) <= _QUAD_MAX_TRIANGLES
+                    if self._quads_allowed
                     else (np.zeros(0, np.int32), np.zeros(0, np.int8), np.zeros(0, np.int32)))
             return self._quad_partners
 

@@ -22,7 +22,7 @@ from planner.selection.connectivity import Connectivity
 from planner.selection.greedy import Selection
 from planner.selection.optimal import SelectionOutcome, choose_stations
 from planner.visibility.coverage import CoverageTable
-from planner.visibility.overlap import OverlapRows
+from planner.visibility.overlap import OverlapRows, RowsFanout
 from planner.visibility.qualify import Sight
 
 
@@ -46,8 +46,9 @@ class Choice:
 
 def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tuple[int, ...],
            stats: Stats, *, progress: ProgressCallback | None = None,
-           threads: int | None = None) -> Choice:
-    """The stations of the plan under ``sight.spec`` (method, goal, overlap)."""
+           threads: int | None = None, fanout: RowsFanout | None = None) -> Choice:
+    """The stations of the plan under ``sight.spec`` (method, goal, overlap); the overlap
+    rows are computed by ``fanout`` when given (a cluster)."""
     scene, spec = sight.scene, sight.spec
     started = time.perf_counter()
     rows = None
@@ -58,7 +59,7 @@ def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tup
         # computed when a method first needs them: the connected greedy asks for a few
         rows = OverlapRows(scene, positions, sight.limits, sight.occlusion,
                            spec.overlap_density_pts_m2, threads=threads,
-                           file_faces=sight.file_faces)
+                           file_faces=sight.file_faces, fanout=fanout)
         if spec.method == "optimal" and not fixed:
             # optimal keeps the overlap graph connected: a flow MILP from connected greedy,
             # on the graph of every candidate's row

@@ -22,7 +22,7 @@ from planner.scanners import StationScan, missing_duration_reason, station_scans
 from planner.scene import Scene
 from planner.survey.registration import Registration, station_registration
 from planner.survey.route import Route, plan_route
-from planner.visibility.overlap import OverlapRows, shared_faces_only
+from planner.visibility.overlap import OverlapRows, RowsFanout, shared_faces_only
 from planner.visibility.pairs import FaceLimits
 from planner.walkgraph import build_walk_graph, door_faces
 
@@ -136,12 +136,13 @@ def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces
 def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceLimits,
            occlusion: Occlusion, caster: RayCaster, seconds: dict[str, float],
            station_overlap: sp.csr_matrix | None = None,
-           threads: int | None = None, density_margins: list[float] | None = None) -> Survey:
+           threads: int | None = None, density_margins: list[float] | None = None,
+           fanout: RowsFanout | None = None) -> Survey:
     """Registration, route and field time of the (S, 3) stations, in selection order.
 
     ``station_overlap``: the stations' (S, F) overlap rows when the selection already made
-    them; ``density_margins``: see :func:`scans_of`; ``seconds`` gains the stages "overlap"
-    and "walk graph".
+    them (else made here, by ``fanout`` when given); ``density_margins``: see
+    :func:`scans_of`; ``seconds`` gains the stages "overlap" and "walk graph".
     """
     t0 = time.perf_counter()
     # only what two stations share counts: the rows are cut to it before the registration's
@@ -150,7 +151,7 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     if station_overlap is None:
         shared = OverlapRows(scene, stations_xyz, limits, occlusion,
                              spec.overlap_density_pts_m2, threads=threads,
-                             file_faces=spec.occluders == "file"
+                             file_faces=spec.occluders == "file", fanout=fanout
                              ).shared_matrix(range(len(stations_xyz)))
     else:
         shared = shared_faces_only(station_overlap)

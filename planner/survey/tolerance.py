@@ -45,7 +45,12 @@ from planner.survey.registration import Registration, station_registration
 from planner.threads import in_block_order
 from planner.visibility.bundles import forget_bundles
 from planner.visibility.coverage import CoverageTable, QualifiedPairs
-from planner.visibility.overlap import OverlapRows, overlap_limits, shared_faces_only
+from planner.visibility.overlap import (
+    OverlapRows,
+    RowsFanout,
+    overlap_limits,
+    shared_faces_only,
+)
 from planner.visibility.pairs import FaceLimits, PairFinder
 from planner.visibility.qualify import Sight
 from planner.visibility.robust import Qualify, kept_faces
@@ -369,8 +374,8 @@ def _strongest_forest(registration: Registration, n: int) -> list[tuple[int, int
 
 def plan_tolerance(sight: Sight, table: CoverageTable, chosen: Selection,
                    stations_xyz: NDArray[np.float64], station_overlap: sp.csr_matrix | None,
-                   stats: Stats, *, threads: int | None = None
-                   ) -> tuple[Tolerance, sp.csr_matrix]:
+                   stats: Stats, *, threads: int | None = None,
+                   fanout: RowsFanout | None = None) -> tuple[Tolerance, sp.csr_matrix]:
     """The tolerance report of the plan's ``chosen`` stations at (S, 3) ``stations_xyz``,
     and the stations' overlap rows it was judged with (``station_overlap`` when the
     selection made them; otherwise made here, cut to the faces two stations share as the
@@ -382,7 +387,8 @@ def plan_tolerance(sight: Sight, table: CoverageTable, chosen: Selection,
         station_overlap = OverlapRows(
             scene, stations_xyz, sight.limits, sight.occlusion,
             spec.overlap_density_pts_m2, threads=threads,
-            file_faces=sight.file_faces).shared_matrix(range(len(chosen.stations)))
+            file_faces=sight.file_faces, fanout=fanout
+        ).shared_matrix(range(len(chosen.stations)))
         stats.seconds["overlap"] = time.perf_counter() - t_rows
     forget_bundles(scene)  # only the overlap rows reach far enough to use them
     t_tolerance, cpu_tolerance = time.perf_counter(), time.process_time()

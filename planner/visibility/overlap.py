@@ -16,9 +16,9 @@ from __future__ import annotations
 import dataclasses
 import os
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from planner.memory import released_every
 from planner.rays import Occlusion, make_occlusion
 from planner.scene import Scene
-from planner.visibility.bundles import bundle_culler
+from planner.visibility.bundles import BundleCuller, bundle_culler
 from planner.visibility.pairs import FaceLimits, PairFinder
 from planner.walkgraph import door_faces
 
@@ -56,16 +56,22 @@ class OverlapRows:
     plan's (``occluders`` "file"), so the rows do not depend on how the faces were split.
     Rows are computed when first asked for (the compiled limits kernel, then the Embree
     occlusion rays; one candidate per task on a thread pool) and cached, so the connected
-    greedy pays only for the candidates it considers.
+    greedy pays only for the candidates it considers. With a ``fanout``
+    (:class:`RowsFanout`, e.g. a Dask cluster: :mod:`planner.scaleout`) the rows are
+    computed there, as many at a time as it has threads.
     """
 
     def __init__(self, scene: Scene, positions: NDArray[np.float64], limits: FaceLimits,
                  occlusion: Occlusion, overlap_density_pts_m2: float,
-                 threads: int | None = None, *, file_faces: bool = False) -> None:
+                 threads: int | None = None, *, file_faces: bool = False,
+                 fanout: RowsFanout | None = None) -> None:
         doors = door_faces(scene)
+        self._occludes = limits.occludes
         if (doors & limits.occludes).any():
-            occlusion = make_occlusion(scene, limits.occludes & ~doors, "embree",
-                                       file_faces=file_faces)
+            self._occludes = limits.occludes & ~doors
+            occlusion = make_occlusion(scene, self._occludes, "embree", file_faces=file_faces)
+        self._scene = scene
+        self._fanout = fanout
         self.n_faces = scene.n_faces
         self._positions = np.asarray(positions, np.float64)  # (C, 3)
         self._centroids = scene.centroids  # (F, 3), for the float64 rays
@@ -74,7 +80,7 @@ class OverlapRows:
         # a row reaches far (25 m at the default overlap density), mostly into other rooms:
         # bundles hidden behind a wall are ruled out with four rays instead of one a piece
         self._culler = bundle_culler(scene, self._finder.reach_m, occlusion)
-        self.workers = threads or os.cpu_count() or 1
+        self.workers = (threads or os.cpu_count() or 1) if fanout is None else fanout.threads
         self._rows: dict[int, NDArray[np.int32]] = {}  # candidate -> (k,) sorted face ids
         self.seconds = 0.0  # time spent computing rows
         self.rays_cast = 0
@@ -88,13 +94,37 @@ class OverlapRows:
         return len(self._rows)
 
     def _row(self, candidate: int) -> tuple[NDArray[np.int32], int]:
-        point = self._positions[candidate:candidate + 1]
-        hidden, bundle_rays = (None, 0) if self._culler is None else self._culler.hidden(point)
-        pairs, _ = self._finder.find(point, candidate, hidden, ordered=False)  # sorted below
-        visible = self._occlusion.visible(
-            pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
-            exact_rays=pairs.exact_rays(self._positions, self._centroids))
-        return np.sort(pairs.face[visible]), len(pairs) + bundle_rays
+        return overlap_row(self._finder, self._culler, self._occlusion, self._positions,
+                           self._centroids, candidate)
+
+    @property
+    def scene(self) -> Scene:
+        return self._scene
+
+    @property
+    def positions(self) -> NDArray[np.float64]:
+        """(C, 3) the candidates the rows are of."""
+        return self._positions
+
+    @property
+    def limits(self) -> FaceLimits:
+        """The limits of the rows (the overlap density's)."""
+        return self._finder.limits
+
+    @property
+    def reach_m(self) -> float:
+        """The rows' pair search reach."""
+        return self._finder.reach_m
+
+    @property
+    def occlusion(self) -> Occlusion:
+        """The rows' occlusion test (IFC doors open)."""
+        return self._occlusion
+
+    @property
+    def occludes(self) -> NDArray[np.bool_]:
+        """(F,) bool, the faces the rows' occlusion test holds (IFC doors open)."""
+        return self._occludes
 
     def ensure(self, candidates: Iterable[int]) -> None:
         """Compute the rows of ``candidates`` not computed yet."""
@@ -102,6 +132,14 @@ class OverlapRows:
         if not todo:
             return
         started = time.perf_counter()
+        if self._fanout is not None:
+            rows = self._fanout.overlap_rows(self, todo)
+            if rows is not None:
+                for c, (faces, rays) in zip(todo, rows, strict=True):
+                    self._rows[c] = faces
+                    self.rays_cast += rays
+                self.seconds += time.perf_counter() - started
+                return
         # no threads are started for one row or one worker (the pool starts them on demand)
         with ThreadPoolExecutor(max_workers=min(self.workers, len(todo))) as pool:
             parallel = len(todo) > 1 and self.workers > 1
@@ -134,6 +172,35 @@ class OverlapRows:
         indices = np.concatenate(rows) if rows else np.zeros(0, np.int32)
         return sp.csr_matrix((np.ones(len(indices), np.float64), indices, indptr),
                              shape=(len(rows), self.n_faces))
+
+
+def overlap_row(finder: PairFinder, culler: BundleCuller | None, occlusion: Occlusion,
+                positions: NDArray[np.float64], centroids: NDArray[np.float64],
+                candidate: int) -> tuple[NDArray[np.int32], int]:
+    """The faces candidate ``candidate`` of the (C, 3) ``positions`` qualifies for under
+    ``finder``'s limits (ascending) and the rays cast for them."""
+    point = positions[candidate:candidate + 1]
+    hidden, bundle_rays = (None, 0) if culler is None else culler.hidden(point)
+    pairs, _ = finder.find(point, candidate, hidden, ordered=False)  # sorted below
+    visible = occlusion.visible(
+        pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
+        exact_rays=pairs.exact_rays(positions, centroids))
+    return np.sort(pairs.face[visible]), len(pairs) + bundle_rays
+
+
+class RowsFanout(Protocol):
+    """Computes overlap rows elsewhere (a cluster: :mod:`planner.scaleout`)."""
+
+    @property
+    def threads(self) -> int:
+        """How many rows it computes at a time."""
+        ...
+
+    def overlap_rows(self, rows: OverlapRows, candidates: list[int]
+                     ) -> Iterator[tuple[NDArray[np.int32], int]] | None:
+        """The rows of ``candidates`` (each: faces ascending, rays cast), in order; None
+        when these rows cannot be computed there (they are then computed here)."""
+        ...
 
 
 def overlap_matrix(scene: Scene, positions: NDArray[np.float64], limits: FaceLimits,

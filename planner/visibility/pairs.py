@@ -435,9 +435,12 @@ class PairFinder:
     those beyond reach before any arithmetic.
     """
 
-    def __init__(self, scene: Scene, limits: FaceLimits) -> None:
+    def __init__(self, scene: Scene, limits: FaceLimits, *,
+                 reach_m: float | None = None) -> None:
         self.limits = limits
-        self.reach_m = min(limits.reach_m, limits.dof_max_m)
+        # a tile of a model (planner.visibility.tiles) searches as far as the whole model
+        # does, whatever the densities of its own targets
+        self.reach_m = min(limits.reach_m, limits.dof_max_m) if reach_m is None else reach_m
         self._faces = np.flatnonzero(limits.target).astype(np.int32)  # (f,) the targets
         # the scene's own (F, 3) arrays, read through self._faces: no (f, 3) copies
         self._face_xyz = scene.centroids

@@ -17,8 +17,9 @@ from __future__ import annotations
 
 import functools
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -118,21 +119,36 @@ class Sight:
         return qualify
 
 
+class CoverageFanout(Protocol):
+    """Computes the qualified pairs elsewhere (a cluster: :mod:`planner.scaleout`)."""
+
+    def coverage_blocks(self, sight: Sight, positions: np.ndarray,
+                        progress: ProgressCallback | None
+                        ) -> Iterator[tuple[QualifiedPairs, int, int]] | None:
+        """The qualified pairs of the (C, 3) candidate ``positions`` as
+        :func:`qualify_pairs` gives them (blocks in candidate order, with the pairs tested
+        and rays cast); None when this sight's pairs cannot be computed there (they are
+        then computed here)."""
+        ...
+
+
 def coverage_table(sight: Sight, positions: np.ndarray, stats: Stats, *,
                    progress: ProgressCallback | None = None,
-                   threads: int | None = None) -> CoverageTable:
+                   threads: int | None = None,
+                   fanout: CoverageFanout | None = None) -> CoverageTable:
     """The coverage table of the (C, 3) candidate ``positions``: the qualified pairs under
-    the plan's coverage model, robust when ``spec.robust``.
+    the plan's coverage model, robust when ``spec.robust``. With a ``fanout`` the
+    qualified pairs are computed there where it can (the robust cut stays here).
 
     Raises :class:`NothingVisibleError` when no face qualifies from any candidate.
     """
     scene, spec = sight.scene, sight.spec
     started = time.perf_counter()
-    table = CoverageTable.from_blocks(
-        released_every(qualified_blocks(sight, positions, stats, progress=progress,
-                                        threads=threads),
-                       TRIM_EVERY_BLOCKS),
-        len(positions), scene.areas)
+    remote = None if fanout is None else fanout.coverage_blocks(sight, positions, progress)
+    blocks = (qualified_blocks(sight, positions, stats, progress=progress, threads=threads)
+              if remote is None else _counted(remote, stats))
+    table = CoverageTable.from_blocks(released_every(blocks, TRIM_EVERY_BLOCKS),
+                                      len(positions), scene.areas)
     stats.qualified_pairs = table.n_pairs
     stats.seconds["visibility"] = time.perf_counter() - started
     if spec.robust:  # a face counts only when it qualifies from every displaced setup too
@@ -146,6 +162,15 @@ def coverage_table(sight: Sight, positions: np.ndarray, stats: Stats, *,
             f"{spec.min_density_pts_m2}, min_incidence_deg {spec.min_incidence_deg})"
         )
     return table
+
+
+def _counted(blocks: Iterable[tuple[QualifiedPairs, int, int]], stats: Stats
+             ) -> Iterator[QualifiedPairs]:
+    """The pairs of ``blocks``, what was tested and cast counted in ``stats``."""
+    for qualified, tested, rays in blocks:
+        stats.pairs_tested += tested
+        stats.rays_cast += rays
+        yield qualified
 
 
 def robust_table(sight: Sight, table: CoverageTable, positions: np.ndarray, stats: Stats, *,
@@ -246,6 +271,7 @@ def qualify_pairs(
     threads: int | None = None,
     bundles: bool | None = None,
     most_tests: int = TESTS_PER_BLOCK,
+    reach_m: float | None = None,
 ) -> Iterator[tuple[QualifiedPairs, int, int]]:
     """The qualified pairs of (C, 3) candidate positions, block by block in candidate order
     (each sorted by (candidate, face)), with the pairs tested and rays cast for it.
@@ -254,11 +280,12 @@ def qualify_pairs(
     each (:mod:`planner.visibility.bundles`): None where it pays (a long reach), True always,
     False never; the same pairs qualify either way. ``most_tests``: the pair tests a block
     of candidates makes at most (:meth:`PairFinder.blocks`), which bounds its scratch.
+    ``reach_m``: the search's reach (default: the limits'; a tile passes its model's).
 
     Blocks of candidates run on a thread pool (the compiled limits loop and Embree both
     release the GIL); they come out in block order, so they do not depend on timing.
     """
-    finder = PairFinder(scene, limits)
+    finder = PairFinder(scene, limits, reach_m=reach_m)
     culler = None if bundles is False else bundle_culler(scene, finder.reach_m, occlusion,
                                                          always=bool(bundles))
     # neighbouring candidates in a block share the pair search of their cells

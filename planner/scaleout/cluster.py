@@ -1,0 +1,241 @@
+"""The Dask side: a client of the cluster, tasks submitted a window at a time and read in
+order (:class:`DaskFanout`).
+
+Each task is a function of :mod:`planner.visibility.tiles` applied to one tile; the tile
+travels in the task (client -> scheduler -> worker), never scattered: scattered data is lost
+with its worker, a task's own arguments are not. At most a few tasks per worker thread are
+out at a time, so neither this process nor the scheduler holds more than those tiles.
+
+Array letters: C candidates, F faces.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import itertools
+import math
+import uuid
+import weakref
+from collections.abc import Callable, Iterable, Iterator
+from typing import TYPE_CHECKING, Any, TypeVar
+
+import numpy as np
+from numpy.typing import NDArray
+
+from planner.errors import ClusterError, PlannerError, SchedulerUnreachableError
+from planner.progress import ProgressCallback, notify
+from planner.rays.embree import EmbreeOcclusion
+from planner.visibility.coverage import QualifiedPairs
+from planner.visibility.overlap import OverlapRows
+from planner.visibility.qualify import Sight
+from planner.visibility.tiles import (
+    Tile,
+    TileCutter,
+    contiguous_tiles,
+    overlap_tile,
+    qualify_tile,
+)
+
+if TYPE_CHECKING:
+    from distributed import Client, Future
+
+_Item = TypeVar("_Item")
+_Result = TypeVar("_Result")
+
+# tasks out per worker thread: enough that a worker never waits for its next tile, few
+# enough that the tiles held here and on the scheduler stay a handful per thread
+TASKS_AHEAD_PER_THREAD = 2
+# a tile's candidates: at least this many (a task's BVH and bundles are made once for them)
+# and at most that many (its part of the model, and so the worker's memory, grows with them)
+MIN_TILE_CANDIDATES = 8
+MAX_TILE_CANDIDATES = 128
+# tiles per worker thread at least, so a slow tile does not leave the others idle
+TILES_PER_THREAD = 4
+# runs of a task that raised before the plan fails (a worker that dies is another matter:
+# the scheduler gives its tasks to the others, up to distributed.scheduler.allowed-failures)
+TASK_RETRIES = 1
+CONNECT_TIMEOUT_S = 10.0
+
+
+class DaskFanout:
+    """A plan's visibility and overlap rows on the Dask cluster at ``address``.
+
+    Connects at once: a scheduler that cannot be reached raises
+    :class:`~planner.errors.SchedulerUnreachableError` naming the address. ``tile_candidates``:
+    candidates per tile (default: from the candidates and the cluster's threads, between
+    :data:`MIN_TILE_CANDIDATES` and :data:`MAX_TILE_CANDIDATES`). Close it (or use it as a
+    context manager) when the plan is done.
+    """
+
+    def __init__(self, address: str, *, tile_candidates: int | None = None,
+                 connect_timeout_s: float = CONNECT_TIMEOUT_S) -> None:
+        try:
+            from distributed import Client
+        except ImportError as exc:  # pragma: no cover - depends on the installation
+            raise ClusterError(
+                "a Dask scheduler was given but Dask is not installed: install "
+                "scanplan[dask] (dask[distributed]) where the plan runs") from exc
+        self.address = address
+        self.tile_candidates = tile_candidates
+        try:
+            self._client: Client = Client(  # type: ignore[no-untyped-call]
+                address, timeout=connect_timeout_s, set_as_default=False)
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:
+            raise SchedulerUnreachableError(address, exc) from exc
+        self._token = uuid.uuid4().hex[:12]
+        self._cutters: weakref.WeakKeyDictionary[OverlapRows, TileCutter] = (
+            weakref.WeakKeyDictionary())
+        self.tasks = 0  # tasks submitted
+        self.tile_bytes = 0  # the arrays of the tiles submitted
+
+    def __enter__(self) -> DaskFanout:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self._client.close()  # type: ignore[no-untyped-call]
+
+    @property
+    def client(self) -> Client:
+        return self._client
+
+    @property
+    def threads(self) -> int:
+        """The cluster's worker threads now (at least 1)."""
+        try:
+            nthreads = self._client.nthreads()  # type: ignore[no-untyped-call]
+            return max(1, int(sum(nthreads.values())))
+        except Exception as exc:
+            raise self._failed(exc) from exc
+
+    def _failed(self, exc: BaseException) -> ClusterError:
+        return ClusterError(f"the Dask cluster at {self.address} failed the plan: "
+                            f"{type(exc).__name__}: {exc}")
+
+    def _tile_size(self, n_candidates: int) -> int:
+        if self.tile_candidates is not None:
+            return max(1, self.tile_candidates)
+        size = math.ceil(n_candidates / (TILES_PER_THREAD * self.threads))
+        return min(max(size, MIN_TILE_CANDIDATES), MAX_TILE_CANDIDATES)
+
+    def map(self, work: Callable[[_Item], _Result], items: Iterable[_Item], *,
+            count: int | None = None, on_read: Callable[[float], None] | None = None
+            ) -> Iterator[_Result]:
+        """``work(item)`` of every item as tasks on the cluster, yielded in the order of
+        ``items``; ``on_read`` gets the fraction read (of ``count``) after each and may raise
+        to stop (the tasks still out are cancelled)."""
+        import dask
+
+        client = self._client
+        window = max(2, TASKS_AHEAD_PER_THREAD * self.threads)
+        pending = iter(items)
+        futures: collections.deque[Future[_Result]] = collections.deque()
+        name = getattr(work, "__name__", "task")
+        index = itertools.count()
+
+        def submit(item: _Item) -> Future[_Result]:
+            if isinstance(item, Tile):
+                self.tile_bytes += item.nbytes
+            self.tasks += 1
+            # the tile is the task's argument on purpose (see the module docstring)
+            with dask.config.set({"distributed.admin.large-graph-warning-threshold":
+                                  "4GiB"}):
+                return client.submit(work, item, pure=False, retries=TASK_RETRIES,
+                                     key=f"scanplan-{name}-{self._token}-{next(index)}")
+
+        read = 0
+        try:
+            for item in itertools.islice(pending, window):
+                futures.append(submit(item))
+            while futures:
+                future = futures.popleft()
+                try:
+                    result = future.result()
+                except PlannerError:
+                    raise
+                except Exception as exc:
+                    raise self._failed(exc) from exc
+                future.release()  # type: ignore[no-untyped-call]
+                del future
+                for item in itertools.islice(pending, 1):
+                    futures.append(submit(item))
+                yield result
+                del result
+                read += 1
+                if on_read is not None and count:
+                    on_read(read / count)
+        finally:
+            if futures:
+                with contextlib.suppress(Exception):
+                    client.cancel(list(futures))  # type: ignore[no-untyped-call]
+
+    def coverage_blocks(self, sight: Sight, positions: NDArray[np.float64],
+                        progress: ProgressCallback | None
+                        ) -> Iterator[tuple[QualifiedPairs, int, int]] | None:
+        """The qualified pairs, one task per tile of contiguous candidates (see
+        :class:`~planner.visibility.qualify.CoverageFanout`); None for the sampled model
+        and the brute-force backend, which stay local."""
+        if sight.spec.coverage_model != "centroid" or not isinstance(sight.occlusion,
+                                                                     EmbreeOcclusion):
+            return None
+        limits = sight.limits
+        cutter = TileCutter(sight.scene, limits, limits.occludes, sight.occlusion,
+                            min(limits.reach_m, limits.dof_max_m))
+        positions = np.asarray(positions, np.float64)
+        size = self._tile_size(len(positions))
+        count = math.ceil(len(positions) / size)
+        tiles = (cutter.cut(ids, positions[ids])
+                 for ids in contiguous_tiles(len(positions), size))
+        return self.map(qualify_tile, tiles, count=count,
+                        on_read=lambda fraction: notify(progress, "visibility", fraction))
+
+    def overlap_rows(self, rows: OverlapRows, candidates: list[int]
+                     ) -> Iterator[tuple[NDArray[np.int32], int]] | None:
+        """The overlap rows of ``candidates`` on the cluster, one task per group of
+        candidates near one another (see :class:`~planner.visibility.overlap.RowsFanout`)."""
+        occlusion = rows.occlusion
+        if not isinstance(occlusion, EmbreeOcclusion):
+            return None
+        cutter = self._cutters.get(rows)
+        if cutter is None:
+            cutter = TileCutter(rows.scene, rows.limits, rows.occludes, occlusion,
+                                rows.reach_m)
+            self._cutters[rows] = cutter
+        positions = rows.positions
+        groups = _near_groups(np.array(sorted(candidates), np.int64), positions,
+                              self._tile_size(len(positions)), cutter.reach_m)
+        tiles = (cutter.cut(ids, positions[ids]) for ids in groups)
+        found: dict[int, tuple[NDArray[np.int32], int]] = {}
+        for ids, (faces, rays) in zip(groups, self.map(overlap_tile, tiles), strict=True):
+            # the rays are counted once per group, with its first row
+            for k, (c, row) in enumerate(zip(ids.tolist(), faces, strict=True)):
+                found[c] = (row, rays if k == 0 else 0)
+        return iter([found[c] for c in candidates])
+
+
+def _near_groups(candidates: NDArray[np.int64], positions: NDArray[np.float64], size: int,
+                 reach_m: float) -> list[NDArray[np.int64]]:
+    """``candidates`` (ascending) in groups of at most ``size``, each within ``reach_m``
+    of its first candidate (candidates far apart would make one tile of two distant
+    parts of the model)."""
+    groups: list[NDArray[np.int64]] = []
+    start = 0
+    for k in range(1, len(candidates) + 1):
+        if k == len(candidates) or k - start >= size or np.linalg.norm(
+                positions[candidates[k]] - positions[candidates[start]]) > reach_m:
+            groups.append(candidates[start:k])
+            start = k
+    return groups
+
+
+def fanout_over(address: str | None, **options: Any) -> contextlib.AbstractContextManager[
+        DaskFanout | None]:
+    """A :class:`DaskFanout` over the scheduler at ``address`` for the ``with`` block, or
+    None without an address (the plan runs here)."""
+    if not address:
+        return contextlib.nullcontext()
+    return DaskFanout(address, **options)

@@ -1,0 +1,237 @@
+"""Tiles: a few candidates with the part of the model their pairs can reach, to be
+computed on another machine (:mod:`planner.scaleout`) with the same result as at home.
+
+A *tile* is some candidates of a plan (a contiguous block of them for the coverage table:
+candidates come in grid and storey order, so a block stands close together) and what their
+pair search of reach ``reach_m`` needs:
+
+- the *targets*: every target face whose centroid lies within ``reach_m`` of one of the
+  tile's candidates. The limits kernel rejects every pair farther than the reach before
+  any other test (:mod:`planner.visibility.pairs`), so no other face can qualify. Faces
+  keep the model's order (a tile's faces are the model's, ascending) and the model's
+  float64 centroids, normals and areas, so the kernel makes the same tests;
+- the *occluders*: the faces the rays are tested against, whole. With ``occluders``
+  "file" (the default) on a split model these are the file's faces, as read, before the
+  split: a small part of the model (the 9.7 M-face office is split from far fewer). On an
+  unsplit model (or ``occluders`` "remeshed") they are every occluding face of the scene.
+
+Why the occluders are not cut to the tile's reach as well: Embree reports, of two faces a
+ray meets at exactly the same float32 distance (a window member flush with its wall, a
+duplicated surface), the one its BVH's traversal reaches first. A BVH over a part of the
+faces traverses differently: on IfcOpenHouse, 81 of one candidate's 19,559 rays changed
+their verdict against a BVH of the occluders within reach. Over the same faces in the same
+order Embree builds the same BVH, so the tile's verdicts are the model's, and so are the
+clear margin and the quads (:class:`~planner.rays.embree.BvhPart`).
+
+Bundles are made from the tile's pieces: a bundle may hold fewer pieces than in the model,
+which changes how many rays rule pieces out, never which pairs qualify
+(:mod:`planner.visibility.bundles`). The tile's qualified pairs, numbered back to the
+model's candidates and faces, are therefore the model's, in the same order.
+
+Array letters: C candidates, F faces, n a tile's candidates, f its faces.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from planner.rays.embree import BvhFaces, BvhPart, EmbreeOcclusion
+from planner.scene import Scene
+from planner.visibility.bundles import bundle_culler
+from planner.visibility.cells import PointGrid
+from planner.visibility.coverage import QualifiedPairs
+from planner.visibility.overlap import overlap_row
+from planner.visibility.pairs import FaceLimits, PairFinder
+from planner.visibility.qualify import qualify_pairs
+
+
+@dataclass(frozen=True, eq=False)
+class Tile:
+    """Candidates of a plan and the part of its model their searches can meet.
+
+    Attributes
+    ----------
+    scene : the part: the target pieces within reach (and every occluding piece, when
+        the rays meet the pieces), with the file's mesh (whole, when the rays meet it)
+    limits : the part's limits; targets are only the faces within reach
+    faces : (f,) int32, each face of the part's index in the model, ascending
+    positions : (n, 3) float64, the tile's candidates
+    candidates : (n,) int64, their indices in the plan, ascending
+    reach_m : the model's pair search reach
+    file_faces : the rays meet the file's faces (``occluders`` "file" on a split model)
+    bvh : what makes the part's BVH decide as the model's
+    """
+
+    scene: Scene
+    limits: FaceLimits
+    faces: NDArray[np.int32]
+    positions: NDArray[np.float64]
+    candidates: NDArray[np.int64]
+    reach_m: float
+    file_faces: bool
+    bvh: BvhPart
+
+    def occlusion(self) -> EmbreeOcclusion:
+        """The occlusion test over the part, deciding as the model's."""
+        return EmbreeOcclusion(self.scene, self.limits.occludes, file_faces=self.file_faces,
+                               part_of=self.bvh)
+
+    @property
+    def nbytes(self) -> int:
+        """The size of the tile's arrays (what a worker receives)."""
+        scene = self.scene
+        arrays: list[NDArray[Any]] = [
+            scene.vertices, scene.faces, scene.source_face, scene.file_face_group,
+            scene.file_face_element, scene.centroids, scene.normals, scene.areas,
+            self.faces, self.positions, self.candidates, self.limits.target,
+            self.limits.occludes, self.limits.min_density_pts_m2,
+            self.limits.min_incidence_deg]
+        if scene.file_vertices is not None and scene.file_faces is not None:
+            arrays += [scene.file_vertices, scene.file_faces]
+        if self.bvh.bvh_occludes is not None:
+            arrays.append(self.bvh.bvh_occludes)
+        return int(sum(a.nbytes for a in arrays))
+
+
+class TileCutter:
+    """Cuts tiles of a model for pair searches of ``reach_m`` (targets: ``limits.target``)
+    whose rays are tested by ``occlusion`` (over the faces where ``occludes``)."""
+
+    def __init__(self, scene: Scene, limits: FaceLimits, occludes: NDArray[np.bool_],
+                 occlusion: EmbreeOcclusion, reach_m: float) -> None:
+        self.scene = scene
+        self.limits = limits
+        self.occludes = occludes
+        self.reach_m = reach_m
+        self.bvh: BvhFaces = occlusion.bvh_faces()
+        self._targets = np.flatnonzero(limits.target).astype(np.int32)
+        self._target_grid = PointGrid.of(scene.centroids, self._targets, reach_m)
+        # the rays meet the file's faces: the part holds the file's whole mesh, and which
+        # of its faces occlude (the pieces of the part do not say it for the others)
+        self._file_bvh = self.bvh.file_faces and scene.file_faces is not None
+        self._bvh_occludes: NDArray[np.bool_] | None = None
+        if self._file_bvh:
+            self._bvh_occludes = np.zeros(len(self.bvh.faces), bool)
+            self._bvh_occludes[self.bvh.occluding] = True
+        # else the rays meet the scene's own faces: every occluding one is in every part
+        self._occluding = np.flatnonzero(occludes).astype(np.int64)
+
+    def cut(self, candidates: NDArray[np.int64], positions: NDArray[np.float64]) -> Tile:
+        """The tile of the plan's ``candidates`` (ascending) at the (n, 3) ``positions``."""
+        scene, limits, bvh = self.scene, self.limits, self.bvh
+        tree = cKDTree(positions)
+        low, high = positions.min(axis=0), positions.max(axis=0)
+        # the targets within reach (with a hair of slack: the kernel decides the rest)
+        reach = self.reach_m * (1 + 1e-6) + 1e-9
+        near = self._targets[_in_box(self._target_grid, low - reach, high + reach)]
+        distance, _ = tree.query(scene.centroids[near], distance_upper_bound=reach)
+        targets = np.sort(near[np.isfinite(distance)]).astype(np.int64)
+        faces = targets if self._file_bvh else np.union1d(targets, self._occluding)
+        part = _part_scene(scene, faces, keep_file_mesh=self._file_bvh)
+        target = np.zeros(len(faces), bool)
+        target[np.searchsorted(faces, targets)] = True
+        part_limits = dataclasses.replace(
+            limits,
+            min_incidence_deg=np.ascontiguousarray(limits.min_incidence_deg[faces]),
+            min_density_pts_m2=np.ascontiguousarray(limits.min_density_pts_m2[faces]),
+            target=target & limits.target[faces],
+            occludes=np.ascontiguousarray(self.occludes[faces]))
+        return Tile(part, part_limits, faces.astype(np.int32),
+                    np.ascontiguousarray(positions, np.float64),
+                    np.asarray(candidates, np.int64), self.reach_m, bvh.file_faces,
+                    BvhPart(self._bvh_occludes, bvh.scale_m, bvh.quads))
+
+
+def _in_box(grid: PointGrid, low: NDArray[np.float64], high: NDArray[np.float64]
+            ) -> NDArray[np.int64]:
+    """The members of ``grid`` (positions in its subset) in the cells that meet the box
+    from ``low`` to ``high`` (a superset of the points in the box)."""
+    first = np.clip(np.floor((low - grid.origin) / grid.cell_m), 0, grid.dims - 1).astype(int)
+    last = np.clip(np.floor((high - grid.origin) / grid.cell_m), 0, grid.dims - 1).astype(int)
+    parts = []
+    for gx in range(first[0], last[0] + 1):
+        for gy in range(first[1], last[1] + 1):
+            base = (gx * grid.dims[1] + gy) * grid.dims[2]
+            parts.append(grid.members[grid.start[base + first[2]]:
+                                      grid.start[base + last[2] + 1]])
+    return np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, np.int64)
+
+
+def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool) -> Scene:
+    """The part of ``scene`` of its ``faces`` (ascending): with ``keep_file_mesh`` (a split
+    scene whose rays meet the file's faces) over the file's whole mesh, else over the file
+    faces of its own faces."""
+    used, local = np.unique(scene.faces[faces], return_inverse=True)
+    vertices, triangles = scene.vertices[used], local.reshape(-1, 3).astype(np.int32)
+    if scene.file_faces is not None and scene.file_vertices is not None:
+        if keep_file_mesh:
+            file_ids = np.arange(len(scene.file_faces), dtype=np.int64)
+            file_vertices, file_faces = scene.file_vertices, scene.file_faces
+            source = scene.source_face[faces]
+        else:
+            file_ids = np.unique(scene.source_face[faces]).astype(np.int64)
+            file_used, file_local = np.unique(scene.file_faces[file_ids], return_inverse=True)
+            file_vertices = scene.file_vertices[file_used]
+            file_faces = file_local.reshape(-1, 3).astype(np.int32)
+            source = np.searchsorted(file_ids, scene.source_face[faces]).astype(np.int32)
+        part = Scene(vertices=vertices, faces=triangles,
+                     file_face_group=scene.file_face_group[file_ids], groups=scene.groups,
+                     source_face=source,
+                     file_face_element=np.full(len(file_ids), -1, np.int32),
+                     file_vertices=file_vertices, file_faces=file_faces)
+    else:
+        part = Scene(vertices=vertices, faces=triangles,
+                     file_face_group=scene.file_face_group[faces], groups=scene.groups,
+                     source_face=np.arange(len(faces), dtype=np.int32),
+                     file_face_element=np.full(len(faces), -1, np.int32))
+    # the model's own float64 values, whatever the part's arithmetic would give
+    for name in ("centroids", "normals", "areas"):
+        values = np.ascontiguousarray(getattr(scene, name)[faces])
+        values.flags.writeable = False
+        object.__setattr__(part, name, values)
+    return part
+
+
+def qualify_tile(tile: Tile) -> tuple[QualifiedPairs, int, int]:
+    """The qualified pairs of a tile's candidates, numbered by the model's candidates and
+    faces and sorted by (candidate, face), with the pairs tested and the rays cast (run
+    on a worker: one thread, as the worker runs tasks side by side)."""
+    occlusion = tile.occlusion()
+    parts, tested, rays = [], 0, 0
+    for qualified, block_tested, block_rays in qualify_pairs(
+            tile.scene, tile.positions, tile.limits, occlusion, threads=1,
+            reach_m=tile.reach_m):
+        parts.append(qualified)
+        tested += block_tested
+        rays += block_rays
+    merged = QualifiedPairs.concatenate(parts)
+    return (QualifiedPairs(tile.candidates[merged.candidate].astype(np.int32),
+                           tile.faces[merged.face], merged.lpd_pts_m2), tested, rays)
+
+
+def overlap_tile(tile: Tile) -> tuple[list[NDArray[np.int32]], int]:
+    """The overlap rows of a tile's candidates (its limits are the overlap limits, its
+    occluders the rows'), each the model's faces ascending, and the rays cast."""
+    occlusion = tile.occlusion()
+    finder = PairFinder(tile.scene, tile.limits, reach_m=tile.reach_m)
+    culler = bundle_culler(tile.scene, finder.reach_m, occlusion)
+    rows, rays = [], 0
+    for index in range(len(tile.positions)):
+        faces, cast = overlap_row(finder, culler, occlusion, tile.positions,
+                                  tile.scene.centroids, index)
+        rows.append(tile.faces[faces])
+        rays += cast
+    return rows, rays
+
+
+def contiguous_tiles(n_candidates: int, size: int) -> Iterable[NDArray[np.int64]]:
+    """Blocks of ``size`` consecutive candidates (the last one shorter)."""
+    for start in range(0, n_candidates, size):
+        yield np.arange(start, min(start + size, n_candidates), dtype=np.int64)

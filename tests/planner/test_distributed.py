@@ -1,0 +1,130 @@
+"""One plan fanned out over a real Dask cluster (two worker processes on this machine) gives
+the same files, byte for byte, as the plan made on one machine; a worker killed mid-plan
+loses nothing; a scheduler that cannot be reached is named in the error."""
+
+from __future__ import annotations
+
+import os
+import signal
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+distributed = pytest.importorskip("distributed")
+
+from planner.candidates.grid import read_candidates_csv  # noqa: E402
+from planner.errors import SchedulerUnreachableError  # noqa: E402
+from planner.io.readers import read_scene  # noqa: E402
+from planner.outputs.report import write_outputs  # noqa: E402
+from planner.parameters import PlanSpec  # noqa: E402
+from planner.pipeline import PlanResult, plan  # noqa: E402
+from planner.scaleout import DaskFanout  # noqa: E402
+from planner.scene import Scene  # noqa: E402
+
+# a house at a coarser grid and split than the defaults: every stage runs, in seconds
+HOUSE = {"grid_spacing_m": 1.0, "max_edge_m": 0.4}
+
+
+@pytest.fixture(scope="module")
+def cluster() -> Any:
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as local:
+        yield local
+
+
+@pytest.fixture(scope="module")
+def house(scenes_dir: Path) -> Scene:
+    return read_scene(scenes_dir / "IfcOpenHouse_IFC4.ifc", max_edge_m=HOUSE["max_edge_m"],
+                      split_faces="as_needed")
+
+
+def files_of(result: PlanResult, out: Path) -> dict[str, bytes]:
+    return {path.name: path.read_bytes() for path in write_outputs(result, out)}
+
+
+def assert_same_files(local: PlanResult, fanned: PlanResult, tmp_path: Path) -> None:
+    assert fanned.table.n_pairs == local.table.n_pairs
+    ours, theirs = files_of(local, tmp_path / "local"), files_of(fanned, tmp_path / "dask")
+    assert sorted(ours) == sorted(theirs)
+    assert "plan.json" in ours and "faces.npz" in ours
+    assert [name for name in ours if ours[name] != theirs[name]] == []
+
+
+@pytest.mark.parametrize("method, min_overlap_m2", [
+    ("greedy", None),
+    ("weighted_greedy", 2.0),
+    ("optimal", 2.0),
+])
+def test_house_same_bytes(cluster: Any, house: Scene, tmp_path: Path, method: str,
+                          min_overlap_m2: float | None) -> None:
+    spec = PlanSpec.from_mapping({**HOUSE, "method": method, "min_overlap_m2": min_overlap_m2})
+    local = plan(house, spec)
+    fanned = plan(house, spec, dask_scheduler=cluster.scheduler_address)
+    assert_same_files(local, fanned, tmp_path)
+
+
+def test_hall_same_bytes(cluster: Any, scenes_dir: Path, tmp_path: Path) -> None:
+    """An unsplit mesh with given candidates (as tests/planner/test_expected.py plans the
+    halls), a part of them."""
+    folder = scenes_dir / "hall-small"
+    scene = read_scene(folder / "hall.obj", max_edge_m=None)
+    candidates = read_candidates_csv(folder / "candidates.csv")[::5]
+    spec = PlanSpec(candidates=tuple(map(tuple, candidates.tolist())), max_edge_m=None,
+                    placement_tolerance_m=0.0)
+    local = plan(scene, spec)
+    fanned = plan(scene, spec, dask_scheduler=cluster.scheduler_address)
+    assert_same_files(local, fanned, tmp_path)
+
+
+def test_worker_killed_mid_plan(cluster: Any, house: Scene, tmp_path: Path) -> None:
+    """One worker process is killed while the visibility's tasks run: its tasks run again on
+    the other (or on the worker its nanny starts again) and the plan is the same."""
+    spec = PlanSpec.from_mapping({**HOUSE, "min_overlap_m2": 2.0})
+    local = plan(house, spec)
+    client = distributed.Client(cluster.scheduler_address)
+    pids = client.run(os.getpid)
+    client.close()
+    killed: list[int] = []
+
+    def progress(stage: str, fraction: float) -> None:
+        if stage == "visibility" and fraction > 0 and not killed:
+            victim = next(iter(pids.values()))
+            os.kill(victim, signal.SIGKILL)
+            killed.append(victim)
+
+    fanned = plan(house, spec, dask_scheduler=cluster.scheduler_address, progress=progress)
+    assert killed
+    assert_same_files(local, fanned, tmp_path)
+
+
+def test_unreachable_scheduler_is_named() -> None:
+    address = "tcp://127.0.0.1:9"  # the discard port: nothing listens
+    with pytest.raises(SchedulerUnreachableError) as error:
+        DaskFanout(address, connect_timeout_s=1.0)
+    message = str(error.value)
+    assert address in message and "cannot be reached" in message
+    assert "SCANPLAN_DASK_SCHEDULER" in message
+
+
+def test_tiles_hold_part_of_the_model(house: Scene) -> None:
+    """A tile's targets are those within reach of its candidates, not the model's."""
+    from planner.candidates import plan_candidates
+    from planner.visibility import Sight
+    from planner.visibility.tiles import TileCutter
+
+    spec = PlanSpec.from_mapping(HOUSE)
+    sight = Sight.of(house, spec, "embree")
+    candidates, _ = plan_candidates(house, spec, sight.caster)
+    sight = sight.split_as_needed(candidates.positions)
+    limits = sight.limits
+    cutter = TileCutter(sight.scene, limits, limits.occludes, sight.occlusion,  # type: ignore[arg-type]
+                        min(limits.reach_m, limits.dof_max_m))
+    ids = np.arange(min(8, len(candidates.positions)))
+    tile = cutter.cut(ids, candidates.positions[ids])
+    assert 0 < len(tile.faces) < sight.scene.n_faces
+    centroids = sight.scene.centroids
+    within = (np.linalg.norm(centroids[:, None, :] - candidates.positions[ids][None], axis=2)
+              .min(axis=1) <= cutter.reach_m) & limits.target
+    assert set(np.flatnonzero(within)) <= set(tile.faces[tile.limits.target].tolist())
