@@ -110,8 +110,8 @@ def test_unreachable_scheduler_is_named() -> None:
 
 def test_tiles_hold_part_of_the_model(house: Scene) -> None:
     """A tile's targets are those within reach of its candidates, not the model's."""
-    from planner.candidates import plan_candidates
-    from planner.visibility import Sight
+    from planner.candidates.generate import plan_candidates
+    from planner.visibility.qualify import Sight
     from planner.visibility.tiles import TileCutter
 
     spec = PlanSpec.from_mapping(HOUSE)
