@@ -132,8 +132,10 @@ def model_path(row: Row, models_dir: Path) -> Path:
     return path
 
 
-def run_row(row: Row, models_dir: Path, verbose: bool) -> dict[str, Any]:
-    """Plan the row's model in a child process; its figures (``error`` when it failed)."""
+def run_row(row: Row, models_dir: Path, verbose: bool, keep: Path | None = None
+            ) -> dict[str, Any]:
+    """Plan the row's model in a child process; its figures (``error`` when it failed).
+    ``keep``: write every output into ``keep / row.name`` (to compare bytes)."""
     model = model_path(row, models_dir)
     params = dict(row.params)
     with tempfile.TemporaryDirectory(prefix="matrix-") as tmp:
@@ -148,7 +150,8 @@ def run_row(row: Row, models_dir: Path, verbose: bool) -> dict[str, Any]:
         with log_file.open("w") as log:
             child = subprocess.Popen(
                 [sys.executable, str(STAGES), str(model), "--params", str(params_file),
-                 "--json", str(figures_file)],
+                 "--json", str(figures_file),
+                 *([] if keep is None else ["--out", str(keep / row.name)])],
                 stdout=log, stderr=subprocess.STDOUT, env=_env(), cwd=ROOT)
             _, status, usage = os.wait4(child.pid, 0)
         wall_s = time.perf_counter() - started
@@ -261,6 +264,8 @@ def main() -> int:
     parser.add_argument("--source", type=Path, default=ROOT,
                         help="plan with the planner/ of this checkout (another worktree, "
                              "main) instead of this one's; the benchmark scripts stay these")
+    parser.add_argument("--keep-outputs", type=Path, metavar="DIR",
+                        help="write each row's outputs into DIR/NAME (compare them with cmp)")
     parser.add_argument("--verbose", action="store_true", help="print plan_stages' output")
     parser.add_argument("--no-warm-up", action="store_true",
                         help="skip the warm-up plans (numba's kernels already cached)")
@@ -293,7 +298,7 @@ def main() -> int:
         print(f"warm-up: {time.perf_counter() - started:.1f} s", flush=True)
     results = []
     for row in chosen:
-        figures = run_row(row, args.models_dir, args.verbose)
+        figures = run_row(row, args.models_dir, args.verbose, args.keep_outputs)
         print_row(figures, baseline.get(row.name))
         results.append(figures)
     summary(results, baseline)
