@@ -301,10 +301,10 @@ def main() -> int:
         figures = run_row(row, args.models_dir, args.verbose, args.keep_outputs)
         print_row(figures, baseline.get(row.name))
         results.append(figures)
+        if args.json is not None:  # after every row: a long matrix stopped keeps its rows
+            args.json.write_text(json.dumps({"machine": machine(), "rows": results}, indent=1)
+                                 + "\n")
     summary(results, baseline)
-    if args.json is not None:
-        args.json.write_text(json.dumps({"machine": machine(), "rows": results}, indent=1)
-                             + "\n")
     if args.record:
         now = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=SOURCE[0], text=True,
