@@ -180,6 +180,7 @@ def run_row(row: Row, models_dir: Path, verbose: bool, keep: Path | None = None
         "stages": {name: {k: round(v, 2) for k, v in spent.items()}
                    for name, spent in stages.items()},
         "plan_seconds": {k: round(v, 2) for k, v in figures["plan_seconds"].items()},
+        "plan_peak_mib": {k: round(v) for k, v in figures.get("plan_peak_mib", {}).items()},
     }
 
 
@@ -213,7 +214,10 @@ def print_row(figures: dict[str, Any], base: dict[str, Any] | None) -> None:
               f"{_ratio(spent['wall_s'], before.get('wall_s'))}"
               f"{_ratio(spent['cpu_s'], before.get('cpu_s'))}")
     finer = ", ".join(f"{k} {v:.2f}" for k, v in figures["plan_seconds"].items())
-    print(f"   plan() stages, wall s: {finer}", flush=True)
+    print(f"   plan() stages, wall s: {finer}")
+    peaks = ", ".join(f"{k} {v:,}" for k, v in figures["plan_peak_mib"].items())
+    print(f"   plan() resident memory, largest sample per progress stage, MiB: {peaks}",
+          flush=True)
 
 
 def summary(results: list[dict[str, Any]], baseline: dict[str, dict[str, Any]]) -> None:

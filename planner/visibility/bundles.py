@@ -102,7 +102,7 @@ class Bundles:
     Attributes
     ----------
     bundle_of : (F,) int32, each face's bundle of the finest level, -1 for a face in none
-        (a degenerate file face)
+        (a degenerate file face, or one of fewer than :data:`MIN_BUNDLE_PIECES` pieces)
     levels : one :class:`BundleLevel` per side of :data:`BUNDLE_SIDES_M`
     """
 
@@ -174,7 +174,14 @@ def _make_bundles(scene: Scene) -> Bundles | None:
     n = scene.n_faces
     # each piece's key: its file face, then the finest square's bins; the bundles are the
     # distinct keys in ascending order
-    bundle_of = np.empty(n, np.int32)  # -1: a piece in no bundle (its face has no plane)
+    bundle_of = np.empty(n, np.int32)  # -1: a piece in no bundle (see below)
+    # a file face of fewer than MIN_BUNDLE_PIECES pieces has no bundle that would ever get
+    # rays, at any level: its pieces go in no bundle, as a face without a plane. A furnished
+    # interior's props (a million file faces of one piece each) then cost no bundles: a
+    # 1.06 M-face one kept 3.2 M of them over the three levels (their arrays some 450 MB)
+    # for the 2,382 that get rays
+    bundled = usable & (np.bincount(scene.source_face, minlength=len(usable))
+                        >= MIN_BUNDLE_PIECES)
 
     def keyed(block: slice) -> tuple[NDArray[np.int64], NDArray[np.int64],
                                      NDArray[np.float64], NDArray[np.float64]]:
@@ -182,7 +189,7 @@ def _make_bundles(scene: Scene) -> Bundles | None:
         piece's index among them (-1: in no bundle) and each key's (k, 2) extent."""
         uv, source = _piece_uv(scene, axes, block)
         bins = np.clip(np.floor(uv / finest), 0, _BINS - 1).astype(np.int64)
-        key = np.where(usable[source],
+        key = np.where(bundled[source],
                        (source.astype(np.int64) * _BINS + bins[:, 0]) * _BINS + bins[:, 1], -1)
         keys, inverse = np.unique(key, return_inverse=True)
         first = 1 if len(keys) and keys[0] < 0 else 0  # key -1: faces in no bundle
