@@ -215,7 +215,7 @@ def print_row(figures: dict[str, Any], base: dict[str, Any] | None) -> None:
               f"{_ratio(spent['cpu_s'], before.get('cpu_s'))}")
     finer = ", ".join(f"{k} {v:.2f}" for k, v in figures["plan_seconds"].items())
     print(f"   plan() stages, wall s: {finer}")
-    peaks = ", ".join(f"{k} {v:,}" for k, v in figures["plan_peak_mib"].items())
+    peaks = ", ".join(f"{k} {v:,}" for k, v in figures.get("plan_peak_mib", {}).items())
     print(f"   plan() resident memory, largest sample per progress stage, MiB: {peaks}",
           flush=True)
 
@@ -273,6 +273,9 @@ def main() -> int:
     parser.add_argument("--verbose", action="store_true", help="print plan_stages' output")
     parser.add_argument("--no-warm-up", action="store_true",
                         help="skip the warm-up plans (numba's kernels already cached)")
+    parser.add_argument("--show", type=Path, metavar="FILE",
+                        help="print the rows of an earlier --json FILE against the baseline, "
+                             "planning nothing")
     parser.add_argument("--list", action="store_true", help="print the rows and stop")
     args = parser.parse_args()
     SOURCE[0] = args.source.resolve()
@@ -291,6 +294,12 @@ def main() -> int:
     stored: dict[str, Any] = (json.loads(args.baseline.read_text())
                               if args.baseline.exists() else {"rows": []})
     baseline = {row["model"]: row for row in stored.get("rows", [])}
+    if args.show is not None:
+        shown = json.loads(args.show.read_text())["rows"]
+        for figures in shown:
+            print_row(figures, baseline.get(figures["model"]))
+        summary(shown, baseline)
+        return 0
     print(f"planner from {SOURCE[0]}", flush=True)
     if baseline:
         print(f"baseline: {args.baseline.name}, {stored.get('machine')}, recorded "
