@@ -111,7 +111,10 @@ class ProgressLog:
     wall and CPU seconds since the start and the resident memory: on a long run it tells
     how far it is. A thread samples the resident memory every ``SAMPLE_S`` and keeps the
     largest per progress stage (``peak_mib``), so the stage that sets the plan's peak is
-    known (the stages ``plan()`` reports; the survey runs inside "selection")."""
+    known (the stages ``plan()`` reports; the survey runs inside "selection"). The wall and
+CPU seconds between one call and the next are added to the stage of the first
+(``seconds``: stage -> [wall, cpu]): CPU time per progress stage, which
+``result.stats.seconds`` (wall only) lacks."""
 
     SAMPLE_S = 0.1
 
@@ -120,6 +123,8 @@ class ProgressLog:
         self.last: tuple[str, int] = ("", -1)
         self.stage = "start"
         self.peak_mib: dict[str, float] = {}
+        self.seconds: dict[str, list[float]] = {}
+        self._mark = (self.wall, self.cpu)
         self._running = True
         self._sampler = threading.Thread(target=self._sample, daemon=True)
         self._sampler.start()
@@ -132,11 +137,21 @@ class ProgressLog:
                 self.peak_mib[stage] = max(self.peak_mib.get(stage, 0.0), rss / MIB)
             time.sleep(self.SAMPLE_S)
 
+    def _charge(self) -> None:
+        """Add the seconds since the last call to the stage running until now."""
+        wall, cpu = time.perf_counter(), cpu_seconds()
+        spent = self.seconds.setdefault(self.stage, [0.0, 0.0])
+        spent[0] += wall - self._mark[0]
+        spent[1] += cpu - self._mark[1]
+        self._mark = (wall, cpu)
+
     def stop(self) -> None:
+        self._charge()
         self._running = False
         self._sampler.join()
 
     def __call__(self, stage: str, fraction: float) -> bool:
+        self._charge()
         self.stage = stage
         step = (stage, int(fraction * 10))
         if step != self.last:
@@ -195,6 +210,9 @@ def run(model: Path, params: dict[str, Any], out: Path | None) -> dict[str, Any]
     print("\nplan() stages (result.stats.seconds, wall):")
     for stage, seconds in result.stats.seconds.items():
         print(f"  {stage:<28}{seconds:9.1f}")
+    print("plan() progress stages (wall s, CPU s):")
+    for stage, (wall_s, cpu_s) in log.seconds.items():
+        print(f"  {stage:<28}{wall_s:9.1f}{cpu_s:9.1f}")
     print("plan() resident memory, largest sample per progress stage (MiB):")
     for stage, mib in log.peak_mib.items():
         print(f"  {stage:<28}{mib:9.0f}")
@@ -217,6 +235,8 @@ def run(model: Path, params: dict[str, Any], out: Path | None) -> dict[str, Any]
     print(f"{'total':<22}{total_wall:.1f} s wall, {total_cpu:.1f} s CPU, "
           f"peak {timer.peak_mib:.0f} MiB")
     return {**counts, "plan_seconds": dict(stats.seconds), "plan_peak_mib": log.peak_mib,
+            "plan_progress_s": {stage: {"wall_s": wall_s, "cpu_s": cpu_s}
+                                for stage, (wall_s, cpu_s) in log.seconds.items()},
             "stages": [asdict(s) for s in timer.stages]}
 
 

@@ -102,7 +102,7 @@ class Bundles:
     Attributes
     ----------
     bundle_of : (F,) int32, each face's bundle of the finest level, -1 for a face in none
-        (a degenerate file face)
+        (a degenerate file face, or one of fewer than :data:`MIN_BUNDLE_PIECES` pieces)
     levels : one :class:`BundleLevel` per side of :data:`BUNDLE_SIDES_M`
     """
 
@@ -174,7 +174,14 @@ def _make_bundles(scene: Scene) -> Bundles | None:
     n = scene.n_faces
     # each piece's key: its file face, then the finest square's bins; the bundles are the
     # distinct keys in ascending order
-    bundle_of = np.empty(n, np.int32)  # -1: a piece in no bundle (its face has no plane)
+    bundle_of = np.empty(n, np.int32)  # -1: a piece in no bundle (see below)
+    # a file face of fewer than MIN_BUNDLE_PIECES pieces has no bundle that would ever get
+    # rays, at any level: its pieces go in no bundle, as a face without a plane. A furnished
+    # interior's props (a million file faces of one piece each) then cost no bundles: a
+    # 1.06 M-face one kept 3.2 M of them over the three levels (their arrays some 450 MB)
+    # for the 2,382 that get rays
+    bundled = usable & (np.bincount(scene.source_face, minlength=len(usable))
+                        >= MIN_BUNDLE_PIECES)
 
     def keyed(block: slice) -> tuple[NDArray[np.int64], NDArray[np.int64],
                                      NDArray[np.float64], NDArray[np.float64]]:
@@ -182,7 +189,7 @@ def _make_bundles(scene: Scene) -> Bundles | None:
         piece's index among them (-1: in no bundle) and each key's (k, 2) extent."""
         uv, source = _piece_uv(scene, axes, block)
         bins = np.clip(np.floor(uv / finest), 0, _BINS - 1).astype(np.int64)
-        key = np.where(usable[source],
+        key = np.where(bundled[source],
                        (source.astype(np.int64) * _BINS + bins[:, 0]) * _BINS + bins[:, 1], -1)
         keys, inverse = np.unique(key, return_inverse=True)
         first = 1 if len(keys) and keys[0] < 0 else 0  # key -1: faces in no bundle
@@ -273,9 +280,8 @@ class BundleCuller:
         self.bundles = bundles
         self.reach_m = reach_m
         self._rays = rays
-        self._grids = [PointGrid.of(level.centre, np.arange(len(level), dtype=np.int32),
-                                    reach_m + float(level.radius_m.max()))
-                       for level in bundles.levels]
+        self._searches = [_LevelSearch.of(level, side, reach_m)
+                          for level, side in zip(bundles.levels, BUNDLE_SIDES_M, strict=True)]
 
     def hidden(self, points: NDArray[np.float64]) -> tuple[HiddenBundles, int]:
         """The bundles hidden from each of the (B, 3) ``points`` (for
@@ -283,19 +289,85 @@ class BundleCuller:
         points = np.asarray(points, np.float64)
         hidden = np.zeros((len(points), 0), bool)
         rays = 0
-        for level, grid in zip(self.bundles.levels, self._grids, strict=True):
+        for level, search in zip(self.bundles.levels, self._searches, strict=True):
             # (B, K) hidden inside a hidden bundle of the level above
             hidden = (hidden[:, level.parent] if hidden.shape[1]
                       else np.zeros((len(points), len(level)), bool))
-            point, bundle = pairs_in_reach(points, level.centre, level.radius_m,
-                                           self.reach_m, grid)
-            todo = (~hidden[point, bundle]) & (level.pieces[bundle] >= MIN_BUNDLE_PIECES)
+            point, bundle = search.pairs(points, len(level))
+            todo = ~hidden[point, bundle]
             point, bundle = point[todo], bundle[todo]
             if len(point):
                 ruled_out = self._rays.bundles_hidden(points[point], level.corners[bundle])
                 hidden[point[ruled_out], bundle[ruled_out]] = True
                 rays += 4 * len(point)
         return (self.bundles.bundle_of, hidden), rays
+
+
+# the bundles of a level are searched in classes of radius: class 0 up to the half
+# diagonal of the level's square (a bundle's rectangle bounds centroids inside its square),
+# class c up to 2^c times that (a face whose corners lie before its first corner along its
+# first edge has its nearest bins clipped: long thin triangles make bundles metres long)
+_RADIUS_CLASS_SLACK = 1.0 + 1e-6
+
+
+@dataclass(frozen=True, eq=False)
+class _RadiusClass:
+    """Bundles of one class of radius in a grid for the reach plus their largest radius."""
+
+    bundle: NDArray[np.int64]  # (k,) the bundles, ascending
+    centre: NDArray[np.float64]  # (k, 3)
+    radius_m: NDArray[np.float64]  # (k,)
+    grid: PointGrid
+
+
+@dataclass(frozen=True, eq=False)
+class _LevelSearch:
+    """Which bundles of a level come within reach of a point, for the culler.
+
+    Only bundles of :data:`MIN_BUNDLE_PIECES` or more take part (the others never get
+    rays: a plan of a furnished interior has a bundle per prop triangle, a million of
+    them, each of a single piece), and they are searched in classes of radius, each in a
+    grid of cells the reach plus the class's own largest radius wide (one grid for the
+    largest radius of the level made every point scan cells sized for a few bundles
+    metres long). The pairs are those of one search over all bundles with that many
+    pieces, in the same order (by point, then bundle)."""
+
+    classes: tuple[_RadiusClass, ...]
+    reach_m: float
+
+    @classmethod
+    def of(cls, level: BundleLevel, side_m: float, reach_m: float) -> _LevelSearch:
+        eligible = np.flatnonzero(level.pieces >= MIN_BUNDLE_PIECES)
+        radius = level.radius_m[eligible]
+        nominal = side_m / np.sqrt(2.0) * _RADIUS_CLASS_SLACK
+        radius_class = np.ceil(np.log2(np.maximum(radius / nominal, 1.0))).astype(np.int64)
+        classes = []
+        for c in np.unique(radius_class):
+            members = eligible[radius_class == c]
+            centre = np.ascontiguousarray(level.centre[members])
+            radius_m = level.radius_m[members]
+            grid = PointGrid.of(centre, np.arange(len(members), dtype=np.int32),
+                                reach_m + float(radius_m.max()))
+            classes.append(_RadiusClass(members, centre, radius_m, grid))
+        return cls(tuple(classes), reach_m)
+
+    def pairs(self, points: NDArray[np.float64], n_bundles: int
+              ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """(P,) point and (P,) bundle of every bundle that comes within reach of one of the
+        (B, 3) ``points``, by point, then bundle (``n_bundles``: the level's)."""
+        found = []
+        for radius_class in self.classes:
+            point, k = pairs_in_reach(points, radius_class.centre, radius_class.radius_m,
+                                      self.reach_m, radius_class.grid)
+            found.append((point, radius_class.bundle[k]))
+        if not found:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        if len(found) == 1:
+            return found[0]
+        point = np.concatenate([p for p, _ in found])
+        bundle = np.concatenate([b for _, b in found])
+        order = np.argsort(point * n_bundles + bundle, kind="stable")
+        return point[order], bundle[order]
 
 
 def bundle_culler(scene: Scene, reach_m: float, occlusion: object, *,

@@ -220,3 +220,40 @@ def test_bundles_made_a_block_of_file_faces_at_a_time_are_those_made_at_once(
     for a, b in zip(small.levels, whole.levels, strict=True):
         for name in ("corners", "pieces", "parent"):
             assert np.array_equal(getattr(a, name), getattr(b, name))
+
+
+def test_the_culler_searches_the_bundles_that_can_get_rays_in_radius_classes(
+        office: Scene) -> None:
+    """Only bundles of MIN_BUNDLE_PIECES pieces or more take part (a file face of fewer
+    pieces has none), searched in classes of radius: the same (point, bundle) pairs, in
+    the same order, as one search over them with a grid for the largest radius."""
+    from planner.visibility import bundles as module
+    from planner.visibility.cells import PointGrid, pairs_in_reach
+
+    bundles = bundles_of(office)
+    assert bundles is not None
+    per_file_face = np.bincount(office.source_face)
+    few = per_file_face[office.source_face] < module.MIN_BUNDLE_PIECES
+    assert few.any() and (bundles.bundle_of[few] == -1).all()
+    rng = np.random.default_rng(3)
+    n = 4_000  # bundles of a made-up level: radii up to 40 times the square's half diagonal
+    centre = rng.uniform(0.0, 30.0, size=(n, 3))
+    made_up = module.BundleLevel(np.zeros((n, 4, 3)), centre,
+                                 0.7 * np.exp(rng.uniform(0.0, np.log(40.0), n)),
+                                 rng.integers(1, 20, n), np.full(n, -1))
+    levels = [*zip(bundles.levels, module.BUNDLE_SIDES_M, strict=True), (made_up, 1.0)]
+    reach_m = 4.7
+    points = np.vstack([_stations(office), rng.uniform(0.0, 30.0, size=(20, 3))])
+    classes = 0
+    for level, side in levels:
+        search = module._LevelSearch.of(level, side, reach_m)
+        classes = max(classes, len(search.classes))
+        eligible = np.flatnonzero(level.pieces >= module.MIN_BUNDLE_PIECES).astype(np.int32)
+        grid = PointGrid.of(level.centre, np.arange(len(level), dtype=np.int32),
+                            reach_m + float(level.radius_m.max()))
+        point, bundle = pairs_in_reach(points, level.centre, level.radius_m, reach_m, grid)
+        keep = np.isin(bundle, eligible)
+        found = search.pairs(points, len(level))
+        assert len(found[0]) > 100
+        assert np.array_equal(found[0], point[keep]) and np.array_equal(found[1], bundle[keep])
+    assert classes > 4
