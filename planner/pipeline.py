@@ -15,12 +15,13 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from planner.errors import CancelledError, NothingVisibleError
+from planner.errors import CancelledError, NoCandidatesError, NothingVisibleError
 from planner.io.orientation import scene_rotation, to_plan
 from planner.memory import bound_heap, release_freed_memory, released_every
 from planner.method.bundles import bundle_culler, forget_bundles
@@ -111,6 +112,24 @@ def _new_stage(progress: ProgressCallback | None, stage: str) -> None:
     _notify(progress, stage, 0.0)
 
 
+@contextmanager
+def _file_blamed(scene: Scene) -> Iterator[None]:
+    """A :class:`NoCandidatesError` on a model some of whose elements could not be read
+    (``metadata["unread_elements"]``, :mod:`planner.io.ifc`) says first that the file, not
+    the parameters, is the likely cause: a missing slab leaves no floor under the grid."""
+    try:
+        yield
+    except NoCandidatesError as exc:
+        unread = int(scene.metadata.get("unread_elements") or 0)
+        if unread == 0:
+            raise
+        read_as = "; ".join(str(w) for w in scene.metadata.get("warnings", []))
+        raise NoCandidatesError(
+            f"the model file is the likely cause, not the parameters: the geometry of "
+            f"{unread} of its elements could not be read ({read_as}); fix the file or "
+            f"export it again. Without them: {exc}") from exc
+
+
 def plan(
     scene: Scene,
     spec: PlanSpec,
@@ -143,11 +162,13 @@ def plan(
     elif scene.metadata.get("spaces"):
         from planner.io import ifc
 
-        candidates = at_heights(spec, lambda at: ifc.room_candidates(
-            scene, at, _caster(scene, spec, limits, occlusion)))
+        with _file_blamed(scene):
+            candidates = at_heights(spec, lambda at: ifc.room_candidates(
+                scene, at, _caster(scene, spec, limits, occlusion)))
     else:
-        candidates = at_heights(spec, lambda at: generate_grid(
-            scene, at, _caster(scene, spec, limits, occlusion)))
+        with _file_blamed(scene):
+            candidates = at_heights(spec, lambda at: generate_grid(
+                scene, at, _caster(scene, spec, limits, occlusion)))
     fixed: tuple[int, ...] = ()
     if spec.fixed_stations:  # re-scan: stations already scanned are candidates too
         fixed_xyz = to_plan(scene_rotation(scene.metadata), np.asarray(spec.fixed_stations))
