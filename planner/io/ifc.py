@@ -149,6 +149,8 @@ def read_ifc(path: str | Path) -> Scene:
     if warnings:  # what of the file could not be read as written, for plan.json
         scene.metadata.setdefault("warnings", []).extend(warnings)
     scene.metadata["unread_elements"] = len(unread)
+    scene.metadata["spaces_unread"] = _spaces_unread(model, scene.metadata["spaces"], unread,
+                                                     storey_name)
     # plan.ifc is this file with the plan added (planner.outputs.ifc_plan)
     scene.metadata["source_path"] = str(path.resolve())
     scene.metadata["source_sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
@@ -556,6 +558,40 @@ def _spaces(space_shapes: list[_Shape], storeys: list[dict[str, Any]]
     spaces.sort(key=lambda s: (storey_rank.get(s["storey"], len(storeys)), s["storey"],
                                s["name"], s["global_id"]))
     return spaces
+
+
+def _spaces_unread(model: Any, spaces: list[dict[str, Any]],
+                   unread: list[tuple[str, str, str, str]], storey_name: dict[str, str]
+                   ) -> list[dict[str, str]]:
+    """The IfcSpaces missing from ``spaces``, with the reason: IfcOpenShell's error, a body
+    that gives no floor outline, or no body at all. In model order (storey, name)."""
+    read = {space["global_id"] for space in spaces}
+    causes = {global_id: cause for ifc_class, global_id, _, cause in unread
+              if ifc_class == "IfcSpace"}
+    missing = []
+    for product in model.by_type("IfcSpace"):
+        global_id = str(product.GlobalId)
+        if global_id in read:
+            continue
+        if global_id in causes:
+            reason = f"IfcOpenShell could not triangulate it: {causes[global_id]}"
+        elif product.Representation is not None and _has_body(product):
+            reason = "its body gives no floor outline (flat or empty)"
+        else:
+            reason = "it has no body (3D) representation"
+        storey = _storey_of(product)
+        name, long_name = _unread(product, "")[2], ""
+        try:
+            long_name = str(product.LongName or "")
+        except Exception:  # written wrongly: the name and GlobalId still say which
+            long_name = ""
+        missing.append({
+            "global_id": global_id, "name": name, "long_name": long_name,
+            "storey": "" if storey is None else storey_name.get(str(storey.GlobalId), ""),
+            "reason": reason,
+        })
+    missing.sort(key=lambda s: (s["storey"], s["name"], s["global_id"]))
+    return missing
 
 
 def _footprint(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> Polygon | None:

@@ -82,6 +82,9 @@ class CandidateSet:
         and for "storeys" the levels left out with the reason (``excluded``)
     floor_from_space : room candidates: the rooms without a slab, standing on their
         IfcSpace's bottom
+    rooms : room candidates: every IfcSpace with its storey, area, grid points,
+        candidates and, where it has none, the reason (:func:`planner.method.rooms.
+        room_report`)
     heights_m : (C,) float64, each candidate's height above its floor when it was placed
         on one (NaN: not known, e.g. a fixed station); None for explicit candidates
     """
@@ -94,6 +97,7 @@ class CandidateSet:
     levels: list[dict[str, object]] | None = None
     floor_from_space: tuple[str, ...] | None = None
     heights_m: NDArray[np.float64] | None = None
+    rooms: list[dict[str, object]] | None = None
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -109,6 +113,8 @@ class CandidateSet:
             summary["levels"] = list(self.levels)
         if self.floor_from_space is not None:
             summary["floor_from_space"] = list(self.floor_from_space)
+        if self.rooms is not None:
+            summary["rooms"] = list(self.rooms)
         return summary
 
 

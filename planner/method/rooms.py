@@ -70,6 +70,7 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
     points: list[NDArray[np.float64]] = []
     labels: list[dict[str, str]] = []
     seen: set[tuple[float, float, float]] = set()
+    shared: dict[str, int] = {}  # room GlobalId -> its grid points an earlier room holds
     for space in spaces:
         room = Polygon(space["polygon"], space.get("holes") or None)
         xy = grid_points_xy(np.asarray(room.bounds, np.float64).reshape(2, 2),
@@ -83,6 +84,8 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
             if key not in seen:  # a point on a shared wall line belongs to the first room
                 seen.add(key)
                 keep.append((x, y, z))
+            else:
+                shared[space["global_id"]] = shared.get(space["global_id"], 0) + 1
         if not keep:
             continue
         points.append(np.asarray(keep, np.float64))
@@ -96,10 +99,12 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
     positions = np.concatenate(points) if points else np.zeros((0, 3))
     considered = len(positions)
     keep_mask = np.ones(considered, bool)
+    why = np.full(considered, -1, np.int8)  # per point: index in DROP_REASONS, -1 kept
     if area is not None and considered:
         inside = intersects_xy(area, positions[:, 0], positions[:, 1])
         dropped["outside_area_of_interest"] = int((~inside).sum())
         keep_mask &= inside
+        why[~inside] = DROP_REASONS.index("outside_area_of_interest")
     on_floor, floor_z, no_floor = _on_floor(scene, positions, spec, caster, keep_mask,
                                             dropped)
     from_space = _rooms_without_slab(labels, keep_mask, no_floor)
@@ -109,8 +114,12 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
         rescued &= no_floor
         dropped["no_floor"] -= int(rescued.sum())
         on_floor |= rescued
+        no_floor &= ~rescued
+    why[keep_mask & ~on_floor] = DROP_REASONS.index("blocked_above_floor")
+    why[keep_mask & no_floor] = DROP_REASONS.index("no_floor")
     keep_mask &= on_floor
-    keep_mask &= _clear(scene, positions, spec.clearance_m, floor_z, keep_mask, dropped)
+    keep_mask &= _clear(scene, positions, spec.clearance_m, floor_z, keep_mask, dropped, why)
+    rooms = room_report(scene.metadata, spaces, labels, why, spec, shared)
     if not keep_mask.any():
         raise NoCandidatesError(
             f"no point is left in the {len(spaces)} room(s) out of {considered} "
@@ -123,8 +132,111 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
     return CandidateSet(
         positions=positions[index], source="rooms", considered=considered,
         dropped=dropped, labels=tuple(labels[i] for i in index),
-        floor_from_space=tuple(from_space.values()),
+        floor_from_space=tuple(from_space.values()), rooms=rooms,
     )
+
+
+# the words for a room's points left out, by reason (DROP_REASONS)
+ROOM_REASONS = {
+    "outside_area_of_interest": "outside area_of_interest",
+    "no_floor": "no floor: nothing under the scanner within "
+                f"{FLOOR_TOLERANCE_M:g} m of the room's floor (a stair hole, a void)",
+    "blocked_above_floor": "head room: something between the floor and the scanner (a "
+                           "sloping roof or ceiling, a stair, a table)",
+    "inside_geometry": "inside an element (a wall, a column)",
+    "too_close": "clearance: an obstacle within clearance_m of the tripod",
+}
+
+
+def room_report(metadata: dict[str, Any], chosen: list[dict[str, Any]],
+                labels: list[dict[str, str]], why: NDArray[np.int8], spec: PlanSpec,
+                shared: dict[str, int]) -> list[dict[str, object]]:
+    """``candidates.rooms``: every IfcSpace of the model, in model order, with its storey,
+    floor height and area, grid points, candidates and the points left out per reason;
+    a room without candidates says why (``reason``): not asked for (``storeys`` /
+    ``rooms``), no grid point inside it (smaller than the grid, or its points belong to
+    a neighbour), or the reason that left out most of its points. IfcSpaces whose
+    geometry could not be read (``metadata["spaces_unread"]``) are listed too.
+
+    ``labels`` and ``why`` are per grid point considered (``why``: index in
+    ``DROP_REASONS``, -1 for a candidate), ``shared``: per room, its grid points an
+    earlier room holds.
+    """
+    wanted = {space["global_id"] for space in chosen}
+    grid: dict[str, int] = {}
+    kept: dict[str, int] = {}
+    left_out: dict[str, dict[str, int]] = {}
+    for label, reason in zip(labels, why.tolist(), strict=True):
+        gid = label["room_global_id"]
+        grid[gid] = grid.get(gid, 0) + 1
+        if reason < 0:
+            kept[gid] = kept.get(gid, 0) + 1
+        else:
+            counts = left_out.setdefault(gid, {})
+            counts[DROP_REASONS[reason]] = counts.get(DROP_REASONS[reason], 0) + 1
+    report: list[dict[str, object]] = []
+    for space in metadata.get("spaces", []):
+        gid = space["global_id"]
+        entry: dict[str, object] = {
+            "room": str(space["long_name"] or space["name"] or gid),
+            "room_name": str(space["name"]), "room_global_id": gid,
+            "storey": str(space["storey"]),
+            "floor_z_m": round(float(space["floor_z_m"]), 3) + 0.0,
+            "area_m2": round(float(space["area_m2"]), 2),
+            "grid_points": grid.get(gid, 0), "candidates": kept.get(gid, 0),
+        }
+        if left_out.get(gid):
+            entry["left_out"] = dict(sorted(left_out[gid].items()))
+        if gid not in wanted:
+            entry["reason"] = "not planned: outside the storeys or rooms asked for"
+        elif not grid.get(gid):
+            entry["reason"] = (
+                f"no grid point: its {shared[gid]} grid point(s) lie on the boundary of a "
+                "room listed before it, which holds them" if shared.get(gid) else
+                f"no grid point: no multiple of grid_spacing_m ({spec.grid_spacing_m:g} m) "
+                "falls inside its floor")
+        elif not kept.get(gid):
+            counts = left_out[gid]
+            entry["reason"] = "; ".join(
+                f"{ROOM_REASONS[k]} ({n} of {grid[gid]} grid points)"
+                for k, n in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+        report.append(entry)
+    for space in metadata.get("spaces_unread", []):
+        report.append({
+            "room": str(space["long_name"] or space["name"] or space["global_id"]),
+            "room_name": str(space["name"]), "room_global_id": str(space["global_id"]),
+            "storey": str(space["storey"]), "floor_z_m": None, "area_m2": None,
+            "grid_points": 0, "candidates": 0,
+            "reason": f"no geometry: {space['reason']}",
+        })
+    return report
+
+
+def rooms_lines(rooms: list[dict[str, object]] | None) -> list[str]:
+    """``candidates.rooms`` as one line per storey (CLI, job message): its rooms,
+    candidates (and stations, in plan.json), and each room without candidates with the
+    first words of its reason."""
+    if not rooms:
+        return []
+    storeys: dict[str, list[dict[str, object]]] = {}
+    for room in rooms:
+        storeys.setdefault(str(room["storey"]) or "no storey", []).append(room)
+    lines = []
+    for storey, members in storeys.items():
+        heights = [float(str(r["floor_z_m"])) for r in members if r["floor_z_m"] is not None]
+        at = f" ({min(heights):+.2f} m)" if heights else ""
+        planned = [r for r in members if int(str(r["candidates"])) > 0]
+        line = (f"{storey}{at}: {len(planned)} of {len(members)} room"
+                f"{'s' if len(members) != 1 else ''} with candidates, "
+                f"{sum(int(str(r['candidates'])) for r in planned)} candidates")
+        if all("stations" in r for r in members):  # plan.json: the stations chosen too
+            line += f", {sum(int(str(r['stations'])) for r in members)} stations"
+        empty = [r for r in members if int(str(r["candidates"])) == 0]
+        if empty:
+            line += "; none in " + ", ".join(
+                f"{r['room']} ({str(r['reason']).split(':')[0]})" for r in empty)
+        lines.append(line)
+    return lines
 
 
 def _rooms_without_slab(labels: list[dict[str, str]], alive: NDArray[np.bool_],
@@ -216,12 +328,13 @@ def _on_floor(scene: Scene, positions: NDArray[np.float64], spec: PlanSpec, cast
 
 
 def _clear(scene: Scene, positions: NDArray[np.float64], clearance_m: float,
-           floor_z: NDArray[np.float64], alive: NDArray[np.bool_], dropped: dict[str, int]
-           ) -> NDArray[np.bool_]:
+           floor_z: NDArray[np.float64], alive: NDArray[np.bool_], dropped: dict[str, int],
+           why: NDArray[np.int8] | None = None) -> NDArray[np.bool_]:
     """(C,) bool: not inside an element's solid, and the tripod has ``clearance_m`` of room.
 
     The room is measured as :func:`planner.method.candidates.closer_than` does, from the floor
-    found under the scanner.
+    found under the scanner. ``why`` (C,), when given, gets the reason (index in
+    ``DROP_REASONS``) of each point left out here.
     """
     ok = np.ones(len(positions), bool)
     index = np.flatnonzero(alive)
@@ -230,10 +343,14 @@ def _clear(scene: Scene, positions: NDArray[np.float64], clearance_m: float,
     inside = inside_elements(scene, positions[index])
     dropped["inside_geometry"] += int(inside.sum())
     ok[index[inside]] = False
+    if why is not None:
+        why[index[inside]] = DROP_REASONS.index("inside_geometry")
     index = index[~inside]
     near = closer_than(scene, positions[index], clearance_m, floor_z[index])
     dropped["too_close"] += int(near.sum())
     ok[index[near]] = False
+    if why is not None:
+        why[index[near]] = DROP_REASONS.index("too_close")
     return ok
 
 

@@ -9,6 +9,7 @@ seconds on two cores; reading the files with IfcOpenShell is most of it.
 
 from __future__ import annotations
 
+import functools
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -16,6 +17,7 @@ from typing import Any
 import pytest
 
 from planner.io.readers import read_scene
+from planner.method.rooms import rooms_lines
 from planner.outputs.report import plan_document
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
@@ -32,8 +34,10 @@ def buildings_dir(scenes_dir: Path) -> Path:
     return folder
 
 
+@functools.cache
 def planned(path: Path, spec: PlanSpec = SPEC) -> dict[str, Any]:
-    """plan.json of ``path`` planned with ``spec``, as the command line would write it."""
+    """plan.json of ``path`` planned with ``spec``, as the command line would write it
+    (once a session: several tests check the same plan)."""
     scene = read_scene(path, max_edge_m=spec.max_edge_m, split_faces="as_needed")
     document: dict[str, Any] = plan_document(plan(scene, spec))
     return document
@@ -123,3 +127,55 @@ def test_elements_whose_geometry_fails_are_named_and_the_file_is_blamed(
     with pytest.raises(NoCandidatesError, match="the model file is the likely cause, not "
                        "the parameters: the geometry of"):
         plan(scene, SPEC)
+
+
+# every room accounted for ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["Renga-House", "AC90R1-niedriha-V2-2x3"])
+def test_every_ifcspace_is_listed_with_its_storey_area_candidates_and_why_it_has_none(
+        name: str, scenes_dir: Path) -> None:
+    path = buildings_dir(scenes_dir) / f"{name}.ifc"
+    model = ifcopenshell.open(str(path))
+    document = planned(path)
+    rooms = document["candidates"]["rooms"]
+    # every IfcSpace of the file, once, whatever happened to it
+    assert sorted(r["room_global_id"] for r in rooms) == sorted(
+        s.GlobalId for s in model.by_type("IfcSpace"))
+    storeys = {s["storey"] for s in rooms}
+    assert "" not in storeys
+    for room in rooms:
+        assert room["area_m2"] > 0 and room["grid_points"] >= room["candidates"] >= 0
+        assert room["grid_points"] == room["candidates"] + sum(
+            room.get("left_out", {}).values())
+        # a room without candidates says why, one with candidates does not need to
+        assert ("reason" in room) == (room["candidates"] == 0), room
+        assert room["stations"] <= room["candidates"]
+    in_rooms = [s for s in document["stations"] if s["label"].get("room_global_id")]
+    assert sum(r["stations"] for r in rooms) == len(in_rooms) == len(document["stations"])
+    # one line per storey with rooms, naming the rooms without a candidate
+    lines = rooms_lines(rooms)
+    assert [line.split(" (")[0] for line in lines] == list(dict.fromkeys(
+        r["storey"] for r in rooms))
+    for room in rooms:
+        if room["candidates"] == 0:
+            assert any(f"{room['room']} (" in line and line.startswith(room["storey"])
+                       for line in lines), (room, lines)
+
+
+def test_the_attic_too_low_for_a_tripod_says_so(scenes_dir: Path) -> None:
+    """NiedriHa's attic (67 m² under a roof that rises to 1.7 m above its floor) gets no
+    station: plan.json and the storey's line say that it lacks head room for the
+    scanner."""
+    document = planned(buildings_dir(scenes_dir) / "AC90R1-niedriha-V2-2x3.ifc")
+    rooms = document["candidates"]["rooms"]
+    attic = [r for r in rooms if r["storey"] == "Dachgeschoss"]
+    assert len(attic) == 1 and attic[0]["candidates"] == 0
+    assert attic[0]["reason"].startswith("head room: ")
+    assert attic[0]["area_m2"] == pytest.approx(67.4, abs=0.1)
+    line = [x for x in rooms_lines(rooms) if x.startswith("Dachgeschoss")]
+    assert line == ["Dachgeschoss (+5.70 m): 0 of 1 room with candidates, 0 candidates, "
+                    "0 stations; none in Dachboden (head room)"]
+    # the three storeys below are planned, each with stations
+    by_storey = Counter(s["label"]["storey"] for s in document["stations"])
+    assert set(by_storey) == {"Keller", "Erdgeschoss", "Obergeschoss"}
