@@ -14,6 +14,7 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from planner.io.readers import read_scene
@@ -179,3 +180,39 @@ def test_the_attic_too_low_for_a_tripod_says_so(scenes_dir: Path) -> None:
     # the three storeys below are planned, each with stations
     by_storey = Counter(s["label"]["storey"] for s in document["stations"])
     assert set(by_storey) == {"Keller", "Erdgeschoss", "Obergeschoss"}
+
+
+# the building, not the site --------------------------------------------------------------------
+
+
+def test_a_house_on_its_site_gets_candidates_in_and_around_the_house_and_a_printable_set(
+        scenes_dir: Path) -> None:
+    """Lantern Hollow (Revit, feet, no IfcSpace): a 26 x 33 m house on a 114 x 203 m
+    terrain. The candidates stand in the house and within the plan's reach of its walls,
+    both storeys are planned, and the print set is a few sheets, not the terrain's."""
+    from planner.method.pairs import FaceLimits
+    from planner.outputs.printset import sheets
+
+    path = buildings_dir(scenes_dir) / "Lantern_Hollow.ifc"
+    scene = read_scene(path, max_edge_m=SPEC.max_edge_m, split_faces="as_needed")
+    result = plan(scene, SPEC)
+    site = np.array([e.ifc_class == "IfcSite" for e in scene.elements] + [False])
+    building = ~site[scene.face_element]
+    corners = scene.triangles[building].reshape(-1, 3)
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    assert (hi - lo)[:2].max() < 40 < (scene.bounds[1] - scene.bounds[0])[:2].min()
+    reach = FaceLimits.from_spec(SPEC, scene).reach_m
+    xy = result.candidates.positions[:, :2]
+    margin = reach + SPEC.grid_spacing_m
+    assert ((xy >= lo[:2] - margin) & (xy <= hi[:2] + margin)).all()
+    assert len(result.candidates) < 1000  # 14,373 at 0.5 m over the whole terrain before
+    floors = result.candidates.positions[:, 2] - SPEC.scanner_height_m
+    document = plan_document(result)
+    stations = np.array([s["position"] for s in document["stations"]])
+    # the basement (-2.49 m) and the ground floor (0 m) each have candidates and stations
+    for storey_z in (-2.49, 0.0):
+        assert (np.abs(floors - storey_z) < 0.2).sum() >= 20, storey_z
+        assert (np.abs(stations[:, 2] - SPEC.scanner_height_m - storey_z) < 0.2).any()
+    # a sheet or a few per storey: the house at 1:100 or 1:200, not the terrain
+    printed = sheets(result)
+    assert 2 <= len(printed) <= 8, len(printed)
