@@ -7,9 +7,11 @@ For each room (restricted by ``spec.storeys`` / ``spec.rooms``): grid points at 
 ``grid_spacing_m`` inside the floor polygon (boundary inclusive) and inside
 ``area_of_interest`` if given, at ``floor_z_m + scanner_height_m``. A point is dropped when
 the first surface straight below the scanner is not within ``FLOOR_TOLERANCE_M`` of the
-room's floor (``no_floor``: a stair hole, a void; but a room where no point has a floor has
-no slab in this model, e.g. the slabs live in the structural model, and its IfcSpace's own
-bottom is the floor: ``CandidateSet.floor_from_space`` names those rooms;
+room's floor (``no_floor``: a stair hole, a void; but a room where fewer than half of
+the points that can tell find its floor has no slab in this model, e.g. the slabs live
+in the structural model, and its IfcSpace's own bottom is the floor:
+``CandidateSet.floor_from_space`` names those rooms, whose points stand on it
+wherever nothing lies within head room below, i.e. not over a stair's hole;
 ``blocked_above_floor``: a table, a stair under the scanner), when it is inside a closed
 object (``inside_geometry``), or when the tripod lacks ``clearance_m`` of room around its
 axis from that floor to above the scanner (``too_close``, as
@@ -40,6 +42,8 @@ from planner.parameters import PlanSpec
 from planner.scene import Scene
 
 FLOOR_TOLERANCE_M = 0.3
+# a room whose floor is found under fewer than this share of its points has no slab
+MIN_SLAB_SHARE = 0.5
 
 
 def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateSet:
@@ -107,11 +111,13 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
         why[~inside] = DROP_REASONS.index("outside_area_of_interest")
     on_floor, floor_z, no_floor = _on_floor(scene, positions, spec, caster, keep_mask,
                                             dropped)
-    from_space = _rooms_without_slab(labels, keep_mask, no_floor)
+    from_space = _rooms_without_slab(labels, keep_mask, no_floor, on_floor)
     if from_space:
         # the room's own bottom is its floor: the slab lives in another model (structure)
         rescued = np.isin([label["room_global_id"] for label in labels], list(from_space))
         rescued &= no_floor
+        # but not over a stair or a void with something within head room below: the hole
+        rescued[rescued] = _nothing_below(positions[rescued], spec, caster)
         dropped["no_floor"] -= int(rescued.sum())
         on_floor |= rescued
         no_floor &= ~rescued
@@ -240,21 +246,52 @@ def rooms_lines(rooms: list[dict[str, object]] | None) -> list[str]:
 
 
 def _rooms_without_slab(labels: list[dict[str, str]], alive: NDArray[np.bool_],
-                        no_floor: NDArray[np.bool_]) -> dict[str, str]:
-    """Rooms none of whose points has a floor under it: GlobalId -> room name, in order.
+                        no_floor: NDArray[np.bool_], on_floor: NDArray[np.bool_]
+                        ) -> dict[str, str]:
+    """Rooms without a slab in this model: GlobalId -> room name, in order.
 
-    One point without a floor is a stair hole or a void and stays dropped; a room without
-    any floor has no slab in this model, and its IfcSpace's bottom stands in for it.
+    A room has no slab when, of its points where the ray down found anything to judge by
+    (the room's floor, or nothing near it: ``no_floor``), fewer than ``MIN_SLAB_SHARE``
+    found the floor. A point blocked above the floor (furniture, a stair) says nothing
+    about the slab. A few points without a floor in a room with its slab are a stair hole
+    or a void and stay dropped; a room without a slab (the slabs live in the structural
+    model) stands on its IfcSpace's bottom. A stair's top tread under a few points of a
+    room without a slab does not make it one with.
     """
     rooms: dict[str, str] = {}
-    has_floor: set[str] = set()
-    for label, live, missing in zip(labels, alive, no_floor, strict=True):
+    found: dict[str, int] = {}
+    missing: dict[str, int] = {}
+    for label, live, lacks, on in zip(labels, alive, no_floor, on_floor, strict=True):
         if not live:
             continue
-        rooms.setdefault(label["room_global_id"], label["room"])
-        if not missing:
-            has_floor.add(label["room_global_id"])
-    return {gid: name for gid, name in rooms.items() if gid not in has_floor}
+        gid = label["room_global_id"]
+        rooms.setdefault(gid, label["room"])
+        if lacks:
+            missing[gid] = missing.get(gid, 0) + 1
+        elif on:
+            found[gid] = found.get(gid, 0) + 1
+    return {gid: name for gid, name in rooms.items()
+            if missing.get(gid, 0) and found_share(found.get(gid, 0), missing[gid])
+            < MIN_SLAB_SHARE}
+
+
+def _nothing_below(positions: NDArray[np.float64], spec: PlanSpec, caster: RayCaster
+                   ) -> NDArray[np.bool_]:
+    """(C,) bool: nothing lies under the (C, 3) scanner positions' floors within
+    ``HEADROOM_M``: a room without a slab stands there on its space's bottom. Where a
+    stair climbs or anything else stands below within head room, the floor has a hole."""
+    from planner.method.walkgraph import HEADROOM_M
+
+    if len(positions) == 0:
+        return np.zeros(0, bool)
+    _, distance = caster.first_hit(positions, np.tile([0.0, 0.0, -1.0], (len(positions), 1)))
+    free: NDArray[np.bool_] = distance > spec.scanner_height_m + HEADROOM_M
+    return free
+
+
+def found_share(found: int, missing: int) -> float:
+    """The share of a room's judged points that found its floor."""
+    return found / max(found + missing, 1)
 
 
 def select_spaces(spaces: list[dict[str, Any]], storeys: list[dict[str, Any]],

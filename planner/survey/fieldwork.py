@@ -166,6 +166,10 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     t1 = time.perf_counter()
     seconds["overlap"] = seconds.get("overlap", 0.0) + t1 - t0
     walk_caster = _walk_caster(scene, limits, caster, spec.occluders == "file")
+    if scene.metadata.get("spaces"):  # rooms are floors where the model has no slab
+        from planner.survey.space_floors import with_room_floors
+
+        walk_caster, _ = with_room_floors(scene, walk_caster)
     graph = build_walk_graph(scene, walk_caster)
     start = spec.route_start
     if start is not None:  # given in model coordinates, like every position (up_axis)

@@ -216,3 +216,34 @@ def test_a_house_on_its_site_gets_candidates_in_and_around_the_house_and_a_print
     # a sheet or a few per storey: the house at 1:100 or 1:200, not the terrain
     printed = sheets(result)
     assert 2 <= len(printed) <= 8, len(printed)
+
+
+# rooms are floors ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["AC20-FZK-Haus", "buildings/AC90R1-Jasmin-Sun-105-2x3"])
+def test_an_architectural_model_without_its_slabs_gets_every_storey_and_a_route_to_all(
+        name: str, scenes_dir: Path, tmp_path: Path) -> None:
+    """The discipline model a BIM platform sends: the architectural model, its slabs in the
+    structural one (here: deleted). The rooms' bottoms are the floors: every storey with
+    rooms gets stations, as with the slabs, and the route reaches every station."""
+    source = scenes_dir / f"{name}.ifc"
+    if not source.exists():
+        pytest.skip(f"{source} is not beside the checkout")
+    model = ifcopenshell.open(str(source))
+    for slab in model.by_type("IfcSlab"):
+        model.remove(slab)
+    path = tmp_path / "without-slabs.ifc"
+    model.write(str(path))
+    document = planned(path)
+    full = planned(source)
+    assert not any(e == "IfcSlab" for e in document["scene"]["groups"])
+    storeys = {s["label"]["storey"] for s in document["stations"]}
+    assert storeys == {s["label"]["storey"] for s in full["stations"]}
+    assert document["route"]["unreachable"] == [], document["route"]["unreachable_reasons"]
+    assert sorted(document["route"]["visits"]) == list(range(1, len(document["stations"]) + 1))
+    # every room but those over nothing stands on its space (the model has no slab)
+    assert document["candidates"]["floor_from_space"]
+    assert full["candidates"]["floor_from_space"] == []
+    # a walk of the building's size, not a few metres between stations on floor fragments
+    assert document["route"]["length_m"] > 0.6 * full["route"]["length_m"]
