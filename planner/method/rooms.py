@@ -250,15 +250,17 @@ def _rooms_without_slab(labels: list[dict[str, str]], alive: NDArray[np.bool_],
                         ) -> dict[str, str]:
     """Rooms without a slab in this model: GlobalId -> room name, in order.
 
-    A room has no slab when, of its points where the ray down found anything to judge by
-    (the room's floor, or nothing near it: ``no_floor``), fewer than ``MIN_SLAB_SHARE``
-    found the floor. A point blocked above the floor (furniture, a stair) says nothing
-    about the slab. A few points without a floor in a room with its slab are a stair hole
-    or a void and stay dropped; a room without a slab (the slabs live in the structural
-    model) stands on its IfcSpace's bottom. A stair's top tread under a few points of a
-    room without a slab does not make it one with.
+    Of a room's points where the ray down found something to judge by (the room's floor,
+    or nothing near it: ``no_floor``; a point blocked above the floor by furniture or a
+    stair says nothing about the slab), the share that found the floor decides
+    (:func:`slab_less`): a room none of whose points finds its floor, or one where fewer
+    than ``MIN_SLAB_SHARE`` do on a storey where, over all its rooms, fewer than that
+    share do (the slabs live in the structural model; a stair's top tread under a few
+    points does not make a slab). A stair hall with a large hole on a storey whose other
+    rooms have their slabs keeps its hole.
     """
     rooms: dict[str, str] = {}
+    storey_of: dict[str, str] = {}
     found: dict[str, int] = {}
     missing: dict[str, int] = {}
     for label, live, lacks, on in zip(labels, alive, no_floor, on_floor, strict=True):
@@ -266,13 +268,33 @@ def _rooms_without_slab(labels: list[dict[str, str]], alive: NDArray[np.bool_],
             continue
         gid = label["room_global_id"]
         rooms.setdefault(gid, label["room"])
+        storey_of[gid] = label["storey"]
         if lacks:
             missing[gid] = missing.get(gid, 0) + 1
         elif on:
             found[gid] = found.get(gid, 0) + 1
-    return {gid: name for gid, name in rooms.items()
-            if missing.get(gid, 0) and found_share(found.get(gid, 0), missing[gid])
-            < MIN_SLAB_SHARE}
+    chosen = slab_less({gid: (storey_of[gid], found.get(gid, 0), missing.get(gid, 0))
+                        for gid in rooms})
+    return {gid: name for gid, name in rooms.items() if gid in chosen}
+
+
+def slab_less(counts: dict[str, tuple[str, int, int]]) -> set[str]:
+    """The rooms without a slab among ``counts``: room -> (storey, points that found the
+    floor, points that found nothing near it); see :func:`_rooms_without_slab`."""
+    storey_found: dict[str, int] = {}
+    storey_missing: dict[str, int] = {}
+    for storey, found, missing in counts.values():
+        storey_found[storey] = storey_found.get(storey, 0) + found
+        storey_missing[storey] = storey_missing.get(storey, 0) + missing
+    chosen = set()
+    for room, (storey, found, missing) in counts.items():
+        if missing == 0:
+            continue
+        bare_storey = found_share(storey_found[storey], storey_missing[storey]) \
+            < MIN_SLAB_SHARE
+        if found == 0 or (bare_storey and found_share(found, missing) < MIN_SLAB_SHARE):
+            chosen.add(room)
+    return chosen
 
 
 def _nothing_below(positions: NDArray[np.float64], spec: PlanSpec, caster: RayCaster

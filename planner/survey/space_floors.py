@@ -6,12 +6,13 @@ in the structural model. Its rooms (``metadata["spaces"]``, :mod:`planner.io.ifc
 say where the floors are: the bottom of each space. The rule, per room and then per
 sample of its floor (``WALK_GRID_M`` apart, inside its floor polygon):
 
-1. *The room has no slab*: as for the room candidates (:mod:`planner.method.rooms`), at
-   fewer than ``MIN_SLAB_SHARE`` of the samples that can tell does a ray straight down
-   from ``FLOOR_PROBE_M`` above the room's floor meet a surface within
-   ``FLOOR_TOLERANCE_M`` of it (a model with its slabs meets one nearly everywhere; a
-   stair's top tread or a threshold under a few samples is no slab; a sample with
-   furniture on the floor cannot tell).
+1. *The room has no slab*, as for the room candidates
+   (:func:`planner.method.rooms.slab_less`): a ray straight down from ``FLOOR_PROBE_M``
+   above the room's floor meets a surface within ``FLOOR_TOLERANCE_M`` of it at none of
+   the samples that can tell, or at fewer than half of them on a storey where that holds
+   over all its rooms (a model with its slabs meets one nearly everywhere; a stair's top
+   tread under a few samples is no slab; a sample with furniture on the floor cannot
+   tell; a stair hall's large hole on a storey with slabs stays a hole).
 2. *Its samples become floor* where the model has none: no surface within
    ``FLOOR_TOLERANCE_M`` of the floor (the model's own floor, where it has one, is walked
    as it is) and none below it closer than ``HEADROOM_M`` (a stair or a void under the
@@ -38,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 from shapely import Polygon, intersects_xy
 
-from planner.method.rooms import FLOOR_TOLERANCE_M, MIN_SLAB_SHARE, found_share
+from planner.method.rooms import FLOOR_TOLERANCE_M, slab_less
 from planner.method.visibility import RayCaster, make_ray_caster
 from planner.method.walkgraph import HEADROOM_M, WALK_GRID_M
 from planner.scene import Scene, build_scene
@@ -73,8 +74,8 @@ def room_floor_samples(scene: Scene, caster: RayCaster) -> tuple[NDArray[np.floa
     """(S, 3) floor samples of the rooms without a slab (see the module docstring) and
     those rooms' names, in model order."""
     spaces = scene.metadata.get("spaces") or []
-    points: list[NDArray[np.float64]] = []
-    rooms: list[str] = []
+    candidates: list[tuple[str, NDArray[np.float64]]] = []
+    counts: dict[str, tuple[str, int, int]] = {}
     down = np.array([0.0, 0.0, -1.0])
     for space in spaces:
         polygon = Polygon(space["polygon"], space.get("holes") or None)
@@ -99,18 +100,21 @@ def room_floor_samples(scene: Scene, caster: RayCaster) -> tuple[NDArray[np.floa
         has_floor = np.abs(below_m) <= FLOOR_TOLERANCE_M
         lacks = below_m > FLOOR_TOLERANCE_M  # a hit above the floor (furniture) can't tell
         own = intersects_xy(polygon, xy[:, 0], xy[:, 1])  # the room's own floor decides
-        if not lacks[own].any() or found_share(int(has_floor[own].sum()),
-                                               int(lacks[own].sum())) >= MIN_SLAB_SHARE:
-            continue  # the room has its slab: the model's floor is walked
+        gid = str(space["global_id"])
+        counts[gid] = (str(space["storey"]), int(has_floor[own].sum()), int(lacks[own].sum()))
         # no floor of the model here, nor a stair or anything else within head room below
         # (and nothing standing on the floor: a hit above it is furniture or a wall's foot)
         free = ~has_floor & (below_m > HEADROOM_M)
         if free.any():
-            points.append(np.column_stack([xy[free], np.full(int(free.sum()), floor_z)]))
-            rooms.append(str(space["long_name"] or space["name"] or space["global_id"]))
+            candidates.append((gid, np.column_stack([xy[free],
+                                                     np.full(int(free.sum()), floor_z)])))
+    bare = slab_less(counts)  # the rooms whose slab the model does not have
+    name = {str(s["global_id"]): str(s["long_name"] or s["name"] or s["global_id"])
+            for s in spaces}
+    points = [samples for gid, samples in candidates if gid in bare]
     if not points:
         return np.zeros((0, 3)), []
-    return np.concatenate(points), rooms
+    return np.concatenate(points), [name[gid] for gid, _ in candidates if gid in bare]
 
 
 def with_room_floors(scene: Scene, caster: RayCaster) -> tuple[RayCaster, list[str]]:
