@@ -30,12 +30,12 @@ from numpy.typing import NDArray
 import planner.truth.simulation as simulation
 from planner.candidates.grid import read_candidates_csv
 from planner.io.readers import read_scene
+from planner.limits import FaceLimits
 from planner.parameters import PlanSpec
 from planner.rays import make_occlusion
 from planner.selection.greedy import greedy
 from planner.truth.simulation import ScanPattern, simulate_scan
 from planner.visibility.coverage import CoverageTable, QualifiedPairs
-from planner.visibility.pairs import FaceLimits
 from planner.visibility.sampled import (
     SampledQualifier,
 )

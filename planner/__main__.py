@@ -121,6 +121,10 @@ def run_plan(args: argparse.Namespace) -> int:
         line = levels_line(plan_doc["candidates"].get("levels"))
         if line:
             print(line)
+        from planner.candidates.rooms import rooms_lines
+
+        for line in rooms_lines(plan_doc["candidates"].get("rooms")):  # IFC: per storey
+            print(line)
         print(
             f"{totals['stations']} stations cover {totals['covered_area_m2']:.2f} m² "
             f"of {totals['max_achievable_area_m2']:.2f} m² achievable "

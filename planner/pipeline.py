@@ -21,6 +21,7 @@ import numpy as np
 
 from planner.candidates.generate import plan_candidates
 from planner.candidates.grid import CandidateSet
+from planner.limits import FaceLimits
 from planner.memory import bound_heap, release_freed_memory
 from planner.parameters import PlanSpec
 from planner.progress import ProgressCallback, Stats, new_stage
@@ -34,7 +35,6 @@ from planner.survey.fieldwork import Survey, survey
 from planner.survey.tolerance import Tolerance, plan_tolerance
 from planner.visibility.bundles import forget_bundles
 from planner.visibility.coverage import CoverageTable
-from planner.visibility.pairs import FaceLimits
 from planner.visibility.qualify import Sight, coverage_table, station_densities
 
 __all__ = ["PlanResult", "ProgressCallback", "Stats", "plan"]

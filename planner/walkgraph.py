@@ -242,7 +242,10 @@ def _floor_samples(scene: Scene, caster: RayCaster, grid_m: float) -> _Samples:
         floor = origins.copy()
         floor[:, 2] -= distance
         lowest[alive] = floor[:, 2]
-        horizontal = np.abs(scene.normals[face, 2]) >= _MIN_FLOOR_NZ
+        # a face id past the scene's is a floor the walk adds (planner.survey.space_floors)
+        horizontal = np.ones(len(face), bool)
+        own = face < scene.n_faces
+        horizontal[own] = np.abs(scene.normals[face[own], 2]) >= _MIN_FLOOR_NZ
         above = floor + np.array([0.0, 0.0, _EPS_M * 10])
         _, free = caster.first_hit(above, up[: len(above)])
         keep = horizontal & (free >= HEADROOM_M)

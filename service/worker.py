@@ -209,15 +209,18 @@ def _child_ended(ctx: WorkerContext, job: JobRecord, token: str,
 
 def _done_message(ctx: WorkerContext, job_id: str) -> str:
     """"done", then the storeys planned and what was left out when there is more than one
-    level (:func:`planner.candidates.grid.levels_line`), and why there is no plan.ifc for
-    an input that is not IFC, each in a clause of its own."""
+    level (:func:`planner.candidates.grid.levels_line`), for an IFC model one clause per
+    storey with its rooms (:func:`planner.candidates.rooms.rooms_lines`), and why there is no
+    plan.ifc for an input that is not IFC, each in a clause of its own."""
     from planner.candidates.grid import levels_line
+    from planner.candidates.rooms import rooms_lines
     from planner.outputs.ifc_plan import reason_without_ifc
 
     try:
         plan_doc = json.loads(ctx.meshes.store.read_bytes(result_key(job_id, "plan.json")))
         no_ifc = reason_without_ifc(str(plan_doc["scene"].get("format", "")))
         clauses = [levels_line(plan_doc["candidates"].get("levels")),
+                   *rooms_lines(plan_doc["candidates"].get("rooms")),
                    None if no_ifc is None else f"no plan.ifc: {no_ifc}"]
     except (OSError, ValueError, KeyError):
         clauses = []

@@ -4,6 +4,8 @@ the stations already scanned among them (see :mod:`planner.candidates`)."""
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -11,6 +13,7 @@ from planner.candidates.fixed import fixed_candidates
 from planner.candidates.grid import CandidateSet, explicit_candidates, generate_grid
 from planner.candidates.placement import at_heights
 from planner.candidates.rooms import room_candidates
+from planner.errors import NoCandidatesError
 from planner.io.orientation import scene_rotation, to_plan
 from planner.parameters import PlanSpec
 from planner.rays import RayCaster
@@ -25,9 +28,11 @@ def plan_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster
         candidates = explicit_candidates(
             to_plan(scene_rotation(scene.metadata), np.asarray(spec.candidates)))
     elif scene.metadata.get("spaces"):
-        candidates = at_heights(spec, lambda at: room_candidates(scene, at, caster))
+        with _file_blamed(scene):
+            candidates = at_heights(spec, lambda at: room_candidates(scene, at, caster))
     else:
-        candidates = at_heights(spec, lambda at: generate_grid(scene, at, caster))
+        with _file_blamed(scene):
+            candidates = at_heights(spec, lambda at: generate_grid(scene, at, caster))
     fixed: tuple[int, ...] = ()
     if spec.fixed_stations:  # re-scan: stations already scanned are candidates too
         fixed_xyz = to_plan(scene_rotation(scene.metadata), np.asarray(spec.fixed_stations))
@@ -41,3 +46,21 @@ def plan_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster
                 heights_m=None if candidates.heights_m is None
                 else np.r_[candidates.heights_m, np.full(added, np.nan)])
     return candidates, fixed
+
+
+@contextmanager
+def _file_blamed(scene: Scene) -> Iterator[None]:
+    """A :class:`NoCandidatesError` on a model some of whose elements could not be read
+    (``metadata["unread_elements"]``, :mod:`planner.io.ifc`) says first that the file, not
+    the parameters, is the likely cause: a missing slab leaves no floor under the grid."""
+    try:
+        yield
+    except NoCandidatesError as exc:
+        unread = int(scene.metadata.get("unread_elements") or 0)
+        if unread == 0:
+            raise
+        read_as = "; ".join(str(w) for w in scene.metadata.get("warnings", []))
+        raise NoCandidatesError(
+            f"the model file is the likely cause, not the parameters: the geometry of "
+            f"{unread} of its elements could not be read ({read_as}); fix the file or "
+            f"export it again. Without them: {exc}") from exc

@@ -9,6 +9,8 @@ default) on every storey too, told from furniture by :func:`storey_levels`. A po
 dropped, and counted under its reason, when
 
 - ``outside_area_of_interest``: not covered by the polygon (boundary counts as inside);
+  without a polygon, the area of interest is the building: a point on open ground with
+  nothing of the building within reach is left out (:func:`on_the_building`);
 - ``no_floor``: nothing under it, or the surface under it is steeper than 30 degrees;
 - ``blocked_above_floor``: something lies between the floor and ``clearance_m`` above the
   scanner (a table, a low machine, a shelf);
@@ -41,7 +43,7 @@ from planner.parameters import PlanSpec
 from planner.rays import RayCaster
 from planner.scene import Scene, subdivide
 from planner.threads import in_block_order
-from planner.walkgraph import HEADROOM_M, cell_pairs
+from planner.walkgraph import HEADROOM_M, KNEE_HEIGHT_M, cell_pairs
 
 DROP_REASONS = (
     "outside_area_of_interest",
@@ -67,6 +69,10 @@ _MIN_LEVEL_AREA_M2 = 4.0
 _RAISED_EDGE_SHARE = 0.5
 
 
+# the building, not the site (on_the_building): upright surfaces are sampled this far apart
+_BUILDING_SAMPLE_M = 0.5
+
+
 @dataclass(frozen=True, eq=False)
 class CandidateSet:
     """The positions considered, and why the other grid points were left out.
@@ -82,6 +88,9 @@ class CandidateSet:
         and for "storeys" the levels left out with the reason (``excluded``)
     floor_from_space : room candidates: the rooms without a slab, standing on their
         IfcSpace's bottom
+    rooms : room candidates: every IfcSpace with its storey, area, grid points,
+        candidates and, where it has none, the reason (:func:`planner.candidates.rooms.
+        room_report`)
     heights_m : (C,) float64, each candidate's height above its floor when it was placed
         on one (NaN: not known, e.g. a fixed station); None for explicit candidates
     """
@@ -94,6 +103,7 @@ class CandidateSet:
     levels: list[dict[str, object]] | None = None
     floor_from_space: tuple[str, ...] | None = None
     heights_m: NDArray[np.float64] | None = None
+    rooms: list[dict[str, object]] | None = None
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -109,6 +119,8 @@ class CandidateSet:
             summary["levels"] = list(self.levels)
         if self.floor_from_space is not None:
             summary["floor_from_space"] = list(self.floor_from_space)
+        if self.rooms is not None:
+            summary["rooms"] = list(self.rooms)
         return summary
 
 
@@ -183,6 +195,11 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
         inside = intersects_xy(polygon, xy[:, 0], xy[:, 1])
         dropped["outside_area_of_interest"] = int((~inside).sum())
         xy = xy[inside]
+    if polygon is None and len(xy):  # the building, not the site: a quick first cut
+        near = near_targets_xy(scene, spec, xy)
+        dropped["outside_area_of_interest"] += int((~near).sum())
+        xy = xy[near]
+    outside_polygon = dropped["outside_area_of_interest"]
     labels: tuple[dict[str, str], ...] = ()
     levels: list[dict[str, object]] | None = None
     if spec.floor_levels == "all":
@@ -191,18 +208,27 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
         considered = len(positions) + sum(dropped.values())
         floors = positions[:, 2] - spec.scanner_height_m
         keep = unclear_mask(scene, positions, spec.clearance_m, dropped, floors)
+        if polygon is None:  # the building, not the site
+            on = on_the_building(scene, spec, positions, floors, caster)
+            dropped["outside_area_of_interest"] += int((keep & ~on).sum())
+            keep &= on
         positions, level_of = positions[keep], level_of[keep]
         levels, labels = _level_labels(positions[:, 2] - spec.scanner_height_m, level_of)
     else:
         positions = place_on_floor(scene, xy, spec, caster, dropped)
         floors = positions[:, 2] - spec.scanner_height_m
         positions = drop_unclear(scene, positions, spec.clearance_m, dropped, floors)
+        if polygon is None:  # the building, not the site
+            floors = positions[:, 2] - spec.scanner_height_m
+            on = on_the_building(scene, spec, positions, floors, caster)
+            dropped["outside_area_of_interest"] += int((~on).sum())
+            positions = positions[on]
         if spec.floor_levels == "storeys":
             placed, placed_level, report, storey_dropped = storey_levels(
                 scene, xy, spec, caster, ground_found=len(positions) > 0)
             names: list[str] = []
             if placed is not None and placed_level is not None:
-                storey_dropped["outside_area_of_interest"] = dropped["outside_area_of_interest"]
+                storey_dropped["outside_area_of_interest"] += outside_polygon
                 positions, dropped = placed, storey_dropped
                 considered = len(positions) + sum(dropped.values())
                 named, labels = _level_labels(positions[:, 2] - spec.scanner_height_m,
@@ -313,6 +339,11 @@ def storey_levels(
         scene, np.column_stack([xy[point], floor_z + spec.scanner_height_m]))
     dropped["inside_geometry"] += int(inside.sum())
     point, floor_z = point[~inside], floor_z[~inside]
+    if spec.area_of_interest is None and len(point):  # the building, not the site
+        on = on_the_building(scene, spec, np.column_stack(
+            [xy[point], floor_z + spec.scanner_height_m]), floor_z, caster)
+        dropped["outside_area_of_interest"] += int((~on).sum())
+        point, floor_z = point[on], floor_z[on]
     if len(point) == 0:
         return None, None, [], dropped
     cell = spec.grid_spacing_m
@@ -551,6 +582,135 @@ def _level_labels(floor_z: NDArray[np.float64], level: NDArray[np.int64]
         summary.append({"name": names[-1], "floor_z_m": round(height, 3),
                         "candidates": int(members.sum())})
     return summary, tuple({"storey": names[k]} for k in level)
+
+
+def on_the_building(scene: Scene, spec: PlanSpec, positions: NDArray[np.float64],
+                    floor_z_m: NDArray[np.float64], caster: RayCaster) -> NDArray[np.bool_]:
+    """(C,) bool: the (C, 3) grid candidates (floors (C,) ``floor_z_m``) that stand in or
+    around the building, not out on its site.
+
+    The rule, from the plan's own requirements and the geometry alone: a candidate stands
+    on the building when
+
+    (a) *inside*: straight above the scanner the first surface is a target (a ceiling, a
+        roof, a canopy), or
+    (b) *around*: a target surface that is not a floor (steeper than
+        ``_MAX_FLOOR_SLOPE_DEG``: a wall, a facade, a column, a door, a stair's riser) and
+        rises more than ``KNEE_HEIGHT_M`` above the candidate's floor lies within the
+        plan's reach of the scanner (:attr:`FaceLimits.reach_m`, the farthest a surface
+        can qualify at its density and depth of field: 4.7 m with the defaults).
+
+    Every other candidate stands on open ground with nothing of the building within
+    reach: a site's terrain, a car park, a lawn. From there the scanner could reach only
+    the ground it stands on. The rule holds whatever tool wrote the model: in IFC, terrain
+    (IfcSite, and whatever else ``group_requirements`` makes no target) is neither a
+    ceiling nor a wall here, so its slopes, banks and the sides of a terrain solid never
+    keep a candidate; in a plain mesh every surface is a target, and a terrain's sides lie
+    below the ground beside them (not above the candidate's floor) while its banks
+    steeper than 30 degrees keep the candidates within reach of them. A hall's floor is
+    under its roof, a yard between wings within reach of their facades. Applied only when
+    no ``area_of_interest`` is given: a user who draws one chooses the ground to plan.
+    """
+    from scipy.spatial import cKDTree
+
+    from planner.limits import FaceLimits
+
+    n = len(positions)
+    if n == 0:
+        return np.zeros(0, bool)
+    limits = FaceLimits.from_spec(spec, scene)
+    reach = limits.reach_m
+    target = np.asarray(limits.target)
+    up = np.tile([0.0, 0.0, 1.0], (n, 1))
+    face, _ = caster.first_hit(positions, up)
+    keep = face >= 0
+    keep[keep] = target[face[keep]]
+    samples = _upright_samples(scene, scene.on_file_faces(target))
+    rest = np.flatnonzero(~keep)
+    if len(samples) == 0 or len(rest) == 0 or reach <= 0:
+        return keep
+    tree = cKDTree(samples)
+    above = floor_z_m[rest] + KNEE_HEIGHT_M
+    _, nearest = tree.query(positions[rest], distance_upper_bound=reach)
+    found = nearest < len(samples)
+    keep[rest[found]] = samples[nearest[found], 2] > above[found]
+    # the nearest surface is below the floor (a terrain's side, a basement wall): another
+    # within reach may still rise above it
+    again = np.flatnonzero(found & ~keep[rest])
+    for start in range(0, len(again), _POINTS_PER_QUERY):
+        chunk = again[start:start + _POINTS_PER_QUERY]
+        lists = tree.query_ball_point(positions[rest[chunk]], reach)
+        keep[rest[chunk]] = [bool(len(near)) and bool(
+            (samples[np.asarray(near, np.int64), 2] > above[i]).any())
+            for near, i in zip(lists, chunk, strict=True)]
+    return keep
+
+
+def near_targets_xy(scene: Scene, spec: PlanSpec, xy: NDArray[np.float64]
+                    ) -> NDArray[np.bool_]:
+    """(N,) bool: the (N, 2) grid points within the plan's reach, in the plane, of some
+    target face's bounding box: every point :func:`on_the_building` can keep (a target
+    over it, or an upright one within reach), found without rays. In IFC it cuts a site's
+    terrain (no target) down to the building and its surroundings before any ray is
+    cast; in a plain mesh, where the terrain is a target, it keeps what it is given."""
+    from planner.limits import FaceLimits
+
+    limits = FaceLimits.from_spec(spec, scene)
+    reach = limits.reach_m
+    target = scene.on_file_faces(np.asarray(limits.target))
+    vertices, faces = scene.file_mesh
+    cell = spec.grid_spacing_m
+    origin = xy.min(axis=0) - cell
+    dims = np.floor((xy.max(axis=0) - origin) / cell).astype(np.int64) + 2
+    count = np.zeros(dims + 1, np.int64)  # a difference array of the boxes, summed below
+    for start in range(0, len(faces), _FOOTPRINTS_PER_BLOCK):
+        block = faces[start:start + _FOOTPRINTS_PER_BLOCK][target[start:start
+                                                                  + _FOOTPRINTS_PER_BLOCK]]
+        corners = vertices[block][:, :, :2]
+        first = np.floor((corners.min(axis=1) - reach - origin) / cell).astype(np.int64)
+        last = np.floor((corners.max(axis=1) + reach - origin) / cell).astype(np.int64) + 1
+        inside = (last > 0).all(axis=1) & (first < dims).all(axis=1)
+        first = np.clip(first[inside], 0, dims)
+        last = np.clip(last[inside], 0, dims)
+        np.add.at(count, (first[:, 0], first[:, 1]), 1)
+        np.add.at(count, (last[:, 0], first[:, 1]), -1)
+        np.add.at(count, (first[:, 0], last[:, 1]), -1)
+        np.add.at(count, (last[:, 0], last[:, 1]), 1)
+    covered = count.cumsum(axis=0).cumsum(axis=1) > 0
+    ij = np.floor((xy - origin) / cell).astype(np.int64)
+    near: NDArray[np.bool_] = covered[ij[:, 0], ij[:, 1]]
+    return near
+
+
+def _upright_samples(scene: Scene, target_file: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """(S, 3) points on the file's target faces steeper than a floor, at most
+    ``_BUILDING_SAMPLE_M`` apart (a face's corners, and points between them on a large
+    face), one per cube of that size."""
+    triangles = scene.file_triangles[np.asarray(target_file, bool)]
+    if len(triangles) == 0:
+        return np.zeros((0, 3))
+    normal = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    length = np.linalg.norm(normal, axis=1)
+    steep = math.cos(math.radians(_MAX_FLOOR_SLOPE_DEG))
+    upright = (length > 0) & (np.abs(normal[:, 2]) < steep * np.maximum(length, 1e-300))
+    triangles = triangles[upright]
+    longest = np.linalg.norm(triangles - np.roll(triangles, 1, axis=1), axis=2).max(axis=1)
+    steps = np.clip(np.ceil(longest / _BUILDING_SAMPLE_M), 1, 64).astype(np.int64)
+    parts: list[NDArray[np.float64]] = []
+    for k in np.unique(steps):
+        i, j = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
+        inside = i + j <= k
+        u, v = i[inside] / k, j[inside] / k  # barycentric grid of the triangle
+        tri = triangles[steps == k]
+        points = (tri[:, None, 0] + u[None, :, None] * (tri[:, None, 1] - tri[:, None, 0])
+                  + v[None, :, None] * (tri[:, None, 2] - tri[:, None, 0]))
+        cell = np.floor(points.reshape(-1, 3) / _BUILDING_SAMPLE_M).astype(np.int64)
+        _, first = np.unique(cell, axis=0, return_index=True)
+        parts.append(points.reshape(-1, 3)[np.sort(first)])
+    samples = np.concatenate(parts)
+    cell = np.floor(samples / _BUILDING_SAMPLE_M).astype(np.int64)
+    _, first = np.unique(cell, axis=0, return_index=True)
+    return np.asarray(samples[np.sort(first)])
 
 
 def place_on_floor(

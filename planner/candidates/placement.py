@@ -172,4 +172,39 @@ def at_heights(spec: PlanSpec, generate: Callable[[PlanSpec], CandidateSet]) -> 
         levels=levels,
         floor_from_space=tuple(spaces) if any(s.floor_from_space is not None for s in sets)
         else None,
-        heights_m=heights_m)
+        heights_m=heights_m, rooms=_merged_rooms(sets))
+
+
+def _merged_rooms(sets: list[CandidateSet]) -> list[dict[str, object]] | None:
+    """``candidates.rooms`` over several heights: grid points, candidates and the points
+    left out summed room by room; a room keeps a reason only while no height gives it a
+    candidate (the first height's reason)."""
+    if all(s.rooms is None for s in sets):
+        return None
+    merged: dict[str, dict[str, object]] = {}
+    left_out: dict[str, dict[str, int]] = {}
+    for s in sets:
+        for room in s.rooms or ():
+            gid = str(room["room_global_id"])
+            counts = left_out.setdefault(gid, {})
+            for reason, count in _counts(room.get("left_out")).items():
+                counts[reason] = counts.get(reason, 0) + count
+            entry = merged.get(gid)
+            if entry is None:
+                merged[gid] = dict(room)
+                continue
+            for key in ("grid_points", "candidates"):
+                entry[key] = int(str(entry[key])) + int(str(room[key]))
+    rooms = list(merged.values())
+    for room in rooms:
+        counts = left_out[str(room["room_global_id"])]
+        if counts:
+            room["left_out"] = dict(sorted(counts.items()))
+        if int(str(room["candidates"])) > 0:
+            room.pop("reason", None)
+    return rooms
+
+
+def _counts(value: object) -> dict[str, int]:
+    """A room's ``left_out`` counts (an absent one is empty)."""
+    return {str(k): int(v) for k, v in value.items()} if isinstance(value, dict) else {}

@@ -7,9 +7,11 @@ For each room (restricted by ``spec.storeys`` / ``spec.rooms``): grid points at 
 ``grid_spacing_m`` inside the floor polygon (boundary inclusive) and inside
 ``area_of_interest`` if given, at ``floor_z_m + scanner_height_m``. A point is dropped when
 the first surface straight below the scanner is not within ``FLOOR_TOLERANCE_M`` of the
-room's floor (``no_floor``: a stair hole, a void; but a room where no point has a floor has
-no slab in this model, e.g. the slabs live in the structural model, and its IfcSpace's own
-bottom is the floor: ``CandidateSet.floor_from_space`` names those rooms;
+room's floor (``no_floor``: a stair hole, a void; but a room where fewer than half of
+the points that can tell find its floor has no slab in this model, e.g. the slabs live
+in the structural model, and its IfcSpace's own bottom is the floor:
+``CandidateSet.floor_from_space`` names those rooms, whose points stand on it
+wherever nothing lies within head room below, i.e. not over a stair's hole;
 ``blocked_above_floor``: a table, a stair under the scanner), when it is inside a closed
 object (``inside_geometry``), or when the tripod lacks ``clearance_m`` of room around its
 axis from that floor to above the scanner (``too_close``, as
@@ -40,6 +42,8 @@ from planner.rays import RayCaster
 from planner.scene import Scene
 
 FLOOR_TOLERANCE_M = 0.3
+# a room whose floor is found under fewer than this share of its points has no slab
+MIN_SLAB_SHARE = 0.5
 
 
 def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateSet:
@@ -70,6 +74,7 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
     points: list[NDArray[np.float64]] = []
     labels: list[dict[str, str]] = []
     seen: set[tuple[float, float, float]] = set()
+    shared: dict[str, int] = {}  # room GlobalId -> its grid points an earlier room holds
     for space in spaces:
         room = Polygon(space["polygon"], space.get("holes") or None)
         xy = grid_points_xy(np.asarray(room.bounds, np.float64).reshape(2, 2),
@@ -83,6 +88,8 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
             if key not in seen:  # a point on a shared wall line belongs to the first room
                 seen.add(key)
                 keep.append((x, y, z))
+            else:
+                shared[space["global_id"]] = shared.get(space["global_id"], 0) + 1
         if not keep:
             continue
         points.append(np.asarray(keep, np.float64))
@@ -96,21 +103,29 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
     positions = np.concatenate(points) if points else np.zeros((0, 3))
     considered = len(positions)
     keep_mask = np.ones(considered, bool)
+    why = np.full(considered, -1, np.int8)  # per point: index in DROP_REASONS, -1 kept
     if area is not None and considered:
         inside = intersects_xy(area, positions[:, 0], positions[:, 1])
         dropped["outside_area_of_interest"] = int((~inside).sum())
         keep_mask &= inside
+        why[~inside] = DROP_REASONS.index("outside_area_of_interest")
     on_floor, floor_z, no_floor = _on_floor(scene, positions, spec, caster, keep_mask,
                                             dropped)
-    from_space = _rooms_without_slab(labels, keep_mask, no_floor)
+    from_space = _rooms_without_slab(labels, keep_mask, no_floor, on_floor)
     if from_space:
         # the room's own bottom is its floor: the slab lives in another model (structure)
         rescued = np.isin([label["room_global_id"] for label in labels], list(from_space))
         rescued &= no_floor
+        # but not over a stair or a void with something within head room below: the hole
+        rescued[rescued] = _nothing_below(positions[rescued], spec, caster)
         dropped["no_floor"] -= int(rescued.sum())
         on_floor |= rescued
+        no_floor &= ~rescued
+    why[keep_mask & ~on_floor] = DROP_REASONS.index("blocked_above_floor")
+    why[keep_mask & no_floor] = DROP_REASONS.index("no_floor")
     keep_mask &= on_floor
-    keep_mask &= _clear(scene, positions, spec.clearance_m, floor_z, keep_mask, dropped)
+    keep_mask &= _clear(scene, positions, spec.clearance_m, floor_z, keep_mask, dropped, why)
+    rooms = room_report(scene.metadata, spaces, labels, why, spec, shared)
     if not keep_mask.any():
         raise NoCandidatesError(
             f"no point is left in the {len(spaces)} room(s) out of {considered} "
@@ -123,26 +138,182 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
     return CandidateSet(
         positions=positions[index], source="rooms", considered=considered,
         dropped=dropped, labels=tuple(labels[i] for i in index),
-        floor_from_space=tuple(from_space.values()),
+        floor_from_space=tuple(from_space.values()), rooms=rooms,
     )
 
 
-def _rooms_without_slab(labels: list[dict[str, str]], alive: NDArray[np.bool_],
-                        no_floor: NDArray[np.bool_]) -> dict[str, str]:
-    """Rooms none of whose points has a floor under it: GlobalId -> room name, in order.
+# the words for a room's points left out, by reason (DROP_REASONS)
+ROOM_REASONS = {
+    "outside_area_of_interest": "outside area_of_interest",
+    "no_floor": "no floor: nothing under the scanner within "
+                f"{FLOOR_TOLERANCE_M:g} m of the room's floor (a stair hole, a void)",
+    "blocked_above_floor": "head room: something between the floor and the scanner (a "
+                           "sloping roof or ceiling, a stair, a table)",
+    "inside_geometry": "inside an element (a wall, a column)",
+    "too_close": "clearance: an obstacle within clearance_m of the tripod",
+}
 
-    One point without a floor is a stair hole or a void and stays dropped; a room without
-    any floor has no slab in this model, and its IfcSpace's bottom stands in for it.
+
+def room_report(metadata: dict[str, Any], chosen: list[dict[str, Any]],
+                labels: list[dict[str, str]], why: NDArray[np.int8], spec: PlanSpec,
+                shared: dict[str, int]) -> list[dict[str, object]]:
+    """``candidates.rooms``: every IfcSpace of the model, in model order, with its storey,
+    floor height and area, grid points, candidates and the points left out per reason;
+    a room without candidates says why (``reason``): not asked for (``storeys`` /
+    ``rooms``), no grid point inside it (smaller than the grid, or its points belong to
+    a neighbour), or the reason that left out most of its points. IfcSpaces whose
+    geometry could not be read (``metadata["spaces_unread"]``) are listed too.
+
+    ``labels`` and ``why`` are per grid point considered (``why``: index in
+    ``DROP_REASONS``, -1 for a candidate), ``shared``: per room, its grid points an
+    earlier room holds.
+    """
+    wanted = {space["global_id"] for space in chosen}
+    grid: dict[str, int] = {}
+    kept: dict[str, int] = {}
+    left_out: dict[str, dict[str, int]] = {}
+    for label, reason in zip(labels, why.tolist(), strict=True):
+        gid = label["room_global_id"]
+        grid[gid] = grid.get(gid, 0) + 1
+        if reason < 0:
+            kept[gid] = kept.get(gid, 0) + 1
+        else:
+            counts = left_out.setdefault(gid, {})
+            counts[DROP_REASONS[reason]] = counts.get(DROP_REASONS[reason], 0) + 1
+    report: list[dict[str, object]] = []
+    for space in metadata.get("spaces", []):
+        gid = space["global_id"]
+        entry: dict[str, object] = {
+            "room": str(space["long_name"] or space["name"] or gid),
+            "room_name": str(space["name"]), "room_global_id": gid,
+            "storey": str(space["storey"]),
+            "floor_z_m": round(float(space["floor_z_m"]), 3) + 0.0,
+            "area_m2": round(float(space["area_m2"]), 2),
+            "grid_points": grid.get(gid, 0), "candidates": kept.get(gid, 0),
+        }
+        if left_out.get(gid):
+            entry["left_out"] = dict(sorted(left_out[gid].items()))
+        if gid not in wanted:
+            entry["reason"] = "not planned: outside the storeys or rooms asked for"
+        elif not grid.get(gid):
+            entry["reason"] = (
+                f"no grid point: its {shared[gid]} grid point(s) lie on the boundary of a "
+                "room listed before it, which holds them" if shared.get(gid) else
+                f"no grid point: no multiple of grid_spacing_m ({spec.grid_spacing_m:g} m) "
+                "falls inside its floor")
+        elif not kept.get(gid):
+            counts = left_out[gid]
+            entry["reason"] = "; ".join(
+                f"{ROOM_REASONS[k]} ({n} of {grid[gid]} grid points)"
+                for k, n in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+        report.append(entry)
+    for space in metadata.get("spaces_unread", []):
+        report.append({
+            "room": str(space["long_name"] or space["name"] or space["global_id"]),
+            "room_name": str(space["name"]), "room_global_id": str(space["global_id"]),
+            "storey": str(space["storey"]), "floor_z_m": None, "area_m2": None,
+            "grid_points": 0, "candidates": 0,
+            "reason": f"no geometry: {space['reason']}",
+        })
+    return report
+
+
+def rooms_lines(rooms: list[dict[str, object]] | None) -> list[str]:
+    """``candidates.rooms`` as one line per storey (CLI, job message): its rooms,
+    candidates (and stations, in plan.json), and each room without candidates with the
+    first words of its reason."""
+    if not rooms:
+        return []
+    storeys: dict[str, list[dict[str, object]]] = {}
+    for room in rooms:
+        storeys.setdefault(str(room["storey"]) or "no storey", []).append(room)
+    lines = []
+    for storey, members in storeys.items():
+        heights = [float(str(r["floor_z_m"])) for r in members if r["floor_z_m"] is not None]
+        at = f" ({min(heights):+.2f} m)" if heights else ""
+        planned = [r for r in members if int(str(r["candidates"])) > 0]
+        line = (f"{storey}{at}: {len(planned)} of {len(members)} room"
+                f"{'s' if len(members) != 1 else ''} with candidates, "
+                f"{sum(int(str(r['candidates'])) for r in planned)} candidates")
+        if all("stations" in r for r in members):  # plan.json: the stations chosen too
+            line += f", {sum(int(str(r['stations'])) for r in members)} stations"
+        empty = [r for r in members if int(str(r["candidates"])) == 0]
+        if empty:
+            line += "; none in " + ", ".join(
+                f"{r['room']} ({str(r['reason']).split(':')[0]})" for r in empty)
+        lines.append(line)
+    return lines
+
+
+def _rooms_without_slab(labels: list[dict[str, str]], alive: NDArray[np.bool_],
+                        no_floor: NDArray[np.bool_], on_floor: NDArray[np.bool_]
+                        ) -> dict[str, str]:
+    """Rooms without a slab in this model: GlobalId -> room name, in order.
+
+    Of a room's points where the ray down found something to judge by (the room's floor,
+    or nothing near it: ``no_floor``; a point blocked above the floor by furniture or a
+    stair says nothing about the slab), the share that found the floor decides
+    (:func:`slab_less`): a room none of whose points finds its floor, or one where fewer
+    than ``MIN_SLAB_SHARE`` do on a storey where, over all its rooms, fewer than that
+    share do (the slabs live in the structural model; a stair's top tread under a few
+    points does not make a slab). A stair hall with a large hole on a storey whose other
+    rooms have their slabs keeps its hole.
     """
     rooms: dict[str, str] = {}
-    has_floor: set[str] = set()
-    for label, live, missing in zip(labels, alive, no_floor, strict=True):
+    storey_of: dict[str, str] = {}
+    found: dict[str, int] = {}
+    missing: dict[str, int] = {}
+    for label, live, lacks, on in zip(labels, alive, no_floor, on_floor, strict=True):
         if not live:
             continue
-        rooms.setdefault(label["room_global_id"], label["room"])
-        if not missing:
-            has_floor.add(label["room_global_id"])
-    return {gid: name for gid, name in rooms.items() if gid not in has_floor}
+        gid = label["room_global_id"]
+        rooms.setdefault(gid, label["room"])
+        storey_of[gid] = label["storey"]
+        if lacks:
+            missing[gid] = missing.get(gid, 0) + 1
+        elif on:
+            found[gid] = found.get(gid, 0) + 1
+    chosen = slab_less({gid: (storey_of[gid], found.get(gid, 0), missing.get(gid, 0))
+                        for gid in rooms})
+    return {gid: name for gid, name in rooms.items() if gid in chosen}
+
+
+def slab_less(counts: dict[str, tuple[str, int, int]]) -> set[str]:
+    """The rooms without a slab among ``counts``: room -> (storey, points that found the
+    floor, points that found nothing near it); see :func:`_rooms_without_slab`."""
+    storey_found: dict[str, int] = {}
+    storey_missing: dict[str, int] = {}
+    for storey, found, missing in counts.values():
+        storey_found[storey] = storey_found.get(storey, 0) + found
+        storey_missing[storey] = storey_missing.get(storey, 0) + missing
+    chosen = set()
+    for room, (storey, found, missing) in counts.items():
+        if missing == 0:
+            continue
+        bare_storey = found_share(storey_found[storey], storey_missing[storey]) \
+            < MIN_SLAB_SHARE
+        if found == 0 or (bare_storey and found_share(found, missing) < MIN_SLAB_SHARE):
+            chosen.add(room)
+    return chosen
+
+
+def _nothing_below(positions: NDArray[np.float64], spec: PlanSpec, caster: RayCaster
+                   ) -> NDArray[np.bool_]:
+    """(C,) bool: nothing lies under the (C, 3) scanner positions' floors within
+    ``HEADROOM_M``: a room without a slab stands there on its space's bottom. Where a
+    stair climbs or anything else stands below within head room, the floor has a hole."""
+    from planner.walkgraph import HEADROOM_M
+
+    if len(positions) == 0:
+        return np.zeros(0, bool)
+    _, distance = caster.first_hit(positions, np.tile([0.0, 0.0, -1.0], (len(positions), 1)))
+    free: NDArray[np.bool_] = distance > spec.scanner_height_m + HEADROOM_M
+    return free
+
+
+def found_share(found: int, missing: int) -> float:
+    """The share of a room's judged points that found its floor."""
+    return found / max(found + missing, 1)
 
 
 def select_spaces(spaces: list[dict[str, Any]], storeys: list[dict[str, Any]],
@@ -216,12 +387,13 @@ def _on_floor(scene: Scene, positions: NDArray[np.float64], spec: PlanSpec, cast
 
 
 def _clear(scene: Scene, positions: NDArray[np.float64], clearance_m: float,
-           floor_z: NDArray[np.float64], alive: NDArray[np.bool_], dropped: dict[str, int]
-           ) -> NDArray[np.bool_]:
+           floor_z: NDArray[np.float64], alive: NDArray[np.bool_], dropped: dict[str, int],
+           why: NDArray[np.int8] | None = None) -> NDArray[np.bool_]:
     """(C,) bool: not inside an element's solid, and the tripod has ``clearance_m`` of room.
 
     The room is measured as :func:`planner.candidates.grid.closer_than` does, from the floor
-    found under the scanner.
+    found under the scanner. ``why`` (C,), when given, gets the reason (index in
+    ``DROP_REASONS``) of each point left out here.
     """
     ok = np.ones(len(positions), bool)
     index = np.flatnonzero(alive)
@@ -230,10 +402,14 @@ def _clear(scene: Scene, positions: NDArray[np.float64], clearance_m: float,
     inside = inside_elements(scene, positions[index])
     dropped["inside_geometry"] += int(inside.sum())
     ok[index[inside]] = False
+    if why is not None:
+        why[index[inside]] = DROP_REASONS.index("inside_geometry")
     index = index[~inside]
     near = closer_than(scene, positions[index], clearance_m, floor_z[index])
     dropped["too_close"] += int(near.sum())
     ok[index[near]] = False
+    if why is not None:
+        why[index[near]] = DROP_REASONS.index("too_close")
     return ok
 
 

@@ -55,6 +55,8 @@ The candidates in those rooms are made by :mod:`planner.candidates.rooms`.
 from __future__ import annotations
 
 import hashlib
+import re
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -83,6 +85,7 @@ _GEOMETRY_LIBRARY = "hybrid-cgal-simple-opencascade"
 # operations of a few walls dominate and the order is sorted afterwards anyway.
 _GEOMETRY_THREADS = 1
 _DECIMALS = 6
+_UNREAD_NAMED = 8  # elements named in a warning about unreadable geometry
 
 
 @dataclass
@@ -109,7 +112,7 @@ def read_ifc(path: str | Path) -> Scene:
 
     path = Path(path)
     try:
-        model = ifcopenshell.open(str(path))
+        model, warnings = open_model(path)
     except ifcopenshell.SchemaError as exc:
         raise SceneError(
             f"{path.name}: IfcOpenShell does not support its schema ({exc}); "
@@ -129,20 +132,161 @@ def read_ifc(path: str | Path) -> Scene:
     scale = _unit_scale(model)
     storeys = _storeys(model, scale)
     storey_name = {s["global_id"]: s["name"] for s in storeys}
-    shapes, space_shapes = _shapes(model, path, storey_name)
+    shapes, space_shapes, unread = _shapes(model, path, storey_name)
+    warnings += unread_warnings(path.name, unread)
     if not shapes:
         raise SceneError(
             f"{path.name} has no geometry: no building element has a body representation "
             "IfcOpenShell can triangulate; export the model with its 3D geometry"
+            + (f" ({'; '.join(warnings)})" if warnings else "")
         )
     shapes.sort(key=lambda s: (s.ifc_class, s.global_id))
     scene = _scene(shapes, space_shapes, storeys, schema, scale)
+    if warnings:  # what of the file could not be read as written, for plan.json
+        scene.metadata.setdefault("warnings", []).extend(warnings)
+    scene.metadata["unread_elements"] = len(unread)
+    scene.metadata["spaces_unread"] = _spaces_unread(model, scene.metadata["spaces"], unread,
+                                                     storey_name)
     # plan.ifc is this file with the plan added (planner.outputs.ifc_plan)
     scene.metadata["source_path"] = str(path.resolve())
     scene.metadata["source_sha256"] = hashlib.sha256(path.read_bytes()).hexdigest()
     projects = model.by_type("IfcProject")
     scene.metadata["project_global_id"] = str(projects[0].GlobalId) if projects else ""
     return scene
+
+
+def open_model(path: Path) -> tuple[Any, list[str]]:
+    """The IFC model in ``path``, opened with IfcOpenShell, and what was repaired to read it.
+
+    Some tools (Renga) write ``*``, the STEP mark of an attribute a supertype derives,
+    where ``$`` (unset) belongs: for a name, a description, a unit. IfcOpenShell reads the
+    file but fails on every element whose geometry passes through such an attribute, so
+    the element has no geometry. Where the schema derives no attribute at that position
+    the ``*`` is read as ``$`` (:func:`repair_derived_marks`); the file itself is left
+    unchanged, and the returned warning says what was read differently.
+    """
+    import ifcopenshell
+
+    data = path.read_bytes()
+    schema = _header_schema(data)
+    if schema is None:
+        return ifcopenshell.open(str(path)), []
+    repaired, marks = repair_derived_marks(data, schema)
+    if not marks:
+        return ifcopenshell.open(str(path)), []
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="scanplan-ifc-") as folder:
+        copy = Path(folder) / path.name
+        copy.write_bytes(repaired)
+        model = ifcopenshell.open(str(copy))
+    where = ", ".join(f"{name} {count}" for name, count in marks.most_common(6))
+    more = len(marks) - 6
+    warning = (f"{path.name} writes '*' (a derived attribute) where the schema has an "
+               f"optional attribute, {marks.total():,} times ({where}"
+               f"{f' and {more} more' if more > 0 else ''}); they were read as '$' (unset), "
+               "as IFC requires: the file does not follow ISO 10303-21")
+    return model, [warning]
+
+
+_HEADER_SCHEMA = re.compile(rb"FILE_SCHEMA\s*\(\s*\(\s*'([^']+)'", re.IGNORECASE)
+_INSTANCE = re.compile(rb"#\d+\s*=\s*([A-Za-z0-9_]+)\s*\(")
+_STAR = re.compile(rb"[(,]\s*(\*)\s*(?=[,)])")
+
+
+def _header_schema(data: bytes) -> Any:
+    """IfcOpenShell's schema for the file's header, or None (the opening reports it)."""
+    import ifcopenshell
+
+    found = _HEADER_SCHEMA.search(data[:65536])
+    if found is None:
+        return None
+    try:
+        return ifcopenshell.ifcopenshell_wrapper.schema_by_name(
+            found.group(1).decode("ascii", "replace").upper())
+    except Exception:  # a schema IfcOpenShell does not know: opening says so
+        return None
+
+
+def repair_derived_marks(data: bytes, schema: Any) -> tuple[bytes, Counter[str]]:
+    """``data`` (a STEP file) with every ``*`` at a top-level attribute the ``schema`` does
+    not derive replaced by ``$``, and how many per ``Class.Attribute``.
+
+    Only the instances holding a ``*`` token are parsed (strings and nested lists kept
+    apart); ``*`` where the schema derives the attribute (``IfcSIUnit.Dimensions``) stays.
+    """
+    out: bytearray | None = None
+    marks: Counter[str] = Counter()
+    seen: set[int] = set()
+    derived_of: dict[str, tuple[str, list[str], list[bool]] | None] = {}
+    for star in _STAR.finditer(data):
+        start = star.start(1)
+        instance = None
+        while instance is None:
+            start = data.rfind(b"#", 0, start)
+            if start < 0:
+                break
+            instance = _INSTANCE.match(data, start)
+        if instance is None or start in seen:
+            continue
+        seen.add(start)
+        name = instance.group(1).decode("ascii").upper()
+        if name not in derived_of:
+            try:
+                declaration = schema.declaration_by_name(name)
+                derived_of[name] = (str(declaration.name()),
+                                    [str(a.name()) for a in declaration.all_attributes()],
+                                    [bool(d) for d in declaration.derived()])
+            except Exception:  # a type or a name outside the schema: left as written
+                derived_of[name] = None
+        known = derived_of[name]
+        if known is None:
+            continue
+        entity, attributes, derived = known
+        i, depth, index, quoted = instance.end(), 1, 0, False
+        while i < len(data) and depth > 0:
+            c = data[i]
+            if quoted:
+                if c == 0x27:  # ' ends the string unless doubled
+                    if i + 1 < len(data) and data[i + 1] == 0x27:
+                        i += 1
+                    else:
+                        quoted = False
+            elif c == 0x27:
+                quoted = True
+            elif c == 0x28:
+                depth += 1
+            elif c == 0x29:
+                depth -= 1
+            elif c == 0x2C and depth == 1:
+                index += 1
+            elif c == 0x2A and depth == 1 and index < len(derived) and not derived[index]:
+                if out is None:
+                    out = bytearray(data)
+                out[i] = 0x24  # '$'
+                marks[f"{entity}.{attributes[index]}"] += 1
+            i += 1
+    return (data if out is None else bytes(out)), marks
+
+
+def unread_warnings(file_name: str, unread: list[tuple[str, str, str, str]]) -> list[str]:
+    """One warning per cause for the elements whose geometry could not be read: (class,
+    GlobalId, name, cause) each; the classes counted, the first elements named."""
+    by_cause: dict[str, list[tuple[str, str, str]]] = {}
+    for ifc_class, global_id, name, cause in unread:
+        by_cause.setdefault(cause, []).append((ifc_class, global_id, name))
+    warnings = []
+    for cause, elements in by_cause.items():
+        classes = Counter(c for c, _, _ in elements)
+        named = ", ".join(f"{c} {g}" + (f" '{n}'" if n else "")
+                          for c, g, n in sorted(elements)[:_UNREAD_NAMED])
+        more = len(elements) - _UNREAD_NAMED
+        warnings.append(
+            f"{file_name}: IfcOpenShell could not triangulate {len(elements)} element(s) "
+            f"({', '.join(f'{c} {k}' for c, k in sorted(classes.items()))}), which the plan "
+            f"leaves out: {cause}. The file is the cause, not the parameters: {named}"
+            f"{f' and {more} more' if more > 0 else ''}")
+    return warnings
 
 
 def _unit_scale(model: Any) -> float:
@@ -196,8 +340,14 @@ def _settings() -> Any:
 
 
 def _shapes(model: Any, path: Path, storey_name: dict[str, str]
-            ) -> tuple[list[_Shape], list[_Shape]]:
-    """Triangulated building elements and spaces, in IfcOpenShell's order."""
+            ) -> tuple[list[_Shape], list[_Shape], list[tuple[str, str, str, str]]]:
+    """Triangulated building elements and spaces, in IfcOpenShell's order, and the
+    elements with a representation whose geometry could not be read: (class, GlobalId,
+    name, IfcOpenShell's error) each.
+
+    The iterator stops at the first element it cannot triangulate and skips the rest:
+    every element with a representation it did not give is triangulated on its own
+    (:func:`_missed_shapes`), so one broken element costs only itself."""
     import ifcopenshell.geom
 
     geom: Any = ifcopenshell.geom  # its stubs are partial; keep the calls untyped
@@ -214,7 +364,7 @@ def _shapes(model: Any, path: Path, storey_name: dict[str, str]
         exclude.append(name)
     if not any(p.Representation is not None and not p.is_a("IfcSpace")
                and not any(p.is_a(c) for c in exclude) for p in model.by_type("IfcProduct")):
-        return [], []  # nothing to triangulate (and the iterator may refuse such a file)
+        return [], [], []  # nothing to triangulate (and the iterator may refuse such a file)
     try:
         iterator = geom.iterator(
             _settings(), model, _GEOMETRY_THREADS, exclude=exclude, geometry_library=library,
@@ -224,15 +374,93 @@ def _shapes(model: Any, path: Path, storey_name: dict[str, str]
         raise SceneError(f"{path.name}: IfcOpenShell could not triangulate it: {exc}") from exc
     shapes: list[_Shape] = []
     spaces: list[_Shape] = []
+    empty: list[tuple[str, str, str, str]] = []
+    given: set[int] = set()
     while started:
         shape = iterator.get()
         product = model.by_id(shape.id)
+        given.add(int(product.id()))
         item = _shape(product, shape.geometry, storey_name)
         if item is not None and not any(product.is_a(c) for c in NON_PHYSICAL[1:]):
             (spaces if product.is_a("IfcSpace") else shapes).append(item)
+        elif item is None:
+            empty.append(_unread(product, _NO_TRIANGLES))
         if not iterator.next():
             break
-    return shapes, spaces
+    missed, unread = _missed_shapes(model, given, exclude, storey_name)
+    unread = empty + unread
+    for item in missed:
+        (spaces if item.ifc_class == "IfcSpace" else shapes).append(item)
+    return shapes, spaces, unread
+
+
+def _missed_shapes(model: Any, given: set[int], exclude: list[str],
+                   storey_name: dict[str, str]
+                   ) -> tuple[list[_Shape], list[tuple[str, str, str, str]]]:
+    """The products with a body the iterator did not give (their STEP ids not in
+    ``given``), triangulated one by one: the shapes read, and (class, GlobalId, name,
+    error) of those that fail. A product whose representations are all 2D (an axis, a
+    footprint) has no body and is no failure."""
+    import ifcopenshell.geom
+
+    geom: Any = ifcopenshell.geom
+    shapes: list[_Shape] = []
+    unread: list[tuple[str, str, str, str]] = []
+    settings = None
+    for product in model.by_type("IfcProduct"):
+        if (product.Representation is None or int(product.id()) in given
+                or any(product.is_a(c) for c in exclude) or not _has_body(product)):
+            continue
+        settings = settings or _settings()
+        try:
+            shape = geom.create_shape(settings, product)
+        except Exception as exc:  # RuntimeError and the wrapper's own errors
+            unread.append(_unread(product, _cause(exc)))
+            continue
+        item = _shape(product, shape.geometry, storey_name)
+        if item is not None:
+            shapes.append(item)
+        else:
+            unread.append(_unread(product, _NO_TRIANGLES))
+    return shapes, unread
+
+
+_NO_TRIANGLES = "its body gives no triangles"
+# where IfcOpenShell's message starts to quote the product and representation it failed on
+_QUOTED_ENTITY = re.compile(r"[\s.,:;]*(?:Product:|representation:)?\s*#\d+\s*=")
+
+
+def _cause(exc: Exception) -> str:
+    """IfcOpenShell's error without the entities it quotes: one cause for many elements."""
+    message = _QUOTED_ENTITY.split(" ".join(str(exc).split()), maxsplit=1)[0]
+    return message.rstrip(" .,:;") or type(exc).__name__
+
+
+def _unread(product: Any, cause: str) -> tuple[str, str, str, str]:
+    """(class, GlobalId, name, cause) of an element whose geometry was not read."""
+    try:
+        name = str(product.Name or "")
+    except Exception:  # the name itself written wrongly
+        name = ""
+    return str(product.is_a()), str(product.GlobalId), name, cause
+
+
+def _has_body(product: Any) -> bool:
+    """The product has a 3D representation (a body), not only an axis or a footprint."""
+    try:
+        representations = product.Representation.Representations or ()
+    except Exception:  # an attribute the file writes wrongly: try it, and report it
+        return True
+    for representation in representations:
+        try:
+            identifier = str(representation.RepresentationIdentifier or "")
+            kind = str(representation.RepresentationType or "")
+        except Exception:
+            return True
+        if identifier in ("Body", "Facetation", "") and kind not in (
+                "Curve2D", "GeometricCurveSet", "Annotation2D", "Point", "PointCloud"):
+            return True
+    return False
 
 
 def _shape(product: Any, geometry: Any, storey_name: dict[str, str]) -> _Shape | None:
@@ -326,6 +554,40 @@ def _spaces(space_shapes: list[_Shape], storeys: list[dict[str, Any]]
     spaces.sort(key=lambda s: (storey_rank.get(s["storey"], len(storeys)), s["storey"],
                                s["name"], s["global_id"]))
     return spaces
+
+
+def _spaces_unread(model: Any, spaces: list[dict[str, Any]],
+                   unread: list[tuple[str, str, str, str]], storey_name: dict[str, str]
+                   ) -> list[dict[str, str]]:
+    """The IfcSpaces missing from ``spaces``, with the reason: IfcOpenShell's error, a body
+    that gives no floor outline, or no body at all. In model order (storey, name)."""
+    read = {space["global_id"] for space in spaces}
+    causes = {global_id: cause for ifc_class, global_id, _, cause in unread
+              if ifc_class == "IfcSpace"}
+    missing = []
+    for product in model.by_type("IfcSpace"):
+        global_id = str(product.GlobalId)
+        if global_id in read:
+            continue
+        if global_id in causes:
+            reason = f"IfcOpenShell could not triangulate it: {causes[global_id]}"
+        elif product.Representation is not None and _has_body(product):
+            reason = "its body gives no floor outline (flat or empty)"
+        else:
+            reason = "it has no body (3D) representation"
+        storey = _storey_of(product)
+        name, long_name = _unread(product, "")[2], ""
+        try:
+            long_name = str(product.LongName or "")
+        except Exception:  # written wrongly: the name and GlobalId still say which
+            long_name = ""
+        missing.append({
+            "global_id": global_id, "name": name, "long_name": long_name,
+            "storey": "" if storey is None else storey_name.get(str(storey.GlobalId), ""),
+            "reason": reason,
+        })
+    missing.sort(key=lambda s: (s["storey"], s["name"], s["global_id"]))
+    return missing
 
 
 def _footprint(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> Polygon | None:

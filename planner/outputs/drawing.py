@@ -51,11 +51,11 @@ from matplotlib.ticker import MaxNLocator
 from numpy.typing import NDArray
 
 from planner.candidates.grid import levels_line
+from planner.density import density_range_m
 from planner.io.orientation import scene_rotation, to_model
 from planner.memory import release_freed_memory
 from planner.pipeline import PlanResult
 from planner.selection.curve import coverage_curve
-from planner.visibility.density import density_range_m
 
 # --- face classes and their colours (sRGB 0-255) -------------------------------------------
 
@@ -304,6 +304,12 @@ def _png(fig: Figure) -> bytes:
 def level_extent(result: PlanResult, level: Level) -> tuple[float, float, float, float]:
     """(xmin, ymin, xmax, ymax) of the faces of a level and its candidates, with a margin.
 
+    The faces count as far as a station can reach: within the plan's reach
+    (:attr:`FaceLimits.reach_m`) of the level's candidates. A site's terrain around a house
+    is drawn around the house, not to the edge of the site (a 114 x 203 m terrain printed
+    to scale is some 90 A3 sheets); a hall's walls, within reach of its candidates, are
+    drawn whole.
+
     The corners of the level's faces are marked in a (V,) mask, ``CHUNK_FACES`` faces at a
     time, rather than gathered: (F, 3, 2) corners of a 10 M-face model would be 460 MB.
     """
@@ -321,6 +327,10 @@ def level_extent(result: PlanResult, level: Level) -> tuple[float, float, float,
         if len(points):
             lo = np.minimum(lo, points.min(axis=0))
             hi = np.maximum(hi, points.max(axis=0))
+    reach = result.limits.reach_m
+    if len(xy) and reach > 0:  # no farther than a station reaches from the candidates
+        lo = np.maximum(lo, xy.min(axis=0) - reach)
+        hi = np.minimum(hi, xy.max(axis=0) + reach)
     margin = 0.04 * float(max(hi - lo)) + 0.3
     return (float(lo[0]) - margin, float(lo[1]) - margin,
             float(hi[0]) + margin, float(hi[1]) + margin)

@@ -47,10 +47,10 @@ from matplotlib.patches import Circle, Rectangle
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from planner.density import density_range_m
 from planner.outputs import drawing
 from planner.outputs.drawing import Level
 from planner.pipeline import PlanResult
-from planner.visibility.density import density_range_m
 
 SHEET_MM = (420.0, 297.0)  # A3 landscape, ISO 216
 MARGIN_MM = 10.0

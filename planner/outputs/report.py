@@ -78,6 +78,23 @@ def _route_in_model(result: PlanResult) -> dict[str, Any]:
     return route
 
 
+def _with_stations(summary: dict[str, Any], stations: list[dict[str, Any]]
+                   ) -> dict[str, Any]:
+    """``candidates`` of plan.json: for an IFC plan, each room's entry also counts the
+    stations chosen in it (a room with candidates may need none: the stations in the
+    rooms around it cover it)."""
+    if summary.get("rooms") is None:
+        return summary
+    chosen: dict[str, int] = {}
+    for station in stations:
+        room = station.get("label", {}).get("room_global_id")
+        if room:
+            chosen[room] = chosen.get(room, 0) + 1
+    rooms = [{**room, "stations": chosen.get(str(room["room_global_id"]), 0)}
+             for room in summary["rooms"]]
+    return {**summary, "rooms": rooms}
+
+
 def plan_document(result: PlanResult) -> dict[str, Any]:
     """The content of ``plan.json`` as plain data."""
     table, chosen = result.table, result.chosen
@@ -134,7 +151,7 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
         "curve": coverage_curve(result.selections, result.optimal_curve),
         "selection": result.selection_report,
         "parameters": result.spec.to_dict(),
-        "candidates": result.candidates.summary(),
+        "candidates": _with_stations(result.candidates.summary(), stations),
         "scene": {
             "format": result.scene.metadata.get("format", ""),
             "groups": list(result.scene.groups),

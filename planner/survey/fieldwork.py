@@ -15,6 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from planner.io.orientation import scene_rotation, to_plan
+from planner.limits import FaceLimits
 from planner.memory import release_freed_memory
 from planner.parameters import DEFAULT_ANGULAR_STEP_RAD, PlanSpec
 from planner.rays import Occlusion, RayCaster, make_ray_caster
@@ -23,7 +24,6 @@ from planner.scene import Scene
 from planner.survey.registration import Registration, station_registration
 from planner.survey.route import Route, plan_route
 from planner.visibility.overlap import OverlapRows, RowsFanout, shared_faces_only
-from planner.visibility.pairs import FaceLimits
 from planner.walkgraph import build_walk_graph, door_faces
 
 DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the scanner gives one
@@ -163,6 +163,10 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     t1 = time.perf_counter()
     seconds["overlap"] = seconds.get("overlap", 0.0) + t1 - t0
     walk_caster = _walk_caster(scene, limits, caster, spec.occluders == "file")
+    if scene.metadata.get("spaces"):  # rooms are floors where the model has no slab
+        from planner.survey.space_floors import with_room_floors
+
+        walk_caster, _ = with_room_floors(scene, walk_caster)
     graph = build_walk_graph(scene, walk_caster)
     start = spec.route_start
     if start is not None:  # given in model coordinates, like every position (up_axis)

@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import minimum_spanning_tree
 
 from planner.candidates.placement import Displaced, displaced_positions
+from planner.limits import FaceLimits
 from planner.progress import Stats
 from planner.rays import Occlusion, make_occlusion
 from planner.scene import Scene
@@ -51,7 +52,7 @@ from planner.visibility.overlap import (
     overlap_limits,
     shared_faces_only,
 )
-from planner.visibility.pairs import FaceLimits, PairFinder
+from planner.visibility.pairs import PairFinder
 from planner.visibility.qualify import Sight
 from planner.visibility.robust import Qualify, kept_faces
 from planner.walkgraph import door_faces

@@ -44,9 +44,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import CancelledError
+from planner.limits import FaceLimits
 from planner.parameters import PlanSpec
 from planner.scene import Scene
-from planner.visibility.pairs import FaceLimits
 
 # Longest edge of a hole bin: 0.1 m is the size of a target or a bolt a survey must not
 # miss, and still holds ~100 returns at the paper's 45,000 pts/m^2 requirement.

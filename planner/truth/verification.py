@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 
 from planner.errors import PlannerError
 from planner.io.orientation import scene_rotation, to_plan
+from planner.limits import FaceLimits
 from planner.parameters import PlanSpec
 from planner.scene import Scene, remesh
 from planner.truth.simulation import (
@@ -44,7 +45,6 @@ from planner.truth.simulation import (
     ScanPattern,
     simulate_scan,
 )
-from planner.visibility.pairs import FaceLimits
 
 VERIFICATION_FORMAT_VERSION = 1
 _DECIMALS = 6

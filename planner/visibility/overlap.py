@@ -24,11 +24,12 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from planner.limits import FaceLimits
 from planner.memory import released_every
 from planner.rays import Occlusion, make_occlusion
 from planner.scene import Scene
 from planner.visibility.bundles import BundleCuller, bundle_culler
-from planner.visibility.pairs import FaceLimits, PairFinder
+from planner.visibility.pairs import PairFinder
 from planner.walkgraph import door_faces
 
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from planner.candidates.placement import displaced_positions
 from planner.errors import NothingVisibleError
+from planner.limits import FaceLimits
 from planner.memory import released_every
 from planner.parameters import PlanSpec
 from planner.progress import ProgressCallback, Stats, notify
@@ -33,13 +34,7 @@ from planner.scene import Scene, remesh
 from planner.threads import in_block_order
 from planner.visibility.bundles import bundle_culler
 from planner.visibility.coverage import CoverageTable, QualifiedPairs
-from planner.visibility.pairs import (
-    TESTS_PER_BLOCK,
-    FaceLimits,
-    PairFinder,
-    lpd_of_faces,
-    sorted_by_face,
-)
+from planner.visibility.pairs import TESTS_PER_BLOCK, PairFinder, lpd_of_faces, sorted_by_face
 from planner.visibility.robust import robust_blocks, within_table
 from planner.visibility.splitting import faces_to_split
 

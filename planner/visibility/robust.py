@@ -25,10 +25,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.candidates.placement import Displaced
+from planner.limits import FaceLimits
 from planner.scene import Scene
 from planner.threads import in_block_order
 from planner.visibility.coverage import CoverageTable, QualifiedPairs
-from planner.visibility.pairs import FaceLimits
 
 # (M, 3) positions, the limits with only the faces to test as targets -> the qualified
 # pairs, numbered by position (0 .. M - 1), under the plan's coverage model

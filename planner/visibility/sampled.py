@@ -34,11 +34,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import CancelledError
+from planner.limits import FaceLimits
 from planner.rays import Occlusion
 from planner.scene import Scene
 from planner.threads import in_block_order
 from planner.visibility.coverage import QualifiedPairs
-from planner.visibility.pairs import FaceLimits, PairFinder, Pairs
+from planner.visibility.pairs import PairFinder, Pairs
 
 ProgressCallback = Callable[[str, float], bool | None]
 

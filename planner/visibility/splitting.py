@@ -29,9 +29,9 @@ import trimesh
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from planner.density import density_range_m
+from planner.limits import FaceLimits
 from planner.scene import Scene, longest_edges_m
-from planner.visibility.density import density_range_m
-from planner.visibility.pairs import FaceLimits
 
 # long faces per k-d tree query, and face-candidate pairs per chunk of the test (bounds the
 # chunk's (p, 3, 3) triangles to about 40 MB)

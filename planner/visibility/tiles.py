@@ -42,13 +42,14 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from planner.limits import FaceLimits
 from planner.rays.embree import BvhFaces, BvhPart, EmbreeOcclusion
 from planner.scene import Scene
 from planner.visibility.bundles import bundle_culler
 from planner.visibility.cells import PointGrid
 from planner.visibility.coverage import QualifiedPairs
 from planner.visibility.overlap import overlap_row
-from planner.visibility.pairs import FaceLimits, PairFinder
+from planner.visibility.pairs import PairFinder
 from planner.visibility.qualify import qualify_pairs
 
 

@@ -17,11 +17,11 @@ from numpy.typing import NDArray
 
 from planner.candidates.grid import CandidateSet, generate_grid, levels_line
 from planner.io.readers import read_scene
+from planner.limits import FaceLimits
 from planner.parameters import PlanSpec
 from planner.rays import RayCaster, make_ray_caster
 from planner.scene import Scene, build_scene
 from planner.survey.route import Route, plan_route
-from planner.visibility.pairs import FaceLimits
 from planner.walkgraph import build_walk_graph, door_faces
 from tests.planner import buildings
 from tests.planner.buildings import (

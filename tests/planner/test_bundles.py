@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 import trimesh
 
+from planner.limits import FaceLimits
 from planner.parameters import PlanSpec
 from planner.rays import make_occlusion
 from planner.rays.embree import quad_partners
 from planner.scene import Scene, build_scene, remesh
 from planner.visibility.bundles import BundleCuller, bundles_of
 from planner.visibility.overlap import OverlapRows, overlap_limits
-from planner.visibility.pairs import FaceLimits, PairFinder
+from planner.visibility.pairs import PairFinder
 from planner.visibility.qualify import qualify_pairs
 from tests.planner.buildings import office_building
 

@@ -25,12 +25,12 @@ from planner.candidates.winding import winding_numbers
 from planner.errors import NoCandidatesError, ParameterError, SceneError
 from planner.io.ifc import read_ifc
 from planner.io.readers import read_scene
+from planner.limits import FaceLimits
 from planner.outputs import bim
 from planner.outputs.report import plan_document, write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
 from planner.scene import Element, Scene, build_scene, remesh
-from planner.visibility.pairs import FaceLimits
 from tests.planner.ifc_models import read_ifc_once
 from tests.planner.ifc_parts import placed
 

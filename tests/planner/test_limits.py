@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 
 from planner.candidates.grid import read_candidates_csv
+from planner.density import density_range_m, local_point_density
 from planner.io.readers import read_scene
+from planner.limits import FaceLimits
 from planner.parameters import GroupRequirement, PlanSpec
 from planner.pipeline import plan
-from planner.visibility.density import density_range_m, local_point_density
-from planner.visibility.pairs import FaceLimits, PairFinder, lpd_of_faces
+from planner.visibility.pairs import PairFinder, lpd_of_faces
 from tests.planner.scenes import scene_of, small_triangle, square
 
 ORIGIN = (0.0, 0.0, 0.0)

@@ -10,10 +10,11 @@ import pytest
 
 from planner.candidates.grid import read_candidates_csv
 from planner.io.readers import read_scene
+from planner.limits import FaceLimits
 from planner.parameters import PlanSpec
 from planner.rays import embree as _embree
 from planner.rays import make_occlusion
-from planner.visibility.pairs import FaceLimits, PairFinder
+from planner.visibility.pairs import PairFinder
 
 
 @pytest.mark.parametrize("model", ["hall-small/hall.obj", "IfcOpenHouse_IFC4.ifc"])

@@ -24,6 +24,7 @@ from planner.candidates.grid import read_candidates_csv
 from planner.candidates.placement import OFFSET_DIRECTIONS, displaced_positions, offsets_m
 from planner.errors import ParameterError
 from planner.io.readers import read_scene
+from planner.limits import FaceLimits
 from planner.outputs.report import faces_npz, plan_document
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
@@ -31,7 +32,6 @@ from planner.rays import make_occlusion, make_ray_caster
 from planner.survey.registration import station_registration
 from planner.survey.tolerance import _worst_case_network
 from planner.visibility.overlap import OverlapRows
-from planner.visibility.pairs import FaceLimits
 from tests.planner.survey_scenes import boxes_scene, room_shell, two_rooms
 
 TOLERANCE_M = 0.25

@@ -16,11 +16,12 @@ import trimesh
 from planner import scene as scene_module
 from planner.candidates.grid import read_candidates_csv
 from planner.io.readers import read_scene
+from planner.limits import FaceLimits
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
 from planner.rays import make_occlusion
 from planner.scene import build_scene, remesh
-from planner.visibility.pairs import FaceLimits, PairFinder
+from planner.visibility.pairs import PairFinder
 
 ROOT = Path(__file__).resolve().parents[2]
 

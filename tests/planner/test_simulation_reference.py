@@ -23,10 +23,10 @@ import pytest
 import trimesh
 from numpy.typing import NDArray
 
+from planner.limits import FaceLimits
 from planner.parameters import PlanSpec
 from planner.scene import Scene, build_scene
 from planner.truth.simulation import ScanPattern, simulate_scan
-from planner.visibility.pairs import FaceLimits
 
 # a hit this close (metres) to a triangle's edge may go to either side in float32
 GRAZE_M = 1e-4

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from planner.limits import FaceLimits
 from planner.parameters import PlanSpec
 from planner.truth.simulation import ScanPattern, simulate_scan
-from planner.visibility.pairs import FaceLimits
 from tests.planner.scenes import scene_of, square
 
 

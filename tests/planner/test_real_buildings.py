@@ -1,0 +1,249 @@
+"""The real IFC buildings in ``shared/scenes/buildings`` (see its README), planned as a new
+user plans them, and checked as a surveyor checks a plan: every storey with rooms has
+stations, every room is accounted for, the route reaches the stations, and what could not
+be read is named in ``scene.warnings``.
+
+The plans use a 1 m grid and 0.5 m faces so that each building takes seconds to tens of
+seconds on two cores; reading the files with IfcOpenShell is most of it.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from planner.candidates.rooms import rooms_lines
+from planner.io.readers import read_scene
+from planner.outputs.report import plan_document
+from planner.parameters import PlanSpec
+from planner.pipeline import plan
+
+ifcopenshell = pytest.importorskip("ifcopenshell")
+
+SPEC = PlanSpec(grid_spacing_m=1.0, max_edge_m=0.5)
+
+
+def buildings_dir(scenes_dir: Path) -> Path:
+    folder = scenes_dir / "buildings"
+    if not folder.is_dir():
+        pytest.skip(f"the shared buildings are not beside the checkout ({folder})")
+    return folder
+
+
+@functools.cache
+def planned(path: Path, spec: PlanSpec = SPEC) -> dict[str, Any]:
+    """plan.json of ``path`` planned with ``spec``, as the command line would write it
+    (once a session: several tests check the same plan)."""
+    scene = read_scene(path, max_edge_m=spec.max_edge_m, split_faces="as_needed")
+    document: dict[str, Any] = plan_document(plan(scene, spec))
+    return document
+
+
+# Renga: '*' where '$' belongs, millimetres --------------------------------------------------
+
+
+def test_the_renga_house_is_read_despite_its_stars_and_both_storeys_with_rooms_are_planned(
+        scenes_dir: Path) -> None:
+    path = buildings_dir(scenes_dir) / "Renga-House.ifc"
+    scene = read_scene(path)
+    spaces = scene.metadata["spaces"]
+    assert len(spaces) == 13  # all 13 IfcSpace, by IfcOpenShell's own tessellation
+    # every element with a body is read: the '*' that Renga writes no longer breaks them
+    classes = Counter(e.ifc_class for e in scene.elements)
+    assert classes["IfcSlab"] == 13 and classes["IfcDoor"] == 19
+    assert classes["IfcStairFlight"] == 5 and classes["IfcWindow"] == 23
+    # in metres: the ground storey's rooms at -0.45 and 0 m, the upper ones at +2.85/+3.45
+    assert {round(s["floor_z_m"], 2) for s in spaces} == {-0.45, 0.0, 2.85, 3.45}
+    warnings = scene.metadata["warnings"]
+    assert any("'*'" in w and "ISO 10303-21" in w for w in warnings), warnings
+    assert scene.metadata["unread_elements"] == 0
+
+    document = planned(path)
+    assert "'*'" in " ".join(document["scene"]["warnings"])  # the user is told
+    storeys_with_rooms = {s["storey"] for s in spaces}
+    assert len(storeys_with_rooms) == 2
+    by_storey = Counter(s["label"]["storey"] for s in document["stations"])
+    assert set(by_storey) == storeys_with_rooms, by_storey
+    assert all(by_storey[s] >= 4 for s in storeys_with_rooms), by_storey
+    # the route reaches every station but those in the two rooms at +2.85 m: the model's
+    # only way in is an opening in the upper hall whose sill is at +3.45 m, 0.6 m above
+    # their floor, with no step modelled (a model defect the route must report, not hide)
+    route = document["route"]
+    behind_drop = {s["global_id"] for s in spaces if abs(s["floor_z_m"] - 2.85) < 1e-6}
+    unreachable_rooms = {document["stations"][i - 1]["label"]["room_global_id"]
+                         for i in route["unreachable"]}
+    assert unreachable_rooms <= behind_drop, route["unreachable_reasons"]
+    assert len(route["visits"]) >= len(document["stations"]) - 2
+
+
+def _break_bodies(model: Any, text: str, keep: str) -> str:
+    """``text`` (``model`` written) with the body of every product that is not a ``keep``
+    made of a lone point, which IfcOpenShell cannot make a solid of: an exporter that lost
+    the element's geometry."""
+    import re
+
+    wrong: set[int] = set()
+    for product in model.by_type("IfcProduct"):
+        if product.Representation is None or product.is_a(keep):
+            continue
+        for representation in product.Representation.Representations:
+            if representation.RepresentationIdentifier == "Body":
+                wrong.add(representation.id())
+    point = model.by_type("IfcCartesianPoint")[0].id()
+
+    def broken(match: re.Match[str]) -> str:
+        if int(match.group(1)) not in wrong:
+            return match.group(0)
+        return f"#{match.group(1)}={match.group(2)}(#{point}));"
+
+    return re.sub(r"(?m)^#(\d+)=(IFCSHAPEREPRESENTATION\(.*,)\([^()]*\)\);$", broken, text)
+
+
+def test_elements_whose_geometry_fails_are_named_and_the_file_is_blamed(
+        scenes_dir: Path, tmp_path: Path) -> None:
+    """The Renga house with a point for the body of every element and room but the walls:
+    the elements are named in the warnings with IfcOpenShell's cause,
+    and the plan, which finds no floor under the walls alone, says that the file, not the
+    parameters, is to blame."""
+    from planner.errors import NoCandidatesError
+
+    source = buildings_dir(scenes_dir) / "Renga-House.ifc"
+    model = ifcopenshell.open(str(source))
+    path = tmp_path / "broken.ifc"
+    model.write(str(path))
+    path.write_text(_break_bodies(model, path.read_text("utf-8"), "IfcWallStandardCase"),
+                    "utf-8")
+    scene = read_scene(path, max_edge_m=SPEC.max_edge_m, split_faces="as_needed")
+    assert {e.ifc_class for e in scene.elements} == {"IfcWallStandardCase"}
+    unread = [w for w in scene.metadata["warnings"] if "could not triangulate" in w]
+    assert len(unread) == 1 and unread[0].startswith("broken.ifc: ")
+    assert "IfcSlab 13" in unread[0] and "IfcDoor 19" in unread[0]
+    assert "IfcSpace 13" in unread[0]
+    assert scene.metadata["unread_elements"] >= 13 + 19 + 13
+    with pytest.raises(NoCandidatesError, match="the model file is the likely cause, not "
+                       "the parameters: the geometry of"):
+        plan(scene, SPEC)
+
+
+# every room accounted for ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["Renga-House", "AC90R1-niedriha-V2-2x3"])
+def test_every_ifcspace_is_listed_with_its_storey_area_candidates_and_why_it_has_none(
+        name: str, scenes_dir: Path) -> None:
+    path = buildings_dir(scenes_dir) / f"{name}.ifc"
+    model = ifcopenshell.open(str(path))
+    document = planned(path)
+    rooms = document["candidates"]["rooms"]
+    # every IfcSpace of the file, once, whatever happened to it
+    assert sorted(r["room_global_id"] for r in rooms) == sorted(
+        s.GlobalId for s in model.by_type("IfcSpace"))
+    storeys = {s["storey"] for s in rooms}
+    assert "" not in storeys
+    for room in rooms:
+        assert room["area_m2"] > 0 and room["grid_points"] >= room["candidates"] >= 0
+        assert room["grid_points"] == room["candidates"] + sum(
+            room.get("left_out", {}).values())
+        # a room without candidates says why, one with candidates does not need to
+        assert ("reason" in room) == (room["candidates"] == 0), room
+        assert room["stations"] <= room["candidates"]
+    in_rooms = [s for s in document["stations"] if s["label"].get("room_global_id")]
+    assert sum(r["stations"] for r in rooms) == len(in_rooms) == len(document["stations"])
+    # one line per storey with rooms, naming the rooms without a candidate
+    lines = rooms_lines(rooms)
+    assert [line.split(" (")[0] for line in lines] == list(dict.fromkeys(
+        r["storey"] for r in rooms))
+    for room in rooms:
+        if room["candidates"] == 0:
+            assert any(f"{room['room']} (" in line and line.startswith(room["storey"])
+                       for line in lines), (room, lines)
+
+
+def test_the_attic_too_low_for_a_tripod_says_so(scenes_dir: Path) -> None:
+    """NiedriHa's attic (67 m² under a roof that rises to 1.7 m above its floor) gets no
+    station: plan.json and the storey's line say that it lacks head room for the
+    scanner."""
+    document = planned(buildings_dir(scenes_dir) / "AC90R1-niedriha-V2-2x3.ifc")
+    rooms = document["candidates"]["rooms"]
+    attic = [r for r in rooms if r["storey"] == "Dachgeschoss"]
+    assert len(attic) == 1 and attic[0]["candidates"] == 0
+    assert attic[0]["reason"].startswith("head room: ")
+    assert attic[0]["area_m2"] == pytest.approx(67.4, abs=0.1)
+    line = [x for x in rooms_lines(rooms) if x.startswith("Dachgeschoss")]
+    assert line == ["Dachgeschoss (+5.70 m): 0 of 1 room with candidates, 0 candidates, "
+                    "0 stations; none in Dachboden (head room)"]
+    # the three storeys below are planned, each with stations
+    by_storey = Counter(s["label"]["storey"] for s in document["stations"])
+    assert set(by_storey) == {"Keller", "Erdgeschoss", "Obergeschoss"}
+
+
+# the building, not the site --------------------------------------------------------------------
+
+
+def test_a_house_on_its_site_gets_candidates_in_and_around_the_house_and_a_printable_set(
+        scenes_dir: Path) -> None:
+    """Lantern Hollow (Revit, feet, no IfcSpace): a 26 x 33 m house on a 114 x 203 m
+    terrain. The candidates stand in the house and within the plan's reach of its walls,
+    both storeys are planned, and the print set is a few sheets, not the terrain's."""
+    from planner.limits import FaceLimits
+    from planner.outputs.printset import sheets
+
+    path = buildings_dir(scenes_dir) / "Lantern_Hollow.ifc"
+    scene = read_scene(path, max_edge_m=SPEC.max_edge_m, split_faces="as_needed")
+    result = plan(scene, SPEC)
+    site = np.array([e.ifc_class == "IfcSite" for e in scene.elements] + [False])
+    building = ~site[scene.face_element]
+    corners = scene.triangles[building].reshape(-1, 3)
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    assert (hi - lo)[:2].max() < 40 < (scene.bounds[1] - scene.bounds[0])[:2].min()
+    reach = FaceLimits.from_spec(SPEC, scene).reach_m
+    xy = result.candidates.positions[:, :2]
+    margin = reach + SPEC.grid_spacing_m
+    assert ((xy >= lo[:2] - margin) & (xy <= hi[:2] + margin)).all()
+    assert len(result.candidates) < 1000  # 14,373 at 0.5 m over the whole terrain before
+    floors = result.candidates.positions[:, 2] - SPEC.scanner_height_m
+    document = plan_document(result)
+    stations = np.array([s["position"] for s in document["stations"]])
+    # the basement (-2.49 m) and the ground floor (0 m) each have candidates and stations
+    for storey_z in (-2.49, 0.0):
+        assert (np.abs(floors - storey_z) < 0.2).sum() >= 20, storey_z
+        assert (np.abs(stations[:, 2] - SPEC.scanner_height_m - storey_z) < 0.2).any()
+    # a sheet or a few per storey: the house at 1:100 or 1:200, not the terrain
+    printed = sheets(result)
+    assert 2 <= len(printed) <= 8, len(printed)
+
+
+# rooms are floors ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["AC20-FZK-Haus", "buildings/AC90R1-Jasmin-Sun-105-2x3"])
+def test_an_architectural_model_without_its_slabs_gets_every_storey_and_a_route_to_all(
+        name: str, scenes_dir: Path, tmp_path: Path) -> None:
+    """The discipline model a BIM platform sends: the architectural model, its slabs in the
+    structural one (here: deleted). The rooms' bottoms are the floors: every storey with
+    rooms gets stations, as with the slabs, and the route reaches every station."""
+    source = scenes_dir / f"{name}.ifc"
+    if not source.exists():
+        pytest.skip(f"{source} is not beside the checkout")
+    model = ifcopenshell.open(str(source))
+    for slab in model.by_type("IfcSlab"):
+        model.remove(slab)
+    path = tmp_path / "without-slabs.ifc"
+    model.write(str(path))
+    document = planned(path)
+    full = planned(source)
+    assert not any(e == "IfcSlab" for e in document["scene"]["groups"])
+    storeys = {s["label"]["storey"] for s in document["stations"]}
+    assert storeys == {s["label"]["storey"] for s in full["stations"]}
+    assert document["route"]["unreachable"] == [], document["route"]["unreachable_reasons"]
+    assert sorted(document["route"]["visits"]) == list(range(1, len(document["stations"]) + 1))
+    # every room but those over nothing stands on its space (the model has no slab)
+    assert document["candidates"]["floor_from_space"]
+    assert full["candidates"]["floor_from_space"] == []
+    # a walk of the building's size, not a few metres between stations on floor fragments
+    assert document["route"]["length_m"] > 0.6 * full["route"]["length_m"]
