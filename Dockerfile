@@ -14,6 +14,9 @@ WORKDIR /app
 COPY pyproject.toml README.md ./
 COPY planner ./planner
 COPY service ./service
+# the project itself with its Dask extra (the compose dask services run this image); its
+# dependencies and their versions are those of pyproject.toml, not of this line
+# hadolint ignore=DL3013
 RUN pip install --no-cache-dir ".[dask]" \
     && groupadd --gid 10001 scanplan \
     && useradd --uid 10001 --gid 10001 --no-create-home --shell /usr/sbin/nologin scanplan \
