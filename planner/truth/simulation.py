@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
@@ -46,6 +45,7 @@ from numpy.typing import NDArray
 from planner.errors import CancelledError
 from planner.limits import FaceLimits
 from planner.parameters import PlanSpec
+from planner.progress import ProgressCallback
 from planner.scene import Scene
 
 # Longest edge of a hole bin: 0.1 m is the size of a target or a bolt a survey must not
@@ -58,8 +58,6 @@ _MAX_BIN_SPLITS = 16
 _RAYS_PER_BLOCK = 400_000
 # A hole is a bin sampled below this fraction of the face's requirement.
 HOLE_DENSITY_FRACTION = 0.5
-
-ProgressCallback = Callable[[str, float], bool | None]
 
 
 @dataclass(frozen=True)

@@ -36,11 +36,11 @@ from planner.errors import PlannerError
 from planner.io.orientation import scene_rotation, to_plan
 from planner.limits import FaceLimits
 from planner.parameters import PlanSpec
+from planner.progress import ProgressCallback
 from planner.scene import Scene, remesh
 from planner.truth.simulation import (
     HOLE_BIN_EDGE_M,
     HOLE_DENSITY_FRACTION,
-    ProgressCallback,
     ScanCounts,
     ScanPattern,
     simulate_scan,

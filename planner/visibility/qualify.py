@@ -83,8 +83,7 @@ class Sight:
         needs one."""
         if isinstance(self.occlusion, RayCaster):
             return self.occlusion
-        return make_ray_caster(self.scene, self.limits.occludes,
-                               file_faces=self.spec.occluders == "file")
+        return make_ray_caster(self.scene, self.limits.occludes, file_faces=self.file_faces)
 
     @property
     def file_faces(self) -> bool:
@@ -250,10 +249,7 @@ def qualified_blocks(
         blocks = qualify_pairs(sight.scene, positions, limits, sight.occlusion,
                                progress=progress, threads=threads, bundles=bundles,
                                most_tests=most_tests)
-    for qualified, tested, rays in blocks:
-        stats.pairs_tested += tested
-        stats.rays_cast += rays
-        yield qualified
+    yield from _counted(blocks, stats)
 
 
 def qualify_pairs(

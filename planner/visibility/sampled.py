@@ -26,7 +26,7 @@ Array letters: C candidates, F faces, P pairs, N samples per face.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import replace
 
 import numba
@@ -35,13 +35,12 @@ from numpy.typing import NDArray
 
 from planner.errors import CancelledError
 from planner.limits import FaceLimits
+from planner.progress import ProgressCallback
 from planner.rays import Occlusion
 from planner.scene import Scene
 from planner.threads import in_block_order
 from planner.visibility.coverage import QualifiedPairs
 from planner.visibility.pairs import PairFinder, Pairs
-
-ProgressCallback = Callable[[str, float], bool | None]
 
 # The centroid pre-filter keeps pairs down to this fraction of the required density: the
 # 1 / cos(elevation) gain of the grid reaches 5 at 78 deg elevation.
