@@ -39,11 +39,12 @@ from shapely import Polygon, intersects_xy
 
 from planner.candidates.winding import winding_numbers
 from planner.errors import NoCandidatesError, ParameterError
+from planner.limits import FaceLimits
 from planner.parameters import PlanSpec
 from planner.rays import RayCaster
 from planner.scene import Scene, subdivide
 from planner.threads import in_block_order
-from planner.walkgraph import HEADROOM_M, KNEE_HEIGHT_M, cell_pairs
+from planner.walkgraph import HEADROOM_M, KNEE_HEIGHT_M, build_walk_graph, cell_pairs
 
 DROP_REASONS = (
     "outside_area_of_interest",
@@ -273,7 +274,6 @@ def walkable_levels(
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
-    from planner.walkgraph import build_walk_graph
 
     levels_dropped = dict.fromkeys(DROP_REASONS, 0)
     positions, level_of = place_on_levels(scene, xy, spec, caster, levels_dropped)
@@ -613,8 +613,6 @@ def on_the_building(scene: Scene, spec: PlanSpec, positions: NDArray[np.float64]
     """
     from scipy.spatial import cKDTree
 
-    from planner.limits import FaceLimits
-
     n = len(positions)
     if n == 0:
         return np.zeros(0, bool)
@@ -653,8 +651,6 @@ def near_targets_xy(scene: Scene, spec: PlanSpec, xy: NDArray[np.float64]
     over it, or an upright one within reach), found without rays. In IFC it cuts a site's
     terrain (no target) down to the building and its surroundings before any ray is
     cast; in a plain mesh, where the terrain is a target, it keeps what it is given."""
-    from planner.limits import FaceLimits
-
     limits = FaceLimits.from_spec(spec, scene)
     reach = limits.reach_m
     target = scene.on_file_faces(np.asarray(limits.target))

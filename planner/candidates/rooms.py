@@ -40,6 +40,7 @@ from planner.errors import NoCandidatesError, ParameterError
 from planner.parameters import PlanSpec
 from planner.rays import RayCaster
 from planner.scene import Scene
+from planner.walkgraph import HEADROOM_M
 
 FLOOR_TOLERANCE_M = 0.3
 # a room whose floor is found under fewer than this share of its points has no slab
@@ -302,8 +303,6 @@ def _nothing_below(positions: NDArray[np.float64], spec: PlanSpec, caster: RayCa
     """(C,) bool: nothing lies under the (C, 3) scanner positions' floors within
     ``HEADROOM_M``: a room without a slab stands there on its space's bottom. Where a
     stair climbs or anything else stands below within head room, the floor has a hole."""
-    from planner.walkgraph import HEADROOM_M
-
     if len(positions) == 0:
         return np.zeros(0, bool)
     _, distance = caster.first_hit(positions, np.tile([0.0, 0.0, -1.0], (len(positions), 1)))
