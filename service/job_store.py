@@ -66,6 +66,20 @@ class JobRecord:
 _INSERT_JOB = insert(jobs)
 
 
+class OverCapError(Exception):
+    """A new job refused: its owner already has ``active`` jobs accepted or running."""
+
+    def __init__(self, active: int) -> None:
+        super().__init__(f"{active} jobs accepted or running")
+        self.active = active
+
+
+def _active_count_of(owner: str) -> Any:
+    """SELECT the number of ``owner``'s jobs accepted or running."""
+    return select(func.count()).select_from(jobs).where(
+        jobs.c.owner == owner, jobs.c.status.in_(ACTIVE))
+
+
 def _json(value: Any) -> str | None:
     return None if value is None else json.dumps(value, sort_keys=True)
 
@@ -103,9 +117,16 @@ class JobStore:
             conn.execute(text("SELECT 1"))
 
     def create(self, owner: str, mesh_id: str, parameters: dict[str, Any], *,
-               idempotency_key: str | None = None,
-               request_hash: str | None = None) -> tuple[JobRecord, bool]:
+               idempotency_key: str | None = None, request_hash: str | None = None,
+               active_cap: int = 0) -> tuple[JobRecord, bool]:
         """Insert an accepted job; with a known Idempotency-Key, return that job instead.
+
+        ``active_cap``: the most jobs ``owner`` may have accepted or running (0: no cap).
+        The count is taken in the insert's own transaction, and a count over the cap rolls
+        the insert back and raises :class:`OverCapError`: nothing is stored. Submissions
+        racing for the last place are serialised by the database's write lock (SQLite holds
+        it from the insert to the commit; on PostgreSQL a transaction-scoped advisory lock
+        per owner does it), so exactly the places left are taken, by the first to insert.
 
         Returns the job and whether it was created now.
         """
@@ -119,7 +140,14 @@ class JobStore:
         }
         try:
             with self._write_lock, self.engine.begin() as conn:
+                if active_cap and conn.dialect.name == "postgresql":
+                    conn.execute(text("SELECT pg_advisory_xact_lock(hashtext(:owner))"),
+                                 {"owner": owner})
                 conn.execute(_INSERT_JOB, values)
+                if active_cap:
+                    active = conn.execute(_active_count_of(owner)).scalar_one()
+                    if active > active_cap:
+                        raise OverCapError(active - 1)  # leaving the block rolls back
         except IntegrityError:
             existing = self.by_idempotency_key(owner, idempotency_key)
             if existing is None:
@@ -182,16 +210,8 @@ class JobStore:
 
     def active_count(self, owner: str) -> int:
         """How many jobs of ``owner`` are accepted or running."""
-        query = select(func.count()).select_from(jobs).where(
-            jobs.c.owner == owner, jobs.c.status.in_(ACTIVE))
         with self.engine.connect() as conn:
-            return int(conn.execute(query).scalar_one())
-
-    def withdraw(self, job_id: str) -> bool:
-        """Remove a job refused right after its insert (still accepted, never enqueued)."""
-        statement = delete(jobs).where(jobs.c.id == job_id, jobs.c.status == ACCEPTED)
-        with self._write_lock, self.engine.begin() as conn:
-            return bool(conn.execute(statement).rowcount == 1)
+            return int(conn.execute(_active_count_of(owner)).scalar_one())
 
     def _update(self, job_id: str, where: Sequence[Any], *,
                 attempt: dict[str, Any] | None = None, **values: Any) -> bool:

@@ -8,30 +8,33 @@ answers 429 with ``Retry-After`` (``SCANPLAN_BUSY_RETRY_AFTER_S``) and a problem
 and stores nothing. An Idempotency-Key replay of a job already accepted is not a new job
 and is never refused.
 
-The count is taken after the new row is inserted, and the row is withdrawn when the count
-is over the cap: of two submissions racing for the last place, the one that counts last
-sees both, so the cap holds without a lock across API processes (at worst both are refused
-and the client retries).
+The count is taken inside the new row's insert transaction (:meth:`JobStore.create`), so
+submissions racing for the last places take exactly those places, from any number of API
+processes, and a refused one leaves no row behind.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 from service.config import Settings
-from service.job_store import JobRecord, JobStore
+from service.job_store import JobRecord, JobStore, OverCapError
 from service.problems import TooManyJobsError
 
 
-def admit(jobs: JobStore, job: JobRecord, settings: Settings) -> None:
-    """Keep the just-created ``job``, or withdraw it and raise :class:`TooManyJobsError`."""
+def create_admitted(jobs: JobStore, settings: Settings, owner: str, mesh_id: str,
+                    parameters: dict[str, Any], **keys: str | None) -> tuple[JobRecord, bool]:
+    """:meth:`JobStore.create` under the owner's cap; raise :class:`TooManyJobsError` past it.
+
+    ``keys``: ``idempotency_key`` and ``request_hash``. Returns the job and whether it was
+    created now (False: the Idempotency-Key's earlier job).
+    """
     cap = settings.max_active_jobs_per_key
-    if cap == 0:
-        return
-    active = jobs.active_count(job.owner)
-    if active <= cap:
-        return
-    jobs.withdraw(job.id)
-    raise TooManyJobsError(
-        f"this API key has {active - 1} jobs queued or running, the most one key may have "
-        f"({cap}, SCANPLAN_MAX_ACTIVE_JOBS_PER_KEY); submit again once some have finished "
-        f"(Retry-After: {settings.busy_retry_after_s} s), or DELETE jobs you no longer need",
-        retry_after_s=settings.busy_retry_after_s)
+    try:
+        return jobs.create(owner, mesh_id, parameters, active_cap=cap, **keys)
+    except OverCapError as exc:
+        raise TooManyJobsError(
+            f"this API key has {exc.active} jobs queued or running, the most one key may "
+            f"have ({cap}, SCANPLAN_MAX_ACTIVE_JOBS_PER_KEY); submit again once some have "
+            f"finished (Retry-After: {settings.busy_retry_after_s} s), or DELETE jobs you "
+            "no longer need", retry_after_s=settings.busy_retry_after_s) from exc

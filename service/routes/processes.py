@@ -161,11 +161,10 @@ def _submit(services: ServicesDep, owner: str, mesh_id: str, parameters: dict[st
     if subscriber is not None:
         hashed["subscriber"] = subscriber
     request_hash = hashlib.sha256(json.dumps(hashed, sort_keys=True).encode()).hexdigest()
-    job, created = services.jobs.create(owner, mesh_id, parameters,
-                                        idempotency_key=idempotency_key,
-                                        request_hash=request_hash)
+    job, created = tenants.create_admitted(  # 429 past the key's cap
+        services.jobs, services.settings, owner, mesh_id, parameters,
+        idempotency_key=idempotency_key, request_hash=request_hash)
     if created:
-        tenants.admit(services.jobs, job, services.settings)  # 429 past the key's cap
         if callback_uris is not None:
             services.callbacks.subscribe(job.id, base_url, callback_uris)
         services.queue.enqueue(job.id)

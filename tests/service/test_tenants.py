@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import threading
+import uuid
 from pathlib import Path
 
+import pytest
+from sqlalchemy.exc import OperationalError
+
 from service.config import Settings
+from service.database import make_engine
+from service.job_store import JobStore
 from service.problems import TooManyJobsError
-from service.tenants import admit
-from service.worker import build_context
+from service.tenants import create_admitted
 from tests.service.conftest import InlineQueue, make_client, submit, upload
 
 ALICE, BOB = {"Authorization": "Bearer alice-key"}, {"Authorization": "Bearer bob-key"}
@@ -49,23 +54,41 @@ def test_a_key_past_its_cap_gets_429_and_other_keys_go_on(
         assert replayed.json()["jobID"] == again.json()["jobID"]
 
 
-def test_the_cap_holds_when_submissions_race(tmp_path: Path) -> None:
-    settings = Settings(data_dir=tmp_path, workers=1, max_active_jobs_per_key=3)
-    jobs = build_context(settings, InlineQueue(hold=True)).jobs
-    admitted, refused = [], []
+def _reachable_postgres() -> str | None:
+    """The test PostgreSQL server's URL when one answers (CI runs one), else None."""
+    url = "postgresql+psycopg://postgres@127.0.0.1:5432/test"
+    try:
+        with make_engine(url).connect():
+            return url
+    except OperationalError:
+        return None
 
-    def submit_one() -> None:
-        job, _ = jobs.create("alice", "m" * 64, {})
+
+@pytest.mark.parametrize("database", ["sqlite", "postgresql"])
+def test_the_cap_holds_when_submissions_race(tmp_path: Path, database: str) -> None:
+    url = f"sqlite:///{tmp_path / 'jobs.db'}" if database == "sqlite" else _reachable_postgres()
+    if url is None:
+        pytest.skip("no PostgreSQL server answers on 127.0.0.1:5432")
+    settings = Settings(data_dir=tmp_path, workers=1, max_active_jobs_per_key=3)
+    # three stores on their own engines: three API processes sharing one job table
+    stores = [JobStore(make_engine(url)) for _ in range(3)]
+    owner = f"alice-{uuid.uuid4().hex}"  # a PostgreSQL table outlives the test
+    admitted, refused = [], []
+    start = threading.Barrier(12)
+
+    def submit_one(jobs: JobStore) -> None:
+        start.wait()
         try:
-            admit(jobs, job, settings)
+            job, _ = create_admitted(jobs, settings, owner, "m" * 64, {})
             admitted.append(job.id)
         except TooManyJobsError:
-            refused.append(job.id)
+            refused.append("refused")
 
-    threads = [threading.Thread(target=submit_one) for _ in range(12)]
+    threads = [threading.Thread(target=submit_one, args=(stores[n % 3],)) for n in range(12)]
     for thread in threads:
         thread.start()
     for thread in threads:
         thread.join()
-    assert 1 <= len(admitted) <= 3 and len(admitted) + len(refused) == 12
-    assert jobs.active_count("alice") == len(admitted), "a refused job was left behind"
+    # the three places are taken, no more, and a refusal leaves no row behind
+    assert len(admitted) == 3 and len(refused) == 9
+    assert stores[0].active_count(owner) == 3
