@@ -27,7 +27,7 @@ test: $(STAMP)  ## run the whole test suite (lint, types, layering, documentatio
 	$(BIN)/mypy
 	$(BIN)/lint-imports
 	$(MKDOCS) build --strict --site-dir site
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n auto --dist loadfile
 
 docs: $(STAMP)  ## serve the documentation on http://127.0.0.1:8001/, rebuilt on every change
 	$(MKDOCS) serve --dev-addr 127.0.0.1:8001
