@@ -46,6 +46,7 @@ from planner.candidates.winding import (
 )
 from planner.errors import NoCandidatesError, ParameterError
 from planner.limits import FaceLimits
+from planner.memory import release_freed_memory
 from planner.parameters import PlanSpec
 from planner.rays import RayCaster
 from planner.scene import Scene, subdivide
@@ -860,6 +861,7 @@ def closer_than(
             keep = np.flatnonzero(_in_spans(low, high, span_low_m, span_high_m))
             useful, z_low, z_high = keep.astype(np.int32), low[keep], high[keep]
             del corner_z, low, high
+            release_freed_memory()  # the split's scratch, freed into its threads' heaps
 
     def footprints(index: NDArray[np.int64]) -> NDArray[np.float64]:
         """(n, 3, 2) XY corners of the faces ``useful[index]``."""
