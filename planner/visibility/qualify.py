@@ -46,9 +46,10 @@ from planner.visibility.splitting import faces_to_split
 # spread (122.6-126.8 s without, 125.7 s with). Keeping such arrays out of the heap
 # altogether (planner.memory.bound_heap, from the selection on) costs a fresh page at
 # every first touch instead. A plan of few candidates with many pairs each (the 1.06 M-face
-# cluttered interior: 105 candidates, some 100 blocks of 0.3 M rays) finishes before the
-# 64th block: there the stage's peak was 1,310 - 1,330 MiB with one every 64, and is
-# some 1,100 with one every 16.
+# cluttered interior of benchmarks/cluttered_interior.py: 105 candidates) gets few blocks,
+# and a trim every 64 came at most once: the stage's largest sample was 1,131 - 1,327 MiB
+# in three runs with one every 64, 1,052 - 1,055 in two with one every 16 (resident memory
+# sampled every 30 ms, the shared machine; the stage's own peak varies from run to run).
 TRIM_EVERY_BLOCKS = 16
 
 
