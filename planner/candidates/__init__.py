@@ -11,5 +11,6 @@ floor a person can stand on (:mod:`planner.candidates.grid`, inside tests in
 :mod:`planner.candidates.winding`), at each of the scanner heights
 (:mod:`planner.candidates.placement`). Stations already scanned are matched to a candidate
 or appended (:mod:`planner.candidates.fixed`). The stage itself is
-:mod:`planner.candidates.generate`.
+:mod:`planner.candidates.generate`; what its steps derive from the scene alone (winding
+cells, the building's samples) is made once per stage (:mod:`planner.candidates.scratch`).
 """

@@ -13,6 +13,7 @@ from planner.candidates.fixed import fixed_candidates
 from planner.candidates.grid import CandidateSet, explicit_candidates, generate_grid
 from planner.candidates.placement import at_heights
 from planner.candidates.rooms import room_candidates
+from planner.candidates.scratch import stage_scratch
 from planner.errors import NoCandidatesError
 from planner.io.orientation import scene_rotation, to_plan
 from planner.parameters import PlanSpec
@@ -28,10 +29,10 @@ def plan_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster
         candidates = explicit_candidates(
             to_plan(scene_rotation(scene.metadata), np.asarray(spec.candidates)))
     elif scene.metadata.get("spaces"):
-        with _file_blamed(scene):
+        with _file_blamed(scene), stage_scratch(scene):
             candidates = at_heights(spec, lambda at: room_candidates(scene, at, caster))
-    else:
-        with _file_blamed(scene):
+    else:  # (stage_scratch: what every height and storey derives alike is made once)
+        with _file_blamed(scene), stage_scratch(scene):
             candidates = at_heights(spec, lambda at: generate_grid(scene, at, caster))
     fixed: tuple[int, ...] = ()
     if spec.fixed_stations:  # re-scan: stations already scanned are candidates too

@@ -37,9 +37,16 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from shapely import Polygon, intersects_xy
 
-from planner.candidates.winding import winding_numbers
+from planner.candidates.scratch import keep, kept_or_none, reused
+from planner.candidates.winding import (
+    cells_winding_numbers,
+    needs_cells,
+    winding_cells,
+    winding_numbers,
+)
 from planner.errors import NoCandidatesError, ParameterError
 from planner.limits import FaceLimits
+from planner.memory import release_freed_memory
 from planner.parameters import PlanSpec
 from planner.rays import RayCaster
 from planner.scene import Scene, subdivide
@@ -611,8 +618,6 @@ def on_the_building(scene: Scene, spec: PlanSpec, positions: NDArray[np.float64]
     under its roof, a yard between wings within reach of their facades. Applied only when
     no ``area_of_interest`` is given: a user who draws one chooses the ground to plan.
     """
-    from scipy.spatial import cKDTree
-
     n = len(positions)
     if n == 0:
         return np.zeros(0, bool)
@@ -623,11 +628,11 @@ def on_the_building(scene: Scene, spec: PlanSpec, positions: NDArray[np.float64]
     face, _ = caster.first_hit(positions, up)
     keep = face >= 0
     keep[keep] = target[face[keep]]
-    samples = _upright_samples(scene, scene.on_file_faces(target))
+    samples, tree = reused(scene, ("upright samples", target.tobytes()),
+                           lambda: _building_samples(scene, target))
     rest = np.flatnonzero(~keep)
-    if len(samples) == 0 or len(rest) == 0 or reach <= 0:
+    if len(samples) == 0 or len(rest) == 0 or reach <= 0 or tree is None:
         return keep
-    tree = cKDTree(samples)
     above = floor_z_m[rest] + KNEE_HEIGHT_M
     _, nearest = tree.query(positions[rest], distance_upper_bound=reach)
     found = nearest < len(samples)
@@ -676,6 +681,14 @@ def near_targets_xy(scene: Scene, spec: PlanSpec, xy: NDArray[np.float64]
     ij = np.floor((xy - origin) / cell).astype(np.int64)
     near: NDArray[np.bool_] = covered[ij[:, 0], ij[:, 1]]
     return near
+
+
+def _building_samples(scene: Scene, target: NDArray[np.bool_]
+                      ) -> tuple[NDArray[np.float64], cKDTree | None]:
+    """The (S, 3) upright samples of the (F,) ``target`` faces and their tree (None when
+    there are none), made once per candidate stage (:mod:`planner.candidates.scratch`)."""
+    samples = _upright_samples(scene, scene.on_file_faces(target))
+    return samples, cKDTree(samples) if len(samples) else None
 
 
 def _upright_samples(scene: Scene, target_file: NDArray[np.bool_]) -> NDArray[np.float64]:
@@ -848,6 +861,7 @@ def closer_than(
             keep = np.flatnonzero(_in_spans(low, high, span_low_m, span_high_m))
             useful, z_low, z_high = keep.astype(np.int32), low[keep], high[keep]
             del corner_z, low, high
+            release_freed_memory()  # the split's scratch, freed into its threads' heaps
 
     def footprints(index: NDArray[np.int64]) -> NDArray[np.float64]:
         """(n, 3, 2) XY corners of the faces ``useful[index]``."""
@@ -972,16 +986,33 @@ def inside_closed_groups(scene: Scene, points: NDArray[np.float64]) -> NDArray[n
     Only points inside a group's bounding box are evaluated against that group. The faces
     are the file's (:attr:`Scene.file_triangles`): the pieces of a face subtend the same
     solid angle as the face, so the winding number is the same at a fraction of the cost.
+    A group's winding cells, once built, serve the candidate stage's later calls
+    (:mod:`planner.candidates.scratch`).
     """
     result = np.zeros(len(points), bool)
-    triangles = scene.file_triangles
+    triangles: NDArray[np.float64] | None = None  # made when a group is not kept
     face_group = scene.file_face_group
     for g in range(len(scene.groups)):
+        kept = kept_or_none(scene, ("winding cells", g))
+        if kept is not None:
+            lo, hi, cells = kept
+            boxed = np.flatnonzero(((points > lo) & (points < hi)).all(axis=1) & ~result)
+            result[boxed] = cells_winding_numbers(cells, points[boxed]) > 0.5
+            continue
         faces = np.flatnonzero(face_group == g)
         if len(faces) == 0:
             continue
-        tri = triangles[faces]
+        if triangles is None:
+            triangles = scene.file_triangles
+        # one group of every face (a plain mesh): the file's corners, not a copy
+        tri = triangles if len(faces) == len(triangles) else triangles[faces]
         lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
         boxed = np.flatnonzero(((points > lo) & (points < hi)).all(axis=1) & ~result)
-        result[boxed] = winding_numbers(tri, points[boxed]) > 0.5
+        if needs_cells(len(tri), len(boxed)):
+            cells = winding_cells(tri)
+            keep(scene, ("winding cells", g), (lo, hi, cells))
+            result[boxed] = cells_winding_numbers(cells, points[boxed]) > 0.5
+        else:
+            result[boxed] = winding_numbers(tri, points[boxed]) > 0.5
+        del tri
     return result

@@ -23,6 +23,7 @@ import math
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import numba
 import numpy as np
@@ -30,6 +31,11 @@ from numpy.typing import NDArray
 
 # below this many point-triangle pairs the direct sum is cheaper than building cells
 _DIRECT_PAIRS = 4_000_000
+# up to this many points the direct sum is cheaper than building cells whatever the
+# triangles: building costs about what 80 points' direct sums do (1.06 M triangles: 3.4 CPU
+# s and some 550 MB of scratch to build, 0.04 s a point direct), so a few tripod setups
+# around the stations never build them
+_DIRECT_POINTS = 32
 # fewest triangles per cell aimed at (see _Cells.build)
 _MIN_FACES_PER_CELL = 400
 
@@ -41,9 +47,29 @@ def winding_numbers(triangles: NDArray[np.float64], points: NDArray[np.float64]
     points = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
     if len(points) == 0 or len(triangles) == 0:
         return np.zeros(len(points))
-    if len(triangles) * len(points) <= _DIRECT_PAIRS:
+    if not needs_cells(len(triangles), len(points)):
         return _in_threads(points, lambda chunk: _direct(triangles, chunk))
-    cells = _Cells.build(triangles)
+    return cells_winding_numbers(winding_cells(triangles), points)
+
+
+def needs_cells(n_triangles: int, n_points: int) -> bool:
+    """Whether :func:`winding_numbers` builds cells for so many triangles and points (else
+    it sums every triangle for every point)."""
+    return not (n_points <= _DIRECT_POINTS or n_triangles * n_points <= _DIRECT_PAIRS)
+
+
+def winding_cells(triangles: NDArray[np.float64]) -> WindingCells:
+    """The cells of (T, 3, 3) ``triangles``, to ask for several sets of points."""
+    return _Cells.build(np.ascontiguousarray(triangles, np.float64).reshape(-1, 3, 3))
+
+
+def cells_winding_numbers(cells: WindingCells, points: NDArray[np.float64]
+                          ) -> NDArray[np.float64]:
+    """(N,) winding numbers of (N, 3) points w.r.t. the triangles of ``cells`` (those of
+    :func:`winding_numbers` when it builds cells)."""
+    points = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    if len(points) == 0:
+        return np.zeros(0)
     return _in_threads(points, cells.winding)
 
 
@@ -79,13 +105,18 @@ class _Cells:
 
     @classmethod
     def build(cls, triangles: NDArray[np.float64]) -> _Cells:
+        # corner and cell ids as int32 where they fit, scratch dropped as soon as it is
+        # used: the build's peak is a multiple of the (3T,) id arrays
+        id_type = np.int32 if 3 * len(triangles) < 2**31 else np.int64
         corners = triangles.reshape(-1, 3)
         # shared corners by exact coordinates: files often repeat vertices per face
         by_position = np.lexsort(corners.T[::-1])
         ordered = corners[by_position]
-        new_id = np.r_[False, (ordered[1:] != ordered[:-1]).any(axis=1)].cumsum()
-        flat_id = np.empty(len(corners), np.int64)
+        new_id = np.r_[False, (ordered[1:] != ordered[:-1]).any(axis=1)].cumsum(dtype=id_type)
+        del ordered
+        flat_id: NDArray[np.integer[Any]] = np.empty(len(corners), id_type)
         flat_id[by_position] = new_id
+        del by_position, new_id
         corner_id = flat_id.reshape(-1, 3)
         lo_all, hi_all = corners.min(axis=0), corners.max(axis=0)
         # caps cost about T / sqrt(n) per point for n triangles per cell, the cells around
@@ -95,11 +126,15 @@ class _Cells:
         size = max(float((hi_all - lo_all).max()) / per_axis, 1e-9)
         key3 = np.floor((triangles.mean(axis=1) - lo_all) / size).astype(np.int64)
         key = (key3[:, 0] * (per_axis + 1) + key3[:, 1]) * (per_axis + 1) + key3[:, 2]
+        del key3
         order = np.argsort(key, kind="stable")
         cell_keys, cell_of_face = np.unique(key[order], return_inverse=True)
+        del key
+        cell_of_face = cell_of_face.astype(id_type)
         n_cells = len(cell_keys)
         sorted_tri = np.ascontiguousarray(triangles[order])
         ids = corner_id[order]
+        del order, flat_id, corner_id
         face_start = np.searchsorted(cell_of_face, np.arange(n_cells + 1)).astype(np.int64)
         lo = np.minimum.reduceat(sorted_tri.min(axis=1), face_start[:-1])
         hi = np.maximum.reduceat(sorted_tri.max(axis=1), face_start[:-1])
@@ -107,16 +142,22 @@ class _Cells:
         # boundary: directed edges u->v that their reverse does not cancel, per cell
         u = ids.ravel()
         v = ids[:, [1, 2, 0]].ravel()
+        del ids
         cell = np.repeat(cell_of_face, 3)
-        sign = np.where(u < v, 1, -1)
+        del cell_of_face
         a, b = np.minimum(u, v), np.maximum(u, v)
         order_e = np.lexsort((b, a, cell))  # by cell first, so caps come out per cell
         ce, ae, be = cell[order_e], a[order_e], b[order_e]
         first_of_run = np.flatnonzero(np.r_[True, (ce[1:] != ce[:-1]) | (ae[1:] != ae[:-1])
                                             | (be[1:] != be[:-1])])
-        net = np.add.reduceat(sign[order_e], first_of_run).astype(np.int64)
+        del ce, ae, be
+        sign = np.where(u[order_e] < v[order_e], 1, -1).astype(np.int8)
+        del v
+        net = np.add.reduceat(sign, first_of_run, dtype=np.int64)
+        del sign
         keep = np.flatnonzero(net != 0)
         first = order_e[first_of_run]
+        del order_e, first_of_run
         repeat = np.abs(net[keep])
         src = first[keep]  # a representative directed edge of each net boundary edge
         start_pt = np.where((net[keep] > 0)[:, None], _corner(sorted_tri, src, a, u),
@@ -124,6 +165,7 @@ class _Cells:
         end_pt = np.where((net[keep] > 0)[:, None], _corner(sorted_tri, src, b, u),
                           _corner(sorted_tri, src, a, u))
         edge_cell = cell[src]
+        del u, a, b, cell
         start_pt, end_pt = np.repeat(start_pt, repeat, axis=0), np.repeat(end_pt, repeat, 0)
         edge_cell = np.repeat(edge_cell, repeat)
         # apex: a corner of the cell (inside its box, so the closed surface stays inside)
@@ -137,8 +179,11 @@ class _Cells:
                                           self.cap_start, self.lo, self.hi))
 
 
-def _corner(tri: NDArray[np.float64], edge: NDArray[np.int64], wanted: NDArray[np.int64],
-            u: NDArray[np.int64]) -> NDArray[np.float64]:
+WindingCells = _Cells
+
+
+def _corner(tri: NDArray[np.float64], edge: NDArray[np.int64], wanted: NDArray[np.integer[Any]],
+            u: NDArray[np.integer[Any]]) -> NDArray[np.float64]:
     """Coordinates of corner id ``wanted[edge]`` of the directed edge ``edge`` (3 per face).
 
     Directed edge e of face f = e // 3 runs from corner e % 3 to corner (e % 3 + 1) % 3.
@@ -190,4 +235,5 @@ def _winding_kernel(points: NDArray[np.float64], triangles: NDArray[np.float64],
     return out
 
 
-__all__ = ["winding_numbers"]
+__all__ = ["WindingCells", "cells_winding_numbers", "needs_cells", "winding_cells",
+           "winding_numbers"]

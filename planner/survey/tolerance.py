@@ -37,6 +37,7 @@ from scipy.sparse.csgraph import minimum_spanning_tree
 
 from planner.candidates.placement import Displaced, displaced_positions
 from planner.limits import FaceLimits
+from planner.memory import release_freed_memory
 from planner.progress import Stats
 from planner.rays import Occlusion, make_occlusion
 from planner.scene import Scene
@@ -61,6 +62,10 @@ from planner.walkgraph import door_faces
 # a station shares up to some 10^5 faces with its neighbours, and almost all of them pass
 # from every setup, at some 70 bytes a pair until its ray is cast (two threads run)
 NETWORK_TESTS_PER_BLOCK = 1_000_000
+# and of the stations' own faces from their setups: a station of a cluttered interior
+# qualifies for some 10^5 - 10^6 faces, so a block of the default 2 M tests holds a few of
+# its setups, two such blocks (two threads) the largest scratch of the stage
+STATION_TESTS_PER_BLOCK = 500_000
 
 
 @dataclass(frozen=True)
@@ -392,12 +397,17 @@ def plan_tolerance(sight: Sight, table: CoverageTable, chosen: Selection,
         ).shared_matrix(range(len(chosen.stations)))
         stats.seconds["overlap"] = time.perf_counter() - t_rows
     forget_bundles(scene)  # only the overlap rows reach far enough to use them
+    # the overlap rows' scratch, still in their threads' heaps, and then the setups' (the
+    # file's corners, the clearance test's faces), before the setups' rays make the peak
+    release_freed_memory()
     t_tolerance, cpu_tolerance = time.perf_counter(), time.process_time()
     displaced = displaced_positions(
         scene, stations_xyz, spec.placement_tolerance_m, spec.clearance_m, sight.caster)
+    release_freed_memory()
     stats.seconds["tolerance_setups"] = time.perf_counter() - t_tolerance
     tolerance = placement_tolerance(
-        scene, table, chosen.stations, displaced, sight.limits, sight.qualifier(),
+        scene, table, chosen.stations, displaced, sight.limits,
+        sight.qualifier(most_tests=STATION_TESTS_PER_BLOCK),
         tolerance_m=spec.placement_tolerance_m,
         covered_area_m2=chosen.covered_area_m2[-1] if chosen.stations else 0.0,
         goal_area_m2=spec.coverage_goal * table.max_achievable_area_m2,

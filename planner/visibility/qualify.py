@@ -45,8 +45,12 @@ from planner.visibility.splitting import faces_to_split
 # 1,796 with one every 64 blocks (1,793 every 16), CPU time the same within the runs'
 # spread (122.6-126.8 s without, 125.7 s with). Keeping such arrays out of the heap
 # altogether (planner.memory.bound_heap, from the selection on) costs a fresh page at
-# every first touch instead.
-TRIM_EVERY_BLOCKS = 64
+# every first touch instead. A plan of few candidates with many pairs each (the 1.06 M-face
+# cluttered interior of benchmarks/cluttered_interior.py: 105 candidates) gets few blocks,
+# and a trim every 64 came at most once: the stage's largest sample was 1,131 - 1,327 MiB
+# in three runs with one every 64, 1,052 - 1,055 in two with one every 16 (resident memory
+# sampled every 30 ms, the shared machine; the stage's own peak varies from run to run).
+TRIM_EVERY_BLOCKS = 16
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,13 +107,15 @@ class Sight:
                      make_occlusion(scene, limits.occludes, self.backend, file_faces=True),
                      self.backend)
 
-    def qualifier(self) -> Callable[[np.ndarray, FaceLimits], Iterator[QualifiedPairs]]:
+    def qualifier(self, most_tests: int = TESTS_PER_BLOCK
+                  ) -> Callable[[np.ndarray, FaceLimits], Iterator[QualifiedPairs]]:
         """The plan's coverage model for a few displaced setups at a time (one thread each:
-        the caller runs positions in parallel)."""
+        the caller runs positions in parallel), at most ``most_tests`` pair tests a block
+        (the same pairs qualify whatever the blocks)."""
         def qualify(positions: np.ndarray, limits: FaceLimits) -> Iterator[QualifiedPairs]:
             # a station's own faces only: bundles would cast rays for every face in reach
             return qualified_blocks(self, positions, Stats(), threads=1, bundles=False,
-                                    limits=limits)
+                                    limits=limits, most_tests=most_tests)
         return qualify
 
 

@@ -14,8 +14,9 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from planner.candidates.grid import generate_grid
-from planner.candidates.winding import _Cells, _direct
+from planner.candidates.grid import generate_grid, inside_closed_groups, on_the_building
+from planner.candidates.scratch import kept_or_none, stage_scratch
+from planner.candidates.winding import _Cells, _direct, winding_numbers
 from planner.errors import ParameterError
 from planner.io.readers import read_scene
 from planner.outputs.report import plan_document, write_outputs
@@ -171,6 +172,39 @@ def test_winding_numbers_through_cells_equal_the_direct_sum(scenes_dir: Path) ->
     assert len(cells.caps) < one_group.n_faces  # far cells cost their boundary only
     np.testing.assert_allclose(cells.winding(points), direct, atol=1e-9)
     assert ((direct > 0.5) | (direct < -0.5)).any()  # the sample hits inside and outside
+
+
+def test_the_candidate_stage_makes_what_it_derives_from_the_scene_once(
+        scenes_dir: Path) -> None:
+    """Within ``stage_scratch`` a closed group's winding cells, built for many points, answer
+    the later calls (a few points too), and the building's upright samples are made once;
+    every answer is the one made without them, and nothing is kept after the block."""
+    scene = read_scene(scenes_dir / "hall-full" / "hall.obj", max_edge_m=None)
+    # one group, turned inside out: the hall's air is inside it, its props are not
+    one_group = build_scene(scene.vertices, np.ascontiguousarray(scene.faces[:, ::-1]))
+    rng = np.random.default_rng(11)
+    lo, hi = one_group.bounds
+    points = lo + rng.random((400, 3)) * (hi - lo)
+    few = points[:8]  # few enough to be summed directly
+    np.testing.assert_allclose(winding_numbers(one_group.triangles, few),
+                               _direct(one_group.triangles, few), atol=0, rtol=0)
+    alone = inside_closed_groups(one_group, points), inside_closed_groups(one_group, few)
+    spec = PlanSpec.from_mapping({})
+    caster = make_ray_caster(one_group, np.ones(one_group.n_faces, bool))
+    floors = np.full(len(points), lo[2])
+    on_alone = on_the_building(one_group, spec, points, floors, caster)
+    with stage_scratch(one_group):
+        many = inside_closed_groups(one_group, points)
+        assert kept_or_none(one_group, ("winding cells", 0)) is not None
+        through_cells = inside_closed_groups(one_group, few)
+        on_first = on_the_building(one_group, spec, points, floors, caster)
+        on_again = on_the_building(one_group, spec, points, floors, caster)
+    assert kept_or_none(one_group, ("winding cells", 0)) is None
+    np.testing.assert_array_equal(many, alone[0])
+    np.testing.assert_array_equal(through_cells, alone[1])
+    assert alone[0].any() and not alone[0].all()
+    np.testing.assert_array_equal(on_first, on_alone)
+    np.testing.assert_array_equal(on_again, on_alone)
 
 
 @pytest.mark.parametrize(("name", "considered", "kept", "dropped"), [
