@@ -195,8 +195,13 @@ def _thin_crossings(scene: Scene, caster: RayCaster) -> _Crossings:
     # the ground around a model without terrain too: the outside of a front door
     ground_xyz, ground_ix, ground_iy = _ground_nodes(scene, samples, grid_m)
     floor_xyz = np.concatenate([samples.floor_xyz, ground_xyz])
-    a, b = _neighbour_pairs(floor_xyz, np.concatenate([samples.ix, ground_ix]),
-                            np.concatenate([samples.iy, ground_iy]))
+    ix = np.concatenate([samples.ix, ground_ix])
+    iy = np.concatenate([samples.iy, ground_iy])
+    # the links, and the pairs two columns apart: a column whose centre falls inside a
+    # leaf has no floor sample in the air, and its neighbours are not linked across it
+    pairs = [_neighbour_pairs(floor_xyz, ix, iy, reach) for reach in (1, 2)]
+    a = np.concatenate([p[0] for p in pairs])
+    b = np.concatenate([p[1] for p in pairs])
     knee = np.array([0.0, 0.0, KNEE_HEIGHT_M])
     kept: list[tuple[NDArray[np.int64], ...]] = []
     parts: list[tuple[NDArray[np.float64], ...]] = []
@@ -257,16 +262,22 @@ def _in_wall_opening(crossings: _Crossings, caster: RayCaster) -> NDArray[np.boo
         _, distance = caster.first_hit(at, up)
         heads[k] = KNEE_HEIGHT_M + distance
     middle = np.stack([heads[0], heads[1]], axis=1)  # (K, 2) over the link's own ends
+    at = crossings.x.copy()
+    at[:, 2] = knee_z
+    # from inside the filler: its own top (a leaf's, or a panel's in it); a wall's is the
+    # ceiling
+    filler_top = KNEE_HEIGHT_M + caster.first_hit(at, up)[1]
     low = (middle >= DOOR_HEIGHT_M[0]) & (middle <= DOOR_HEIGHT_M[1])
-    lintel = np.where(low, middle, -np.inf).max(axis=1)
+    lintel = np.where(low, middle, np.inf).min(axis=1)
     room_a = np.stack([heads[k] for k in range(-DOOR_LINTEL_REACH, 1)], axis=1)
     room_b = np.stack([heads[k] for k in range(1, DOOR_LINTEL_REACH + 2)], axis=1)
     rise = lintel + DOOR_LINTEL_STEP_M
-    opening = (low.any(axis=1) & (room_a >= rise[:, None]).any(axis=1)
+    opening = (low.any(axis=1) & (filler_top <= lintel + _DOOR_TOL_M)
+               & (room_a >= rise[:, None]).any(axis=1)
                & (room_b >= rise[:, None]).any(axis=1))
     ceiling = np.minimum(heads[0], heads[1])
     for height in DOOR_WALL_PROBES_M:
-        probe = ~opening & (height < ceiling - _DOOR_TOL_M)
+        probe = ~opening & (height < ceiling - _DOOR_TOL_M) & (filler_top <= height)
         if not probe.any():
             continue
         lift = np.zeros((int(probe.sum()), 3))
@@ -489,23 +500,25 @@ def _walk_grid_m(scene: Scene) -> float:
 
 
 def _neighbour_pairs(floor_xyz: NDArray[np.float64], ix: NDArray[np.int64],
-                     iy: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+                     iy: NDArray[np.int64], reach: int = 1
+                     ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """(P,) a and (P,) b: the pairs of the (N, 3) floor samples in neighbouring grid
-    columns (8 neighbours; columns (N,) ix, iy) whose heights differ by at most
-    ``STEP_M``, each pair once."""
+    columns (8 neighbours; columns (N,) ix, iy; ``reach`` 2: the columns two steps away
+    along the same 8 directions instead) whose heights differ by at most ``STEP_M``, each
+    pair once."""
     n = len(floor_xyz)
     # nodes by grid column: a neighbour column's nodes are found by a sorted-key search
     # (columns shifted to start at 0; the model's own samples are sorted already)
     shift_x, shift_y = (int(ix.min()), int(iy.min())) if n else (0, 0)
     ix, iy = ix - shift_x, iy - shift_y
-    width = int(iy.max()) + 2 if n else 1
+    width = int(iy.max()) + 1 + reach if n else 1
     key = ix * width + iy
     by_key = np.lexsort((floor_xyz[:, 2], key))
     sorted_key = key[by_key]
     rows: list[NDArray[np.int64]] = []
     cols: list[NDArray[np.int64]] = []
     for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
-        target = (ix + dx) * width + (iy + dy)
+        target = (ix + reach * dx) * width + (iy + reach * dy)
         a, b = cell_pairs(sorted_key, by_key, target)
         close = np.abs(floor_xyz[a, 2] - floor_xyz[b, 2]) <= STEP_M
         rows.append(a[close])
