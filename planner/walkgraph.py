@@ -70,7 +70,7 @@ DOOR_PARALLEL_DEG = 10.0
 # the free height of a doorway: a leaf of 1.985-2.135 m (DIN 18101) to 2.5 m (commercial,
 # Renga's 2.6 m glazed door included); a ceiling above 2.7 m is a room, not a lintel
 DOOR_HEIGHT_M = (1.8, 2.7)
-DOOR_WIDTH_MAX_M = 2.6  # a double door; a sliding or garage door wider than this is a wall
+DOOR_WIDTH_MAX_M = 3.0  # a double door, a single garage door (2.5-3 m)
 # the rooms on both sides are at least this much higher than the doorway's head
 DOOR_LINTEL_STEP_M = 0.1
 DOOR_LINTEL_REACH = 2  # grid steps beyond a link's ends searched for the rooms (a thick wall)
@@ -83,6 +83,9 @@ DOOR_JOIN_M = 0.6  # crossings closer than this are one door (the two leaves of 
 # and are no larger than this (box diagonal)
 DOOR_FITTING_REACH_M = 0.1
 DOOR_FITTING_SIZE_M = 0.35
+# a door's faces rise to its head less this (the gap over a leaf, a frame's rebate): a thin
+# part of a stair under the next flight is lower
+DOOR_LEAF_GAP_M = 0.1
 _DOOR_TOL_M = 2e-3  # a face of the leaf lies in the leaf's box within this (rounding)
 
 
@@ -163,8 +166,12 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
     if len(crossings.thick) == 0:
         return result if scene.file_faces is None else result[scene.source_face]
     keep = _in_wall_opening(crossings, caster)
-    doors = _join_crossings(crossings.x[keep])
     triangles = vertices[faces]  # (F0, 3, 3)
+    # the filler's plane at each crossing: the side met from a
+    met = triangles[crossings.faces[keep, 0]]
+    normal = np.cross(met[:, 1] - met[:, 0], met[:, 2] - met[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1), _EPS_M * _EPS_M)[:, None]
+    doors = _join_crossings(crossings.x[keep], normal)
     lo, hi = triangles.min(axis=1), triangles.max(axis=1)
     diagonal = np.linalg.norm(hi - lo, axis=1)
     largest = math.hypot(DOOR_WIDTH_MAX_M, DOOR_HEIGHT_M[1])
@@ -181,7 +188,7 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
         z0 = float(floor_z[mine].min())
         taken = _door_box_faces(triangles, lo, hi, diagonal, hit, z0)
         taken = taken[result[taken] < 0]
-        if len(taken) == 0:
+        if len(taken) == 0 or hi[taken, 2].max() < z0 + DOOR_HEIGHT_M[0] - DOOR_LEAF_GAP_M:
             continue
         result[taken] = n_found
         n_found += 1
@@ -291,15 +298,21 @@ def _in_wall_opening(crossings: _Crossings, caster: RayCaster) -> NDArray[np.boo
     return result
 
 
-def _join_crossings(x: NDArray[np.float64]) -> NDArray[np.int64]:
-    """(K,) door of each of the (K, 3) crossing points: points closer than
-    ``DOOR_JOIN_M`` are one door (transitively); doors numbered by their first point."""
+def _join_crossings(x: NDArray[np.float64], normal: NDArray[np.float64]
+                    ) -> NDArray[np.int64]:
+    """(K,) door of each of the (K, 3) crossing points whose fillers have the (K, 3) unit
+    ``normal``: points closer than ``DOOR_JOIN_M`` in parallel fillers (within
+    ``DOOR_PARALLEL_DEG``) are one door, transitively (two doors at right angles in a
+    corner stay two); doors numbered by their first point."""
     if len(x) == 0:
         return np.zeros(0, np.int64)
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
     pairs = cKDTree(x).query_pairs(DOOR_JOIN_M, output_type="ndarray")
+    parallel = (np.abs(np.einsum("kc,kc->k", normal[pairs[:, 0]], normal[pairs[:, 1]]))
+                >= math.cos(math.radians(DOOR_PARALLEL_DEG)))
+    pairs = pairs[parallel]
     graph = sp.coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])),
                           shape=(len(x), len(x)))
     _, labels = connected_components(graph, directed=False)
@@ -326,6 +339,12 @@ def _door_box_faces(triangles: NDArray[np.float64], lo: NDArray[np.float64],
     offset = corners[:, :2] - centre
     _, axes = np.linalg.eigh((offset * weight[:, None]).T @ offset)
     across, along = axes[:, 0], axes[:, 1]
+    # faces hit beside the filler's plane (a wall's side, met past a jamb) are not the door's
+    plane = np.median(offset @ across)
+    side = np.abs(triangles[hit, :, :2].mean(axis=1) @ across - centre @ across - plane)
+    hit = hit[side <= DOOR_FILLER_MAX_M]
+    corners = triangles[hit].reshape(-1, 3)
+    offset = corners[:, :2] - centre
     t, s = offset @ along, offset @ across
     t_lo, t_hi = t.min() - _DOOR_TOL_M, t.max() + _DOOR_TOL_M
     s_lo, s_hi = s.min() - _DOOR_TOL_M, s.max() + _DOOR_TOL_M
