@@ -33,7 +33,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from planner.rays import RayCaster
+from planner.rays import RayCaster, make_ray_caster
 from planner.scene import Scene
 
 WALK_GRID_M = 0.25  # floor sample spacing; finer than a stair tread (~0.26-0.30 m)
@@ -86,6 +86,9 @@ DOOR_FITTING_SIZE_M = 0.35
 # a door's faces rise to its head less this (the gap over a leaf, a frame's rebate): a thin
 # part of a stair under the next flight is lower
 DOOR_LEAF_GAP_M = 0.1
+# passes over the crossings with the doors found so far open: a leaf of panels and glass is
+# met layer by layer (front, glass, back)
+DOOR_PASSES = 3
 _DOOR_TOL_M = 2e-3  # a face of the leaf lies in the leaf's box within this (rounding)
 
 
@@ -175,23 +178,51 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
     lo, hi = triangles.min(axis=1), triangles.max(axis=1)
     diagonal = np.linalg.norm(hi - lo, axis=1)
     largest = math.hypot(DOOR_WIDTH_MAX_M, DOOR_HEIGHT_M[1])
-    hit_faces = crossings.faces[keep]
+    hit_faces = crossings.faces[keep]  # (K, 2) file faces, -1 none
     floor_z = crossings.floor_z[keep]
-    n_found = 0
-    for door in range(int(doors.max()) + 1 if len(doors) else 0):
-        mine = doors == door
-        hit = np.unique(hit_faces[mine])
-        hit = hit[hit >= 0]
-        hit = hit[diagonal[hit] <= largest]
-        if len(hit) == 0:
-            continue
-        z0 = float(floor_z[mine].min())
-        taken = _door_box_faces(triangles, lo, hi, diagonal, hit, z0)
-        taken = taken[result[taken] < 0]
-        if len(taken) == 0 or hi[taken, 2].max() < z0 + DOOR_HEIGHT_M[0] - DOOR_LEAF_GAP_M:
-            continue
-        result[taken] = n_found
-        n_found += 1
+    parallel = math.cos(math.radians(DOOR_PARALLEL_DEG))
+    for attempt in range(DOOR_PASSES):
+        result[:] = -1
+        n_found = 0
+        for door in range(int(doors.max()) + 1 if len(doors) else 0):
+            mine = doors == door
+            hit = np.unique(hit_faces[mine])
+            hit = hit[hit >= 0]
+            hit = hit[diagonal[hit] <= largest]
+            if len(hit) == 0:
+                continue
+            z0 = float(floor_z[mine].min())
+            taken = _door_box_faces(triangles, lo, hi, diagonal, hit, z0)
+            taken = taken[result[taken] < 0]
+            if len(taken) == 0 or hi[taken, 2].max() < z0 + DOOR_HEIGHT_M[0] - DOOR_LEAF_GAP_M:
+                continue
+            result[taken] = n_found
+            n_found += 1
+        if attempt == DOOR_PASSES - 1 or n_found == 0:
+            break
+        # the crossings again, the doors open: what still blocks them thinly, parallel to
+        # the filler, is more of it (the back of a panel, glass behind a rail)
+        opened = result < 0
+        walk = make_ray_caster(scene, opened if scene.file_faces is None
+                               else opened[scene.source_face],
+                               file_faces=scene.file_faces is not None)
+        thick, _, face_ab, face_ba, _ = _through(walk, crossings.a[keep], crossings.b[keep])
+        more = np.stack([np.where(face_ab >= 0, scene.source_face[np.maximum(face_ab, 0)], -1),
+                         np.where(face_ba >= 0, scene.source_face[np.maximum(face_ba, 0)], -1)],
+                        axis=1)
+        still = np.isfinite(thick) & (thick <= DOOR_FILLER_MAX_M)
+        for side in range(2):
+            met = triangles[np.maximum(more[:, side], 0)]
+            turn = np.cross(met[:, 1] - met[:, 0], met[:, 2] - met[:, 0])
+            turn /= np.maximum(np.linalg.norm(turn, axis=1), _EPS_M * _EPS_M)[:, None]
+            aligned = np.abs(np.einsum("kc,kc->k", turn, normal)) >= parallel
+            more[~(still & aligned), side] = -1
+        if (more < 0).all():
+            break
+        found_more = (more >= 0).any(axis=1)
+        hit_faces = np.concatenate([hit_faces, more[found_more]])
+        doors = np.concatenate([doors, doors[:len(found_more)][found_more]])
+        floor_z = np.concatenate([floor_z, floor_z[:len(found_more)][found_more]])
     return result if scene.file_faces is None else result[scene.source_face]
 
 
