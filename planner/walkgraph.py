@@ -11,8 +11,9 @@ costs its 3D length. So, without any IFC semantics:
   samples), as a sloped solid or as a ramp (up to ``MAX_WALK_SLOPE_DEG``, steeper than any
   stair: a ship's ladder or a wall is not walked);
 - doors are passable whatever the leaf's modelled position: the walk rays skip door faces
-  (:func:`door_faces`: IFC doors by class; in a plain mesh a closed leaf in a wall opening,
-  found by :func:`mesh_door_faces`). IfcOpeningElement voids are never part of the mesh;
+  (:func:`door_faces`: IFC doors by class; in a plain mesh the thin fillers of wall
+  openings that the walk meets, found by :func:`mesh_doors`). IfcOpeningElement voids are
+  never part of the mesh;
 - around the outside at ground level: in a model without terrain, the ground plane at the
   ground floor (the lowest floor sample with something over it next to a column with
   nothing in it, a threshold; without one the lowest floor sample with something over it)
@@ -130,38 +131,52 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
     semantics, from geometry alone.
 
     The rule works on what the walk meets, not on how an exporter splits a door into parts
-    or shares vertices, so that door families from any authoring tool (frame, lining, a
-    leaf of panels and glass, handles, threshold; single, double, sliding; closed or
-    ajar) are found alike. On the walk's own floor samples and links (module docstring,
-    every face blocking):
+    or whether it shares vertices, so that door families from any authoring tool (frame,
+    lining, a leaf of panels and glass, handles, threshold; single, double, sliding;
+    closed or ajar) are found alike. On the walk's own floor samples (module docstring,
+    every face blocking, the ground around a model without terrain included):
 
-    1. *A thin filler.* A link between two floor samples (floors at both sides, at most
-       ``STEP_M`` apart) whose knee-height segment is blocked by less than
-       ``DOOR_FILLER_MAX_M`` of material along it (from the first hit from one end to the
-       first hit from the other): a leaf, closed, ajar or sliding in front of the opening.
-    2. *In a wall opening*: wall material above a gap of door height. Either (a) rays up
-       from the link's knee points and from the filler show a head between
-       ``DOOR_HEIGHT_M`` above the floor over the link or the filler, while rooms at least
-       ``DOOR_LINTEL_STEP_M`` higher lie on both sides within ``DOOR_LINTEL_REACH`` grid
-       steps beyond the link's ends (a lintel, as deep as a wall, between two rooms); or
-       (b) at one of ``DOOR_WALL_PROBES_M`` above the floor, below the ceilings of both
-       ends, the segment is blocked by material ``DOOR_WALL_THICKER_M`` thicker than the
-       filler (the wall over a leaf in a thin wall). A thin partition fails both: it is as
-       thick at every height and its top is the room's ceiling.
-    3. *One door per opening*: such crossings closer than ``DOOR_JOIN_M`` are one door
-       (both leaves of a double door). Its faces are the faces the crossings hit (no
-       larger than a door), every face within their box (along the filler's main
-       horizontal axis and across it, from the floor to ``DOOR_HEIGHT_M[1]``: the rest of
-       the leaf, its panels, glass and edges), and the small faces (box diagonal up to
-       ``DOOR_FITTING_SIZE_M``) within ``DOOR_FITTING_REACH_M`` of it across: handles,
-       hinges, locks.
+    1. *A thin filler.* Two floor samples one or two grid steps apart (in one of the 8
+       directions; two steps: a column whose centre falls inside a leaf has no sample in
+       the air), floors at most ``STEP_M`` apart, whose knee-height segment is blocked by
+       ``DOOR_FILLER_MIN_M`` to ``DOOR_FILLER_MAX_M`` of material (from the first hit from
+       one end to the first hit from the other), the faces met from both ends parallel
+       within ``DOOR_PARALLEL_DEG``: the two sides of a panel. A sample inside a wall
+       (on its bottom face) meets one face from both sides, and a segment cutting a wall's
+       corner meets two sides at right angles: neither is a filler.
+    2. *In a wall opening*: wall material above a gap of door height, the filler under
+       it. Either (a) the head over one of the two samples (a ray up) lies within
+       ``DOOR_HEIGHT_M`` of the floor, the filler's own top (a ray up from inside it) is no
+       higher, and within ``DOOR_LINTEL_REACH`` grid steps beyond each end the head rises
+       at least ``DOOR_LINTEL_STEP_M`` higher: a lintel, as deep as a wall, between two
+       rooms; or (b) at one of ``DOOR_WALL_PROBES_M`` above the floor, over the filler's
+       top and below the ceilings of both ends, the segment is blocked by material
+       ``DOOR_WALL_THICKER_M`` thicker than the filler (the wall over a leaf in a thin
+       wall). A thin partition fails both (it is as thick at every height, its top is
+       the ceiling), and so does a screen of door height between two rooms (no wall over
+       it).
+    3. *One door per opening*: such crossings closer than ``DOOR_JOIN_M`` whose fillers are
+       parallel are one door (both leaves of a double door; two doors at right angles in
+       a corner stay two). Its faces: the faces the crossings met (no larger than
+       ``DOOR_WIDTH_MAX_M`` by ``DOOR_HEIGHT_M[1]``, and within ``DOOR_FILLER_MAX_M`` of the
+       filler's median plane: a wall met past a jamb is not the door's), every face
+       within their box (along the filler's main horizontal axis and across it, from the
+       floor to ``DOOR_HEIGHT_M[1]``: the rest of the leaf, its panels, glass and edges),
+       and the small faces (box diagonal up to ``DOOR_FITTING_SIZE_M``) within
+       ``DOOR_FITTING_REACH_M`` of it across: handles, hinges, locks. A door whose faces
+       do not rise to ``DOOR_HEIGHT_M[0]`` less ``DOOR_LEAF_GAP_M`` is none (a thin part
+       of a stair under the next flight).
+    4. *Layer by layer*: the crossings are cast again with the doors found so far open;
+       what still blocks them thinly and parallel to the filler (the back of a panel,
+       glass behind a rail) joins their door, for up to ``DOOR_PASSES`` passes in all.
 
     The walk then passes the opening whatever the leaf's position: a leaf open wide does
     not block it and is no door here; one ajar in the opening is the filler. The frame,
     the lining and the threshold are not needed to pass and stay as they are, as do the
-    walls (no face outside the leaf's box is taken, so no wall gets a hole). A thin screen
-    of door height standing in a room between higher ceilings, or a window down to the
-    floor, is taken for a door: a rule from geometry alone cannot tell them apart.
+    walls: no face outside a filler's box is taken. A window down to the floor between two
+    rooms, under a lintel, is taken for a door: geometry alone cannot tell a French window
+    from a glazed door. A door between floors more than ``STEP_M`` apart (an unmodelled
+    step) is not found: the walk cannot use it anyway.
     """
     vertices, faces = scene.file_mesh
     result = np.full(len(faces), -1, np.int64)
