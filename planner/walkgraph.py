@@ -194,6 +194,7 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
     diagonal = np.linalg.norm(hi - lo, axis=1)
     largest = math.hypot(DOOR_WIDTH_MAX_M, DOOR_HEIGHT_M[1])
     hit_faces = crossings.faces[keep]  # (K, 2) file faces, -1 none
+    n_crossings = len(hit_faces)
     floor_z = crossings.floor_z[keep]
     parallel = math.cos(math.radians(DOOR_PARALLEL_DEG))
     for attempt in range(DOOR_PASSES):
@@ -234,10 +235,11 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
             more[~(still & aligned), side] = -1
         if (more < 0).all():
             break
-        found_more = (more >= 0).any(axis=1)
+        found_more = np.any(more >= 0, axis=1)
         hit_faces = np.concatenate([hit_faces, more[found_more]])
-        doors = np.concatenate([doors, doors[:len(found_more)][found_more]])
-        floor_z = np.concatenate([floor_z, floor_z[:len(found_more)][found_more]])
+        # the crossings come first in doors and floor_z, the faces of later passes after
+        doors = np.concatenate([doors, doors[:n_crossings][found_more]])
+        floor_z = np.concatenate([floor_z, floor_z[:n_crossings][found_more]])
     return result if scene.file_faces is None else result[scene.source_face]
 
 

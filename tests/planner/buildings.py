@@ -409,7 +409,8 @@ def touching_groups(triangles: NDArray[np.float64]) -> NDArray[np.int64]:
     c = np.concatenate(cols) if cols else np.zeros(0, np.int64)
     graph = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n, n))
     _, labels = connected_components(graph, directed=False)
-    return labels.astype(np.int64)
+    result: NDArray[np.int64] = labels.astype(np.int64)
+    return result
 
 
 def door_score(ifc: Scene, found: NDArray[np.bool_]) -> DoorScore:
