@@ -11,8 +11,9 @@ costs its 3D length. So, without any IFC semantics:
   samples), as a sloped solid or as a ramp (up to ``MAX_WALK_SLOPE_DEG``, steeper than any
   stair: a ship's ladder or a wall is not walked);
 - doors are passable whatever the leaf's modelled position: the walk rays skip door faces
-  (:func:`door_faces`: IFC doors by class; in a plain mesh a closed leaf in a wall opening,
-  found by :func:`mesh_door_faces`). IfcOpeningElement voids are never part of the mesh;
+  (:func:`door_faces`: IFC doors by class; in a plain mesh the thin fillers of wall
+  openings that the walk meets, found by :func:`mesh_doors`). IfcOpeningElement voids are
+  never part of the mesh;
 - around the outside at ground level: in a model without terrain, the ground plane at the
   ground floor (the lowest floor sample with something over it next to a column with
   nothing in it, a threshold; without one the lowest floor sample with something over it)
@@ -33,7 +34,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from planner.rays import RayCaster
+from planner.rays import RayCaster, make_ray_caster
 from planner.scene import Scene
 
 WALK_GRID_M = 0.25  # floor sample spacing; finer than a stair tread (~0.26-0.30 m)
@@ -57,127 +58,357 @@ _EPS_M = 1e-3
 
 # IFC classes modelled closed that a survey crew opens: people walk and scanners see through
 OPEN_DOOR_CLASSES = ("IfcDoor",)
-# a door leaf in a plain mesh (mesh_door_faces): a thin upright panel of a door's size whose
-# two ends meet the jambs of a wall opening
-DOOR_THICKNESS_MAX_M = 0.12
-DOOR_WIDTH_M = (0.5, 2.6)  # one leaf to a double door
-DOOR_HEIGHT_M = (1.8, 2.6)
-DOOR_JAMB_GAP_MAX_M = 0.15  # from the panel's end to the jamb, at the panel's mid-height
-_DOOR_BOX_M = 1e-3  # a part within a door panel's box, enlarged by this, is the door's
+# a door in a plain mesh (mesh_doors): a thin filler in a wall opening, as the walk meets it.
+# Door leaves are 40-70 mm thick, up to ~0.12 m with glazing beads or a lock case; a wall
+# that counts as a wall here is thicker than its leaf (DOOR_WALL_THICKER_M)
+DOOR_FILLER_MAX_M = 0.15
+# and at least this: a link from the air into a wall's solid (a floor sample inside a wall,
+# on its bottom face) meets one face from both sides, 0 m apart; 6 mm glass is the thinnest
+DOOR_FILLER_MIN_M = 0.005
+# the faces met from both ends are the two sides of a panel: parallel within this (a link
+# that cuts a wall's corner meets two sides at right angles, across little material)
+DOOR_PARALLEL_DEG = 10.0
+# the free height of a doorway: a leaf of 1.985-2.135 m (DIN 18101) to 2.5 m (commercial,
+# Renga's 2.6 m glazed door included); a ceiling above 2.7 m is a room, not a lintel
+DOOR_HEIGHT_M = (1.8, 2.7)
+DOOR_WIDTH_MAX_M = 3.0  # a double door, a single garage door (2.5-3 m)
+# the rooms on both sides are at least this much higher than the doorway's head
+DOOR_LINTEL_STEP_M = 0.1
+DOOR_LINTEL_REACH = 2  # grid steps beyond a link's ends searched for the rooms (a thick wall)
+# heights over the floor probed for the wall over the doorway: one lies between a leaf's
+# top and a room's ceiling in any storey up to 2.8 m high
+DOOR_WALL_PROBES_M = (2.0, 2.2, 2.4, 2.6)
+DOOR_WALL_THICKER_M = 0.02  # the wall over the doorway is thicker than the filler by this
+DOOR_JOIN_M = 0.6  # crossings closer than this are one door (the two leaves of a double door)
+# fittings (handles, hinges, locks, kick plates) stand at most this far proud of the leaf,
+# and are no larger than this (box diagonal)
+DOOR_FITTING_REACH_M = 0.1
+DOOR_FITTING_SIZE_M = 0.35
+# a door's faces rise to its head less this (the gap over a leaf, a frame's rebate): a thin
+# part of a stair under the next flight is lower
+DOOR_LEAF_GAP_M = 0.1
+# passes over the crossings with the doors found so far open: a leaf of panels and glass is
+# met layer by layer (front, glass, back)
+DOOR_PASSES = 3
+_DOOR_TOL_M = 2e-3  # a face of the leaf lies in the leaf's box within this (rounding)
 
 
 def door_faces(scene: Scene, caster: RayCaster | None = None) -> NDArray[np.bool_]:
     """(F,) bool: faces of doors. IFC models: the faces of ``OPEN_DOOR_CLASSES``
-    elements. Plain meshes (no elements): with a ``caster`` over every face, the closed
-    leaves in wall openings of :func:`mesh_door_faces`; without one, none."""
+    elements. Plain meshes (no elements): with a ``caster`` over every face, the door
+    fillers of :func:`mesh_doors`; without one, none."""
     if not scene.elements:
         if caster is None:
             return np.zeros(scene.n_faces, bool)
-        return mesh_door_faces(scene, caster)
+        found: NDArray[np.bool_] = mesh_doors(scene, caster) >= 0
+        return found
     door = np.array([e.ifc_class in OPEN_DOOR_CLASSES for e in scene.elements] + [False])
     # -1 picks the trailing False
     result: NDArray[np.bool_] = scene.of_file_faces(door[scene.file_face_element])
     return result
 
 
-def mesh_door_faces(scene: Scene, caster: RayCaster) -> NDArray[np.bool_]:
-    """(F,) bool: the faces of closed door leaves in a mesh without semantics.
+@dataclass(frozen=True, eq=False)
+class _Crossings:
+    """Knee-height links of the walk blocked by something thin (see :func:`mesh_doors`).
 
-    The rule: a *part* (faces joined by shared vertices, in the file's mesh) is a door
-    when it is an upright panel (``DOOR_HEIGHT_M`` tall, ``DOOR_WIDTH_M`` wide
-    along its main horizontal axis, 96 % of its area within ``DOOR_THICKNESS_MAX_M``
-    across it, so handles do not count) and, at its
-    mid-height, a horizontal ray from each of its two ends outward along the panel meets
-    something within ``DOOR_JAMB_GAP_MAX_M``: the panel fills a gap in a wall. The parts
-    inside the panel's box (its edges when an export gives each side its own vertices,
-    handles, hinges) are the door's too. A door
-    frame exported as a thin part of its own counts too (its faces are the door's, as in
-    IFC). A leaf modelled open (swung into the room) does not fill the opening and stays
-    an obstacle where it stands; the opening itself is free. A thin partition of door
-    size between two walls is taken for a door: a rule from geometry alone cannot tell
-    them apart.
+    Attributes: K links; ``a``, ``b`` (K, 3) their knee points, ``x`` (K, 3) the middle of
+    the filler on the link, ``floor_z`` (K,) the lower floor, ``thick`` (K,) the filler's
+    thickness along the link, ``faces`` (K, 2) the file faces hit from a and from b (-1
+    none).
     """
-    from scipy.sparse.csgraph import connected_components
 
+    a: NDArray[np.float64]
+    b: NDArray[np.float64]
+    x: NDArray[np.float64]
+    floor_z: NDArray[np.float64]
+    thick: NDArray[np.float64]
+    faces: NDArray[np.int64]
+
+
+def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
+    """(F,) int64: the door each face belongs to (0, 1, ...; -1: none), in a mesh without
+    semantics, from geometry alone.
+
+    The rule works on what the walk meets, not on how an exporter splits a door into parts
+    or whether it shares vertices, so that door families from any authoring tool (frame,
+    lining, a leaf of panels and glass, handles, threshold; single, double, sliding;
+    closed or ajar) are found alike. On the walk's own floor samples (module docstring,
+    every face blocking, the ground around a model without terrain included):
+
+    1. *A thin filler.* Two floor samples one or two grid steps apart (in one of the 8
+       directions; two steps: a column whose centre falls inside a leaf has no sample in
+       the air), floors at most ``STEP_M`` apart, whose knee-height segment is blocked by
+       ``DOOR_FILLER_MIN_M`` to ``DOOR_FILLER_MAX_M`` of material (from the first hit from
+       one end to the first hit from the other), the faces met from both ends parallel
+       within ``DOOR_PARALLEL_DEG``: the two sides of a panel. A sample inside a wall
+       (on its bottom face) meets one face from both sides, and a segment cutting a wall's
+       corner meets two sides at right angles: neither is a filler.
+    2. *In a wall opening*: wall material above a gap of door height, the filler under
+       it. Either (a) the head over one of the two samples (a ray up) lies within
+       ``DOOR_HEIGHT_M`` of the floor, the filler's own top (a ray up from inside it) is no
+       higher, and within ``DOOR_LINTEL_REACH`` grid steps beyond each end the head rises
+       at least ``DOOR_LINTEL_STEP_M`` higher: a lintel, as deep as a wall, between two
+       rooms; or (b) at one of ``DOOR_WALL_PROBES_M`` above the floor, over the filler's
+       top and below the ceilings of both ends, the segment is blocked by material
+       ``DOOR_WALL_THICKER_M`` thicker than the filler (the wall over a leaf in a thin
+       wall). A thin partition fails both (it is as thick at every height, its top is
+       the ceiling), and so does a screen of door height between two rooms (no wall over
+       it).
+    3. *One door per opening*: such crossings closer than ``DOOR_JOIN_M`` whose fillers are
+       parallel are one door (both leaves of a double door; two doors at right angles in
+       a corner stay two). Its faces: the faces the crossings met (no larger than
+       ``DOOR_WIDTH_MAX_M`` by ``DOOR_HEIGHT_M[1]``, and within ``DOOR_FILLER_MAX_M`` of the
+       filler's median plane: a wall met past a jamb is not the door's), every face
+       within their box (along the filler's main horizontal axis and across it, from the
+       floor to ``DOOR_HEIGHT_M[1]``: the rest of the leaf, its panels, glass and edges),
+       and the small faces (box diagonal up to ``DOOR_FITTING_SIZE_M``) within
+       ``DOOR_FITTING_REACH_M`` of it across: handles, hinges, locks. A door whose faces
+       do not rise to ``DOOR_HEIGHT_M[0]`` less ``DOOR_LEAF_GAP_M`` is none (a thin part
+       of a stair under the next flight).
+    4. *Layer by layer*: the crossings are cast again with the doors found so far open;
+       what still blocks them thinly and parallel to the filler (the back of a panel,
+       glass behind a rail) joins their door, for up to ``DOOR_PASSES`` passes in all.
+
+    The walk then passes the opening whatever the leaf's position: a leaf open wide does
+    not block it and is no door here; one ajar in the opening is the filler. The frame,
+    the lining and the threshold are not needed to pass and stay as they are, as do the
+    walls: no face outside a filler's box is taken. A window down to the floor between two
+    rooms, under a lintel, is taken for a door: geometry alone cannot tell a French window
+    from a glazed door. A door between floors more than ``STEP_M`` apart (an unmodelled
+    step) is not found: the walk cannot use it anyway.
+    """
     vertices, faces = scene.file_mesh
-    n_vertices = len(vertices)
-    edges = sp.coo_matrix(
-        (np.ones(2 * len(faces), np.int8),
-         (np.concatenate([faces[:, 0], faces[:, 1]]),
-          np.concatenate([faces[:, 1], faces[:, 2]]))),
-        shape=(n_vertices, n_vertices))
-    n_parts, part_of_vertex = connected_components(edges, directed=False)
-    del edges
-    lo = np.full((n_parts, 3), np.inf)
-    hi = np.full((n_parts, 3), -np.inf)
-    np.minimum.at(lo, part_of_vertex, vertices)
-    np.maximum.at(hi, part_of_vertex, vertices)
-    size = hi - lo
-    tall = (size[:, 2] >= DOOR_HEIGHT_M[0]) & (size[:, 2] <= DOOR_HEIGHT_M[1])
-    small = np.hypot(size[:, 0], size[:, 1]) <= math.hypot(DOOR_WIDTH_M[1],
-                                                            DOOR_THICKNESS_MAX_M)
-    door_part = np.zeros(n_parts, bool)
-    panels: list[tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float,
-                       float, float, float]] = []
-    part_of_face = part_of_vertex[faces[:, 0]]
-    by_part = np.argsort(part_of_face, kind="stable")
-    first = np.searchsorted(part_of_face[by_part], np.arange(n_parts + 1))
-    for part in np.flatnonzero(tall & small):
-        panel = vertices[faces[by_part[first[part]:first[part + 1]]]]  # (n, 3, 3)
-        area = np.linalg.norm(np.cross(panel[:, 1] - panel[:, 0],
-                                       panel[:, 2] - panel[:, 0]), axis=1)
-        if area.sum() <= 0:
+    result = np.full(len(faces), -1, np.int64)
+    crossings = _thin_crossings(scene, caster)
+    if len(crossings.thick) == 0:
+        return result if scene.file_faces is None else result[scene.source_face]
+    keep = _in_wall_opening(crossings, caster)
+    triangles = vertices[faces]  # (F0, 3, 3)
+    # the filler's plane at each crossing: the side met from a
+    met = triangles[crossings.faces[keep, 0]]
+    normal = np.cross(met[:, 1] - met[:, 0], met[:, 2] - met[:, 0])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1), _EPS_M * _EPS_M)[:, None]
+    doors = _join_crossings(crossings.x[keep], normal)
+    lo, hi = triangles.min(axis=1), triangles.max(axis=1)
+    diagonal = np.linalg.norm(hi - lo, axis=1)
+    largest = math.hypot(DOOR_WIDTH_MAX_M, DOOR_HEIGHT_M[1])
+    hit_faces = crossings.faces[keep]  # (K, 2) file faces, -1 none
+    n_crossings = len(hit_faces)
+    floor_z = crossings.floor_z[keep]
+    parallel = math.cos(math.radians(DOOR_PARALLEL_DEG))
+    for attempt in range(DOOR_PASSES):
+        result[:] = -1
+        n_found = 0
+        for door in range(int(doors.max()) + 1 if len(doors) else 0):
+            mine = doors == door
+            hit = np.unique(hit_faces[mine])
+            hit = hit[hit >= 0]
+            hit = hit[diagonal[hit] <= largest]
+            if len(hit) == 0:
+                continue
+            z0 = float(floor_z[mine].min())
+            taken = _door_box_faces(triangles, lo, hi, diagonal, hit, z0)
+            taken = taken[result[taken] < 0]
+            if len(taken) == 0 or hi[taken, 2].max() < z0 + DOOR_HEIGHT_M[0] - DOOR_LEAF_GAP_M:
+                continue
+            result[taken] = n_found
+            n_found += 1
+        if attempt == DOOR_PASSES - 1 or n_found == 0:
+            break
+        # the crossings again, the doors open: what still blocks them thinly, parallel to
+        # the filler, is more of it (the back of a panel, glass behind a rail)
+        opened = result < 0
+        walk = make_ray_caster(scene, opened if scene.file_faces is None
+                               else opened[scene.source_face],
+                               file_faces=scene.file_faces is not None)
+        thick, _, face_ab, face_ba, _ = _through(walk, crossings.a[keep], crossings.b[keep])
+        more = np.stack([np.where(face_ab >= 0, scene.source_face[np.maximum(face_ab, 0)], -1),
+                         np.where(face_ba >= 0, scene.source_face[np.maximum(face_ba, 0)], -1)],
+                        axis=1)
+        still = np.isfinite(thick) & (thick <= DOOR_FILLER_MAX_M)
+        for side in range(2):
+            met = triangles[np.maximum(more[:, side], 0)]
+            turn = np.cross(met[:, 1] - met[:, 0], met[:, 2] - met[:, 0])
+            turn /= np.maximum(np.linalg.norm(turn, axis=1), _EPS_M * _EPS_M)[:, None]
+            aligned = np.abs(np.einsum("kc,kc->k", turn, normal)) >= parallel
+            more[~(still & aligned), side] = -1
+        if (more < 0).all():
+            break
+        found_more = np.any(more >= 0, axis=1)
+        hit_faces = np.concatenate([hit_faces, more[found_more]])
+        # the crossings come first in doors and floor_z, the faces of later passes after
+        doors = np.concatenate([doors, doors[:n_crossings][found_more]])
+        floor_z = np.concatenate([floor_z, floor_z[:n_crossings][found_more]])
+    return result if scene.file_faces is None else result[scene.source_face]
+
+
+def _thin_crossings(scene: Scene, caster: RayCaster) -> _Crossings:
+    """The walk's links blocked at knee height by a thin filler (rule step 1)."""
+    grid_m = _walk_grid_m(scene)
+    samples = _floor_samples(scene, caster, grid_m)
+    # the ground around a model without terrain too: the outside of a front door
+    ground_xyz, ground_ix, ground_iy = _ground_nodes(scene, samples, grid_m)
+    floor_xyz = np.concatenate([samples.floor_xyz, ground_xyz])
+    ix = np.concatenate([samples.ix, ground_ix])
+    iy = np.concatenate([samples.iy, ground_iy])
+    # the links, and the pairs two columns apart: a column whose centre falls inside a
+    # leaf has no floor sample in the air, and its neighbours are not linked across it
+    pairs = [_neighbour_pairs(floor_xyz, ix, iy, reach) for reach in (1, 2)]
+    a = np.concatenate([p[0] for p in pairs])
+    b = np.concatenate([p[1] for p in pairs])
+    knee = np.array([0.0, 0.0, KNEE_HEIGHT_M])
+    kept: list[tuple[NDArray[np.int64], ...]] = []
+    parts: list[tuple[NDArray[np.float64], ...]] = []
+    for first in range(0, len(a), _LINKS_PER_BLOCK):
+        ia, ib = a[first:first + _LINKS_PER_BLOCK], b[first:first + _LINKS_PER_BLOCK]
+        pa, pb = floor_xyz[ia] + knee, floor_xyz[ib] + knee
+        thick, along, face_ab, face_ba, d_ab = _through(caster, pa, pb)
+        thin = ((thick >= DOOR_FILLER_MIN_M) & (thick <= DOOR_FILLER_MAX_M)
+                & (face_ba >= 0))
+        thin[thin] = (np.abs(np.einsum("kc,kc->k", scene.normals[face_ab[thin]],
+                                       scene.normals[face_ba[thin]]))
+                      >= math.cos(math.radians(DOOR_PARALLEL_DEG)))
+        x = pa[thin] + along[thin] * (d_ab[thin] + thick[thin] / 2)[:, None]
+        kept.append((face_ab[thin], face_ba[thin]))
+        parts.append((pa[thin], pb[thin], x, np.minimum(floor_xyz[ia[thin], 2],
+                                                       floor_xyz[ib[thin], 2]), thick[thin]))
+    if not parts:
+        empty = np.zeros((0, 3))
+        return _Crossings(empty, empty, empty, np.zeros(0), np.zeros(0),
+                          np.zeros((0, 2), np.int64))
+    hit = np.stack([np.concatenate([k[0] for k in kept]),
+                    np.concatenate([k[1] for k in kept])], axis=1)
+    on_file = np.where(hit >= 0, scene.source_face[np.maximum(hit, 0)], -1)
+    pa, pb, x, floor_z, thick = (np.concatenate([p[i] for p in parts]) for i in range(5))
+    return _Crossings(pa, pb, x, floor_z, thick, on_file.astype(np.int64))
+
+
+def _through(caster: RayCaster, pa: NDArray[np.float64], pb: NDArray[np.float64]
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64],
+                        NDArray[np.int64], NDArray[np.float64]]:
+    """What blocks the (K, 3) segments pa -> pb: (K,) thickness of the material along
+    each (from the first hit from pa to the first hit from pb; inf: free), (K, 3) unit
+    directions, (K,) the faces hit from pa and from pb (-1: none within the segment) and
+    (K,) the distance from pa to its hit."""
+    delta = pb - pa
+    length = np.linalg.norm(delta, axis=1)
+    along = delta / np.maximum(length, _EPS_M)[:, None]
+    face_ab, d_ab = caster.first_hit(pa, along)
+    face_ba, d_ba = caster.first_hit(pb, -along)
+    blocked = d_ab < length
+    thick = np.where(blocked, np.maximum(length - d_ab - np.minimum(d_ba, length), 0.0),
+                     np.inf)
+    face_ab = np.where(blocked, face_ab, -1)
+    face_ba = np.where(blocked & (d_ba < length), face_ba, -1)
+    return thick, along, face_ab, face_ba, d_ab
+
+
+def _in_wall_opening(crossings: _Crossings, caster: RayCaster) -> NDArray[np.bool_]:
+    """(K,) bool: the thin crossings that lie in a wall opening (rule step 2)."""
+    n = len(crossings.thick)
+    up = np.tile([0.0, 0.0, 1.0], (n, 1))
+    step = crossings.b - crossings.a
+    knee_z = crossings.floor_z + KNEE_HEIGHT_M
+    heads: dict[int, NDArray[np.float64]] = {}  # (K,) head height over the floor, by step
+    for k in range(-DOOR_LINTEL_REACH, DOOR_LINTEL_REACH + 2):
+        at = crossings.a + k * step
+        at[:, 2] = knee_z
+        _, distance = caster.first_hit(at, up)
+        heads[k] = KNEE_HEIGHT_M + distance
+    middle = np.stack([heads[0], heads[1]], axis=1)  # (K, 2) over the link's own ends
+    at = crossings.x.copy()
+    at[:, 2] = knee_z
+    # from inside the filler: its own top (a leaf's, or a panel's in it); a wall's is the
+    # ceiling
+    filler_top = KNEE_HEIGHT_M + caster.first_hit(at, up)[1]
+    low = (middle >= DOOR_HEIGHT_M[0]) & (middle <= DOOR_HEIGHT_M[1])
+    lintel = np.where(low, middle, np.inf).min(axis=1)
+    room_a = np.stack([heads[k] for k in range(-DOOR_LINTEL_REACH, 1)], axis=1)
+    room_b = np.stack([heads[k] for k in range(1, DOOR_LINTEL_REACH + 2)], axis=1)
+    rise = lintel + DOOR_LINTEL_STEP_M
+    opening = (low.any(axis=1) & (filler_top <= lintel + _DOOR_TOL_M)
+               & (room_a >= rise[:, None]).any(axis=1)
+               & (room_b >= rise[:, None]).any(axis=1))
+    ceiling = np.minimum(heads[0], heads[1])
+    for height in DOOR_WALL_PROBES_M:
+        probe = ~opening & (height < ceiling - _DOOR_TOL_M) & (filler_top <= height)
+        if not probe.any():
             continue
-        # the panel's axes and thickness by area: a handle or a hinge adds corners, not area
-        xy = panel[:, :, :2].reshape(-1, 2)
-        weight = np.repeat(area, 3)
-        centre = np.average(xy, axis=0, weights=weight)
-        offset = xy - centre
-        _, axes = np.linalg.eigh((offset * weight[:, None]).T @ offset)
-        across, along = axes[:, 0], axes[:, 1]
-        thickness = _weighted_spread(offset @ across, weight)
-        t = offset @ along
-        width = float(np.ptp(t))
-        if thickness > DOOR_THICKNESS_MAX_M or not DOOR_WIDTH_M[0] <= width <= DOOR_WIDTH_M[1]:
-            continue
-        z = (lo[part, 2] + hi[part, 2]) / 2
-        ends = np.array([[*(centre + (t.max() + _EPS_M) * along), z],
-                         [*(centre + (t.min() - _EPS_M) * along), z]])
-        outward = np.array([[*along, 0.0], [*(-along), 0.0]])
-        _, gap = caster.first_hit(ends, outward)
-        if (gap <= DOOR_JAMB_GAP_MAX_M).all():
-            door_part[part] = True
-            panels.append((centre, along, across, float(t.min()), float(t.max()),
-                           float(lo[part, 2]), float(hi[part, 2])))
-    # the rest of a door: the parts within a panel's box (a leaf's edges and top when its
-    # sides are parts of their own, handles, hinges)
-    small = (size <= DOOR_WIDTH_M[1] + DOOR_THICKNESS_MAX_M).all(axis=1)
-    others = np.flatnonzero(small & ~door_part)
-    box = np.stack([np.stack([np.where(corner & (1 << axis), hi[others, axis],
-                                       lo[others, axis]) for axis in range(3)], axis=1)
-                    for corner in range(8)], axis=1)  # (P, 8, 3) box corners of the parts
-    for centre, along, across, t_min, t_max, z_min, z_max in panels:
-        offset = box[:, :, :2] - centre
-        t = offset @ along
-        inside = ((t >= t_min - _DOOR_BOX_M) & (t <= t_max + _DOOR_BOX_M)
-                  & (np.abs(offset @ across) <= DOOR_THICKNESS_MAX_M)
-                  & (box[:, :, 2] >= z_min - _DOOR_BOX_M)
-                  & (box[:, :, 2] <= z_max + _DOOR_BOX_M)).all(axis=1)
-        door_part[others[inside]] = True
-    on_file = door_part[part_of_face]
-    result: NDArray[np.bool_] = on_file[scene.source_face] if scene.file_faces is not None \
-        else on_file
+        lift = np.zeros((int(probe.sum()), 3))
+        lift[:, 2] = crossings.floor_z[probe] + height - crossings.a[probe, 2]
+        lift_b = lift.copy()
+        lift_b[:, 2] = crossings.floor_z[probe] + height - crossings.b[probe, 2]
+        thick = _through(caster, crossings.a[probe] + lift, crossings.b[probe] + lift_b)[0]
+        wall = np.isfinite(thick) & (thick >= crossings.thick[probe] + DOOR_WALL_THICKER_M)
+        opening[np.flatnonzero(probe)[wall]] = True
+    result: NDArray[np.bool_] = opening
     return result
 
 
-def _weighted_spread(values: NDArray[np.float64], weight: NDArray[np.float64]) -> float:
-    """Width of the middle 96 % (by ``weight``) of the (n,) ``values``."""
-    order = np.argsort(values)
-    share = np.cumsum(weight[order]) / weight.sum()
-    ranked = values[order]
-    low = ranked[int(np.searchsorted(share, 0.02))]
-    high = ranked[min(int(np.searchsorted(share, 0.98)), len(values) - 1)]
-    return float(high - low)
+def _join_crossings(x: NDArray[np.float64], normal: NDArray[np.float64]
+                    ) -> NDArray[np.int64]:
+    """(K,) door of each of the (K, 3) crossing points whose fillers have the (K, 3) unit
+    ``normal``: points closer than ``DOOR_JOIN_M`` in parallel fillers (within
+    ``DOOR_PARALLEL_DEG``) are one door, transitively (two doors at right angles in a
+    corner stay two); doors numbered by their first point."""
+    if len(x) == 0:
+        return np.zeros(0, np.int64)
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(x).query_pairs(DOOR_JOIN_M, output_type="ndarray")
+    parallel = (np.abs(np.einsum("kc,kc->k", normal[pairs[:, 0]], normal[pairs[:, 1]]))
+                >= math.cos(math.radians(DOOR_PARALLEL_DEG)))
+    pairs = pairs[parallel]
+    graph = sp.coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])),
+                          shape=(len(x), len(x)))
+    _, labels = connected_components(graph, directed=False)
+    # renumbered by first appearance: deterministic whatever the component numbering
+    _, first = np.unique(labels, return_index=True)
+    order = np.argsort(first, kind="stable")
+    rank = np.empty(len(order), np.int64)
+    rank[order] = np.arange(len(order))
+    result: NDArray[np.int64] = rank[labels]
+    return result
+
+
+def _door_box_faces(triangles: NDArray[np.float64], lo: NDArray[np.float64],
+                    hi: NDArray[np.float64], diagonal: NDArray[np.float64],
+                    hit: NDArray[np.int64], z0: float) -> NDArray[np.int64]:
+    """File faces of one door (rule step 3): the ``hit`` faces, the faces within their
+    box and the fittings beside it. ``triangles`` (F0, 3, 3), ``lo``/``hi`` (F0, 3) their
+    boxes, ``diagonal`` (F0,) the boxes' diagonals; ``z0`` the floor."""
+    corners = triangles[hit].reshape(-1, 3)
+    edge1 = triangles[hit, 1] - triangles[hit, 0]
+    edge2 = triangles[hit, 2] - triangles[hit, 0]
+    weight = np.repeat(np.linalg.norm(np.cross(edge1, edge2), axis=1) + _EPS_M, 3)
+    centre = np.average(corners[:, :2], axis=0, weights=weight)
+    offset = corners[:, :2] - centre
+    _, axes = np.linalg.eigh((offset * weight[:, None]).T @ offset)
+    across, along = axes[:, 0], axes[:, 1]
+    # faces hit beside the filler's plane (a wall's side, met past a jamb) are not the door's
+    plane = np.median(offset @ across)
+    side = np.abs(triangles[hit, :, :2].mean(axis=1) @ across - centre @ across - plane)
+    hit = hit[side <= DOOR_FILLER_MAX_M]
+    corners = triangles[hit].reshape(-1, 3)
+    offset = corners[:, :2] - centre
+    t, s = offset @ along, offset @ across
+    t_lo, t_hi = t.min() - _DOOR_TOL_M, t.max() + _DOOR_TOL_M
+    s_lo, s_hi = s.min() - _DOOR_TOL_M, s.max() + _DOOR_TOL_M
+    z_lo, z_hi = z0 - DOOR_FILLER_MAX_M, z0 + DOOR_HEIGHT_M[1]
+    reach = DOOR_FITTING_REACH_M
+    near = np.flatnonzero((lo[:, 2] >= z_lo) & (hi[:, 2] <= z_hi)
+                          & (np.linalg.norm((lo[:, :2] + hi[:, :2]) / 2 - centre, axis=1)
+                             <= (t_hi - t_lo) / 2 + (s_hi - s_lo) / 2 + reach + diagonal))
+    flat = triangles[near][:, :, :2] - centre  # (n, 3, 2)
+    ft, fs = flat @ along, flat @ across
+    in_t = ((ft >= t_lo) & (ft <= t_hi)).all(axis=1)
+    in_leaf = in_t & ((fs >= s_lo) & (fs <= s_hi)).all(axis=1)
+    fitting = (in_t & ((fs >= s_lo - reach) & (fs <= s_hi + reach)).all(axis=1)
+               & (diagonal[near] <= DOOR_FITTING_SIZE_M))
+    result: NDArray[np.int64] = np.union1d(hit, near[in_leaf | fitting])
+    return result
 
 
 @dataclass(frozen=True, eq=False)
@@ -327,12 +558,47 @@ def cell_pairs(sorted_key: NDArray[np.int64], order: NDArray[np.int64],
               + np.repeat(start, counts)]
     return a, b
 
+def _walk_grid_m(scene: Scene) -> float:
+    """The walk grid's spacing: ``WALK_GRID_M``, coarser on models of more than
+    ``MAX_COLUMNS`` columns."""
+    lo, hi = scene.bounds
+    columns = ((hi[0] - lo[0]) / WALK_GRID_M + 1) * ((hi[1] - lo[1]) / WALK_GRID_M + 1)
+    return WALK_GRID_M * max(1.0, math.sqrt(columns / MAX_COLUMNS))
+
+
+def _neighbour_pairs(floor_xyz: NDArray[np.float64], ix: NDArray[np.int64],
+                     iy: NDArray[np.int64], reach: int = 1
+                     ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(P,) a and (P,) b: the pairs of the (N, 3) floor samples in neighbouring grid
+    columns (8 neighbours; columns (N,) ix, iy; ``reach`` 2: the columns two steps away
+    along the same 8 directions instead) whose heights differ by at most ``STEP_M``, each
+    pair once."""
+    n = len(floor_xyz)
+    # nodes by grid column: a neighbour column's nodes are found by a sorted-key search
+    # (columns shifted to start at 0; the model's own samples are sorted already)
+    shift_x, shift_y = (int(ix.min()), int(iy.min())) if n else (0, 0)
+    ix, iy = ix - shift_x, iy - shift_y
+    width = int(iy.max()) + 1 + reach if n else 1
+    key = ix * width + iy
+    by_key = np.lexsort((floor_xyz[:, 2], key))
+    sorted_key = key[by_key]
+    rows: list[NDArray[np.int64]] = []
+    cols: list[NDArray[np.int64]] = []
+    for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
+        target = (ix + reach * dx) * width + (iy + reach * dy)
+        a, b = cell_pairs(sorted_key, by_key, target)
+        close = np.abs(floor_xyz[a, 2] - floor_xyz[b, 2]) <= STEP_M
+        rows.append(a[close])
+        cols.append(b[close])
+    a = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+    b = np.concatenate(cols) if cols else np.zeros(0, np.int64)
+    return a, b
+
+
 def build_walk_graph(scene: Scene, caster: RayCaster, *, ground: bool = True) -> WalkGraph:
     """The walk graph of ``scene`` (see the module docstring); ``ground``: add the ground
     nodes of a model without terrain."""
-    lo, hi = scene.bounds
-    columns = ((hi[0] - lo[0]) / WALK_GRID_M + 1) * ((hi[1] - lo[1]) / WALK_GRID_M + 1)
-    grid_m = WALK_GRID_M * max(1.0, math.sqrt(columns / MAX_COLUMNS))
+    grid_m = _walk_grid_m(scene)
     samples = _floor_samples(scene, caster, grid_m)
     floor_xyz, ix, iy = samples.floor_xyz, samples.ix, samples.iy
     n_ground = 0
@@ -342,24 +608,7 @@ def build_walk_graph(scene: Scene, caster: RayCaster, *, ground: bool = True) ->
         floor_xyz = np.concatenate([floor_xyz, ground_xyz])
         ix, iy = np.concatenate([ix, ground_ix]), np.concatenate([iy, ground_iy])
     n = len(floor_xyz)
-    # nodes by grid column: a neighbour column's nodes are found by a sorted-key search
-    # (columns shifted to start at 0; the model's own samples are sorted already)
-    shift_x, shift_y = (int(ix.min()), int(iy.min())) if n else (0, 0)
-    ix, iy = ix - shift_x, iy - shift_y
-    width = int(iy.max()) + 2 if n else 1
-    key = ix * width + iy
-    by_key = np.lexsort((floor_xyz[:, 2], key))
-    sorted_key = key[by_key]
-    rows: list[NDArray[np.int64]] = []
-    cols: list[NDArray[np.int64]] = []
-    for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
-        target = (ix + dx) * width + (iy + dy)
-        a, b = cell_pairs(sorted_key, by_key, target)
-        close = np.abs(floor_xyz[a, 2] - floor_xyz[b, 2]) <= STEP_M
-        rows.append(a[close])
-        cols.append(b[close])
-    a = np.concatenate(rows) if rows else np.zeros(0, np.int64)
-    b = np.concatenate(cols) if cols else np.zeros(0, np.int64)
+    a, b = _neighbour_pairs(floor_xyz, ix, iy)
     knee = np.array([0.0, 0.0, KNEE_HEIGHT_M])
     # the links' knee-high segments, both ways, a block at a time: Embree's hit record is
     # some 50 bytes a ray, and a large floor has millions of links

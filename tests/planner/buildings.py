@@ -347,3 +347,92 @@ def export_plain_mesh(ifc_path: str | Path, out_path: str | Path,
     else:
         mesh.export(out_path)
     return out_path
+
+
+# scoring a plain mesh's door rule against the IFC model's doors -----------------------------
+
+TOUCH_M = 0.05  # found faces this close belong to one found door
+DOOR_FOUND_SHARE = 0.25  # an IfcDoor is found when this share of its area is: its leaf
+TRUE_DOOR_SHARE = 0.5  # a found door is true when this share of its area is an IfcDoor's
+_CELL_M = 0.5  # the grid that pairs nearby faces
+
+
+@dataclass(frozen=True)
+class DoorScore:
+    """Doors found in a plain export against the IFC model's own (see :func:`door_score`)."""
+
+    ifc_doors: int  # IfcDoor elements with faces
+    found: int  # found doors: groups of touching found faces
+    true: int  # found doors mostly on IfcDoor faces
+    ifc_doors_found: int  # IfcDoor elements with DOOR_FOUND_SHARE of their area found
+
+    @property
+    def false(self) -> int:
+        return self.found - self.true
+
+    @property
+    def missed(self) -> int:
+        return self.ifc_doors - self.ifc_doors_found
+
+
+def touching_groups(triangles: NDArray[np.float64]) -> NDArray[np.int64]:
+    """(T,) group of each of the (T, 3, 3) triangles: triangles whose boxes, grown by
+    ``TOUCH_M``, overlap are joined (transitively)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n = len(triangles)
+    if n == 0:
+        return np.zeros(0, np.int64)
+    lo = triangles.min(axis=1) - TOUCH_M
+    hi = triangles.max(axis=1) + TOUCH_M
+    first = np.floor(lo / _CELL_M).astype(np.int64)
+    last = np.floor(hi / _CELL_M).astype(np.int64)
+    cells: dict[tuple[int, int, int], list[int]] = {}
+    for i in range(n):
+        for cx in range(first[i, 0], last[i, 0] + 1):
+            for cy in range(first[i, 1], last[i, 1] + 1):
+                for cz in range(first[i, 2], last[i, 2] + 1):
+                    cells.setdefault((cx, cy, cz), []).append(i)
+    rows: list[NDArray[np.int64]] = []
+    cols: list[NDArray[np.int64]] = []
+    for members in cells.values():
+        m = np.asarray(members)
+        if len(m) < 2:
+            continue
+        a, b = np.triu_indices(len(m), 1)
+        a, b = m[a], m[b]
+        overlap = ((lo[a] <= hi[b]) & (lo[b] <= hi[a])).all(axis=1)
+        rows.append(a[overlap])
+        cols.append(b[overlap])
+    r = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+    c = np.concatenate(cols) if cols else np.zeros(0, np.int64)
+    graph = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    result: NDArray[np.int64] = labels.astype(np.int64)
+    return result
+
+
+def door_score(ifc: Scene, found: NDArray[np.bool_]) -> DoorScore:
+    """Score ``found`` (F,) bool, the door faces a rule found in the plain export of the
+    IFC reading ``ifc`` (same faces, same order), against its IfcDoor faces."""
+    from planner.walkgraph import door_faces
+
+    truth = door_faces(ifc)
+    element = np.asarray(ifc.face_element)
+    triangles = ifc.triangles
+    area = np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0],
+                                   triangles[:, 2] - triangles[:, 0]), axis=1) / 2
+    index = np.flatnonzero(found)
+    groups = touching_groups(triangles[index])
+    n_groups = int(groups.max()) + 1 if len(groups) else 0
+    on_door = np.bincount(groups, area[index] * truth[index], n_groups)
+    total = np.bincount(groups, area[index], n_groups)
+    doors = np.unique(element[truth])
+    size = int(element.max()) + 1
+    door_area = np.bincount(element[truth], area[truth], size)
+    found_area = np.bincount(element[truth & found], area[truth & found], size)
+    return DoorScore(
+        ifc_doors=len(doors), found=n_groups,
+        true=int((on_door >= TRUE_DOOR_SHARE * total).sum()),
+        ifc_doors_found=int((found_area[doors] >= DOOR_FOUND_SHARE * door_area[doors]).sum()))

@@ -1,0 +1,75 @@
+"""Doors found in plain meshes against the IFC model's own doors, on every shared building.
+
+For each IFC building in ``shared/scenes/buildings`` and the shared IFC houses: the model is
+read with IfcOpenShell (:func:`planner.io.ifc.read_ifc`), exported as a plain mesh (no
+classes, no groups: :func:`tests.planner.buildings.export_plain_mesh`), read back as a user's
+OBJ is read, and the plain mesh's door rule (:func:`planner.walkgraph.door_faces` with a
+caster over every face) is run on it. The exported faces keep the IFC reading's order, so
+the IFC model's door faces (``door_faces`` of the IFC scene: ``IfcDoor``) are the truth.
+
+A *found door* is a group of found faces that touch (bounding boxes within 5 cm); it is
+*true* when at least half of its area is on IfcDoor faces, else *false*. An IfcDoor is
+*found* when a quarter of its area is found (its leaf: a frame and lining can be larger);
+the rest are *missed* (:func:`tests.planner.buildings.door_score`). ``rule CPU s`` is the
+rule's CPU time. Prints a table; never passes or fails::
+
+    .venv/bin/python benchmarks/doors.py [model.ifc ...] [--cache DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from planner.io.ifc import read_ifc
+from planner.io.readers import read_scene
+from planner.rays import make_ray_caster
+from planner.walkgraph import door_faces
+from tests.planner.buildings import door_score, export_plain_mesh
+
+SCENES = Path(__file__).resolve().parents[2] / "shared" / "scenes"
+
+
+def default_models() -> list[Path]:
+    return sorted((SCENES / "buildings").glob("*.ifc")) + sorted(SCENES.glob("*.ifc"))
+
+
+def score(path: Path, folder: Path) -> dict[str, object]:
+    ifc = read_ifc(path)
+    plain = export_plain_mesh(path, folder / f"{path.stem}.obj", ifc)
+    scene = read_scene(plain, max_edge_m=None)
+    assert scene.n_faces == ifc.n_faces and not scene.elements
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    t0 = time.process_time()
+    found = door_faces(scene, caster)
+    seconds = time.process_time() - t0
+    result = door_score(ifc, found)
+    return {"model": path.stem, "faces": scene.n_faces, "IfcDoor": result.ifc_doors,
+            "found": result.found, "true": result.true, "false": result.false,
+            "IfcDoor found": result.ifc_doors_found, "missed": result.missed,
+            "rule CPU s": round(seconds, 2)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("models", nargs="*", type=Path)
+    parser.add_argument("--cache", type=Path, help="keep the plain meshes here")
+    args = parser.parse_args()
+    models = args.models or default_models()
+    columns = ["model", "faces", "IfcDoor", "found", "true", "false", "IfcDoor found",
+               "missed", "rule CPU s"]
+    print(" | ".join(columns))
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = args.cache or Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        for path in models:
+            row = score(path, folder)
+            print(" | ".join(str(row[c]) for c in columns), flush=True)
+
+
+if __name__ == "__main__":
+    main()
