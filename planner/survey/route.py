@@ -41,7 +41,7 @@ from scipy.spatial import cKDTree
 
 from planner.errors import ParameterError
 from planner.rays import RayCaster
-from planner.walkgraph import HEADROOM_M, KNEE_HEIGHT_M, STEP_M, WalkGraph, segment_free
+from planner.walkgraph import HEADROOM_M, KNEE_HEIGHT_M, STEP_M, WalkGraph, upright_free
 
 # a station attaches to a floor sample at most this far away horizontally (grid units)
 _ATTACH_CELLS = 2.0
@@ -133,7 +133,8 @@ def attach(graph: WalkGraph, caster: RayCaster, points: NDArray[np.float64]
     """Node of every (K, 3) point (a station or the start) and its foot at knee height.
 
     The foot is where a ray straight down from the point meets the model; -1 when no
-    floor sample is near enough or the way to it is blocked.
+    floor sample is near enough or the way to it is blocked (from knee to head height,
+    :func:`planner.walkgraph.upright_free`).
     """
     k = len(points)
     down = np.tile([0.0, 0.0, -1.0], (k, 1))
@@ -155,7 +156,7 @@ def attach(graph: WalkGraph, caster: RayCaster, points: NDArray[np.float64]
             continue
         distance = np.linalg.norm(graph.floor_xyz[near] - foot[i], axis=1)
         near = near[np.lexsort((near, distance))]  # nearest first, ties by index
-        free = segment_free(caster, np.repeat(foot[i:i + 1] + knee, len(near), axis=0),
+        free = upright_free(caster, np.repeat(foot[i:i + 1] + knee, len(near), axis=0),
                             graph.floor_xyz[near] + knee)
         if free.any():
             nodes[i] = near[int(np.argmax(free))]

@@ -40,6 +40,9 @@ from planner.walkgraph import HEADROOM_M, KNEE_HEIGHT_M
 SWEEP_HEIGHTS_M = (KNEE_HEIGHT_M, 0.8, 1.1, 1.4, HEADROOM_M - 0.05)
 _MIN_SEGMENT_M = 1e-3  # shorter segments (a station's foot on its own node) are not cast
 _SEGMENTS_PER_BLOCK = 1 << 16  # rays per Embree call: bounds the hit records
+_GRAZING = 1e-3  # |cos| of a face's normal to the segment below which the face is grazed
+_GRAZE_STEP_M = 1e-3  # past a grazed face, the ray goes on from this far beyond the hit
+_MAX_GRAZES = 8  # grazed faces passed along one segment; past that many it counts as free
 
 
 @dataclass(frozen=True)
@@ -100,8 +103,9 @@ def legs_through_walls(scene: Scene, door: NDArray[np.bool_],
     lift[:, 0, 2] = heights - KNEE_HEIGHT_M
     from_a = (a[None] + lift).reshape(-1, 3)  # (H * K, 3), height by height
     from_b = (b[None] + lift).reshape(-1, 3)
-    face, hit_at = _blocked(caster, from_a, from_b)
-    back_face, back_at = _blocked(caster, from_b, from_a)
+    normals = np.asarray(scene.normals, np.float64)
+    face, hit_at = _blocked(caster, normals, from_a, from_b)
+    back_face, back_at = _blocked(caster, normals, from_b, from_a)
     use_back = (face < 0) & (back_face >= 0)
     face = np.where(use_back, back_face, face)
     hit_at[use_back] = back_at[use_back]
@@ -128,10 +132,13 @@ def legs_through_walls(scene: Scene, door: NDArray[np.bool_],
     return result
 
 
-def _blocked(caster: RayCaster, a: NDArray[np.float64], b: NDArray[np.float64]
-             ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-    """The face each segment (K, 3) a -> (K, 3) b hits first, -1 when free, and the (K, 3)
-    hit points (NaN when free)."""
+def _blocked(caster: RayCaster, normals: NDArray[np.float64], a: NDArray[np.float64],
+             b: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """The face each segment (K, 3) a -> (K, 3) b crosses first, -1 when free, and the
+    (K, 3) hit points (NaN when free). A face in the segment's own plane (``normals``,
+    (F, 3), within ``_GRAZING`` of square to the normal) is grazed, not crossed: the ray
+    goes on past it (a path along a wall's face, or along a mitred corner's plane, where
+    float32 rays report a hit anywhere on the line)."""
     face = np.full(len(a), -1, np.int64)
     at = np.full((len(a), 3), np.nan)
     delta = b - a
@@ -139,10 +146,25 @@ def _blocked(caster: RayCaster, a: NDArray[np.float64], b: NDArray[np.float64]
     for first in range(0, len(a), _SEGMENTS_PER_BLOCK):
         block = np.arange(first, min(first + _SEGMENTS_PER_BLOCK, len(a)))
         direction = delta[block] / length[block, None]
-        hit_face, distance = caster.first_hit(a[block], direction)
-        inside = (hit_face >= 0) & (distance < length[block])
-        face[block[inside]] = hit_face[inside]
-        at[block[inside]] = a[block[inside]] + distance[inside, None] * direction[inside]
+        origin = a[block].copy()
+        travelled = np.zeros(len(block))
+        todo = np.arange(len(block))
+        for _ in range(_MAX_GRAZES + 1):
+            hit_face, distance = caster.first_hit(origin[todo], direction[todo])
+            inside = (hit_face >= 0) & (travelled[todo] + distance < length[block[todo]])
+            grazed = np.zeros(len(todo), bool)
+            grazed[inside] = np.abs(np.einsum(
+                "kc,kc->k", normals[hit_face[inside]], direction[todo[inside]])) < _GRAZING
+            crossed = inside & ~grazed
+            done = todo[crossed]
+            face[block[done]] = hit_face[crossed]
+            at[block[done]] = origin[done] + distance[crossed, None] * direction[done]
+            step = distance[grazed] + _GRAZE_STEP_M
+            origin[todo[grazed]] += step[:, None] * direction[todo[grazed]]
+            travelled[todo[grazed]] += step
+            todo = todo[grazed]
+            if len(todo) == 0:
+                break
     return face, at
 
 
