@@ -65,6 +65,15 @@ def _storey_of(station: dict[str, Any]) -> str:
     return str(label.get("storey") or "?")
 
 
+def _what(scene: Any, face: int) -> str:
+    """The element a face belongs to ("" in a plain mesh)."""
+    element = int(scene.face_element[face])
+    if element < 0 or not scene.elements:
+        return ""
+    item = scene.elements[element]
+    return f"{item.ifc_class} {item.name}"
+
+
 def _child(model: str, spec_json: str, out: str, doors: str) -> None:
     """Plan ``model`` in this process and print one JSON line of figures. ``doors``: a
     .npy door mask over the file's faces ("" : the model's own, by IFC class)."""
@@ -138,7 +147,8 @@ def _child(model: str, spec_json: str, out: str, doors: str) -> None:
         "stations": len(stations),
         "unreachable": len(route.get("unreachable", [])),
         "legs": len(route.get("legs", [])),
-        "legs_through_walls": [leg.to_dict() for leg in blocked],
+        "legs_through_walls": [{**leg.to_dict(), "hit": _what(scene, leg.face)}
+                               for leg in blocked],
         "storeys": storeys,
         "not_storeys": Counter(str(level["excluded"]).split(":")[0] for level in excluded),
         "not_storey_heights_m": sorted({float(level["floor_z_m"]) for level in excluded}),
@@ -185,7 +195,7 @@ def _run(label: str, model: Path, spec: dict[str, object], doors: Path | None,
             print(f"      no station: {room}")
     for leg in figures["legs_through_walls"][:5]:
         print(f"      through a wall: leg {leg['from']} -> {leg['to']} at {leg['at']} "
-              f"({leg['height_m']} m above its floor)")
+              f"({leg['height_m']} m above its floor) {leg['hit']}")
     sys.stdout.flush()
     return figures
 

@@ -69,7 +69,7 @@ def test_half_landings_between_storeys_are_not_storeys_and_keep_their_candidates
     assert storey_names == {str(lv["name"]) for lv in storeys}
     for landing in landings:
         on = np.abs(floor_z - float(str(landing["floor_z_m"]))) < 0.01
-        assert on.sum() == landing["candidates"] > 0
+        assert on.sum() == landing["candidates"] and on.sum() > 0
         owner = [lv for lv in storeys if lv["floor_z_m"] == landing["storey_floor_z_m"]]
         assert {candidates.labels[i]["storey"] for i in np.flatnonzero(on)} == {
             owner[0]["name"]}
