@@ -77,9 +77,9 @@ class Places:
         """The storey a floor at ``floor_z_m`` belongs to, named with its height."""
         below = [(name, z) for name, z in self.storeys if z <= floor_z_m + STEP_M]
         if not below:
-            return f"the floor at {floor_z_m:+.2f} m"
+            return f"the floor at {_m(floor_z_m)}"
         name, _ = below[-1]
-        return f"storey {name!r} (floor at {floor_z_m:+.2f} m)"
+        return f"storey {name!r} (floor at {_m(floor_z_m)})"
 
     def door_near(self, point: NDArray[np.float64]) -> str | None:
         """The name of the door whose box comes within ``_DOOR_NEAR_M`` of the (3,) point
@@ -333,6 +333,11 @@ def _shortest_paths(graph: WalkGraph, sources: list[int]
 _NO_FLOOR = "no floor a person can walk on under it"
 
 
+def _m(z_m: float) -> str:
+    """A height as the reasons give it: "+2.85 m" (never "-0.00 m")."""
+    return f"{round(float(z_m), 2) + 0.0:+.2f} m"
+
+
 class _Why:
     """Why a station is not on the route, in a sentence naming what is missing (see the
     module docstring); a part of the graph is described once for all its stations."""
@@ -388,7 +393,7 @@ class _Why:
         part_xyz = graph.floor_xyz[part]
         area = len(part) * graph.grid_m ** 2
         low, high = float(part_xyz[:, 2].min()), float(part_xyz[:, 2].max())
-        span = (f"{low:+.2f} m" if high - low < 0.01 else f"{low:+.2f} to {high:+.2f} m")
+        span = _m(low) if high - low < 0.01 else f"{_m(low)[:-2]} to {_m(high)}"
         what = f"it stands in a part of the building cut off from the route ({area:.1f} m² " \
                f"of floor at {span})"
         if self.main < 0:
@@ -412,7 +417,7 @@ class _Why:
                 k = np.flatnonzero(level)[np.lexsort((b[level], a[level], gap[level]))[0]]
                 at = (graph.floor_xyz[a[k]] + graph.floor_xyz[b[k]]) / 2
                 door = self.places.door_near(at)
-                place = f"({at[0]:.2f}, {at[1]:.2f}) at {at[2]:+.2f} m"
+                place = f"({at[0]:.2f}, {at[1]:.2f}) at {_m(at[2])}"
                 if door is not None:
                     return (f"{what}: its way to the route's floor beside it, through door "
                             f"{door!r} at {place}, is blocked at {KNEE_HEIGHT_M:g} m above "
@@ -430,7 +435,7 @@ class _Why:
             return (f"{what}: it meets the route's floor at ({at[0]:.2f}, {at[1]:.2f}) "
                     f"with a step of {abs(float(rise[k])):.2f} m "
                     f"({'up' if rise[k] > 0 else 'down'} to "
-                    f"{float(graph.floor_xyz[b[k], 2]):+.2f} m), more than the {STEP_M:g} m "
+                    f"{_m(float(graph.floor_xyz[b[k], 2]))}), more than the {STEP_M:g} m "
                     "a person steps, and no stair or steps are modelled there")
         # the two parts never meet: name the storeys no stair joins
         route_z = graph.floor_xyz[self._main_nodes, 2]
@@ -438,7 +443,7 @@ class _Why:
         theirs = self.places.storey_at(low)
         ours = self.places.storey_at(float(nearest))
         if abs(float(nearest) - low) <= STEP_M:
-            return (f"{what}: the route's floor at the same height ({float(nearest):+.2f} m) "
+            return (f"{what}: the route's floor at the same height ({_m(float(nearest))}) "
                     "lies elsewhere and no floor, door or way around the outside leads "
                     "between them: a room without a door or opening in the model")
         return (f"{what}: no stair, ramp or steps join {theirs} to {ours}, the route's "

@@ -38,9 +38,23 @@ def buildings_dir(scenes_dir: Path) -> Path:
 @functools.cache
 def planned(path: Path, spec: PlanSpec = SPEC) -> dict[str, Any]:
     """plan.json of ``path`` planned with ``spec``, as the command line would write it
-    (once a session: several tests check the same plan)."""
+    (once a session: several tests check the same plan), and under the test's own key
+    ``legs_through_walls`` the route's legs through walls
+    (:func:`planner.truth.legs.legs_through_walls`, against the plan's scene; the doors are
+    an IFC model's own, or for a plain mesh the mask saved beside it as ``.doors.npy``:
+    the IFC's door faces, in the export's face order)."""
+    from planner.truth.legs import legs_in_plan, legs_through_walls
+    from planner.walkgraph import door_faces
+
     scene = read_scene(path, max_edge_m=spec.max_edge_m, split_faces="as_needed")
-    document: dict[str, Any] = plan_document(plan(scene, spec))
+    result = plan(scene, spec)
+    document: dict[str, Any] = plan_document(result)
+    scene = result.scene
+    mask = path.with_suffix(".doors.npy")
+    door = scene.of_file_faces(np.load(mask)) if mask.exists() else door_faces(scene)
+    document["legs_through_walls"] = [
+        leg.to_dict() for leg in legs_through_walls(scene, door,
+                                                    legs_in_plan(scene, document["route"]))]
     return document
 
 
@@ -256,25 +270,6 @@ CORPUS_IFC = ["buildings/Renga-House", "buildings/AC90R1-niedriha-V2-2x3",
               "buildings/AC90R1-Jasmin-Sun-105-2x3", "AC20-FZK-Haus"]
 
 
-def _legs_through_walls(ifc: Path, route: dict[str, Any],
-                        plain: Path | None = None) -> list[dict[str, Any]]:
-    """The route's legs through walls (:func:`planner.truth.legs.legs_through_walls`)
-    against the IFC model as IfcOpenShell reads it, or against its ``plain`` mesh with the
-    IFC's door faces as the door mask (the ground truth: the export keeps the face order)."""
-    from planner.truth.legs import legs_in_plan, legs_through_walls
-    from planner.walkgraph import door_faces
-    from tests.planner.ifc_models import read_ifc_once
-
-    reference = read_ifc_once(ifc)
-    door = door_faces(reference)
-    scene = reference
-    if plain is not None:
-        scene = read_scene(plain)
-        assert scene.n_faces == reference.n_faces and not scene.elements
-    return [leg.to_dict() for leg in legs_through_walls(scene, door,
-                                                        legs_in_plan(scene, route))]
-
-
 @pytest.mark.parametrize("name", CORPUS_IFC)
 def test_the_corpus_as_ifc_reaches_every_station_without_a_leg_through_a_wall(
         name: str, scenes_dir: Path) -> None:
@@ -283,7 +278,7 @@ def test_the_corpus_as_ifc_reaches_every_station_without_a_leg_through_a_wall(
         pytest.skip(f"{path} is not beside the checkout")
     document = planned(path)
     route = document["route"]
-    assert _legs_through_walls(path, route) == []
+    assert document["legs_through_walls"] == []
     # every IfcSpace accounted for, each without candidates with its reason
     model = ifcopenshell.open(str(path))
     rooms = document["candidates"]["rooms"]
@@ -302,23 +297,27 @@ def test_the_corpus_as_ifc_reaches_every_station_without_a_leg_through_a_wall(
 
 @pytest.fixture(scope="module")
 def niedriha_plain(scenes_dir: Path, tmp_path_factory: pytest.TempPathFactory
-                   ) -> tuple[Path, Path, dict[str, Any]]:
+                   ) -> dict[str, Any]:
     """The ArchiCAD house as a plain OBJ (no classes, no groups), planned once."""
+    from planner.walkgraph import door_faces
     from tests.planner.buildings import export_plain_mesh
     from tests.planner.ifc_models import read_ifc_once
 
     ifc = buildings_dir(scenes_dir) / "AC90R1-niedriha-V2-2x3.ifc"
+    reference = read_ifc_once(ifc)
     obj = export_plain_mesh(ifc, tmp_path_factory.mktemp("plain") / "niedriha.obj",
-                            read_ifc_once(ifc))
-    return ifc, obj, planned(obj)
+                            reference)
+    # the ground truth for the legs' check: the IFC's doors, in the export's face order
+    np.save(obj.with_suffix(".doors.npy"), reference.on_file_faces(door_faces(reference)))
+    return planned(obj)
 
 
 def test_the_archicad_house_as_a_plain_mesh_gets_its_storeys_not_its_landings(
-        niedriha_plain: tuple[Path, Path, dict[str, Any]]) -> None:
+        niedriha_plain: dict[str, Any]) -> None:
     """NiedriHa as a plain mesh: its three storeys with floor room (basement, ground,
     upper floor), the basement's half level and the stair's steps not called storeys,
     every station reached and no leg through a wall."""
-    ifc, obj, document = niedriha_plain
+    document = niedriha_plain
     levels = document["candidates"]["levels"]
     storeys = [lv for lv in levels if "excluded" not in lv]
     assert [lv["floor_z_m"] for lv in storeys] == [-2.85, 0.0, 2.85], levels
@@ -326,7 +325,7 @@ def test_the_archicad_house_as_a_plain_mesh_gets_its_storeys_not_its_landings(
         lv["name"] for lv in storeys}
     route = document["route"]
     assert route["unreachable"] == [], route["unreachable_reasons"]
-    assert _legs_through_walls(ifc, route, obj) == []
+    assert document["legs_through_walls"] == []
 
 
 def test_the_renga_house_as_a_plain_mesh_has_two_storeys_with_split_levels(

@@ -1,5 +1,6 @@
-"""Storeys of a plain mesh: stair landings and split levels are not storeys; and the
-independent check that no leg of a route goes through a wall can fail.
+"""Storeys of a plain mesh: stair landings and split levels are not storeys; the
+independent check that no leg of a route goes through a wall can fail; and an unreachable
+station says what is missing.
 
 Hand-made buildings of boxes (``tests/planner/survey_scenes.py``); each builds in well
 under a second.
@@ -14,8 +15,9 @@ from planner.candidates.grid import generate_grid, levels_line
 from planner.parameters import PlanSpec
 from planner.rays import make_ray_caster
 from planner.scene import Scene
+from planner.survey.route import Places, plan_route
 from planner.truth.legs import SWEEP_HEIGHTS_M, legs_through_walls
-from planner.walkgraph import KNEE_HEIGHT_M
+from planner.walkgraph import KNEE_HEIGHT_M, build_walk_graph
 from tests.planner.survey_scenes import Box, boxes_scene
 
 SPEC = PlanSpec(grid_spacing_m=0.5)
@@ -163,3 +165,75 @@ def test_a_leg_up_a_stair_is_swept_over_the_floor_it_climbs(
     blocked = legs_through_walls(scene, door, [climbing])
     assert len(blocked) == 1 and blocked[0].height_m == max(SWEEP_HEIGHTS_M)
     assert blocked[0].at_m[2] > 2.1
+
+
+# an unreachable station says what is missing ---------------------------------------------
+
+
+def _route(boxes: list[Box], stations: list[tuple[float, float, float]],
+           places: Places | None = None) -> tuple[tuple[int, ...], tuple[str, ...]]:
+    scene = _off_grid(boxes)
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    moved = np.asarray(stations) + np.array([0.13, 0.13, 0.0])
+    route = plan_route(build_walk_graph(scene, caster), caster, moved, None, places)
+    return route.unreachable, route.unreachable_reasons
+
+
+def _two_storeys(stair: bool) -> list[Box]:
+    """A 8 x 5 m house of two 3 m storeys; its upper slab open over [6, 8] x [0, 2]."""
+    boxes = _shell(8.0, 5.0, 6.0)
+    boxes += [((0.0, 0.0, -0.3), (8.0, 5.0, 0.0)), ((0.0, 0.0, 2.7), (6.0, 5.0, 3.0)),
+              ((6.0, 2.0, 2.7), (8.0, 5.0, 3.0))]
+    if stair:  # 15 steps of 0.2 m up along x under the opening
+        boxes += [((6.0 - 3.0 + 0.2 * i, 0.0, 0.0), (8.0, 1.0, 0.2 * (i + 1)))
+                  for i in range(15)]
+    return boxes
+
+
+def test_a_storey_no_stair_reaches_names_both_storeys() -> None:
+    places = Places(storeys=(("Ground", 0.0), ("Upper", 3.0)),
+                    station_rooms=("Hall", "Bedroom"))
+    unreachable, reasons = _route(_two_storeys(stair=False),
+                                  [(2.0, 2.5, 1.5), (2.0, 2.5, 4.5)], places)
+    assert unreachable == (2,)
+    assert reasons[0].startswith("in room 'Bedroom', storey 'Upper'"), reasons
+    assert "no stair, ramp or steps join storey 'Upper' (floor at +3.00 m) to storey " \
+        "'Ground' (floor at +0.00 m)" in reasons[0], reasons
+
+
+def test_a_room_behind_a_door_drawn_as_a_wall_says_so_and_names_the_door() -> None:
+    """Two rooms; the wall between them has a doorway closed by a leaf the walk does not
+    open (a door of a plain mesh that was not recognised)."""
+    boxes = _shell(8.0, 4.0, 2.6)
+    boxes += [((0.0, 0.0, -0.2), (8.0, 4.0, 0.0)),
+              ((3.9, 0.0, 0.0), (4.1, 1.5, 2.6)), ((3.9, 2.4, 0.0), (4.1, 4.0, 2.6)),
+              ((3.9, 1.5, 2.1), (4.1, 2.4, 2.6)), ((3.98, 1.5, 0.0), (4.02, 2.4, 2.1))]
+    stations = [(2.0, 2.0, 1.5), (6.0, 2.0, 1.5)]
+    unreachable, reasons = _route(boxes, stations)
+    assert unreachable == (2,) or unreachable == (1,)
+    assert "a wall stands between them" in reasons[0] and "no doorway" in reasons[0], reasons
+    door = Places(doors=(("Door 7 (IfcDoor)", (4.11, 1.63, 0.0), (4.15, 2.53, 2.1)),))
+    _, reasons = _route(boxes, stations, door)
+    assert "through door 'Door 7 (IfcDoor)'" in reasons[0], reasons
+
+
+def test_a_floor_a_step_too_high_above_the_rest_gives_the_step() -> None:
+    """A 6 x 4 m room whose east half is a 0.6 m podium with no step up to it."""
+    boxes = _shell(6.0, 4.0, 3.0)
+    boxes += [((0.0, 0.0, -0.2), (6.0, 4.0, 0.0)), ((3.0, 0.0, 0.0), (6.0, 4.0, 0.6))]
+    unreachable, reasons = _route(boxes, [(1.0, 2.0, 1.5), (1.5, 1.0, 1.5),
+                                          (5.0, 2.0, 2.1)])
+    assert unreachable == (3,)
+    assert "with a step of 0.60 m (down to +0.00 m)" in reasons[0], reasons
+    assert "no stair or steps are modelled there" in reasons[0]
+
+
+def test_a_station_under_a_low_ceiling_gives_the_head_room() -> None:
+    """A room whose west 2 m have a 1.4 m high ceiling (a duct box over the floor)."""
+    boxes = _shell(6.0, 4.0, 3.0)
+    boxes += [((0.0, 0.0, -0.2), (6.0, 4.0, 0.0)), ((0.0, 0.0, 1.4), (2.0, 4.0, 3.0))]
+    unreachable, reasons = _route(boxes, [(4.0, 2.0, 1.5), (5.0, 1.0, 1.5),
+                                          (1.0, 2.0, 1.2)])
+    assert unreachable == (3,)
+    assert reasons[0].startswith("no floor a person can walk on under it: only 1.40 m is "
+                                 "free over its floor"), reasons
