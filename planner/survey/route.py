@@ -21,11 +21,11 @@ model has them):
   to the station is blocked (it stands walled in); or a surface that is no floor (steeper
   than a walk, or a stair's stringer);
 - *its part of the building is cut off* (checked where the part and the route's part come
-  within two walk-grid cells of each other): at the same height, by a barrier at knee
-  height at a named place (the door there, when the model names one, that the model
-  closes; else a wall without a doorway or a door drawn as a wall); at another height, by
-  a step higher than ``STEP_M`` with no stair modelled (the drop measured); and where the
-  two parts never meet, the two storeys that no stair, ramp or steps join.
+  within ``_MEET_M`` of each other): at the same height, by a barrier at knee height at a
+  named place (the door there, when the model names one, that the model closes; else a
+  wall without a doorway or a door drawn as a wall); at another height, by a step higher
+  than ``STEP_M`` with no stair modelled (the drop measured); both where both are found;
+  and where the two parts never meet, the two storeys that no stair, ramp or steps join.
 """
 
 from __future__ import annotations
@@ -52,8 +52,8 @@ EXACT_MAX_POINTS = 11
 
 
 # a part of the walk graph meets the route's part where their floor samples lie within
-# this many walk-grid cells of each other (horizontally): a wall's thickness and a little
-_MEET_CELLS = 2.5
+# this distance of each other (horizontally): a thick wall (0.5 m) and a grid cell each side
+_MEET_M = 1.0
 # at most this many samples of a part are compared with the route's (a stride over them)
 _MAX_PART_SAMPLES = 20_000
 _DOOR_NEAR_M = 0.6  # a door this close (horizontally) to a barrier is the one named
@@ -404,7 +404,7 @@ class _Why:
         stride = max(1, len(part) // _MAX_PART_SAMPLES)
         sample = part[::stride]
         near = self._main_tree.query_ball_point(graph.floor_xyz[sample, :2],
-                                                _MEET_CELLS * graph.grid_m)
+                                                max(_MEET_M, 2.5 * graph.grid_m))
         counts = np.array([len(x) for x in near])
         if counts.sum():
             a = np.repeat(sample, counts)  # (P,) the part's node of each pair
@@ -413,30 +413,36 @@ class _Why:
             rise = graph.floor_xyz[b, 2] - graph.floor_xyz[a, 2]
             gap = np.linalg.norm(graph.floor_xyz[b, :2] - graph.floor_xyz[a, :2], axis=1)
             level = np.abs(rise) <= STEP_M
+            step = ~level & (np.abs(rise) < HEADROOM_M)  # over or under: a storey, no step
+            clauses: list[str] = []
             if level.any():
                 k = np.flatnonzero(level)[np.lexsort((b[level], a[level], gap[level]))[0]]
                 at = (graph.floor_xyz[a[k]] + graph.floor_xyz[b[k]]) / 2
                 door = self.places.door_near(at)
                 place = f"({at[0]:.2f}, {at[1]:.2f}) at {_m(at[2])}"
                 if door is not None:
-                    return (f"{what}: its way to the route's floor beside it, through door "
-                            f"{door!r} at {place}, is blocked at {KNEE_HEIGHT_M:g} m above "
-                            "the floor: the model closes that door's opening (a wall drawn "
-                            "through it, a leaf outside the door, a sill higher than a step)")
-                return (f"{what}: the route's floor lies beside it at the same height, but "
-                        f"at {place} and all along it a wall stands between them at "
+                    clauses.append(
+                        f"its way to the route's floor beside it, through door {door!r} at "
+                        f"{place}, is blocked at {KNEE_HEIGHT_M:g} m above the floor: the "
+                        "model closes that door's opening (a wall drawn through it, a leaf "
+                        "outside the door, a sill higher than a step)")
+                else:
+                    clauses.append(
+                        f"the route's floor lies beside it at the same height, but at {place} "
+                        "and all along it a wall stands between them at "
                         f"{KNEE_HEIGHT_M:g} m above the floor, with no doorway: a door the "
                         "model closes or draws as a wall, or an opening it lacks")
-        step = np.abs(rise) < HEADROOM_M if counts.sum() else np.zeros(0, bool)
-        if step.any():  # a floor over or under another is a storey, not a step
-            k = np.flatnonzero(step)[np.lexsort((b[step], a[step], gap[step],
-                                                 np.abs(rise[step])))[0]]
-            at = graph.floor_xyz[a[k]]
-            return (f"{what}: it meets the route's floor at ({at[0]:.2f}, {at[1]:.2f}) "
-                    f"with a step of {abs(float(rise[k])):.2f} m "
-                    f"({'up' if rise[k] > 0 else 'down'} to "
-                    f"{_m(float(graph.floor_xyz[b[k], 2]))}), more than the {STEP_M:g} m "
-                    "a person steps, and no stair or steps are modelled there")
+            if step.any():
+                k = np.flatnonzero(step)[np.lexsort((b[step], a[step], gap[step],
+                                                     np.abs(rise[step])))[0]]
+                at = graph.floor_xyz[a[k]]
+                clauses.append(
+                    f"it meets the route's floor at ({at[0]:.2f}, {at[1]:.2f}) with a step "
+                    f"of {abs(float(rise[k])):.2f} m ({'up' if rise[k] > 0 else 'down'} to "
+                    f"{_m(float(graph.floor_xyz[b[k], 2]))}), more than the {STEP_M:g} m a "
+                    "person steps, and no stair or steps are modelled there")
+            if clauses:
+                return f"{what}: " + "; and ".join(clauses)
         # the two parts never meet: name the storeys no stair joins
         route_z = graph.floor_xyz[self._main_nodes, 2]
         nearest = route_z[np.argmin(np.abs(route_z - low))]
