@@ -145,8 +145,14 @@ def places_of(scene: Scene, candidates: CandidateSet | None, stations: list[int]
     rooms: tuple[str, ...] = ()
     if candidates is not None:
         if not storeys:
-            storeys = tuple((str(level["name"]), float(str(level["floor_z_m"])))
-                            for level in candidates.levels or [] if "excluded" not in level)
+            levels = candidates.levels or []
+            named = {float(str(level["floor_z_m"])): str(level["name"])
+                     for level in levels if "excluded" not in level}
+            # a storey's floor, and each split level or landing under its storey's name
+            storeys = tuple((name, z) for z, name in named.items()) + tuple(
+                (named[float(str(level["storey_floor_z_m"]))], float(str(level["floor_z_m"])))
+                for level in levels
+                if float(str(level.get("storey_floor_z_m", "nan"))) in named)
         if candidates.labels:
             rooms = tuple(candidates.labels[i].get("room", "") for i in stations)
     doors: list[tuple[str, tuple[float, float, float], tuple[float, float, float]]] = []
