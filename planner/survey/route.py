@@ -24,7 +24,9 @@ model has them):
   within ``_MEET_M`` of each other): at the same height, by a barrier at knee height at a
   named place (the door there, when the model names one, that the model closes; else a
   wall without a doorway or a door drawn as a wall); at another height, by a step higher
-  than ``STEP_M`` with no stair modelled (the drop measured); both where both are found;
+  than ``STEP_M`` with no stair modelled (the drop measured, where the higher floor's
+  knee-high line over to the lower is free: the drop alone parts them); both where both
+  are found;
   and where the two parts never meet, the two storeys that no stair, ramp or steps join.
 """
 
@@ -41,7 +43,14 @@ from scipy.spatial import cKDTree
 
 from planner.errors import ParameterError
 from planner.rays import RayCaster
-from planner.walkgraph import HEADROOM_M, KNEE_HEIGHT_M, STEP_M, WalkGraph, upright_free
+from planner.walkgraph import (
+    HEADROOM_M,
+    KNEE_HEIGHT_M,
+    STEP_M,
+    WalkGraph,
+    segment_free,
+    upright_free,
+)
 
 # a station attaches to a floor sample at most this far away horizontally (grid units)
 _ATTACH_CELLS = 2.0
@@ -57,6 +66,7 @@ _MEET_M = 1.0
 # at most this many samples of a part are compared with the route's (a stride over them)
 _MAX_PART_SAMPLES = 20_000
 _DOOR_NEAR_M = 0.6  # a door this close (horizontally) to a barrier is the one named
+_MAX_STEPS_TRIED = 256  # pairs across a height difference tried for an open step, lowest first
 
 
 @dataclass(frozen=True)
@@ -432,9 +442,17 @@ class _Why:
                         "and all along it a wall stands between them at "
                         f"{KNEE_HEIGHT_M:g} m above the floor, with no doorway: a door the "
                         "model closes or draws as a wall, or an opening it lacks")
-            if step.any():
-                k = np.flatnonzero(step)[np.lexsort((b[step], a[step], gap[step],
-                                                     np.abs(rise[step])))[0]]
+            # a step is where the higher floor's knee-high segment over to the lower one
+            # is free: the drop itself is all that stands between them (not a wall)
+            ranked = np.flatnonzero(step)[np.lexsort((b[step], a[step], gap[step],
+                                                      np.abs(rise[step])))][:_MAX_STEPS_TRIED]
+            top = np.maximum(graph.floor_xyz[a[ranked], 2], graph.floor_xyz[b[ranked], 2])
+            over_a = np.column_stack([graph.floor_xyz[a[ranked], :2], top + KNEE_HEIGHT_M])
+            over_b = np.column_stack([graph.floor_xyz[b[ranked], :2], top + KNEE_HEIGHT_M])
+            open_step = ranked[segment_free(self.caster, over_a, over_b)
+                               & segment_free(self.caster, over_b, over_a)]
+            if len(open_step):
+                k = int(open_step[0])
                 at = graph.floor_xyz[a[k]]
                 clauses.append(
                     f"it meets the route's floor at ({at[0]:.2f}, {at[1]:.2f}) with a step "
