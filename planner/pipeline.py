@@ -31,7 +31,7 @@ from planner.scene import Scene, remesh
 from planner.selection.choose import choose
 from planner.selection.greedy import Selection, coverage_state
 from planner.selection.optimal import OptimalResult
-from planner.survey.fieldwork import Survey, survey
+from planner.survey.fieldwork import Survey, places_of, survey
 from planner.survey.tolerance import Tolerance, plan_tolerance
 from planner.visibility.bundles import forget_bundles
 from planner.visibility.coverage import CoverageTable
@@ -138,7 +138,8 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
     plan_survey = survey(sight.scene, spec, stations_xyz, sight.limits, sight.occlusion,
                          sight.caster, stats.seconds, station_overlap=station_overlap,
                          threads=threads, fanout=fanout,
-                         density_margins=None if margins is None else margins.tolist())
+                         density_margins=None if margins is None else margins.tolist(),
+                         places=places_of(sight.scene, candidates, list(chosen.stations)))
     forget_bundles(sight.scene)
     new_stage(progress, "report")
     stats.cpu_seconds["plan"] = time.process_time() - cpu0

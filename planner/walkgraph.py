@@ -4,8 +4,10 @@ Floor samples: a grid of vertical rays (``WALK_GRID_M`` apart) is cast down thro
 whole model, level after level; a hit on a face flatter than ``MAX_WALK_SLOPE_DEG`` with
 ``HEADROOM_M`` free above it is a node. Two nodes in neighbouring grid columns (8
 neighbours) are linked when their floor heights differ by at most ``STEP_M`` and the
-straight segment between them at ``KNEE_HEIGHT_M`` above the floor hits nothing. The link
-costs its 3D length. So, without any IFC semantics:
+straight segment between them hits nothing at ``KNEE_HEIGHT_M`` above the floor nor at any
+of ``UPRIGHT_HEIGHTS_M`` up to head height (:func:`upright_free`: a person walks it
+upright, not under a stair's flight or a beam lower than head room). The link costs its
+3D length. So, without any IFC semantics:
 
 - stairs join storeys whether modelled as steps (a riser is at most ``STEP_M`` between
   samples), as a sloped solid or as a ramp (up to ``MAX_WALK_SLOPE_DEG``, steeper than any
@@ -45,6 +47,9 @@ KNEE_HEIGHT_M = 0.5  # the link must be free at this height above the floor
 # most building codes; two risers can fall between samples 0.25 m apart on steep stairs
 STEP_M = 0.4
 HEADROOM_M = 1.8  # free height a person needs above a floor sample
+# a link is walked upright: free from the knee to the head, at these heights above the floor
+# (the top 5 cm under HEADROOM_M: a ceiling exactly at head room over a sample is allowed)
+UPRIGHT_HEIGHTS_M = (KNEE_HEIGHT_M, 0.8, 1.1, 1.4, HEADROOM_M - 0.05)
 # steepest walked surface: a stair modelled as a sloped solid has the stair's pitch, at most
 # 42 deg for a private stair (Building Regulations 2010, Approved Document K, 2013 edition,
 # Table 1.1 note 1; https://stairplan.com/stair-plan-catalogues/BUILDING-REGULATIONS-
@@ -546,6 +551,23 @@ def segment_free(caster: RayCaster, a: NDArray[np.float64], b: NDArray[np.float6
 
 
 
+def upright_free(caster: RayCaster, a: NDArray[np.float64], b: NDArray[np.float64]
+                 ) -> NDArray[np.bool_]:
+    """(K,) bool: a person walks upright from (K, 3) a to (K, 3) b, points at knee height:
+    the segments at every ``UPRIGHT_HEIGHTS_M`` above the floor (a and b less the knee
+    height) hit no face, cast both ways. The higher heights are cast only for the
+    segments free at the knee."""
+    free = segment_free(caster, a, b) & segment_free(caster, b, a)
+    for height in UPRIGHT_HEIGHTS_M:
+        if height == KNEE_HEIGHT_M or not free.any():
+            continue
+        lift = np.array([0.0, 0.0, height - KNEE_HEIGHT_M])
+        index = np.flatnonzero(free)
+        up_a, up_b = a[index] + lift, b[index] + lift
+        free[index] = segment_free(caster, up_a, up_b) & segment_free(caster, up_b, up_a)
+    return free
+
+
 def cell_pairs(sorted_key: NDArray[np.int64], order: NDArray[np.int64],
                target: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Every (i, j) with point j in the cell ``target[i]``: (P,) i and (P,) j, for N points
@@ -616,7 +638,7 @@ def build_walk_graph(scene: Scene, caster: RayCaster, *, ground: bool = True) ->
     for first in range(0, len(a), _LINKS_PER_BLOCK):
         block = slice(first, first + _LINKS_PER_BLOCK)
         from_a, from_b = floor_xyz[a[block]] + knee, floor_xyz[b[block]] + knee
-        free[block] = segment_free(caster, from_a, from_b) & segment_free(caster, from_b, from_a)
+        free[block] = upright_free(caster, from_a, from_b)
     a, b = a[free], b[free]
     length = np.linalg.norm(floor_xyz[a] - floor_xyz[b], axis=1)
     links = sp.coo_matrix((np.concatenate([length, length]),

@@ -75,6 +75,21 @@ _MIN_LEVEL_AREA_M2 = 4.0
 # floor_levels "storeys": a patch with a lower floor beside it along more than this share of
 # its edge is raised (furniture), not a storey
 _RAISED_EDGE_SHARE = 0.5
+# a level with less than this share of the building's footprint (the grid cells with a floor
+# on some level) is small: between two storeys it is a landing, not a storey. A stair's
+# landing is a few m² (a 1.2 m wide stair's half landing: 3 to 6 m²), 1-3 % of an office's
+# footprint and under 10 % of a house's; a storey, even an attic or a gallery, holds more
+_MIN_STOREY_SHARE = 0.1
+# two floors closer in height than a person's head room (HEADROOM_M) are not one over the
+# other: the smaller is a split level of the larger's storey (a house's rooms a few steps
+# up or down, a stair landing a metre under the next storey)
+_NOT_A_STOREY = {
+    "split": "split level: within " + f"{HEADROOM_M:g}" + " m of the floor of the larger "
+             "storey at {storey}, so not a storey of its own; its candidates count with it",
+    "landing": "landing: a small floor between two storeys (less than "
+               + f"{_MIN_STOREY_SHARE:.0%}" + " of the building's footprint); its "
+               "candidates count with the storey at {storey}, below it",
+}
 
 
 # the building, not the site (on_the_building): upright surfaces are sampled this far apart
@@ -239,8 +254,10 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
                 storey_dropped["outside_area_of_interest"] += outside_polygon
                 positions, dropped = placed, storey_dropped
                 considered = len(positions) + sum(dropped.values())
+                storey_z = [float(str(entry["floor_z_m"])) for entry in report
+                            if "excluded" not in entry and int(str(entry["candidates"]))]
                 named, labels = _level_labels(positions[:, 2] - spec.scanner_height_m,
-                                              placed_level)
+                                              placed_level, storey_z)
                 names = [str(entry["name"]) for entry in named]
             levels = _storey_report(report, len(positions) if placed is None else None, names)
         if spec.floor_levels == "walkable":
@@ -333,7 +350,19 @@ def storey_levels(
        storey's edge meets walls, facades and stairwells, a mezzanine's the hall floor
        more than 1.8 m below, so people fit under it.
     4. *Area*: the patches that are not raised are grouped by height into levels; a level
-       of less than ``_MIN_LEVEL_AREA_M2`` is stair treads or a landing.
+       of less than ``_MIN_LEVEL_AREA_M2`` is stair treads or a small landing, no floor.
+    5. *Split levels*: two floor levels closer in height than ``HEADROOM_M`` are not one
+       over the other (nobody stands under a floor 1.8 m above his own), so they are one
+       storey: the larger level is the storey, the smaller a split level of it (a
+       house's rooms a few steps up, a landing a metre under the next storey).
+    6. *Landings*: a level of less than ``_MIN_STOREY_SHARE`` of the building's footprint
+       (the grid cells with a floor on any level) with a storey below it and one above is
+       a stair's landing, part of the storey below (from which its stair leads up).
+
+    Split levels and landings keep their candidates, labelled with their storey, and are
+    listed in the report as not storeys, with the reason and the storey's height
+    (:func:`_storeys_of_levels`). The rule is the geometry's alone: heights, areas and the
+    footprint, no class or name of the model.
 
     A storey gets candidates whether or not a person can walk to it (the route reports a
     station nobody reaches, with the reason).
@@ -398,31 +427,58 @@ def storey_levels(
     level = _height_levels(floor_z)
     n_levels = int(level.max()) + 1
     area = np.bincount(level, ~raised, n_levels) * cell ** 2
-    storey_level = area >= _MIN_LEVEL_AREA_M2
-    storey = storey_level[level] & ~raised
-    dropped["no_floor"] += int((~storey).sum())  # listed under the levels, with the reason
-    positions = np.column_stack([xy[point[storey]], floor_z[storey] + spec.scanner_height_m])
-    level_of = level[storey]
+    floor_level = area >= _MIN_LEVEL_AREA_M2
+    eligible = floor_level[level] & ~raised
+    dropped["no_floor"] += int((~eligible).sum())  # listed under the levels, with the reason
+    positions = np.column_stack([xy[point[eligible]],
+                                 floor_z[eligible] + spec.scanner_height_m])
+    level_of = level[eligible]
     near = closer_than(scene, positions, spec.clearance_m,
                        positions[:, 2] - spec.scanner_height_m)
     dropped["too_close"] += int(near.sum())
     keep = ~near
     positions, level_of = positions[keep], level_of[keep]
-    order = np.lexsort((point[storey][keep], level_of))  # level by level, grid rows within
-    positions, level_of = positions[order], level_of[order]
-    lowest_only = len(level_of) == 0 or (level_of == level_of.min()).all()
+    grid_row = point[eligible][keep]
+    counts = np.bincount(level_of, minlength=n_levels)
+    heights = np.array([float(np.median(floor_z[level == k])) for k in range(n_levels)])
+    # the building's footprint: every grid cell with a floor on some level
+    footprint_m2 = len(np.unique(key[~raised])) * cell ** 2
+    storey_of, kind = _storeys_of_levels(heights, np.asarray(area, np.float64), counts,
+                                         floor_level, footprint_m2)
+    storey_ids = np.flatnonzero(storey_of == np.arange(n_levels))  # the anchors, by height
+    rank = np.full(n_levels, -1, np.int64)
+    rank[storey_ids] = np.arange(len(storey_ids))
+    storey_of_candidate = rank[storey_of[level_of]]
+    # storey by storey, grid rows within, lower floors first on a grid row
+    order = np.lexsort((positions[:, 2], grid_row, storey_of_candidate))
+    positions, storey_of_candidate = positions[order], storey_of_candidate[order]
+    lowest_only = len(storey_of_candidate) == 0 or (storey_of_candidate
+                                                     == storey_of_candidate.min()).all()
     if ground_found and lowest_only:
         positions_out, level_out = None, None
     else:
-        positions_out, level_out = positions, level_of
+        positions_out, level_out = positions, storey_of_candidate
     report: list[dict[str, object]] = []
-    counts = np.bincount(level_of, minlength=n_levels)
+    storey_counts = np.bincount(storey_of[level_of], minlength=n_levels)
+    storey_area = np.bincount(storey_of[floor_level], area[floor_level], n_levels)
     for k in range(n_levels):
         members = level == k
-        height = round(float(np.median(floor_z[members])), 3) + 0.0  # no -0.0
-        if storey_level[k]:
+        height = round(float(heights[k]), 3) + 0.0  # no -0.0
+        if floor_level[k] and storey_of[k] == k:
+            entry: dict[str, object] = {"floor_z_m": height,
+                                        "area_m2": round(float(storey_area[k]), 2),
+                                        "candidates": int(storey_counts[k])}
+            parts = [round(float(heights[j]), 3) + 0.0 for j in range(n_levels)
+                     if floor_level[j] and storey_of[j] == k and j != k]
+            if parts:
+                entry["with_levels_m"] = parts
+            report.append(entry)
+        elif floor_level[k]:
+            owner = f"{round(float(heights[storey_of[k]]), 2) + 0.0:+.2f} m"  # no -0.00
             report.append({"floor_z_m": height, "area_m2": round(float(area[k]), 2),
-                           "candidates": int(counts[k])})
+                           "candidates": int(counts[k]), "storey_floor_z_m":
+                           round(float(heights[storey_of[k]]), 3) + 0.0,
+                           "excluded": _NOT_A_STOREY[kind[k]].format(storey=owner)})
         elif area[k] > 0:
             report.append({"floor_z_m": height, "area_m2": round(float(area[k]), 2),
                            "candidates": 0,
@@ -436,6 +492,50 @@ def storey_levels(
                                        "beside it along most of its edge (furniture, a "
                                        "machine top, a platform, a stair tread)"})
     return positions_out, level_out, report, dropped
+
+
+def _storeys_of_levels(heights_m: NDArray[np.float64], area_m2: NDArray[np.float64],
+                       candidates: NDArray[np.int64], floor_level: NDArray[np.bool_],
+                       footprint_m2: float) -> tuple[NDArray[np.int64], list[str]]:
+    """Which of L levels are storeys, and the storey each other floor level belongs to.
+
+    ``heights_m``, ``area_m2`` (not raised), ``candidates``: (L,) per level, lowest first;
+    ``floor_level``: (L,) bool, the levels of at least ``_MIN_LEVEL_AREA_M2``. Gives the
+    (L,) storey of each level (its own index for a storey, -1 for a level that is no
+    floor) and per level its kind: "storey", "split", "landing" or "" (no floor).
+
+    The rule (``storey_levels``, steps 5 and 6): the floor levels are taken largest first
+    (those with candidates before those without: a level with no room for a tripod does
+    not anchor a storey; ties: the lower). The *large* ones (at least ``_MIN_STOREY_SHARE``
+    of ``footprint_m2``) first, then the small ones. A level within ``HEADROOM_M`` of a
+    storey's floor is a split level of the nearest such storey (ties: the lower); else a
+    small level with a storey below and one above it is a landing of the storey below
+    (whose stair leads up to it); else it is a storey.
+    """
+    n = len(heights_m)
+    storey_of = np.full(n, -1, np.int64)
+    kind = [""] * n
+    large = area_m2 >= _MIN_STOREY_SHARE * footprint_m2
+    order = sorted(np.flatnonzero(floor_level).tolist(),
+                   key=lambda k: (not large[k], candidates[k] == 0, -area_m2[k], k))
+    storeys: list[int] = []
+    for k in order:
+        gap = [abs(float(heights_m[k] - heights_m[s])) for s in storeys]
+        near = [s for s, g in zip(storeys, gap, strict=True) if g < HEADROOM_M]
+        below = [s for s in storeys if heights_m[s] < heights_m[k]]
+        above = [s for s in storeys if heights_m[s] > heights_m[k]]
+        if near:
+            storey_of[k] = min(near, key=lambda s: (abs(float(heights_m[k] - heights_m[s])),
+                                                    heights_m[s]))
+            kind[k] = "split"
+        elif not large[k] and below and above:
+            storey_of[k] = max(below, key=lambda s: float(heights_m[s]))
+            kind[k] = "landing"
+        else:
+            storey_of[k] = k
+            kind[k] = "storey"
+            storeys.append(k)
+    return storey_of, kind
 
 
 def walkable_surfaces(
@@ -576,15 +676,20 @@ def levels_line(levels: list[dict[str, object]] | None) -> str | None:
     return line
 
 
-def _level_labels(floor_z: NDArray[np.float64], level: NDArray[np.int64]
+def _level_labels(floor_z: NDArray[np.float64], level: NDArray[np.int64],
+                  heights_m: list[float] | None = None
                   ) -> tuple[list[dict[str, object]], tuple[dict[str, str], ...]]:
-    """The levels' summary for plan.json and a ``storey`` label per candidate (drawing)."""
+    """The levels' summary for plan.json and a ``storey`` label per candidate (drawing).
+
+    ``heights_m``: the floor height of each level that has candidates, in order (a storey
+    with split levels or landings is named after its own floor); by default the median of
+    its candidates' (C,) ``floor_z``."""
     summary: list[dict[str, object]] = []
     names: list[str] = []
     _, level = np.unique(level, return_inverse=True)  # only levels that kept candidates
     for k in range(int(level.max()) + 1 if len(level) else 0):
         members = level == k
-        height = float(np.median(floor_z[members]))
+        height = float(np.median(floor_z[members])) if heights_m is None else heights_m[k]
         names.append(f"level {k + 1} ({round(height, 2) + 0.0:+.2f} m)")  # no "-0.00"
         summary.append({"name": names[-1], "floor_z_m": round(height, 3),
                         "candidates": int(members.sum())})

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from planner.candidates.grid import CandidateSet
 from planner.io.orientation import scene_rotation, to_plan
 from planner.limits import FaceLimits
 from planner.memory import release_freed_memory
@@ -22,7 +23,7 @@ from planner.rays import Occlusion, RayCaster, make_ray_caster
 from planner.scanners import StationScan, missing_duration_reason, station_scans, step_note
 from planner.scene import Scene
 from planner.survey.registration import Registration, station_registration
-from planner.survey.route import Route, plan_route
+from planner.survey.route import Places, Route, plan_route
 from planner.visibility.overlap import OverlapRows, RowsFanout, shared_faces_only
 from planner.walkgraph import build_walk_graph, door_faces
 
@@ -133,16 +134,54 @@ def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces
     return make_ray_caster(scene, blocks, file_faces=file_faces)
 
 
+def places_of(scene: Scene, candidates: CandidateSet | None, stations: list[int]
+              ) -> Places:
+    """What the route's reasons name (:class:`planner.survey.route.Places`): the storeys
+    (an IFC model's, else the storeys of the ``candidates``), the room of each station
+    (``stations``: candidate indices, in station order) and the IFC doors' boxes."""
+    storeys = tuple((str(s["name"]), float(s["elevation_m"]))
+                    for s in scene.metadata.get("storeys") or []
+                    if s.get("elevation_m") is not None)
+    rooms: tuple[str, ...] = ()
+    if candidates is not None:
+        if not storeys:
+            levels = candidates.levels or []
+            named = {float(str(level["floor_z_m"])): str(level["name"])
+                     for level in levels if "excluded" not in level}
+            # a storey's floor, and each split level or landing under its storey's name
+            storeys = tuple((name, z) for z, name in named.items()) + tuple(
+                (named[float(str(level["storey_floor_z_m"]))], float(str(level["floor_z_m"])))
+                for level in levels
+                if float(str(level.get("storey_floor_z_m", "nan"))) in named)
+        if candidates.labels:
+            rooms = tuple(candidates.labels[i].get("room", "") for i in stations)
+    doors: list[tuple[str, tuple[float, float, float], tuple[float, float, float]]] = []
+    if scene.elements:
+        door = door_faces(scene)
+        element = scene.face_element[door]
+        corners = scene.triangles[door]  # (D, 3, 3)
+        for e in np.unique(element[element >= 0]).tolist():
+            points = corners[element == e].reshape(-1, 3)
+            lo, hi = points.min(axis=0), points.max(axis=0)
+            item = scene.elements[e]
+            name = item.name or item.global_id
+            doors.append((f"{name} ({item.ifc_class})", (float(lo[0]), float(lo[1]),
+                                                         float(lo[2])),
+                          (float(hi[0]), float(hi[1]), float(hi[2]))))
+    return Places(tuple(sorted(storeys, key=lambda s: s[1])), rooms, tuple(doors))
+
+
 def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceLimits,
            occlusion: Occlusion, caster: RayCaster, seconds: dict[str, float],
            station_overlap: sp.csr_matrix | None = None,
            threads: int | None = None, density_margins: list[float] | None = None,
-           fanout: RowsFanout | None = None) -> Survey:
+           fanout: RowsFanout | None = None, places: Places | None = None) -> Survey:
     """Registration, route and field time of the (S, 3) stations, in selection order.
 
     ``station_overlap``: the stations' (S, F) overlap rows when the selection already made
     them (else made here, by ``fanout`` when given); ``density_margins``: see
-    :func:`scans_of`; ``seconds`` gains the stages "overlap" and "walk graph".
+    :func:`scans_of`; ``seconds`` gains the stages "overlap" and "walk graph";
+    ``places``: what the reasons of unreachable stations name (:func:`places_of`).
     """
     t0 = time.perf_counter()
     # only what two stations share counts: the rows are cut to it before the registration's
@@ -172,7 +211,7 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     if start is not None:  # given in model coordinates, like every position (up_axis)
         x, y, z = to_plan(scene_rotation(scene.metadata), np.asarray([start], np.float64))[0]
         start = (float(x), float(y), float(z))
-    route = plan_route(graph, walk_caster, stations_xyz, start)
+    route = plan_route(graph, walk_caster, stations_xyz, start, places)
     seconds["walk graph"] = time.perf_counter() - t1
     scans = scans_of(spec, density_margins, len(stations_xyz))
     return Survey(registration, route, field_time(spec, len(stations_xyz), route, scans), scans)

@@ -12,9 +12,22 @@ step has a time limit, so the same input gives the same route.
 
 Stations not attached to the graph, or in another part of it than the start (or, with no
 start, than the most stations), are *unreachable*: they are reported by id, each with the
-reason (no floor under it a person reaches; or its floor is not joined to the route's part
-of the building by steps, stairs, ramps, doors or the outside: a ladder, a hatch, a door
-the model draws as a wall), and never joined by a straight line.
+reason, and never joined by a straight line. The reason names what is missing, found from
+the graph and the model (with the storeys, rooms and doors of :class:`Places` where the
+model has them):
+
+- *not on a floor*: nothing under it; a floor with less than ``HEADROOM_M`` over it (under
+  a stair, a low roof: the head room measured); a floor within reach whose knee-high way
+  to the station is blocked (it stands walled in); or a surface that is no floor (steeper
+  than a walk, or a stair's stringer);
+- *its part of the building is cut off* (checked where the part and the route's part come
+  within ``_MEET_M`` of each other): at the same height, by a barrier at knee height at a
+  named place (the door there, when the model names one, that the model closes; else a
+  wall without a doorway or a door drawn as a wall); at another height, by a step higher
+  than ``STEP_M`` with no stair modelled (the drop measured, where the higher floor's
+  knee-high line over to the lower is free: the drop alone parts them); both where both
+  are found;
+  and where the two parts never meet, the two storeys that no stair, ramp or steps join.
 """
 
 from __future__ import annotations
@@ -26,10 +39,18 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
 
 from planner.errors import ParameterError
 from planner.rays import RayCaster
-from planner.walkgraph import KNEE_HEIGHT_M, STEP_M, WalkGraph, segment_free
+from planner.walkgraph import (
+    HEADROOM_M,
+    KNEE_HEIGHT_M,
+    STEP_M,
+    WalkGraph,
+    segment_free,
+    upright_free,
+)
 
 # a station attaches to a floor sample at most this far away horizontally (grid units)
 _ATTACH_CELLS = 2.0
@@ -37,6 +58,51 @@ _ATTACH_CELLS = 2.0
 _COST_SCALE = 1000.0
 # up to this many points (stations + start) the tour is the exact optimum
 EXACT_MAX_POINTS = 11
+
+
+# a part of the walk graph meets the route's part where their floor samples lie within
+# this distance of each other (horizontally): a thick wall (0.5 m) and a grid cell each side
+_MEET_M = 1.0
+# at most this many samples of a part are compared with the route's (a stride over them)
+_MAX_PART_SAMPLES = 20_000
+_DOOR_NEAR_M = 0.6  # a door this close (horizontally) to a barrier is the one named
+_MAX_STEPS_TRIED = 256  # pairs across a height difference tried for an open step, lowest first
+
+
+@dataclass(frozen=True)
+class Places:
+    """What an unreachable station's reason names, where the model has it (all optional).
+
+    ``storeys``: (name, floor height in metres), lowest first (IFC storeys, or a plain
+    mesh's storeys from its candidates); ``station_rooms``: per station (ids 1..S in
+    order) the room it stands in, "" where unknown; ``doors``: per door its name and
+    bounding box (lowest and highest corner, metres, plan frame).
+    """
+
+    storeys: tuple[tuple[str, float], ...] = ()
+    station_rooms: tuple[str, ...] = ()
+    doors: tuple[tuple[str, tuple[float, float, float], tuple[float, float, float]], ...] = ()
+
+    def storey_at(self, floor_z_m: float) -> str:
+        """The storey a floor at ``floor_z_m`` belongs to, named with its height."""
+        below = [(name, z) for name, z in self.storeys if z <= floor_z_m + STEP_M]
+        if not below:
+            return f"the floor at {_m(floor_z_m)}"
+        name, _ = below[-1]
+        return f"storey {name!r} (floor at {_m(floor_z_m)})"
+
+    def door_near(self, point: NDArray[np.float64]) -> str | None:
+        """The name of the door whose box comes within ``_DOOR_NEAR_M`` of the (3,) point
+        horizontally and spans its height, the nearest; None when none does."""
+        best: tuple[float, str] | None = None
+        for name, lo, hi in self.doors:
+            gap = np.maximum(np.maximum(np.asarray(lo[:2]) - point[:2],
+                                        point[:2] - np.asarray(hi[:2])), 0.0)
+            distance = float(np.hypot(*gap))
+            if distance <= _DOOR_NEAR_M and lo[2] - STEP_M <= point[2] <= hi[2] and (
+                    best is None or distance < best[0]):
+                best = (distance, name)
+        return None if best is None else best[1]
 
 
 @dataclass(frozen=True)
@@ -77,7 +143,8 @@ def attach(graph: WalkGraph, caster: RayCaster, points: NDArray[np.float64]
     """Node of every (K, 3) point (a station or the start) and its foot at knee height.
 
     The foot is where a ray straight down from the point meets the model; -1 when no
-    floor sample is near enough or the way to it is blocked.
+    floor sample is near enough or the way to it is blocked (from knee to head height,
+    :func:`planner.walkgraph.upright_free`).
     """
     k = len(points)
     down = np.tile([0.0, 0.0, -1.0], (k, 1))
@@ -99,7 +166,7 @@ def attach(graph: WalkGraph, caster: RayCaster, points: NDArray[np.float64]
             continue
         distance = np.linalg.norm(graph.floor_xyz[near] - foot[i], axis=1)
         near = near[np.lexsort((near, distance))]  # nearest first, ties by index
-        free = segment_free(caster, np.repeat(foot[i:i + 1] + knee, len(near), axis=0),
+        free = upright_free(caster, np.repeat(foot[i:i + 1] + knee, len(near), axis=0),
                             graph.floor_xyz[near] + knee)
         if free.any():
             nodes[i] = near[int(np.argmax(free))]
@@ -187,8 +254,10 @@ def open_tour(cost_m: NDArray[np.float64], start: int | None) -> list[int]:
 
 
 def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.float64],
-               route_start: tuple[float, float, float] | None) -> Route:
-    """The route over the (S, 3) stations (ids 1..S in this order)."""
+               route_start: tuple[float, float, float] | None,
+               places: Places | None = None) -> Route:
+    """The route over the (S, 3) stations (ids 1..S in this order); ``places``: what the
+    reasons of unreachable stations name (storeys, rooms, doors)."""
     s = len(stations_xyz)
     points = stations_xyz if route_start is None else np.vstack([stations_xyz, [route_start]])
     nodes, feet = attach(graph, caster, np.asarray(points, np.float64))
@@ -197,8 +266,11 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
             "route_start", f"{list(route_start)} is not over a floor a person can walk on; "
             "give a point inside the building, above its floor (e.g. at scanner height), "
             "or null to let the route choose")
+    places = Places() if places is None else places
     if graph.n_nodes == 0:  # no floor anywhere (a facade, a single object): nobody walks
-        return Route((), (), tuple(range(1, s + 1)), (_NO_FLOOR,) * s)
+        return Route((), (), tuple(range(1, s + 1)),
+                     (_NO_FLOOR + ": the model has no floor a person can walk on anywhere "
+                      "(a facade, a single object)",) * s)
     _, component = connected_components(graph.links, directed=False)
     labels = np.where(nodes >= 0, component[np.maximum(nodes, 0)], -1)
     if route_start is not None:
@@ -213,8 +285,8 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
             main = int(next(label for label in labels[:s] if label in set(best.tolist())))
     reachable = [i for i in range(s) if main >= 0 and labels[i] == main]
     unreachable = tuple(i + 1 for i in range(s) if i not in set(reachable))
-    reasons = tuple(_why_unreachable(graph, labels, feet, i - 1, component)
-                    for i in unreachable)
+    why = _Why(graph, caster, labels, feet, component, int(main), places)
+    reasons = tuple(why.station(i - 1) for i in unreachable)
     if not reachable:
         return Route((), (), unreachable, reasons)
     sources = [int(nodes[i]) for i in reachable]
@@ -268,20 +340,136 @@ def _shortest_paths(graph: WalkGraph, sources: list[int]
     return between_m, predecessor
 
 
-_NO_FLOOR = ("no floor a person can stand on under it (within a step of its foot and "
-             f"{_ATTACH_CELLS:g} walk-grid cells, free at knee height)")
+_NO_FLOOR = "no floor a person can walk on under it"
 
 
-def _why_unreachable(graph: WalkGraph, labels: NDArray[np.int64], feet: NDArray[np.float64],
-                     i: int, component: NDArray[np.int32]) -> str:
-    """Why station index ``i`` is not on the route, in a sentence."""
-    if labels[i] < 0:
-        return _NO_FLOOR
-    floor_z = graph.floor_xyz[component == labels[i], 2]
-    where = (f"its floor ({feet[i, 2] - KNEE_HEIGHT_M:+.2f} m) lies in a part of the "
-             f"building ({len(floor_z) * graph.grid_m ** 2:.1f} m² of floor, "
-             f"{floor_z.min():+.2f} to {floor_z.max():+.2f} m)")
-    return (where + " that no step of at most "
-            f"{STEP_M:g} m, stair, ramp, door or way outside joins to the route's part, with "
-            f"{KNEE_HEIGHT_M:g} m free at knee height: a ladder, a hatch, or a door or "
-            "opening the model closes")
+def _m(z_m: float) -> str:
+    """A height as the reasons give it: "+2.85 m" (never "-0.00 m")."""
+    return f"{round(float(z_m), 2) + 0.0:+.2f} m"
+
+
+class _Why:
+    """Why a station is not on the route, in a sentence naming what is missing (see the
+    module docstring); a part of the graph is described once for all its stations."""
+
+    def __init__(self, graph: WalkGraph, caster: RayCaster, labels: NDArray[np.int64],
+                 feet: NDArray[np.float64], component: NDArray[np.int32], main: int,
+                 places: Places) -> None:
+        self.graph, self.caster, self.labels, self.feet = graph, caster, labels, feet
+        self.component, self.main, self.places = component, main, places
+        self._parts: dict[int, str] = {}
+        self._main_tree: cKDTree | None = None
+        self._main_nodes: NDArray[np.int64] = np.zeros(0, np.int64)
+
+    def station(self, i: int) -> str:
+        """The reason of station index ``i``."""
+        floor = self.feet[i] - np.array([0.0, 0.0, KNEE_HEIGHT_M])
+        room = self.places.station_rooms[i] if i < len(self.places.station_rooms) else ""
+        where = f"in room {room!r}, " if room else ""
+        if self.places.storeys and np.isfinite(floor[2]):
+            where += self.places.storey_at(float(floor[2]))
+        where = where.removesuffix(", ")
+        if self.labels[i] < 0:
+            return f"{_NO_FLOOR}{f' ({where})' if where else ''}: {self._no_floor(floor)}"
+        label = int(self.labels[i])
+        if label not in self._parts:
+            self._parts[label] = self._cut_off(label)
+        return f"{where}: {self._parts[label]}" if where else self._parts[label]
+
+    def _no_floor(self, floor: NDArray[np.float64]) -> str:
+        graph = self.graph
+        if not np.isfinite(floor[2]):
+            return "nothing under it: no floor, slab or ground below the station"
+        reach = _ATTACH_CELLS * graph.grid_m
+        horizontal = np.linalg.norm(graph.floor_xyz[:, :2] - floor[:2], axis=1)
+        level = np.abs(graph.floor_xyz[:, 2] - floor[2]) <= STEP_M
+        if (level & (horizontal <= reach)).any():
+            return (f"the floor around it is walked, but within {reach:.2f} m of its foot "
+                    f"every way to it is blocked at {KNEE_HEIGHT_M:g} m above the floor: it "
+                    "stands walled in (in a wall's or an object's footprint, behind a "
+                    "railing)")
+        up = np.array([[0.0, 0.0, 1.0]])
+        _, free = self.caster.first_hit(floor[None] + [0.0, 0.0, 0.01], up)
+        head = float(free[0]) + 0.01
+        if head < HEADROOM_M:
+            return (f"only {head:.2f} m is free over its floor, less than the {HEADROOM_M:g} "
+                    "m of head room a person needs (under a stair, a low roof, a duct)")
+        return ("the surface under it is not walked: steeper than a stair or a ramp, or "
+                "narrower than the walk grid (a stringer, a sill, a sloped roof)")
+
+    def _cut_off(self, label: int) -> str:
+        graph = self.graph
+        part = np.flatnonzero(self.component == label)
+        part_xyz = graph.floor_xyz[part]
+        area = len(part) * graph.grid_m ** 2
+        low, high = float(part_xyz[:, 2].min()), float(part_xyz[:, 2].max())
+        span = _m(low) if high - low < 0.01 else f"{_m(low)[:-2]} to {_m(high)}"
+        what = f"it stands in a part of the building cut off from the route ({area:.1f} m² " \
+               f"of floor at {span})"
+        if self.main < 0:
+            return what
+        if self._main_tree is None:
+            self._main_nodes = np.flatnonzero(self.component == self.main)
+            self._main_tree = cKDTree(graph.floor_xyz[self._main_nodes, :2])
+        stride = max(1, len(part) // _MAX_PART_SAMPLES)
+        sample = part[::stride]
+        near = self._main_tree.query_ball_point(graph.floor_xyz[sample, :2],
+                                                max(_MEET_M, 2.5 * graph.grid_m))
+        counts = np.array([len(x) for x in near])
+        if counts.sum():
+            a = np.repeat(sample, counts)  # (P,) the part's node of each pair
+            b = self._main_nodes[np.concatenate([np.asarray(x, np.int64) for x in near
+                                                 if x])]
+            rise = graph.floor_xyz[b, 2] - graph.floor_xyz[a, 2]
+            gap = np.linalg.norm(graph.floor_xyz[b, :2] - graph.floor_xyz[a, :2], axis=1)
+            level = np.abs(rise) <= STEP_M
+            step = ~level & (np.abs(rise) < HEADROOM_M)  # over or under: a storey, no step
+            clauses: list[str] = []
+            if level.any():
+                k = np.flatnonzero(level)[np.lexsort((b[level], a[level], gap[level]))[0]]
+                at = (graph.floor_xyz[a[k]] + graph.floor_xyz[b[k]]) / 2
+                door = self.places.door_near(at)
+                place = f"({at[0]:.2f}, {at[1]:.2f}) at {_m(at[2])}"
+                if door is not None:
+                    clauses.append(
+                        f"its way to the route's floor beside it, through door {door!r} at "
+                        f"{place}, is blocked at {KNEE_HEIGHT_M:g} m above the floor: the "
+                        "model closes that door's opening (a wall drawn through it, a leaf "
+                        "outside the door, a sill higher than a step)")
+                else:
+                    clauses.append(
+                        f"the route's floor lies beside it at the same height, but at {place} "
+                        "and all along it a wall stands between them at "
+                        f"{KNEE_HEIGHT_M:g} m above the floor, with no doorway: a door the "
+                        "model closes or draws as a wall, or an opening it lacks")
+            # a step is where the higher floor's knee-high segment over to the lower one
+            # is free: the drop itself is all that stands between them (not a wall)
+            ranked = np.flatnonzero(step)[np.lexsort((b[step], a[step], gap[step],
+                                                      np.abs(rise[step])))][:_MAX_STEPS_TRIED]
+            top = np.maximum(graph.floor_xyz[a[ranked], 2], graph.floor_xyz[b[ranked], 2])
+            over_a = np.column_stack([graph.floor_xyz[a[ranked], :2], top + KNEE_HEIGHT_M])
+            over_b = np.column_stack([graph.floor_xyz[b[ranked], :2], top + KNEE_HEIGHT_M])
+            open_step = ranked[segment_free(self.caster, over_a, over_b)
+                               & segment_free(self.caster, over_b, over_a)]
+            if len(open_step):
+                k = int(open_step[0])
+                at = graph.floor_xyz[a[k]]
+                clauses.append(
+                    f"it meets the route's floor at ({at[0]:.2f}, {at[1]:.2f}) with a step "
+                    f"of {abs(float(rise[k])):.2f} m ({'up' if rise[k] > 0 else 'down'} to "
+                    f"{_m(float(graph.floor_xyz[b[k], 2]))}), more than the {STEP_M:g} m a "
+                    "person steps, and no stair or steps are modelled there")
+            if clauses:
+                return f"{what}: " + "; and ".join(clauses)
+        # the two parts never meet: name the storeys no stair joins
+        route_z = graph.floor_xyz[self._main_nodes, 2]
+        nearest = route_z[np.argmin(np.abs(route_z - low))]
+        theirs = self.places.storey_at(low)
+        ours = self.places.storey_at(float(nearest))
+        if abs(float(nearest) - low) <= STEP_M:
+            return (f"{what}: the route's floor at the same height ({_m(float(nearest))}) "
+                    "lies elsewhere and no floor, door or way around the outside leads "
+                    "between them: a room without a door or opening in the model")
+        return (f"{what}: no stair, ramp or steps join {theirs} to {ours}, the route's "
+                f"nearest: the model has no stair geometry between them (a stair left out or "
+                "without a body, a ladder, a hatch)")

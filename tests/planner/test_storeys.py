@@ -1,0 +1,239 @@
+"""Storeys of a plain mesh: stair landings and split levels are not storeys; the
+independent check that no leg of a route goes through a wall can fail; and an unreachable
+station says what is missing.
+
+Hand-made buildings of boxes (``tests/planner/survey_scenes.py``); each builds in well
+under a second.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from planner.candidates.grid import generate_grid, levels_line
+from planner.parameters import PlanSpec
+from planner.rays import make_ray_caster
+from planner.scene import Scene
+from planner.survey.route import Places, plan_route
+from planner.truth.legs import SWEEP_HEIGHTS_M, legs_through_walls
+from planner.walkgraph import KNEE_HEIGHT_M, build_walk_graph
+from tests.planner.survey_scenes import Box, boxes_scene
+
+SPEC = PlanSpec(grid_spacing_m=0.5)
+STOREY_M = 4.0  # high storeys: a half landing lies 2 m from both floors, more than head room
+
+
+def _shell(x1: float, y1: float, top_m: float) -> list[Box]:
+    """Four walls around [0, x1] x [0, y1] from 0 to ``top_m`` and a roof over them."""
+    t = 0.2
+    return [((-t, -t, 0.0), (0.0, y1 + t, top_m)), ((x1, -t, 0.0), (x1 + t, y1 + t, top_m)),
+            ((0.0, -t, 0.0), (x1, 0.0, top_m)), ((0.0, y1, 0.0), (x1, y1 + t, top_m)),
+            ((-t, -t, top_m), (x1 + t, y1 + t, top_m + t))]
+
+
+def _off_grid(boxes: list[Box]) -> Scene:
+    """The boxes moved 0.13 m along x and y: no grid point lies on a wall's face."""
+    return boxes_scene([((x0 + 0.13, y0 + 0.13, z0), (x1 + 0.13, y1 + 0.13, z1))
+                        for (x0, y0, z0), (x1, y1, z1) in boxes])
+
+
+def office_with_landings() -> Scene:
+    """A 20 x 10 m office of three 4 m storeys (floors at 0, 4 and 8 m) whose stair hall
+    [16, 20] x [0, 6] has a 2 x 3 m half landing at +2 and +6 m, half-way up each
+    storey; the slabs over the stair hall are open."""
+    boxes = _shell(20.0, 10.0, 3 * STOREY_M)
+    boxes.append(((0.0, 0.0, -0.3), (20.0, 10.0, 0.0)))  # ground slab
+    for k in (1, 2):
+        z = k * STOREY_M
+        boxes += [((0.0, 0.0, z - 0.3), (16.0, 10.0, z)),  # the slab, less the stair hall
+                  ((16.0, 6.0, z - 0.3), (20.0, 10.0, z))]
+    for k in (0, 1):
+        z = k * STOREY_M + STOREY_M / 2
+        boxes.append(((18.0, 0.0, z - 0.2), (20.0, 3.0, z)))  # the landing
+    return _off_grid(boxes)
+
+
+def test_half_landings_between_storeys_are_not_storeys_and_keep_their_candidates() -> None:
+    scene = office_with_landings()
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    candidates = generate_grid(scene, SPEC, caster)
+    assert candidates.levels is not None
+    storeys = [lv for lv in candidates.levels if "excluded" not in lv]
+    assert [lv["floor_z_m"] for lv in storeys] == [0.0, 4.0, 8.0], candidates.levels
+    landings = [lv for lv in candidates.levels
+                if str(lv.get("excluded", "")).startswith("landing")]
+    assert [lv["floor_z_m"] for lv in landings] == [2.0, 6.0]
+    # each belongs to the storey below it, which counts its candidates
+    assert [lv["storey_floor_z_m"] for lv in landings] == [0.0, 4.0]
+    floor_z = candidates.positions[:, 2] - SPEC.scanner_height_m
+    storey_names = {label["storey"] for label in candidates.labels}
+    assert storey_names == {str(lv["name"]) for lv in storeys}
+    for landing in landings:
+        on = np.abs(floor_z - float(str(landing["floor_z_m"]))) < 0.01
+        assert on.sum() == landing["candidates"] and on.sum() > 0
+        owner = [lv for lv in storeys if lv["floor_z_m"] == landing["storey_floor_z_m"]]
+        assert {candidates.labels[i]["storey"] for i in np.flatnonzero(on)} == {
+            owner[0]["name"]}
+    assert sum(int(str(lv["candidates"])) for lv in storeys) == len(candidates)
+    line = levels_line(candidates.levels)
+    assert line is not None and line.startswith("3 storeys planned") and "2 landing" in line
+
+
+def test_rooms_a_few_steps_up_are_a_split_level_of_their_storey() -> None:
+    """A 10 x 8 m house: the east 4 m of its ground floor 0.6 m up, its upper floor (3 m)
+    likewise 0.6 m up in the east: two storeys, not four (as the Renga house's plain
+    mesh: rooms at -0.45 and 0 m, at +2.85 and +3.45 m)."""
+    boxes = _shell(10.0, 8.0, 6.0)
+    boxes += [((0.0, 0.0, -0.3), (10.0, 8.0, 0.0)), ((6.0, 0.0, 0.0), (10.0, 8.0, 0.6)),
+              ((0.0, 0.0, 2.7), (10.0, 8.0, 3.0)), ((6.0, 0.0, 3.0), (10.0, 8.0, 3.6))]
+    scene = _off_grid(boxes)
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    candidates = generate_grid(scene, SPEC, caster)
+    assert candidates.levels is not None
+    storeys = [lv for lv in candidates.levels if "excluded" not in lv]
+    assert [lv["floor_z_m"] for lv in storeys] == [0.0, 3.0], candidates.levels
+    assert [lv["with_levels_m"] for lv in storeys] == [[0.6], [3.6]]
+    split = [lv for lv in candidates.levels if str(lv.get("excluded", "")).startswith("split")]
+    assert [(lv["floor_z_m"], lv["storey_floor_z_m"]) for lv in split] == [(0.6, 0.0),
+                                                                          (3.6, 3.0)]
+    floor_z = candidates.positions[:, 2] - SPEC.scanner_height_m
+    assert {round(float(z), 2) for z in floor_z} == {0.0, 0.6, 3.0, 3.6}
+    assert len({label["storey"] for label in candidates.labels}) == 2
+
+
+# no leg through a wall: the check itself --------------------------------------------------
+
+
+def _wall_scene() -> Scene:
+    """A 6 x 4 m room cut in two by a wall at x = 3 with a 0.9 m doorway at y in [0.2,
+    1.1] whose 2.1 m high opening holds a door leaf, and a low passage at y in [2.5, 3.5]
+    1.5 m high (free at knee height, a wall at head height)."""
+    boxes: list[Box] = _shell(6.0, 4.0, 2.6)
+    boxes += [((0.0, 0.0, -0.2), (6.0, 4.0, 0.0)),
+              ((2.9, 0.0, 0.0), (3.1, 0.2, 2.6)), ((2.9, 1.1, 0.0), (3.1, 2.5, 2.6)),
+              ((2.9, 0.2, 2.1), (3.1, 1.1, 2.6)),  # lintel
+              ((2.9, 2.5, 1.5), (3.1, 3.5, 2.6)),  # over a low passage
+              ((2.9, 3.5, 0.0), (3.1, 4.0, 2.6)),
+              ((2.98, 0.2, 0.0), (3.02, 1.1, 2.1))]  # the door leaf, last
+    return boxes_scene(boxes, max_edge_m=10.0)
+
+
+def _leg(points: list[tuple[float, float, float]], start: int = 1, end: int = 2
+         ) -> dict[str, object]:
+    return {"from": start, "to": end, "path": [[x, y, z + KNEE_HEIGHT_M] for x, y, z in points]}
+
+
+@pytest.fixture(scope="module")
+def wall_scene() -> tuple[Scene, np.ndarray]:
+    scene = _wall_scene()
+    door = np.zeros(scene.n_faces, bool)
+    door[-12:] = True  # the leaf's 12 triangles (a box's 6 sides, max_edge_m keeps them whole)
+    return scene, door
+
+
+def test_a_leg_through_the_door_is_free_and_one_through_the_wall_is_found(
+        wall_scene: tuple[Scene, np.ndarray]) -> None:
+    scene, door = wall_scene
+    through_door = _leg([(1.0, 0.65, 0.0), (5.0, 0.65, 0.0)])
+    through_wall = _leg([(1.0, 2.0, 0.0), (1.5, 2.0, 0.0), (5.0, 2.0, 0.0)], 2, 3)
+    # free at the knee, through the wall over the low passage: what a knee-high walk
+    # graph alone would let through
+    through_low_passage = _leg([(1.0, 3.0, 0.0), (5.0, 3.0, 0.0)], 3, 4)
+    blocked = legs_through_walls(scene, door, [through_door, through_wall,
+                                               through_low_passage])
+    assert [(b.index, b.start, b.end) for b in blocked] == [(1, 2, 3), (2, 3, 4)]
+    assert blocked[0].height_m == KNEE_HEIGHT_M
+    assert blocked[0].at_m[0] == pytest.approx(2.9, abs=1e-3)
+    assert blocked[1].height_m == max(SWEEP_HEIGHTS_M)
+    # the door's leaf blocks when it is not a door
+    shut = legs_through_walls(scene, np.zeros(scene.n_faces, bool), [through_door])
+    assert [b.index for b in shut] == [0]
+    # a leg along the room, clear of everything, and a leg of one point: free
+    assert legs_through_walls(scene, door, [_leg([(0.5, 3.0, 0.0), (2.5, 3.0, 0.0)]),
+                                            _leg([(1.0, 1.0, 0.0)])]) == []
+
+
+def test_a_leg_up_a_stair_is_swept_over_the_floor_it_climbs(
+        wall_scene: tuple[Scene, np.ndarray]) -> None:
+    """The sweep follows the leg's own floor: a leg whose points climb 1.2 m passes under
+    the lintel only if it is swept from its floor, not from a fixed height."""
+    scene, door = wall_scene
+    # from the floor at x = 1 up onto a (not modelled) 1 m podium at x = 5: through the
+    # doorway the floor is at 0.5 m, the head at 0.5 + 1.75 m, above the 2.1 m lintel
+    climbing = _leg([(1.0, 0.65, 0.0), (5.0, 0.65, 1.0)])
+    blocked = legs_through_walls(scene, door, [climbing])
+    assert len(blocked) == 1 and blocked[0].height_m == max(SWEEP_HEIGHTS_M)
+    assert blocked[0].at_m[2] > 2.1
+
+
+# an unreachable station says what is missing ---------------------------------------------
+
+
+def _route(boxes: list[Box], stations: list[tuple[float, float, float]],
+           places: Places | None = None) -> tuple[tuple[int, ...], tuple[str, ...]]:
+    scene = _off_grid(boxes)
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    moved = np.asarray(stations) + np.array([0.13, 0.13, 0.0])
+    route = plan_route(build_walk_graph(scene, caster), caster, moved, None, places)
+    return route.unreachable, route.unreachable_reasons
+
+
+def _two_storeys(stair: bool) -> list[Box]:
+    """A 8 x 5 m house of two 3 m storeys; its upper slab open over [6, 8] x [0, 2]."""
+    boxes = _shell(8.0, 5.0, 6.0)
+    boxes += [((0.0, 0.0, -0.3), (8.0, 5.0, 0.0)), ((0.0, 0.0, 2.7), (6.0, 5.0, 3.0)),
+              ((6.0, 2.0, 2.7), (8.0, 5.0, 3.0))]
+    if stair:  # 15 steps of 0.2 m up along x under the opening
+        boxes += [((6.0 - 3.0 + 0.2 * i, 0.0, 0.0), (8.0, 1.0, 0.2 * (i + 1)))
+                  for i in range(15)]
+    return boxes
+
+
+def test_a_storey_no_stair_reaches_names_both_storeys() -> None:
+    places = Places(storeys=(("Ground", 0.0), ("Upper", 3.0)),
+                    station_rooms=("Hall", "Bedroom"))
+    unreachable, reasons = _route(_two_storeys(stair=False),
+                                  [(2.0, 2.5, 1.5), (2.0, 2.5, 4.5)], places)
+    assert unreachable == (2,)
+    assert reasons[0].startswith("in room 'Bedroom', storey 'Upper'"), reasons
+    assert "no stair, ramp or steps join storey 'Upper' (floor at +3.00 m) to storey " \
+        "'Ground' (floor at +0.00 m)" in reasons[0], reasons
+
+
+def test_a_room_behind_a_door_drawn_as_a_wall_says_so_and_names_the_door() -> None:
+    """Two rooms; the wall between them has a doorway closed by a leaf the walk does not
+    open (a door of a plain mesh that was not recognised)."""
+    boxes = _shell(8.0, 4.0, 2.6)
+    boxes += [((0.0, 0.0, -0.2), (8.0, 4.0, 0.0)),
+              ((3.9, 0.0, 0.0), (4.1, 1.5, 2.6)), ((3.9, 2.4, 0.0), (4.1, 4.0, 2.6)),
+              ((3.9, 1.5, 2.1), (4.1, 2.4, 2.6)), ((3.98, 1.5, 0.0), (4.02, 2.4, 2.1))]
+    stations = [(2.0, 2.0, 1.5), (6.0, 2.0, 1.5)]
+    unreachable, reasons = _route(boxes, stations)
+    assert unreachable == (2,) or unreachable == (1,)
+    assert "a wall stands between them" in reasons[0] and "no doorway" in reasons[0], reasons
+    door = Places(doors=(("Door 7 (IfcDoor)", (4.11, 1.63, 0.0), (4.15, 2.53, 2.1)),))
+    _, reasons = _route(boxes, stations, door)
+    assert "through door 'Door 7 (IfcDoor)'" in reasons[0], reasons
+
+
+def test_a_floor_a_step_too_high_above_the_rest_gives_the_step() -> None:
+    """A 6 x 4 m room whose east half is a 0.6 m podium with no step up to it."""
+    boxes = _shell(6.0, 4.0, 3.0)
+    boxes += [((0.0, 0.0, -0.2), (6.0, 4.0, 0.0)), ((3.0, 0.0, 0.0), (6.0, 4.0, 0.6))]
+    unreachable, reasons = _route(boxes, [(1.0, 2.0, 1.5), (1.5, 1.0, 1.5),
+                                          (5.0, 2.0, 2.1)])
+    assert unreachable == (3,)
+    assert "with a step of 0.60 m (down to +0.00 m)" in reasons[0], reasons
+    assert "no stair or steps are modelled there" in reasons[0]
+
+
+def test_a_station_under_a_low_ceiling_gives_the_head_room() -> None:
+    """A room whose west 2 m have a 1.4 m high ceiling (a duct box over the floor)."""
+    boxes = _shell(6.0, 4.0, 3.0)
+    boxes += [((0.0, 0.0, -0.2), (6.0, 4.0, 0.0)), ((0.0, 0.0, 1.4), (2.0, 4.0, 3.0))]
+    unreachable, reasons = _route(boxes, [(4.0, 2.0, 1.5), (5.0, 1.0, 1.5),
+                                          (1.0, 2.0, 1.2)])
+    assert unreachable == (3,)
+    assert reasons[0].startswith("no floor a person can walk on under it: only 1.40 m is "
+                                 "free over its floor"), reasons
