@@ -124,7 +124,8 @@ def scans_of(spec: PlanSpec, density_margins: list[float] | None, n_stations: in
 def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool
                  ) -> RayCaster:
     """Rays for walking: every face blocks (glass too, which coverage may see through)
-    except doors (IFC doors; in a plain mesh the closed leaves in wall openings, found with
+    except doors (IFC doors; in a plain mesh the thin fillers of wall openings that
+    :func:`~planner.walkgraph.mesh_doors` finds with
     the coverage ``caster``); the coverage caster is reused when it blocks exactly those
     faces. ``file_faces``: cast against the file's faces, as the plan's rays
     (``occluders``)."""
