@@ -73,6 +73,7 @@ DOOR_FILLER_MIN_M = 0.005
 # the faces met from both ends are the two sides of a panel: parallel within this (a link
 # that cuts a wall's corner meets two sides at right angles, across little material)
 DOOR_PARALLEL_DEG = 10.0
+_PARALLEL_COS = math.cos(math.radians(DOOR_PARALLEL_DEG))  # |cos| of parallel normals
 # the free height of a doorway: a leaf of 1.985-2.135 m (DIN 18101) to 2.5 m (commercial,
 # Renga's 2.6 m glazed door included); a ceiling above 2.7 m is a room, not a lintel
 DOOR_HEIGHT_M = (1.8, 2.7)
@@ -201,7 +202,6 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
     hit_faces = crossings.faces[keep]  # (K, 2) file faces, -1 none
     n_crossings = len(hit_faces)
     floor_z = crossings.floor_z[keep]
-    parallel = math.cos(math.radians(DOOR_PARALLEL_DEG))
     for attempt in range(DOOR_PASSES):
         result[:] = -1
         n_found = 0
@@ -228,15 +228,13 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
                                else opened[scene.source_face],
                                file_faces=scene.file_faces is not None)
         thick, _, face_ab, face_ba, _ = _through(walk, crossings.a[keep], crossings.b[keep])
-        more = np.stack([np.where(face_ab >= 0, scene.source_face[np.maximum(face_ab, 0)], -1),
-                         np.where(face_ba >= 0, scene.source_face[np.maximum(face_ba, 0)], -1)],
-                        axis=1)
+        more = _file_faces_hit(scene, np.stack([face_ab, face_ba], axis=1))
         still = np.isfinite(thick) & (thick <= DOOR_FILLER_MAX_M)
         for side in range(2):
             met = triangles[np.maximum(more[:, side], 0)]
             turn = np.cross(met[:, 1] - met[:, 0], met[:, 2] - met[:, 0])
             turn /= np.maximum(np.linalg.norm(turn, axis=1), _EPS_M * _EPS_M)[:, None]
-            aligned = np.abs(np.einsum("kc,kc->k", turn, normal)) >= parallel
+            aligned = np.abs(np.einsum("kc,kc->k", turn, normal)) >= _PARALLEL_COS
             more[~(still & aligned), side] = -1
         if (more < 0).all():
             break
@@ -273,7 +271,7 @@ def _thin_crossings(scene: Scene, caster: RayCaster) -> _Crossings:
                 & (face_ba >= 0))
         thin[thin] = (np.abs(np.einsum("kc,kc->k", scene.normals[face_ab[thin]],
                                        scene.normals[face_ba[thin]]))
-                      >= math.cos(math.radians(DOOR_PARALLEL_DEG)))
+                      >= _PARALLEL_COS)
         x = pa[thin] + along[thin] * (d_ab[thin] + thick[thin] / 2)[:, None]
         kept.append((face_ab[thin], face_ba[thin]))
         parts.append((pa[thin], pb[thin], x, np.minimum(floor_xyz[ia[thin], 2],
@@ -284,9 +282,15 @@ def _thin_crossings(scene: Scene, caster: RayCaster) -> _Crossings:
                           np.zeros((0, 2), np.int64))
     hit = np.stack([np.concatenate([k[0] for k in kept]),
                     np.concatenate([k[1] for k in kept])], axis=1)
-    on_file = np.where(hit >= 0, scene.source_face[np.maximum(hit, 0)], -1)
     pa, pb, x, floor_z, thick = (np.concatenate([p[i] for p in parts]) for i in range(5))
-    return _Crossings(pa, pb, x, floor_z, thick, on_file.astype(np.int64))
+    return _Crossings(pa, pb, x, floor_z, thick, _file_faces_hit(scene, hit))
+
+
+def _file_faces_hit(scene: Scene, hit: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The file face of each scene face in ``hit`` (any shape), -1 kept for no hit."""
+    on_file: NDArray[np.int64] = np.where(
+        hit >= 0, scene.source_face[np.maximum(hit, 0)], -1).astype(np.int64)
+    return on_file
 
 
 def _through(caster: RayCaster, pa: NDArray[np.float64], pb: NDArray[np.float64]
@@ -364,7 +368,7 @@ def _join_crossings(x: NDArray[np.float64], normal: NDArray[np.float64]
 
     pairs = cKDTree(x).query_pairs(DOOR_JOIN_M, output_type="ndarray")
     parallel = (np.abs(np.einsum("kc,kc->k", normal[pairs[:, 0]], normal[pairs[:, 1]]))
-                >= math.cos(math.radians(DOOR_PARALLEL_DEG)))
+                >= _PARALLEL_COS)
     pairs = pairs[parallel]
     graph = sp.coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])),
                           shape=(len(x), len(x)))
@@ -550,22 +554,28 @@ def segment_free(caster: RayCaster, a: NDArray[np.float64], b: NDArray[np.float6
     return free
 
 
-
 def upright_free(caster: RayCaster, a: NDArray[np.float64], b: NDArray[np.float64]
                  ) -> NDArray[np.bool_]:
     """(K,) bool: a person walks upright from (K, 3) a to (K, 3) b, points at knee height:
     the segments at every ``UPRIGHT_HEIGHTS_M`` above the floor (a and b less the knee
     height) hit no face, cast both ways. The higher heights are cast only for the
     segments free at the knee."""
-    free = segment_free(caster, a, b) & segment_free(caster, b, a)
+    free = free_both_ways(caster, a, b)
     for height in UPRIGHT_HEIGHTS_M:
         if height == KNEE_HEIGHT_M or not free.any():
             continue
         lift = np.array([0.0, 0.0, height - KNEE_HEIGHT_M])
         index = np.flatnonzero(free)
-        up_a, up_b = a[index] + lift, b[index] + lift
-        free[index] = segment_free(caster, up_a, up_b) & segment_free(caster, up_b, up_a)
+        free[index] = free_both_ways(caster, a[index] + lift, b[index] + lift)
     return free
+
+
+def free_both_ways(caster: RayCaster, a: NDArray[np.float64], b: NDArray[np.float64]
+                   ) -> NDArray[np.bool_]:
+    """(K,) bool: the (K, 3) segments a -> b are free cast from a and from b (a ray from
+    inside a solid meets nothing on its way out: one direction alone can miss a wall)."""
+    result: NDArray[np.bool_] = segment_free(caster, a, b) & segment_free(caster, b, a)
+    return result
 
 
 def cell_pairs(sorted_key: NDArray[np.int64], order: NDArray[np.int64],

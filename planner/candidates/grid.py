@@ -298,7 +298,6 @@ def walkable_levels(
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
-
     levels_dropped = dict.fromkeys(DROP_REASONS, 0)
     positions, level_of = place_on_levels(scene, xy, spec, caster, levels_dropped)
     floors = positions[:, 2] - spec.scanner_height_m

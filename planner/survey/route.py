@@ -48,7 +48,7 @@ from planner.walkgraph import (
     KNEE_HEIGHT_M,
     STEP_M,
     WalkGraph,
-    segment_free,
+    free_both_ways,
     upright_free,
 )
 
@@ -449,8 +449,7 @@ class _Why:
             top = np.maximum(graph.floor_xyz[a[ranked], 2], graph.floor_xyz[b[ranked], 2])
             over_a = np.column_stack([graph.floor_xyz[a[ranked], :2], top + KNEE_HEIGHT_M])
             over_b = np.column_stack([graph.floor_xyz[b[ranked], :2], top + KNEE_HEIGHT_M])
-            open_step = ranked[segment_free(self.caster, over_a, over_b)
-                               & segment_free(self.caster, over_b, over_a)]
+            open_step = ranked[free_both_ways(self.caster, over_a, over_b)]
             if len(open_step):
                 k = int(open_step[0])
                 at = graph.floor_xyz[a[k]]

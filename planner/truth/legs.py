@@ -31,13 +31,12 @@ from numpy.typing import NDArray
 from planner.io.orientation import scene_rotation, to_plan
 from planner.rays import RayCaster, make_ray_caster
 from planner.scene import Scene
-from planner.walkgraph import HEADROOM_M, KNEE_HEIGHT_M
+from planner.walkgraph import KNEE_HEIGHT_M, UPRIGHT_HEIGHTS_M
 
-# the heights above the floor a walking person fills, knee to head: the walk graph links
-# floor samples free at the knee and needs HEADROOM_M over each sample; the top ray runs
-# 5 cm under that head room, as the legs' points are rounded to millimetres and a ceiling
-# exactly at head room over a sample is allowed
-SWEEP_HEIGHTS_M = (KNEE_HEIGHT_M, 0.8, 1.1, 1.4, HEADROOM_M - 0.05)
+# the heights above the floor a walking person fills, knee to head: the same definition of
+# walking upright as the walk graph's (its links are tested at these heights too); only the
+# rays are cast here anew, against the model, not the graph's links
+SWEEP_HEIGHTS_M = UPRIGHT_HEIGHTS_M
 _MIN_SEGMENT_M = 1e-3  # shorter segments (a station's foot on its own node) are not cast
 _SEGMENTS_PER_BLOCK = 1 << 16  # rays per Embree call: bounds the hit records
 _GRAZING = 1e-3  # |cos| of a face's normal to the segment below which the face is grazed
