@@ -111,7 +111,7 @@ def submit(base: str, scenes_dir: Path, *, model: bytes | None = None, **changes
     with (hall / "candidates.csv").open() as handle:
         candidates = [[float(r["x"]), float(r["y"]), float(r["z"])]
                       for r in csv.DictReader(handle)]
-    with httpx.Client(base_url=base, timeout=120) as client:
+    with httpx.Client(base_url=base, timeout=300) as client:
         mesh = client.post("/meshes?filename=hall.obj",
                            content=model or (hall / "hall.obj").read_bytes(),
                            headers={"content-type": "application/octet-stream"})
