@@ -455,8 +455,9 @@ def _features(result: PlanResult, classes: NDArray[np.uint8]) -> _Features:
     whole = counts == np.bincount(source, minlength=len(scene.file_mesh[1]))[file_face]
     merged: dict[int, NDArray[np.int64]] = {}
     for feature in np.flatnonzero(~whole & (counts > 1)).tolist():
-        pieces = scene.faces[rows[offsets[feature]:offsets[feature + 1]]]
-        merged[feature] = _merge(scene, pieces, int(first[feature]))
+        members = rows[offsets[feature]:offsets[feature + 1]]
+        merged[feature] = _merge(scene, scene.faces[members], int(first[feature]),
+                                 float(scene.areas[members].sum()))
     made = np.ones(len(counts), np.int64)
     for feature, triangles in merged.items():
         made[feature] = len(triangles)
@@ -474,12 +475,14 @@ def _features(result: PlanResult, classes: NDArray[np.uint8]) -> _Features:
                      triangle_feature=np.repeat(np.arange(len(counts), dtype=np.int32), made))
 
 
-def _merge(scene: Scene, pieces: NDArray[np.int32], first: int) -> NDArray[np.int64]:
+def _merge(scene: Scene, pieces: NDArray[np.int32], first: int, area: float
+           ) -> NDArray[np.int64]:
     """(t, 3) vertex indices of triangles covering the (m, 3) ``pieces`` of one file face
-    (that of face ``first``): their outline (holes and all: the pieces of a file face meet
-    edge to edge), corners on a straight run dropped, triangulated (GEOS's constrained
-    Delaunay, no new vertices), wound as the file face. The pieces themselves when that
-    fails to cover exactly their area with their vertices."""
+    (that of face ``first``; ``area`` theirs, m^2): their outline (holes and all: the
+    pieces of a file face meet edge to edge), corners on a straight run dropped,
+    triangulated (GEOS's constrained Delaunay, no new vertices), wound as the file face.
+    The pieces themselves when that fails to cover exactly their area with their
+    vertices."""
     vertices, normal = scene.vertices, scene.normals[first]
     axes = [a for a in range(3) if a != int(np.argmax(np.abs(normal)))]
     flat = vertices[pieces][:, :, axes]  # (m, 3, 2): the plane seen along its main axis
@@ -487,7 +490,8 @@ def _merge(scene: Scene, pieces: NDArray[np.int32], first: int) -> NDArray[np.in
         outline = shapely.coverage_union_all(
             shapely.polygons(np.concatenate([flat, flat[:, :1]], axis=1)))
         # dropping corners off the line by up to _COLLINEAR_M moves at most this much area
-        slack = _COLLINEAR_M * float(shapely.length(outline))
+        # (in the plane; seen along the main axis, lengths shrink by at most sqrt(3))
+        slack = 2.0 * _COLLINEAR_M * float(shapely.length(outline))
         outline = shapely.simplify(outline, _COLLINEAR_M)
         parts = shapely.get_parts(shapely.constrained_delaunay_triangles(outline))
     except shapely.errors.GEOSException:
@@ -504,21 +508,21 @@ def _merge(scene: Scene, pieces: NDArray[np.int32], first: int) -> NDArray[np.in
     if len(found) == 0 or not (keyed[at] == wanted).all():
         return pieces.astype(np.int64)
     triangles = ids[order[at]].reshape(-1, 3).astype(np.int64)
-    spans = vertices[triangles]
-    cross = np.cross(spans[:, 1] - spans[:, 0], spans[:, 2] - spans[:, 0])
-    area = _area(vertices, pieces)
-    if abs(0.5 * float(np.linalg.norm(cross, axis=1).sum()) - area) > slack + 1e-9 * area:
+    cross = _cross(vertices[triangles])
+    if abs(0.5 * float(np.sqrt((cross * cross).sum(axis=1)).sum()) - area) > slack + 1e-9 * area:
         return pieces.astype(np.int64)
     flip = cross @ normal < 0
     triangles[flip] = triangles[flip][:, ::-1]
     return triangles
 
 
-def _area(vertices: NDArray[np.float64], faces: NDArray[np.integer[Any]]) -> float:
-    """The area of the (m, 3) ``faces``, m^2."""
-    spans = vertices[faces]
-    return 0.5 * float(np.linalg.norm(
-        np.cross(spans[:, 1] - spans[:, 0], spans[:, 2] - spans[:, 0]), axis=1).sum())
+def _cross(corners: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(t, 3) the cross product of the edges from the first corner of (t, 3, 3) triangles
+    (twice the area, along the normal); written out, np.cross is slow on small arrays."""
+    a = corners[:, 1] - corners[:, 0]
+    b = corners[:, 2] - corners[:, 0]
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
 
 
 def _grid_vertices(scene: Scene, quantizer: _Quantizer) -> NDArray[np.uint16]:
