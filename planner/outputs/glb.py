@@ -8,29 +8,47 @@ Layout
 ------
 - Model coordinates are Z-up metres; glTF is Y-up, so the root node ``scanplan`` carries a
   rotation of -90 degrees about X. Everything below it is in model coordinates.
+- Drawn by *feature*: the faces (rows of ``faces.npz``) that come from one face of the
+  file and share a coverage state, i.e. a class and, covered, an LPD band (``LPD_BANDS``:
+  best LPD 1-2, 2-4, 4-8, 8 or more times the requirement). A model split for the
+  coverage (``max_edge_m``) has millions of faces but few features: a file face of one
+  state is written as the file face itself (its three corners), one of several states as
+  the outline of each state's faces (holes and all, corners on a straight run dropped)
+  triangulated with no new vertices (GEOS's constrained Delaunay through ``shapely``;
+  where that would not cover exactly the faces' area, the faces themselves). The
+  generated office of 9.7 M split faces takes 0.07 triangles a face. A feature is drawn in the
+  colour of its worst face (the lowest best LPD over the requirement), so a covered
+  feature's shade is what all of it reaches at least. An unsplit model (the paper's
+  halls) has a feature a face, feature ``i`` being face ``i``, drawn as before.
 - One node and mesh per face class (``covered``, ``coverable_not_covered``,
   ``not_coverable``, ``not_target``; empty classes are left out), so a viewer toggles a
-  class by hiding a node. Faces do not share vertices (3 per face, in ascending face
-  order), so ``COLOR_0`` is exactly the face colour of :func:`planner.outputs.drawing.face_rgb`
-  (stored linear, as glTF requires). No ``NORMAL``: glTF asks viewers to shade such
-  meshes flat, which is what per-face colours show. A class of more than
-  ``PRIMITIVE_MAX_FACES`` faces is split into primitives of that many (the last fewer), in
-  face order: each primitive's arrays are made, compressed and let go before the next, so
-  a 10 M-face model never holds (F, 3) vertex arrays.
+  class by hiding a node; its ``extras`` give ``faces`` (rows of ``faces.npz``) and
+  ``features``. Triangles do not share vertices (3 each, feature after feature in
+  feature order), so ``COLOR_0`` is exactly the feature's colour of
+  :func:`planner.outputs.drawing.face_rgb` (stored linear, as glTF requires). No
+  ``NORMAL``: glTF asks viewers to shade such meshes flat, which is what per-face colours
+  show. A class of more than ``PRIMITIVE_MAX_FACES`` triangles is split into primitives of
+  that many (the last fewer), in order (a feature may go on into the next primitive): each
+  primitive's arrays are made, compressed and let go before the next, so a 10 M-face model
+  never holds (F, 3) vertex arrays.
 - Viewer-sized: positions are uint16 steps of one grid over the scene's bounds
   (``KHR_mesh_quantization``; the class node's ``scale`` and ``translation`` map them back,
   ``position_step_m`` in the scene extras gives the step), and every vertex attribute and
   property-table column is stored with ``EXT_meshopt_compression`` (lossless). Both are in
   ``extensionsRequired``; three.js and Babylon.js read them, and the parameter
-  ``glb_compression`` ``none`` gives the same arrays uncompressed. A 1.16 M-face plan
-  (FZK-Haus at ``max_edge_m`` 0.2) takes 18 MB instead of 141 MB; exact per-face values
-  stay in ``faces.npz``.
-- ``_FEATURE_ID_0`` (float, per vertex) is the face index (the row of ``faces.npz``).
-  ``EXT_mesh_features`` points it at the property table of ``EXT_structural_metadata``
-  (class ``face``): ``covered``, ``face_class``, ``best_lpd_pts_m2``,
-  ``min_density_pts_m2``, ``n_stations``, ``first_station``, ``n_candidates``,
-  ``source_face`` per face, so a platform can recolour without the npz. Both extensions are
-  optional (``extensionsUsed`` only): viewers that do not know them still show the colours.
+  ``glb_compression`` ``none`` gives the same arrays uncompressed. The generated office
+  of 9.7 M split faces takes 12.4 MB (152 MB when every face was drawn), 4.8 MB of it the
+  features' rows of ``faces.npz``; exact per-face values stay in ``faces.npz``.
+- ``_FEATURE_ID_0`` (float, per vertex) is the feature index: the row of the property
+  table ``features`` of ``EXT_structural_metadata`` (class ``feature``) that
+  ``EXT_mesh_features`` points it at. Per feature: ``covered``, ``face_class``,
+  ``source_face`` (its file face), ``best_lpd_pts_m2`` and ``min_density_pts_m2`` of its
+  worst face, the fewest ``n_stations`` and ``n_candidates`` of its faces, the latest
+  ``first_station`` (the station by which all of it is covered), and ``faces``: a
+  variable-length array of its rows of ``faces.npz`` (ascending), where a platform finds
+  each face's own values. For an unsplit model feature ``i`` is face ``i`` and ``faces``
+  is ``[i]``. Both extensions are optional (``extensionsUsed`` only): viewers that do not
+  know them still show the colours.
 - One node per station, ``station <n>``, a disc-topped marker at the scanner position with
   its number drawn as seven-segment bars standing above it (readable from the south,
   i.e. from -Y); its ``extras`` hold ``order``, ``candidate_index``, ``position``,
@@ -46,11 +64,13 @@ import math
 import struct
 import tempfile
 from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
 import meshopt
 import numpy as np
+import shapely
 from numpy.typing import NDArray
 
 from planner.io.orientation import glb_root_rotation, scene_rotation, to_model
@@ -58,6 +78,7 @@ from planner.memory import release_freed_memory
 from planner.outputs.drawing import (
     CLASS_NAMES,
     CLASS_RGB,
+    COVERED,
     COVERED_HIGH_RGB,
     COVERED_LOW_RGB,
     COVERED_SATURATION,
@@ -66,6 +87,7 @@ from planner.outputs.drawing import (
     face_rgb,
 )
 from planner.pipeline import PlanResult
+from planner.scene import Scene
 
 _FLOAT, _UBYTE, _USHORT, _UINT = 5126, 5121, 5123, 5125
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -77,6 +99,12 @@ PRIMITIVE_MAX_FACES = 1 << 20
 _CHUNK_VERTICES = 1 << 20
 _COPY_BYTES = 1 << 20  # the binary chunk is copied from the spill file in blocks this big
 _DIGIT_HEIGHT_M = 0.3
+# a covered face's LPD band: how often its best LPD doubles the requirement, 1-2x, 2-4x,
+# 4-8x, 8x and more (COVERED_SATURATION); pieces of a file face merge within one band
+LPD_BANDS = 4
+# a merged outline drops a corner this close to the line through its neighbours (pieces
+# are split at edge midpoints, which lie on the edge only to rounding)
+_COLLINEAR_M = 1e-6
 
 # seven-segment digits: segments a b c d e f g
 _SEGMENTS = {
@@ -342,6 +370,170 @@ def _digits(label: str, height: float) -> NDArray[np.float64]:
     return np.asarray(np.concatenate(boxes) if boxes else np.zeros((0, 3, 3)), np.float64)
 
 
+@dataclass(frozen=True)
+class _Features:
+    """The file's features: the faces of the plan grouped by file face and coverage state.
+
+    A feature is every face (piece) of one file face with one state: its class and, when
+    covered, its LPD band (``LPD_BANDS``). It is drawn as few triangles as its outline
+    needs, all in its colour (that of its worst face: the lowest best LPD over the
+    requirement), and is one row of the property table. A scene that was never split has
+    one feature a face, face ``i`` being feature ``i``, drawn as itself.
+
+    Attributes (N features, T triangles; ``corners`` index the scene's vertices followed by
+    the file's, :func:`_grid_vertices`)
+    ----------
+    rows : (F,) int32, the faces (rows of ``faces.npz``), feature after feature, each
+        feature's ascending
+    offsets : (N + 1,) int64, feature ``n`` holds ``rows[offsets[n]:offsets[n + 1]]``
+    worst : (N,) int64, the row of each feature's face with the lowest best LPD over the
+        requirement (the first such row)
+    classes : (N,) uint8, each feature's class (``CLASS_NAMES``)
+    corners : (T, 3) int, the triangles, feature after feature
+    triangle_feature : (T,) int32 the feature of each triangle; None: triangle ``i`` is
+        feature ``i`` (an unsplit scene)
+    """
+
+    rows: NDArray[np.int32]
+    offsets: NDArray[np.int64]
+    worst: NDArray[np.int64]
+    classes: NDArray[np.uint8]
+    corners: NDArray[np.integer[Any]]
+    triangle_feature: NDArray[np.int32] | None
+
+    @property
+    def count(self) -> int:
+        return len(self.classes)
+
+    def triangle_classes(self) -> NDArray[np.uint8]:
+        """(T,) uint8 the class of each triangle."""
+        if self.triangle_feature is None:
+            return self.classes
+        return self.classes[self.triangle_feature]
+
+
+def lpd_bands(result: PlanResult, classes: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """(F,) uint8 each face's LPD band: 0 for a face that is not covered, else 0 to
+    ``LPD_BANDS - 1`` as its best LPD is 1-2, 2-4, ... times its requirement or more."""
+    ratio = _lpd_ratio(result)
+    bands = np.zeros(len(classes), np.uint8)
+    covered = classes == COVERED
+    doublings = np.floor(np.log2(np.maximum(ratio[covered], 1.0)))
+    bands[covered] = np.clip(doublings, 0, LPD_BANDS - 1).astype(np.uint8)
+    return bands
+
+
+def _lpd_ratio(result: PlanResult) -> NDArray[np.float64]:
+    """(F,) each face's best LPD over its requirement (inf where it requires none)."""
+    best = np.asarray(result.faces["best_lpd_pts_m2"], np.float64)
+    required = np.broadcast_to(np.asarray(result.limits.min_density_pts_m2, np.float64),
+                               best.shape)
+    return np.divide(best, required, out=np.full_like(best, np.inf), where=required > 0)
+
+
+def _features(result: PlanResult, classes: NDArray[np.uint8]) -> _Features:
+    """The features of the plan (:class:`_Features`), from its (F,) face ``classes``."""
+    scene = result.scene
+    n = scene.n_faces
+    if scene.file_faces is None:  # never split: each face its own feature, drawn as is
+        every = np.arange(n, dtype=np.int32)
+        return _Features(rows=every, offsets=np.arange(n + 1, dtype=np.int64),
+                         worst=every.astype(np.int64), classes=classes,
+                         corners=scene.faces, triangle_feature=None)
+    source = scene.source_face
+    key = source.astype(np.int64) * (len(CLASS_NAMES) * LPD_BANDS) + (
+        classes.astype(np.int64) * LPD_BANDS + lpd_bands(result, classes))
+    rows = np.argsort(key, kind="stable").astype(np.int32)
+    sorted_key = key[rows]
+    offsets = np.append(np.flatnonzero(np.diff(sorted_key, prepend=-1)), n).astype(np.int64)
+    del sorted_key
+    worst = np.lexsort((_lpd_ratio(result), key))[offsets[:-1]]  # stable: first of ties
+    del key
+    first = rows[offsets[:-1]]
+    file_face = source[first].astype(np.int64)
+    counts = np.diff(offsets)
+    whole = counts == np.bincount(source, minlength=len(scene.file_mesh[1]))[file_face]
+    merged: dict[int, NDArray[np.int64]] = {}
+    for feature in np.flatnonzero(~whole & (counts > 1)).tolist():
+        members = rows[offsets[feature]:offsets[feature + 1]]
+        merged[feature] = _merge(scene, scene.faces[members], int(first[feature]),
+                                 float(scene.areas[members].sum()))
+    made = np.ones(len(counts), np.int64)
+    for feature, triangles in merged.items():
+        made[feature] = len(triangles)
+    starts = np.concatenate([[0], np.cumsum(made)[:-1]])
+    corners = np.empty((int(made.sum()), 3), np.int64)
+    single = counts == 1
+    corners[starts[single]] = scene.faces[first[single]]
+    # a file face all of one state: the file face itself (its vertices follow the scene's)
+    alone = whole & ~single
+    corners[starts[alone]] = scene.file_mesh[1][file_face[alone]] + len(scene.vertices)
+    for feature, triangles in merged.items():
+        corners[starts[feature]:starts[feature] + len(triangles)] = triangles
+    return _Features(rows=rows, offsets=offsets, worst=worst, classes=classes[first],
+                     corners=corners,
+                     triangle_feature=np.repeat(np.arange(len(counts), dtype=np.int32), made))
+
+
+def _merge(scene: Scene, pieces: NDArray[np.int32], first: int, area: float
+           ) -> NDArray[np.int64]:
+    """(t, 3) vertex indices of triangles covering the (m, 3) ``pieces`` of one file face
+    (that of face ``first``; ``area`` theirs, m^2): their outline (holes and all: the
+    pieces of a file face meet edge to edge), corners on a straight run dropped,
+    triangulated (GEOS's constrained Delaunay, no new vertices), wound as the file face.
+    The pieces themselves when that fails to cover exactly their area with their
+    vertices."""
+    vertices, normal = scene.vertices, scene.normals[first]
+    axes = [a for a in range(3) if a != int(np.argmax(np.abs(normal)))]
+    flat = vertices[pieces][:, :, axes]  # (m, 3, 2): the plane seen along its main axis
+    try:
+        outline = shapely.coverage_union_all(
+            shapely.polygons(np.concatenate([flat, flat[:, :1]], axis=1)))
+        # dropping corners off the line by up to _COLLINEAR_M moves at most this much area
+        # (in the plane; seen along the main axis, lengths shrink by at most sqrt(3))
+        slack = 2.0 * _COLLINEAR_M * float(shapely.length(outline))
+        outline = shapely.simplify(outline, _COLLINEAR_M)
+        parts = shapely.get_parts(shapely.constrained_delaunay_triangles(outline))
+    except shapely.errors.GEOSException:
+        return pieces.astype(np.int64)
+    found = shapely.get_coordinates(parts).reshape(-1, 4, 2)[:, :3]  # (t, 3, 2)
+    # back to vertex indices: each corner is a corner of a piece, bit for bit
+    ids = np.unique(pieces)
+    points = np.ascontiguousarray(vertices[ids][:, axes])
+    order = np.lexsort((points[:, 1], points[:, 0]))
+    keyed = points[order].view([("u", np.float64), ("v", np.float64)]).ravel()
+    wanted = np.ascontiguousarray(found.reshape(-1, 2)).view(
+        [("u", np.float64), ("v", np.float64)]).ravel()
+    at = np.minimum(np.searchsorted(keyed, wanted), len(keyed) - 1)
+    if len(found) == 0 or not (keyed[at] == wanted).all():
+        return pieces.astype(np.int64)
+    triangles = ids[order[at]].reshape(-1, 3).astype(np.int64)
+    cross = _cross(vertices[triangles])
+    if abs(0.5 * float(np.sqrt((cross * cross).sum(axis=1)).sum()) - area) > slack + 1e-9 * area:
+        return pieces.astype(np.int64)
+    flip = cross @ normal < 0
+    triangles[flip] = triangles[flip][:, ::-1]
+    return triangles
+
+
+def _cross(corners: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(t, 3) the cross product of the edges from the first corner of (t, 3, 3) triangles
+    (twice the area, along the normal); written out, np.cross is slow on small arrays."""
+    a = corners[:, 1] - corners[:, 0]
+    b = corners[:, 2] - corners[:, 0]
+    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
+                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], axis=1)
+
+
+def _grid_vertices(scene: Scene, quantizer: _Quantizer) -> NDArray[np.uint16]:
+    """(V + V0, 3) uint16 grid steps of the scene's vertices, then the file's (V0 only when
+    the scene was split): the vertices :attr:`_Features.corners` index."""
+    grid = quantizer(scene.vertices)
+    if scene.file_vertices is None:
+        return grid
+    return np.concatenate([grid, quantizer(scene.file_vertices)])
+
+
 def coverage_glb(result: PlanResult, *, compress: bool | None = None) -> bytes:
     """The bytes of ``coverage.glb`` (see the module docstring).
 
@@ -382,41 +574,48 @@ def _document(result: PlanResult, builder: _Builder) -> dict[str, Any]:
                                   "metallicFactor": 0.0, "roughnessFactor": 0.8}},
     ]
     classes = face_classes(result.faces, result.limits.target)
+    features = _features(result, classes)
     # compressed, the property table's columns are packed first, while little else is held:
-    # each is one view of F values (one meshopt stream, which cannot be split); its place
+    # each is one view of N values (one meshopt stream, which cannot be split); its place
     # in the file stays after the meshes
-    packed_columns = (list(_property_columns(builder, result, classes)) if builder.compress
-                      else None)
-    # quantize the V vertices once, then gather corners: (T, 3, 3) uint16 per class is a
+    packed_columns = (list(_property_columns(builder, result, classes, features))
+                      if builder.compress else None)
+    # quantize the vertices once, then gather corners: (T, 3, 3) uint16 per class is a
     # quarter of the float64 corners a 10 M-face scene would otherwise copy
-    grid_vertices = quantizer(scene.vertices)
+    grid_vertices = _grid_vertices(scene, quantizer)
     meshes: list[dict[str, Any]] = []
     # the root puts the plan frame back into the model's coordinates (up_axis)
     root_rotation = glb_root_rotation(scene.metadata) or _Z_UP_TO_Y_UP
     nodes: list[dict[str, Any]] = [{"name": "scanplan", "rotation": root_rotation,
                                     "children": []}]
     counts = np.bincount(classes, minlength=len(CLASS_NAMES))
+    feature_counts = np.bincount(features.classes, minlength=len(CLASS_NAMES))
+    triangle_classes = features.triangle_classes()
     for k, name in enumerate(CLASS_NAMES):
         if counts[k] == 0:
             continue
         primitives = []
-        for members in _class_parts(classes, k, PRIMITIVE_MAX_FACES):
+        for members in _class_parts(triangle_classes, k, PRIMITIVE_MAX_FACES):
+            ids = (members if features.triangle_feature is None
+                   else features.triangle_feature[members])
             rgba = np.full((len(members), 4), 255, np.uint8)
             rgba[:, :3] = _LINEAR_BYTE[face_rgb(result.faces, result.limits.target,
-                                                result.limits.min_density_pts_m2, members)]
+                                                result.limits.min_density_pts_m2,
+                                                features.worst[ids])]
             # the rows as stored, (T, 3, 4) with a zero fourth column, a corner at a time
             corners = np.zeros((len(members), 3, 4), np.uint16)
             for c in range(3):
-                corners[:, c, :3] = grid_vertices[scene.faces[members, c]]
+                corners[:, c, :3] = grid_vertices[features.corners[members, c]]
             primitives.append(_flat_primitive(builder, corners, rgba,
-                                              members.astype(np.float32), material=0))
+                                              ids.astype(np.float32), material=0))
             del rgba, corners
             release_freed_memory()  # the part's temporaries, before the next part's
         meshes.append({"name": name, "primitives": primitives})
         nodes[0]["children"].append(len(nodes))
         nodes.append({"name": name, "mesh": len(meshes) - 1, **quantizer.node(),
-                      "extras": {"face_class": name, "faces": int(counts[k])}})
-    del grid_vertices
+                      "extras": {"face_class": name, "faces": int(counts[k]),
+                                 "features": int(feature_counts[k])}})
+    del grid_vertices, triangle_classes
 
     station_rgba = np.array([[*linear_bytes(np.array(STATION_RGB, np.uint8)), 255]], np.uint8)
     marker = _marker(_MARKER_RADIUS_M)
@@ -449,8 +648,8 @@ def _document(result: PlanResult, builder: _Builder) -> dict[str, Any]:
         })
         nodes.append({"name": f"station {label} number", "mesh": len(meshes) - 1})
 
-    metadata = _property_table(builder, result, _property_columns(builder, result, classes)
-                               if packed_columns is None else packed_columns)
+    metadata = _property_table(builder, features, _property_columns(
+        builder, result, classes, features) if packed_columns is None else packed_columns)
     compression = ["EXT_meshopt_compression"] if builder.fallback_length else []
     totals_covered = chosen.covered_area_m2[-1] if chosen.stations else 0.0
     document: dict[str, Any] = {
@@ -472,7 +671,9 @@ def _document(result: PlanResult, builder: _Builder) -> dict[str, Any]:
             "covered_shading": {"low_srgb": list(COVERED_LOW_RGB),
                                 "high_srgb": list(COVERED_HIGH_RGB),
                                 "saturation_ratio": COVERED_SATURATION},
-            "face_ids": "_FEATURE_ID_0 = row of faces.npz",
+            "face_ids": ("_FEATURE_ID_0 = row of the property table 'features'; its "
+                         "'faces' lists the feature's rows of faces.npz"),
+            "lpd_bands": LPD_BANDS,
             "position_step_m": quantizer.step_m,
         }}}],
         "nodes": nodes,
@@ -504,57 +705,87 @@ def _class_parts(classes: NDArray[np.uint8], k: int, most: int) -> Iterator[NDAr
         yield np.concatenate(pending)
 
 
-# a column of the property table: name, component type, and either its (F,) values
-# (padded to whole 4-byte rows) or, compressed, their meshopt bytes (stashed) and length
-_Column = tuple[str, str, NDArray[Any] | None, tuple[int, int] | None, int]
+# a column of the property table: name, component type, its role ("values", or
+# "arrayOffsets" of the array column before it), and either its values (padded to whole
+# 4-byte rows) or, compressed, their meshopt bytes (stashed) and length
+_Column = tuple[str, str, str, NDArray[Any] | None, tuple[int, int] | None, int]
 
 
-def _property_columns(builder: _Builder, result: PlanResult, classes: NDArray[np.uint8]
-                      ) -> Iterator[_Column]:
-    """The columns of the property table, made one at a time; a compressed column is
-    written to the spill file at once."""
+def _property_columns(builder: _Builder, result: PlanResult, classes: NDArray[np.uint8],
+                      features: _Features) -> Iterator[_Column]:
+    """The columns of the property table (one row a feature), made one at a time; a
+    compressed column is written to the spill file at once.
+
+    A feature of several faces holds their worst: the best LPD and requirement of its
+    worst face (:attr:`_Features.worst`), the fewest stations and candidates, the latest
+    ``first_station``; ``faces`` lists its rows of faces.npz."""
     faces = result.faces
-    columns: list[tuple[str, str, Callable[[], NDArray[Any]]]] = [
-        ("covered", "UINT8", lambda: np.asarray(faces["covered"], np.uint8)),
-        ("face_class", "UINT8", lambda: classes),
-        ("best_lpd_pts_m2", "FLOAT32",
-         lambda: np.asarray(faces["best_lpd_pts_m2"], np.float32)),
-        ("min_density_pts_m2", "FLOAT32",
-         lambda: np.asarray(result.limits.min_density_pts_m2, np.float32)),
-        ("n_stations", "INT32", lambda: np.asarray(faces["n_stations"], np.int32)),
-        ("first_station", "INT32", lambda: np.asarray(faces["first_station"], np.int32)),
-        ("n_candidates", "INT32", lambda: np.asarray(faces["n_candidates"], np.int32)),
-        ("source_face", "INT32", lambda: np.asarray(result.scene.source_face, np.int32)),
+
+    def least(name: str, dtype: type[np.generic], reduce: np.ufunc = np.minimum
+              ) -> NDArray[Any]:
+        values = np.asarray(faces[name], dtype)
+        if features.triangle_feature is None:  # a face a feature
+            return values
+        return np.asarray(reduce.reduceat(values[features.rows], features.offsets[:-1]), dtype)
+
+    def of_worst(values: NDArray[Any], dtype: type[np.generic]) -> NDArray[Any]:
+        values = np.broadcast_to(np.asarray(values, dtype), (result.scene.n_faces,))
+        return np.ascontiguousarray(values[features.worst])
+
+    columns: list[tuple[str, str, str, Callable[[], NDArray[Any]]]] = [
+        ("covered", "UINT8", "values", lambda: of_worst(faces["covered"], np.uint8)),
+        ("face_class", "UINT8", "values", lambda: features.classes),
+        ("best_lpd_pts_m2", "FLOAT32", "values",
+         lambda: of_worst(faces["best_lpd_pts_m2"], np.float32)),
+        ("min_density_pts_m2", "FLOAT32", "values",
+         lambda: of_worst(result.limits.min_density_pts_m2, np.float32)),
+        ("n_stations", "INT32", "values", lambda: least("n_stations", np.int32)),
+        ("first_station", "INT32", "values",
+         lambda: least("first_station", np.int32, np.maximum)),
+        ("n_candidates", "INT32", "values", lambda: least("n_candidates", np.int32)),
+        ("source_face", "INT32", "values",
+         lambda: of_worst(result.scene.source_face, np.int32)),
+        ("faces", "UINT32", "values", lambda: features.rows.view(np.uint32)),
+        ("faces", "UINT32", "arrayOffsets", lambda: features.offsets.astype(np.uint32)),
     ]
-    for name, component, make in columns:
+    for name, component, role, make in columns:
         values = make()
         if values.nbytes % 4:  # uint8 columns: whole 4-byte rows for the codec; count says
             padded = np.zeros(len(values) + (-values.nbytes % 4), values.dtype)
             padded[:len(values)] = values
             values = padded
         if builder.compress:
-            yield name, component, None, builder.stash(builder.encode(values, 4)), values.nbytes
+            yield (name, component, role, None, builder.stash(builder.encode(values, 4)),
+                   values.nbytes)
         else:
-            yield name, component, values, None, values.nbytes
+            yield name, component, role, values, None, values.nbytes
 
 
-def _property_table(builder: _Builder, result: PlanResult, columns: Iterable[_Column]
+def _property_table(builder: _Builder, features: _Features, columns: Iterable[_Column]
                     ) -> dict[str, Any]:
-    properties = {}
-    table = {}
-    for name, component, values, packed, nbytes in columns:
-        properties[name] = {"type": "SCALAR", "componentType": component}
+    properties: dict[str, dict[str, Any]] = {}
+    table: dict[str, dict[str, Any]] = {}
+    for name, component, role, values, packed, nbytes in columns:
         if packed is None:
             assert values is not None
-            table[name] = {"values": builder.view(values)}
+            view = builder.view(values)
         else:
-            table[name] = {"values": builder.packed_view(packed, nbytes, 4)}
+            view = builder.packed_view(packed, nbytes, 4)
+        if role == "arrayOffsets":  # of the variable-length array column before it
+            properties[name]["array"] = True
+            table[name].update({"arrayOffsets": view, "arrayOffsetType": "UINT32"})
+            continue
+        properties[name] = {"type": "SCALAR", "componentType": component}
+        table[name] = {"values": view}
     return {
-        "schema": {"id": "scanplan", "classes": {"face": {
-            "description": "per-face coverage of the plan, one row per face of faces.npz",
+        "schema": {"id": "scanplan", "classes": {"feature": {
+            "description": ("coverage of the plan per feature: the faces of faces.npz "
+                            "(listed in 'faces') that come from one face of the file and "
+                            "share a class and, covered, an LPD band; a feature of several "
+                            "faces holds the values of its worst face"),
             "properties": properties}}},
-        "propertyTables": [{"name": "faces", "class": "face",
-                            "count": int(result.scene.n_faces), "properties": table}],
+        "propertyTables": [{"name": "features", "class": "feature",
+                            "count": features.count, "properties": table}],
     }
 
 

@@ -412,6 +412,7 @@ async function loadModel() {
     throw new ProblemError({ title: 'coverage.glb cannot be loaded',
                              detail: String(err && err.message ? err.message : err) });
   }
+  featureRows = await readFeatureRows(gltf);
   const root = gltf.scene;
   scene3d.add(root);
   const info = (gltf.scene.userData && gltf.scene.userData.scanplan) || {};
@@ -602,13 +603,36 @@ function overlayState() {
 // --- colouring: plan coverage or delivered (verification) ---------------------------------
 
 let deliveredArrays = null; // {covered, verified_delivered} from faces.npz
+// the rows of faces.npz each feature of coverage.glb draws: {values, offsets} (feature f
+// holds values[offsets[f]..offsets[f + 1]]), read from the property table's 'faces' column;
+// null for a file without it, whose feature id is the row itself
+let featureRows = null;
+
+async function readFeatureRows(gltf) {
+  const metadata = (gltf.parser.json.extensions || {}).EXT_structural_metadata;
+  const table = metadata && metadata.propertyTables && metadata.propertyTables[0];
+  const column = table && table.properties && table.properties.faces;
+  if (!column || column.arrayOffsets === undefined) return null;
+  // the loader's meshopt plugin decodes compressed views
+  const [values, offsets] = await Promise.all([column.values, column.arrayOffsets].map(
+    (index) => gltf.parser.getDependency('bufferView', index)));
+  return { values: new Uint32Array(values, 0, values.byteLength / 4),
+           offsets: new Uint32Array(offsets, 0, table.count + 1) };
+}
+
+// the rows of faces.npz feature f draws
+function rowsOf(f) {
+  if (!featureRows) return [f];
+  return featureRows.values.subarray(featureRows.offsets[f], featureRows.offsets[f + 1]);
+}
 
 function linearBytes(css) {
   const c = new THREE.Color(css); // sRGB in, linear (three's working space) out
   return [c.r, c.g, c.b].map((v) => Math.round(v * 255));
 }
 
-// every class mesh: its face ids (_FEATURE_ID_0, a face = 3 vertices) and its COLOR_0
+// every class mesh: its feature ids (_FEATURE_ID_0, a triangle = 3 vertices; a feature's
+// triangles one after the other) and its COLOR_0
 function faceMeshes() {
   const out = [];
   for (const [name, { node }] of classNodes) {
@@ -623,17 +647,40 @@ function faceMeshes() {
   return out;
 }
 
+// a feature's faces share the plan's class, so they are all promised or all not; where the
+// simulated scan differs among them the feature shows the exception: promised but not
+// delivered, or delivered but not promised
+const KIND_RANK = [2, 0, 1, 3, 4]; // by index of DELIVERED: the lower rank is shown
+
+function featureKind(kindOf, name, f) {
+  let kind = -1;
+  for (const row of rowsOf(f)) {
+    const k = kindOf(name, row);
+    if (kind < 0 || KIND_RANK[k] < KIND_RANK[kind]) kind = k;
+  }
+  return kind;
+}
+
+// colour every feature by kindOf(class, row) (null: the plan's colours); the faces of each
+// kind, counted face by face (a feature whose faces differ is drawn in its featureKind)
 function paint(kindOf) {
   const bytes = DELIVERED.map(([, , css]) => linearBytes(css));
   const counts = Object.fromEntries(DELIVERED.map(([kind]) => [kind, 0]));
+  // a feature's triangles follow one another, on into the class's next primitive
+  let last = -1;
+  let k = 0;
   for (const { name, mesh, ids, colour } of faceMeshes()) {
     if (!mesh.userData.planColours) mesh.userData.planColours = colour.array.slice();
     if (!kindOf) {
       colour.array.set(mesh.userData.planColours);
     } else {
       for (let v = 0; v + 2 < ids.count; v += 3) {
-        const k = kindOf(name, Math.round(ids.getX(v)));
-        counts[DELIVERED[k][0]] += 1;
+        const f = Math.round(ids.getX(v));
+        if (f !== last) {
+          k = featureKind(kindOf, name, f);
+          for (const row of rowsOf(f)) counts[DELIVERED[kindOf(name, row)][0]] += 1;
+          last = f;
+        }
         for (let j = v; j < v + 3; j += 1) {
           colour.setXYZW(j, bytes[k][0] / 255, bytes[k][1] / 255, bytes[k][2] / 255, 1);
         }
@@ -653,17 +700,22 @@ function deliveredKind(className, face) {
   return delivered ? 2 : 3;
 }
 
-// faces per delivered kind, read back from the colours the meshes now hold
+// faces per delivered kind, read back from the colours the meshes now hold (a feature's
+// faces counted once, in the colour it is drawn in)
 function faceColours() {
   const bytes = DELIVERED.map(([, , css]) => linearBytes(css).join(','));
   const counts = { other: 0 };
   for (const [kind] of DELIVERED) counts[kind] = 0;
+  let last = -1; // a feature's triangles follow one another, across primitives too
   for (const { colour, ids } of faceMeshes()) {
     for (let v = 0; v + 2 < ids.count; v += 3) {
+      const f = Math.round(ids.getX(v));
+      if (f === last) continue;
+      last = f;
       const rgb = [colour.getX(v), colour.getY(v), colour.getZ(v)]
         .map((x) => Math.round(x * 255)).join(',');
       const k = bytes.indexOf(rgb);
-      counts[k >= 0 ? DELIVERED[k][0] : 'other'] += 1;
+      counts[k >= 0 ? DELIVERED[k][0] : 'other'] += rowsOf(f).length;
     }
   }
   return counts;

@@ -9,6 +9,7 @@ skips with the reason printed.
 from __future__ import annotations
 
 import csv
+import io
 import os
 import shutil
 import socket
@@ -395,6 +396,45 @@ def test_viewer_colours_what_the_verification_delivered(
     page.wait_for_function("window.scanplanViewer.colouring === 'coverage'")
     assert page.evaluate("window.scanplanViewer.faceColours()")["other"] > 0
     assert page.locator("#delivered-legend").is_hidden()
+    assert errors == []
+
+
+def test_viewer_colours_a_split_model_by_feature(
+        server: tuple[str, InlineQueue], scenes_dir: Path, browser_context: Any) -> None:
+    """A model split for the coverage is drawn by feature (coverage.glb's faces of one file
+    face and state): the viewer shows every class, and the delivered colouring counts every
+    face of faces.npz once, each kind face by face."""
+    import trimesh
+
+    base, _ = server
+    room = trimesh.creation.box(extents=(8.0, 6.0, 3.0))
+    room.apply_translation((4.0, 3.0, 1.5))
+    room.invert()
+    block = trimesh.creation.box(extents=(1.0, 2.0, 2.5))
+    block.apply_translation((4.5, 3.0, 1.25))
+    obj = trimesh.util.concatenate([room, block]).export(file_type="obj")
+    job = submit(base, scenes_dir, model=obj.encode(), candidates=[[1.5, 1.5, 1.5]],
+                 max_edge_m=0.25, verify=True)
+    plan = httpx.get(f"{base}/jobs/{job}/results/plan.json").json()
+    faces = np.load(io.BytesIO(httpx.get(f"{base}/jobs/{job}/results/faces.npz").content))
+    covered, delivered = faces["covered"], faces["verified_delivered"]
+    n_faces = plan["totals"]["faces"]
+    assert n_faces == len(covered) > 10_000  # split: many faces, few features
+    page, errors = open_page(browser_context, f"{base}/jobs/{job}/viewer")
+    page.wait_for_function("window.scanplanViewer && window.scanplanViewer.ready",
+                           timeout=60_000)
+    toggles = page.locator("#class-toggles").inner_text()
+    assert f"({int(covered.sum())} faces)" in toggles
+    page.locator('#colouring input[value="delivered"]').check()
+    page.wait_for_function("window.scanplanViewer.colouring === 'delivered'", timeout=30_000)
+    expected = {"delivered": int((covered & delivered).sum()),
+                "promised_not_delivered": int((covered & ~delivered).sum())}
+    for kind, count in expected.items():
+        text = page.locator(f'#delivered-legend [data-kind="{kind}"] .count').inner_text()
+        assert int(text) == count, kind
+    drawn = page.evaluate("window.scanplanViewer.faceColours()")
+    assert drawn["other"] == 0
+    assert sum(v for k, v in drawn.items() if k != "other") == n_faces
     assert errors == []
 
 

@@ -1,5 +1,7 @@
 """coverage.glb: a valid glTF binary that trimesh loads, face colours and the property table
-agree with faces.npz, stations where the plan puts them, same bytes twice.
+agree with faces.npz, stations where the plan puts them, same bytes twice; a split model is
+drawn by file face and coverage state, far fewer triangles than faces, every face's state
+still in its feature.
 
 The default file is meshopt-compressed, which trimesh cannot read: it is decoded here with
 the ``meshopt`` decoder and shown to hold exactly the arrays of the uncompressed variant,
@@ -9,7 +11,9 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import itertools
 import json
+import math
 import struct
 from pathlib import Path
 from typing import Any
@@ -23,7 +27,8 @@ from planner.errors import ParameterError
 from planner.outputs import drawing, glb
 from planner.outputs.report import faces_npz
 from planner.parameters import PlanSpec
-from planner.pipeline import PlanResult
+from planner.pipeline import PlanResult, plan
+from planner.scene import build_scene
 from tests.planner.test_drawing import plan_hall_small
 
 
@@ -124,22 +129,43 @@ def test_face_colours_match_faces_npz(result: PlanResult, plain: bytes) -> None:
     assert (seen == 1).all()  # every face once
 
 
-def test_property_table_carries_faces_npz(result: PlanResult, data: bytes) -> None:
-    """Read from the compressed file, as a BIM platform with a meshopt decoder would."""
-    document, blob = chunks(data)
-    arrays = np.load(io.BytesIO(faces_npz(result)))
+_TYPES = {"UINT8": np.uint8, "INT32": np.int32, "UINT32": np.uint32, "FLOAT32": np.float32}
+
+
+def property_table(document: dict[str, Any], blob: bytes
+                   ) -> tuple[dict[str, np.ndarray], list[np.ndarray]]:
+    """The property table's scalar columns, (N,) each, and each feature's rows of faces.npz
+    (its variable-length ``faces`` array)."""
     metadata = document["extensions"]["EXT_structural_metadata"]
     table = metadata["propertyTables"][0]
-    assert table["count"] == result.scene.n_faces
-    types = {"UINT8": np.uint8, "INT32": np.int32, "FLOAT32": np.float32}
-    schema = metadata["schema"]["classes"]["face"]["properties"]
+    schema = metadata["schema"]["classes"][table["class"]]["properties"]
+    columns = {}
+    for name, column in table["properties"].items():
+        assert document["bufferViews"][column["values"]]["byteOffset"] % 8 == 0
+        values = np.frombuffer(view_bytes(document, blob, column["values"]),
+                               _TYPES[schema[name]["componentType"]])
+        if not schema[name].get("array"):
+            columns[name] = values[:table["count"]]
+    faces = table["properties"]["faces"]
+    assert schema["faces"]["array"] and faces["arrayOffsetType"] == "UINT32"
+    offsets = np.frombuffer(view_bytes(document, blob, faces["arrayOffsets"]), np.uint32,
+                            count=table["count"] + 1)
+    values = np.frombuffer(view_bytes(document, blob, faces["values"]), np.uint32)
+    rows = [values[a:b].astype(int) for a, b in itertools.pairwise(offsets)]
+    return columns, rows
+
+
+def test_property_table_carries_faces_npz(result: PlanResult, data: bytes) -> None:
+    """Read from the compressed file, as a BIM platform with a meshopt decoder would: a
+    model that was not split has a feature a face, feature i being face i."""
+    document, blob = chunks(data)
+    arrays = np.load(io.BytesIO(faces_npz(result)))
+    columns, rows = property_table(document, blob)
+    assert len(rows) == result.scene.n_faces
+    assert all(list(r) == [i] for i, r in enumerate(rows))
     for name in ("covered", "best_lpd_pts_m2", "n_stations", "first_station", "n_candidates",
                  "source_face"):
-        index = table["properties"][name]["values"]
-        assert document["bufferViews"][index]["byteOffset"] % 8 == 0
-        values = np.frombuffer(view_bytes(document, blob, index),
-                               types[schema[name]["componentType"]], count=table["count"])
-        np.testing.assert_array_equal(values, arrays[name].astype(values.dtype))
+        np.testing.assert_array_equal(columns[name], arrays[name].astype(columns[name].dtype))
 
 
 def test_stations_are_numbered_markers(result: PlanResult, plain: bytes) -> None:
@@ -222,3 +248,83 @@ def test_a_large_class_is_split_into_primitives(result: PlanResult, data: bytes,
     for name in tables[0]:
         assert (view_bytes(whole_doc, whole_blob, tables[0][name]["values"])
                 == view_bytes(split_doc, split_blob, tables[1][name]["values"]))
+
+
+@pytest.fixture(scope="module")
+def split_result() -> PlanResult:
+    """A room of 8 x 6 x 3 m with a block in it, split at 0.25 m (about 20,000 faces from 24
+    file faces), one station in a corner: walls and floor partly covered, at several LPDs,
+    partly in the block's shadow."""
+    room = trimesh.creation.box(extents=(8.0, 6.0, 3.0))
+    room.apply_translation((4.0, 3.0, 1.5))
+    room.invert()
+    block = trimesh.creation.box(extents=(1.0, 2.0, 2.5))
+    block.apply_translation((4.5, 3.0, 1.25))
+    mesh = trimesh.util.concatenate([room, block])
+    scene = dataclasses.replace(build_scene(np.asarray(mesh.vertices), np.asarray(mesh.faces)),
+                                split_max_edge_m=0.25)
+    return plan(scene, PlanSpec(candidates=((1.5, 1.5, 1.5),), max_edge_m=0.25))
+
+
+def test_split_model_is_drawn_by_file_face_and_state(split_result: PlanResult) -> None:
+    """Every face of faces.npz is in exactly one feature, the faces of a feature share their
+    file face, class and LPD band, and the feature's triangles cover exactly their area in
+    the colour of its worst face; the file holds a fraction of the faces' triangles."""
+    result = split_result
+    plain = glb.coverage_glb(result, compress=False)
+    arrays = np.load(io.BytesIO(faces_npz(result)))
+    classes = drawing.face_classes(arrays, result.limits.target)
+    colours = glb.linear_bytes(drawing.face_rgb(arrays, result.limits.target,
+                                                result.limits.min_density_pts_m2))
+    ratio = arrays["best_lpd_pts_m2"] / result.limits.min_density_pts_m2
+    bands = np.where(classes == drawing.COVERED,
+                     np.clip(np.floor(np.log2(np.maximum(ratio, 1.0))), 0, glb.LPD_BANDS - 1), 0)
+    document, blob = chunks(plain)
+    columns, rows = property_table(document, blob)
+    seen = np.zeros(result.scene.n_faces, int)
+    for feature, members in enumerate(rows):
+        seen[members] += 1
+        for values in (arrays["source_face"], classes, bands):
+            assert (values[members] == values[members[0]]).all()
+        worst = members[np.argmin(ratio[members])]
+        assert columns["face_class"][feature] == classes[worst]
+        assert columns["source_face"][feature] == arrays["source_face"][worst]
+        assert columns["best_lpd_pts_m2"][feature] == np.float32(arrays["best_lpd_pts_m2"][worst])
+        assert columns["n_stations"][feature] == arrays["n_stations"][members].min()
+        assert columns["n_candidates"][feature] == arrays["n_candidates"][members].min()
+        assert columns["first_station"][feature] == arrays["first_station"][members].max()
+    assert (seen == 1).all()  # every face in one feature
+    assert len(rows) < result.scene.n_faces / 100  # one or a few features per file face
+    assert len(np.unique(bands[classes == drawing.COVERED])) >= 3  # the shading is kept
+
+    loaded = trimesh.load(io.BytesIO(plain), file_type="glb", process=False)
+    step_m = document["scenes"][0]["extras"]["scanplan"]["position_step_m"]
+    root_inverse = np.diag([1.0, 1.0, 1.0, 1.0])
+    root_inverse[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]  # glTF Y-up -> model Z-up
+    drawn_m2 = np.zeros(len(rows))
+    triangles = 0
+    for k, name in enumerate(drawing.CLASS_NAMES):
+        if name not in loaded.geometry:
+            assert not (classes == k).any()
+            continue
+        mesh = loaded.geometry[name]
+        ids = mesh.vertex_attributes["_FEATURE_ID_0"].reshape(-1, 3)[:, 0].astype(int)
+        assert (columns["face_class"][ids] == k).all()
+        drawn = np.asarray(mesh.visual.vertex_attributes["color"]).reshape(-1, 3, 4)[:, 0, :3]
+        worst = np.array([members[np.argmin(ratio[members])] for members in rows])
+        assert (drawn == colours[worst[ids]]).all()
+        corners = trimesh.transform_points(np.asarray(mesh.vertices, float),
+                                           root_inverse @ loaded.graph[name][0]).reshape(-1, 3, 3)
+        area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0],
+                                             corners[:, 2] - corners[:, 0]), axis=1)
+        np.add.at(drawn_m2, ids, area)
+        triangles += len(ids)
+    faces_m2 = np.array([result.scene.areas[members].sum() for members in rows])
+    # within the positions' rounding: half a step along an outline
+    outline_m = np.array([4 * math.sqrt(a) + 1.0 for a in faces_m2])
+    assert (np.abs(drawn_m2 - faces_m2) <= outline_m * step_m).all()
+    assert triangles < result.scene.n_faces / 5
+
+
+def test_split_model_same_bytes_twice(split_result: PlanResult) -> None:
+    assert glb.coverage_glb(split_result) == glb.coverage_glb(split_result)
