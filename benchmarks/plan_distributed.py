@@ -9,15 +9,24 @@ peak is its process's VmHWM (``/proc/self/status``, read with ``client.run``), t
 time cannot show the gain; the tasks' times show what more cores would give.
 
 Measured on 2 shared cores, the office of 8 storeys, 12 x 19 m (3.37 M faces split, 873
-candidates at ``grid_spacing_m`` 1.0, no placement tolerance): one machine 105.5 s, peak
-1,120 MiB; 1 worker 228 s, worker peak 1,122 MiB; 2 workers 352 s, 1,240 and 1,422 MiB;
-4 workers 389 s, 1,224 to 1,798 MiB; every file byte-identical each time. On so narrow and
-tall a building a tile is most of it: the overlap rows reach 25 m, as far as the building
-is high and wide, and a coverage tile held up to 128 candidates (more than a storey), so a
-worker's peak does not fall below the single machine's.
+candidates at ``grid_spacing_m`` 1.0, no placement tolerance), while each task still
+carried the file's mesh: one machine 105.5 s, peak 1,120 MiB; 1 worker 228 s, worker peak
+1,122 MiB; 2 workers 352 s, 1,240 and 1,422 MiB; 4 workers 389 s, 1,224 to 1,798 MiB; every
+file byte-identical each time. On so narrow and tall a building a tile is most of it.
+
+Measured on 2 cores shared with other jobs (wall times meaningless), the office of 8
+storeys, 60 x 19 m, ``--params '{"grid_spacing_m": 3.0, "max_edge_m": 0.8}'`` (3.17 M
+faces split from 83,408 file faces, 424 candidates), ``--workers 2``: one machine peak
+1,414 MiB; 2 workers 1,215 and 1,398 MiB with the file's mesh in every task, 1,256 and
+1,160 MiB with it sent once per worker (CPU of the whole run 521 s and 524 s); every file
+byte-identical. The file's mesh is 2.1 MiB and its BVH 5 to 8 MiB there: a worker's peak
+is the libraries (197 MiB), the tile it runs and the next one queued (the overlap rows'
+tiles 92 to 321 MiB, 0.9 to 3.1 M of the 3.17 M faces: everything within 25 m of a few
+candidates; the coverage tiles 46 to 66 MiB) and the running tile's scratch (up to about
+1.5 times the tile).
 
     PYTHONPATH=. .venv/bin/python benchmarks/plan_distributed.py [MODEL.ifc]
-        [--storeys 8] [--width-m 12] [--depth-m 14] [--workers 1 2 4]
+        [--storeys 8] [--width-m 12] [--depth-m 19] [--workers 1 2 4]
         [--params '{"grid_spacing_m": 1.0}'] [--out /tmp/plan-distributed]
 """
 
@@ -73,7 +82,7 @@ def main() -> None:
     parser.add_argument("model", nargs="?", type=Path)
     parser.add_argument("--storeys", type=int, default=8)
     parser.add_argument("--width-m", type=float, default=12.0)
-    parser.add_argument("--depth-m", type=float, default=14.0)
+    parser.add_argument("--depth-m", type=float, default=19.0)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2, 4])
     parser.add_argument("--params", default="{}", help="JSON object of plan parameters")
     parser.add_argument("--out", type=Path, default=Path("/tmp/plan-distributed"))

@@ -154,6 +154,77 @@ class BvhFaces:
     quads: bool
 
 
+class EmbreeBvh:
+    """The two Embree BVHs (robust and fast mode) over the occluding faces of one mesh, and
+    what deciding a ray in float64 needs of them: the state an :class:`EmbreeOcclusion`
+    casts against, which several of them may share (a Dask worker's tiles of one plan,
+    :class:`planner.visibility.tiles.Occluders`).
+
+    ``vertices`` (V, 3) float64 and ``faces`` (B, 3) int32 are the mesh, ``occluding`` (B,)
+    bool which of its faces the BVH holds (in the mesh's order: the same faces in the same
+    order give the same BVH, and so the same verdicts). ``scale_m`` (the largest coordinate
+    of the mesh, which sets the clear-hit margin) and ``quads`` (bundles may hide behind
+    quads) default to this mesh's; a part of a larger model passes the model's.
+    """
+
+    def __init__(self, vertices: NDArray[np.float64], faces: NDArray[np.int32],
+                 occluding: NDArray[np.bool_], *, scale_m: float | None = None,
+                 quads: bool | None = None) -> None:
+        self.mesh = (vertices, faces)
+        self.scene = rtcore_scene.EmbreeScene(robust=True)
+        # the same faces in Embree's fast mode: where the two casts disagree, float64 decides
+        self.check_scene = rtcore_scene.EmbreeScene(robust=False)
+        self.faces: NDArray[np.int64] = np.flatnonzero(occluding)  # (b,) the BVH's faces
+        self.empty = len(self.faces) == 0
+        self.all_occlude = bool(np.asarray(occluding, bool).all())
+        self.scale_m = 1.0
+        self.clear_margin_m = 0.0
+        self.corners32 = (np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32))
+        if not self.empty:
+            # indexed (shared vertices): a third faster to build than a triangle soup
+            vertices32 = vertices.astype(np.float32)
+            faces32 = faces[self.faces].astype(np.int32)
+            self._mesh = TriangleMesh(self.scene, vertices32, faces32)
+            self._check_mesh = TriangleMesh(self.check_scene, vertices32, faces32)
+            # the corners as Embree holds them (float32), for the clear-hit test
+            self.corners32 = (vertices32, faces32)
+            self.scale_m = (float(np.abs(vertices32).max(initial=1.0)) if scale_m is None
+                            else scale_m)
+            self.clear_margin_m = _CLEAR_HIT_ULPS * float(np.spacing(np.float32(self.scale_m)))
+        self.quads_allowed = len(self.faces) <= _QUAD_MAX_TRIANGLES if quads is None else quads
+        # (V + 1,) and (3 b,): the occluders (indices into self.faces) at each vertex, built
+        # the first time a ray needs deciding in float64
+        self._vertex_occluders: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None
+        self._quad_partners: tuple[NDArray[np.int32], NDArray[np.int8],
+                                   NDArray[np.int32]] | None = None
+        self._lock = threading.Lock()
+
+    def quads(self) -> tuple[NDArray[np.int32], NDArray[np.int8], NDArray[np.int32]]:
+        """The BVH triangles' quad partners (:func:`quad_partners`), found the first time
+        bundles are ruled out; none (empty arrays) for a BVH of more than
+        :data:`_QUAD_MAX_TRIANGLES`."""
+        with self._lock:
+            if self._quad_partners is None:
+                vertices32, faces32 = self.corners32
+                self._quad_partners = (
+                    quad_partners(vertices32, faces32, self.clear_margin_m)
+                    if self.quads_allowed
+                    else (np.zeros(0, np.int32), np.zeros(0, np.int8), np.zeros(0, np.int32)))
+            return self._quad_partners
+
+    def vertex_table(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """(V + 1,) starts and (3 b,) occluders (indices into :attr:`faces`) at each
+        vertex: the occluders at vertex v are ``occluder[starts[v]:starts[v + 1]]``."""
+        with self._lock:
+            if self._vertex_occluders is None:
+                corner_vertex = self.mesh[1][self.faces].ravel()
+                order = np.argsort(corner_vertex, kind="stable")
+                starts = np.searchsorted(corner_vertex[order],
+                                         np.arange(len(self.mesh[0]) + 1))
+                self._vertex_occluders = (starts, order // 3)
+            return self._vertex_occluders
+
+
 class EmbreeOcclusion:
     """Occlusion test against the occluding faces of a scene, one Embree BVH.
 
@@ -191,64 +262,53 @@ class EmbreeOcclusion:
     ``part_of`` (:class:`BvhPart`): the scene is a part of a larger model (a tile, cut
     with every occluder a ray of the part can meet); which BVH faces occlude, the clear
     margin and the quads are then the whole model's, so the part's verdicts are its.
+    ``bvh`` (:class:`EmbreeBvh`): cast against that BVH, built once over this scene's BVH
+    mesh (the file's mesh with ``file_faces``) and shared, instead of building one.
 
     ``visible`` releases the GIL inside Embree, so threads calling it run in parallel.
     """
 
     def __init__(self, scene: Scene, occludes: NDArray[np.bool_], *,
-                 file_faces: bool = False, part_of: BvhPart | None = None) -> None:
+                 file_faces: bool = False, part_of: BvhPart | None = None,
+                 bvh: EmbreeBvh | None = None) -> None:
         remeshed = file_faces and scene.file_faces is not None
         bvh_vertices, bvh_faces = scene.file_mesh if remeshed else (scene.vertices, scene.faces)
         # (F,) the BVH face each scene face is part of (the identity on an unremeshed scene)
         self._source_face = scene.source_face if remeshed else None
-        if part_of is not None and part_of.bvh_occludes is not None:
-            file_occludes = np.asarray(part_of.bvh_occludes, bool)
-        elif remeshed:
-            file_occludes = np.zeros(len(bvh_faces), bool)
-            file_occludes[scene.source_face[occludes]] = True
-        else:
-            file_occludes = occludes
         if remeshed:
             # (F0,) a scene face of every file face (its first piece), for first_hit
             self._first_piece = np.full(len(bvh_faces), -1, np.int64)
             pieces_of, first = scene.first_pieces()
             self._first_piece[pieces_of] = first
-        self._scene = rtcore_scene.EmbreeScene(robust=True)
-        # the same faces in Embree's fast mode: where the two casts disagree, float64 decides
-        self._check_scene = rtcore_scene.EmbreeScene(robust=False)
-        self._faces = np.flatnonzero(file_occludes)
-        self._empty = len(self._faces) == 0
-        if not self._empty:
-            # indexed (shared vertices): a third faster to build than a triangle soup
-            vertices32 = bvh_vertices.astype(np.float32)
-            faces32 = bvh_faces[self._faces].astype(np.int32)
-            self._mesh = TriangleMesh(self._scene, vertices32, faces32)
-            self._check_mesh = TriangleMesh(self._check_scene, vertices32, faces32)
-            # the corners as Embree holds them (float32), for the clear-hit test
-            self._corners32 = (vertices32, faces32)
-            scale_m = (float(np.abs(vertices32).max(initial=1.0)) if part_of is None
-                       else part_of.scale_m)
-            self._scale_m = scale_m
-            self._clear_margin_m = _CLEAR_HIT_ULPS * float(np.spacing(np.float32(scale_m)))
-        self._quads_allowed = (len(self._faces) <= _QUAD_MAX_TRIANGLES if part_of is None
-                               else part_of.quads)
+        if bvh is None:
+            if part_of is not None and part_of.bvh_occludes is not None:
+                file_occludes = np.asarray(part_of.bvh_occludes, bool)
+            elif remeshed:
+                file_occludes = np.zeros(len(bvh_faces), bool)
+                file_occludes[scene.source_face[occludes]] = True
+            else:
+                file_occludes = occludes
+            bvh = EmbreeBvh(bvh_vertices, bvh_faces, file_occludes,
+                            scale_m=None if part_of is None else part_of.scale_m,
+                            quads=None if part_of is None else part_of.quads)
+        elif len(bvh.mesh[1]) != len(bvh_faces):
+            raise ValueError("the shared BVH is not over this scene's BVH mesh")
+        self._bvh = bvh
+        # the BVH's own state, read through these names by the queries below
+        self._scene, self._check_scene = bvh.scene, bvh.check_scene
+        self._faces, self._empty = bvh.faces, bvh.empty
+        self._corners32 = bvh.corners32
+        self._scale_m, self._clear_margin_m = bvh.scale_m, bvh.clear_margin_m
+        self._quads_allowed, self._all_occlude = bvh.quads_allowed, bvh.all_occlude
+        self._bvh_mesh = bvh.mesh
         self._occludes = occludes
-        self._all_occlude = bool(file_occludes.all())
         self._scene_faces = (scene.vertices, scene.faces)
-        self._bvh_mesh = (bvh_vertices, bvh_faces)
-        # (V0 + 1,) and (3 f,): the occluders (indices into self._faces) at each BVH vertex,
-        # built the first time a ray needs deciding in float64
-        self._vertex_occluders: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None
-        self._quad_partners: tuple[NDArray[np.int32], NDArray[np.int8],
-                                   NDArray[np.int32]] | None = None
-        self._lock = threading.Lock()
 
     def bvh_faces(self) -> BvhFaces:
         """The faces this occlusion casts against (see :class:`BvhFaces`)."""
         vertices, faces = self._bvh_mesh
         return BvhFaces(vertices, faces, self._faces.astype(np.int64),
-                        self._source_face is not None,
-                        getattr(self, "_scale_m", 1.0), self._quads_allowed)
+                        self._source_face is not None, self._scale_m, self._quads_allowed)
 
     def visible(
         self,
@@ -345,17 +405,7 @@ class EmbreeOcclusion:
         return hidden
 
     def _quads(self) -> tuple[NDArray[np.int32], NDArray[np.int8], NDArray[np.int32]]:
-        """The BVH triangles' quad partners (:func:`quad_partners`), found the first time
-        bundles are ruled out; none (empty arrays) for a BVH of more than
-        :data:`_QUAD_MAX_TRIANGLES`."""
-        with self._lock:
-            if self._quad_partners is None:
-                vertices32, faces32 = self._corners32
-                self._quad_partners = (
-                    quad_partners(vertices32, faces32, self._clear_margin_m)
-                    if self._quads_allowed
-                    else (np.zeros(0, np.int32), np.zeros(0, np.int8), np.zeros(0, np.int32)))
-            return self._quad_partners
+        return self._bvh.quads()
 
     def _bvh_face(self, faces: NDArray[np.int64]) -> NDArray[np.int64]:
         """The BVH face (file face, or the face itself) of scene faces."""
@@ -371,16 +421,7 @@ class EmbreeOcclusion:
         return reached
 
     def _vertex_table(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        """(V0 + 1,) starts and (3 f,) occluders (indices into self._faces) at each BVH
-        vertex: the occluders at vertex v are ``occluder[starts[v]:starts[v + 1]]``."""
-        with self._lock:
-            if self._vertex_occluders is None:
-                corner_vertex = self._bvh_mesh[1][self._faces].ravel()
-                order = np.argsort(corner_vertex, kind="stable")
-                starts = np.searchsorted(corner_vertex[order],
-                                         np.arange(len(self._bvh_mesh[0]) + 1))
-                self._vertex_occluders = (starts, order // 3)
-            return self._vertex_occluders
+        return self._bvh.vertex_table()
 
     def _probe_hits(self, origins: NDArray[np.float64], directions: NDArray[np.float64]
                     ) -> NDArray[np.int64]:

@@ -17,8 +17,10 @@ coverage model, the robust table's cut and the brute-force backend.
 
 Tasks carry their tile in the task itself, through the scheduler, so a task whose worker
 dies runs again on another worker (Dask reschedules it; nothing was scattered that could be
-lost). Dask is imported only here and only when a scheduler is given: the embedded default
-needs none (``pip install scanplan[dask]`` adds it).
+lost). The file's mesh, the same for every tile, is one task's result that the tiles depend
+on: each worker fetches it once and builds one BVH over it for the plan. Dask is imported
+only here and only when a scheduler is given: the embedded default needs none (``pip
+install scanplan[dask]`` adds it).
 """
 
 from planner.scaleout.cluster import DaskFanout, fanout_over

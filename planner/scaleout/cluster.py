@@ -6,6 +6,12 @@ travels in the task (client -> scheduler -> worker), never scattered: scattered 
 with its worker, a task's own arguments are not. At most a few tasks per worker thread are
 out at a time, so neither this process nor the scheduler holds more than those tiles.
 
+The occluders every tile shares (the file's mesh of a split model,
+:class:`~planner.visibility.tiles.Occluders`) are the result of one task of their own,
+whose arguments they are: each tile task depends on it, so a worker fetches them once
+and keeps them (with the one BVH its tiles build over them) until the plan releases the
+future; a worker that dies with them is no loss, the scheduler computes them again.
+
 Array letters: C candidates, F faces.
 """
 
@@ -30,6 +36,7 @@ from planner.visibility.coverage import QualifiedPairs
 from planner.visibility.overlap import OverlapRows
 from planner.visibility.qualify import Sight
 from planner.visibility.tiles import (
+    Occluders,
     Tile,
     TileCutter,
     contiguous_tiles,
@@ -86,8 +93,13 @@ class DaskFanout:
         self._token = uuid.uuid4().hex[:12]
         self._cutters: weakref.WeakKeyDictionary[OverlapRows, TileCutter] = (
             weakref.WeakKeyDictionary())
+        # the occluders of each occlusion test, computed once on the cluster (see the
+        # module docstring); held while the test lives or until close
+        self._occluders: weakref.WeakKeyDictionary[EmbreeOcclusion, Future[Occluders]] = (
+            weakref.WeakKeyDictionary())
+        self._keys = itertools.count()
         self.tasks = 0  # tasks submitted
-        self.tile_bytes = 0  # the arrays of the tiles submitted
+        self.tile_bytes = 0  # the arrays of the tiles (and shared occluders) submitted
 
     def __enter__(self) -> DaskFanout:
         return self
@@ -97,6 +109,9 @@ class DaskFanout:
 
     def close(self) -> None:
         with contextlib.suppress(Exception):
+            for future in list(self._occluders.values()):
+                future.release()  # type: ignore[no-untyped-call]
+            self._occluders.clear()
             self._client.close()  # type: ignore[no-untyped-call]
 
     @property
@@ -122,10 +137,11 @@ class DaskFanout:
         size = math.ceil(n_candidates / (TILES_PER_THREAD * self.threads))
         return min(max(size, MIN_TILE_CANDIDATES), MAX_TILE_CANDIDATES)
 
-    def map(self, work: Callable[[_Item], _Result], items: Iterable[_Item], *,
-            count: int | None = None, on_read: Callable[[float], None] | None = None
-            ) -> Iterator[_Result]:
-        """``work(item)`` of every item as tasks on the cluster, yielded in the order of
+    def map(self, work: Callable[..., _Result], items: Iterable[_Item], *,
+            count: int | None = None, on_read: Callable[[float], None] | None = None,
+            shared: Future[Any] | None = None) -> Iterator[_Result]:
+        """``work(item)`` of every item as tasks on the cluster (``work(item, shared)``
+        with ``shared``, a future every task depends on), yielded in the order of
         ``items``; ``on_read`` gets the fraction read (of ``count``) after each and may raise
         to stop (the tasks still out are cancelled)."""
         import dask
@@ -135,7 +151,7 @@ class DaskFanout:
         pending = iter(items)
         futures: collections.deque[Future[_Result]] = collections.deque()
         name = getattr(work, "__name__", "task")
-        index = itertools.count()
+        extra = () if shared is None else (shared,)
 
         def submit(item: _Item) -> Future[_Result]:
             if isinstance(item, Tile):
@@ -144,8 +160,8 @@ class DaskFanout:
             # the tile is the task's argument on purpose (see the module docstring)
             with dask.config.set({"distributed.admin.large-graph-warning-threshold":
                                   "4GiB"}):
-                return client.submit(work, item, pure=False, retries=TASK_RETRIES,
-                                     key=f"scanplan-{name}-{self._token}-{next(index)}")
+                return client.submit(work, item, *extra, pure=False, retries=TASK_RETRIES,
+                                     key=f"scanplan-{name}-{self._token}-{next(self._keys)}")
 
         read = 0
         try:
@@ -173,6 +189,28 @@ class DaskFanout:
                 with contextlib.suppress(Exception):
                     client.cancel(list(futures))  # type: ignore[no-untyped-call]
 
+    def _shared_occluders(self, occlusion: EmbreeOcclusion, cutter: TileCutter
+                          ) -> Future[Occluders] | None:
+        """The future of the occluders the cutter's tiles share (None: the tiles hold
+        theirs), one per occlusion test: a task whose arguments are the occluders, so the
+        scheduler can compute it again if every worker holding it dies."""
+        future = self._occluders.get(occlusion)
+        if future is None:
+            occluders = cutter.occluders()
+            if occluders is None:
+                return None
+            import dask
+
+            self.tasks += 1
+            self.tile_bytes += occluders.nbytes
+            with dask.config.set({"distributed.admin.large-graph-warning-threshold":
+                                  "4GiB"}):
+                future = self._client.submit(
+                    Occluders, occluders.vertices, occluders.faces, occluders.part,
+                    pure=False, key=f"scanplan-occluders-{self._token}-{next(self._keys)}")
+            self._occluders[occlusion] = future
+        return future
+
     def coverage_blocks(self, sight: Sight, positions: NDArray[np.float64],
                         progress: ProgressCallback | None
                         ) -> Iterator[tuple[QualifiedPairs, int, int]] | None:
@@ -188,9 +226,11 @@ class DaskFanout:
         positions = np.asarray(positions, np.float64)
         size = self._tile_size(len(positions))
         count = math.ceil(len(positions) / size)
-        tiles = (cutter.cut(ids, positions[ids])
+        shared = self._shared_occluders(sight.occlusion, cutter)
+        tiles = (cutter.cut(ids, positions[ids]).detached() if shared is not None
+                 else cutter.cut(ids, positions[ids])
                  for ids in contiguous_tiles(len(positions), size))
-        return self.map(qualify_tile, tiles, count=count,
+        return self.map(qualify_tile, tiles, count=count, shared=shared,
                         on_read=lambda fraction: notify(progress, "visibility", fraction))
 
     def overlap_rows(self, rows: OverlapRows, candidates: list[int]
@@ -208,9 +248,12 @@ class DaskFanout:
         positions = rows.positions
         groups = _near_groups(np.array(sorted(candidates), np.int64), positions,
                               self._tile_size(len(positions)), cutter.reach_m)
-        tiles = (cutter.cut(ids, positions[ids]) for ids in groups)
+        shared = self._shared_occluders(occlusion, cutter)
+        tiles = (cutter.cut(ids, positions[ids]).detached() if shared is not None
+                 else cutter.cut(ids, positions[ids]) for ids in groups)
         found: dict[int, tuple[NDArray[np.int32], int]] = {}
-        for ids, (faces, rays) in zip(groups, self.map(overlap_tile, tiles), strict=True):
+        for ids, (faces, rays) in zip(groups, self.map(overlap_tile, tiles, shared=shared),
+                                      strict=True):
             # the rays are counted once per group, with its first row
             for k, (c, row) in enumerate(zip(ids.tolist(), faces, strict=True)):
                 found[c] = (row, rays if k == 0 else 0)

@@ -23,6 +23,10 @@ their verdict against a BVH of the occluders within reach. Over the same faces i
 order Embree builds the same BVH, so the tile's verdicts are the model's, and so are the
 clear margin and the quads (:class:`~planner.rays.embree.BvhPart`).
 
+The occluders are the same for every tile of a plan, so on a split model they travel apart
+(:class:`Occluders`, :meth:`Tile.detached`): a worker receives the file's mesh once and
+builds one BVH over it, in the file's order, for all the plan's tiles it runs.
+
 Bundles are made from the tile's pieces: a bundle may hold fewer pieces than in the model,
 which changes how many rays rule pieces out, never which pairs qualify
 (:mod:`planner.visibility.bundles`). The tile's qualified pairs, numbered back to the
@@ -33,7 +37,9 @@ Array letters: C candidates, F faces, n a tile's candidates, f its faces.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import threading
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
@@ -43,7 +49,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from planner.limits import FaceLimits
-from planner.rays.embree import BvhFaces, BvhPart, EmbreeOcclusion
+from planner.rays.embree import BvhFaces, BvhPart, EmbreeBvh, EmbreeOcclusion
 from planner.scene import Scene
 from planner.visibility.bundles import bundle_culler
 from planner.visibility.cells import PointGrid
@@ -60,7 +66,8 @@ class Tile:
     Attributes
     ----------
     scene : the part: the target pieces within reach (and every occluding piece, when
-        the rays meet the pieces), with the file's mesh (whole, when the rays meet it)
+        the rays meet the pieces), with the file's mesh (whole, when the rays meet it;
+        left out of a :meth:`detached` tile)
     limits : the part's limits; targets are only the faces within reach
     faces : (f,) int32, each face of the part's index in the model, ascending
     positions : (n, 3) float64, the tile's candidates
@@ -79,10 +86,32 @@ class Tile:
     file_faces: bool
     bvh: BvhPart
 
-    def occlusion(self) -> EmbreeOcclusion:
-        """The occlusion test over the part, deciding as the model's."""
+    def occlusion(self, occluders: Occluders | None = None) -> EmbreeOcclusion:
+        """The occlusion test over the part, deciding as the model's: over the BVH of
+        ``occluders`` (shared by the tiles of a worker) when given, else over its own."""
         return EmbreeOcclusion(self.scene, self.limits.occludes, file_faces=self.file_faces,
-                               part_of=self.bvh)
+                               part_of=self.bvh,
+                               bvh=None if occluders is None else occluders.bvh())
+
+    def detached(self) -> Tile:
+        """The tile without the file's mesh and which of its faces occlude (what
+        :meth:`TileCutter.occluders` holds): what travels in a task, valid again once
+        :meth:`attached` to the occluders on the worker."""
+        if self.scene.file_faces is None or self.bvh.bvh_occludes is None:
+            return self
+        scene = copy.copy(self.scene)
+        object.__setattr__(scene, "file_vertices", None)
+        object.__setattr__(scene, "file_faces", None)
+        return dataclasses.replace(self, scene=scene,
+                                   bvh=dataclasses.replace(self.bvh, bvh_occludes=None))
+
+    def attached(self, occluders: Occluders) -> Tile:
+        """The :meth:`detached` tile with the file's mesh of ``occluders`` (the same arrays,
+        not copies)."""
+        scene = copy.copy(self.scene)
+        object.__setattr__(scene, "file_vertices", occluders.vertices)
+        object.__setattr__(scene, "file_faces", occluders.faces)
+        return dataclasses.replace(self, scene=scene, bvh=occluders.part)
 
     @property
     def nbytes(self) -> int:
@@ -99,6 +128,53 @@ class Tile:
         if self.bvh.bvh_occludes is not None:
             arrays.append(self.bvh.bvh_occludes)
         return int(sum(a.nbytes for a in arrays))
+
+
+class Occluders:
+    """The file's mesh a split model's rays meet, whole, and which of its faces occlude
+    (:class:`~planner.rays.embree.BvhPart`): what every tile of a plan shares, sent to a
+    worker once rather than in each task (:mod:`planner.scaleout`).
+
+    :meth:`bvh` builds the Embree BVH over the occluding faces in the file's order (the
+    model's BVH, so the model's verdicts) the first time a tile asks, and keeps it while
+    this object lives: on a Dask worker, as long as the worker holds it for the plan.
+    Pickling carries the arrays only.
+
+    Attributes
+    ----------
+    vertices : (V0, 3) float64, the file's vertices
+    faces : (F0, 3) int32, the file's faces
+    part : which faces occlude, the model's clear margin and quads
+    """
+
+    def __init__(self, vertices: NDArray[np.float64], faces: NDArray[np.int32],
+                 part: BvhPart) -> None:
+        if part.bvh_occludes is None or len(part.bvh_occludes) != len(faces):
+            raise ValueError("the occluders need one occluding flag per file face")
+        self.vertices = vertices
+        self.faces = faces
+        self.part = part
+        self._bvh: EmbreeBvh | None = None
+        self._lock = threading.Lock()
+
+    def __reduce__(self) -> tuple[type[Occluders], tuple[NDArray[np.float64],
+                                                         NDArray[np.int32], BvhPart]]:
+        return (Occluders, (self.vertices, self.faces, self.part))
+
+    def bvh(self) -> EmbreeBvh:
+        """The BVH over the occluding faces, built once."""
+        with self._lock:
+            if self._bvh is None:
+                assert self.part.bvh_occludes is not None
+                self._bvh = EmbreeBvh(self.vertices, self.faces, self.part.bvh_occludes,
+                                      scale_m=self.part.scale_m, quads=self.part.quads)
+            return self._bvh
+
+    @property
+    def nbytes(self) -> int:
+        """The size of the arrays (what a worker receives once)."""
+        assert self.part.bvh_occludes is not None
+        return int(self.vertices.nbytes + self.faces.nbytes + self.part.bvh_occludes.nbytes)
 
 
 class TileCutter:
@@ -123,6 +199,15 @@ class TileCutter:
             self._bvh_occludes[self.bvh.occluding] = True
         # else the rays meet the scene's own faces: every occluding one is in every part
         self._occluding = np.flatnonzero(occludes).astype(np.int64)
+
+    def occluders(self) -> Occluders | None:
+        """What every tile of this cutter shares and :meth:`Tile.detached` leaves out (the
+        file's mesh, when the rays meet it), None when the tiles hold their occluders."""
+        file_vertices, file_faces = self.scene.file_vertices, self.scene.file_faces
+        if not self._file_bvh or file_vertices is None or file_faces is None:
+            return None
+        return Occluders(file_vertices, file_faces,
+                         BvhPart(self._bvh_occludes, self.bvh.scale_m, self.bvh.quads))
 
     def cut(self, candidates: NDArray[np.int64], positions: NDArray[np.float64]) -> Tile:
         """The tile of the plan's ``candidates`` (ascending) at the (n, 3) ``positions``."""
@@ -200,11 +285,15 @@ def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool)
     return part
 
 
-def qualify_tile(tile: Tile) -> tuple[QualifiedPairs, int, int]:
+def qualify_tile(tile: Tile, occluders: Occluders | None = None
+                 ) -> tuple[QualifiedPairs, int, int]:
     """The qualified pairs of a tile's candidates, numbered by the model's candidates and
     faces and sorted by (candidate, face), with the pairs tested and the rays cast (run
-    on a worker: one thread, as the worker runs tasks side by side)."""
-    occlusion = tile.occlusion()
+    on a worker: one thread, as the worker runs tasks side by side). A
+    :meth:`~Tile.detached` tile comes with its ``occluders``."""
+    if occluders is not None:
+        tile = tile.attached(occluders)
+    occlusion = tile.occlusion(occluders)
     parts, tested, rays = [], 0, 0
     for qualified, block_tested, block_rays in qualify_pairs(
             tile.scene, tile.positions, tile.limits, occlusion, threads=1,
@@ -217,10 +306,14 @@ def qualify_tile(tile: Tile) -> tuple[QualifiedPairs, int, int]:
                            tile.faces[merged.face], merged.lpd_pts_m2), tested, rays)
 
 
-def overlap_tile(tile: Tile) -> tuple[list[NDArray[np.int32]], int]:
+def overlap_tile(tile: Tile, occluders: Occluders | None = None
+                 ) -> tuple[list[NDArray[np.int32]], int]:
     """The overlap rows of a tile's candidates (its limits are the overlap limits, its
-    occluders the rows'), each the model's faces ascending, and the rays cast."""
-    occlusion = tile.occlusion()
+    occluders the rows'), each the model's faces ascending, and the rays cast. A
+    :meth:`~Tile.detached` tile comes with its ``occluders``."""
+    if occluders is not None:
+        tile = tile.attached(occluders)
+    occlusion = tile.occlusion(occluders)
     finder = PairFinder(tile.scene, tile.limits, reach_m=tile.reach_m)
     culler = bundle_culler(tile.scene, finder.reach_m, occlusion)
     rows, rays = [], 0

@@ -128,3 +128,44 @@ def test_tiles_hold_part_of_the_model(house: Scene) -> None:
     within = (np.linalg.norm(centroids[:, None, :] - candidates.positions[ids][None], axis=2)
               .min(axis=1) <= cutter.reach_m) & limits.target
     assert set(np.flatnonzero(within)) <= set(tile.faces[tile.limits.target].tolist())
+
+
+def test_tiles_travel_without_the_file_mesh(house: Scene) -> None:
+    """A task's tile leaves the file's mesh out (the worker gets it once, as the shared
+    occluders, and builds one BVH over it for all its tiles), and still gives the same
+    pairs and rows as the whole tile."""
+    import pickle
+
+    from planner.candidates.generate import plan_candidates
+    from planner.visibility.qualify import Sight
+    from planner.visibility.tiles import TileCutter, overlap_tile, qualify_tile
+
+    spec = PlanSpec.from_mapping(HOUSE)
+    sight = Sight.of(house, spec, "embree")
+    candidates, _ = plan_candidates(house, spec, sight.caster)
+    sight = sight.split_as_needed(candidates.positions)
+    limits = sight.limits
+    cutter = TileCutter(sight.scene, limits, limits.occludes, sight.occlusion,  # type: ignore[arg-type]
+                        min(limits.reach_m, limits.dof_max_m))
+    occluders = cutter.occluders()
+    assert occluders is not None
+    occluders = pickle.loads(pickle.dumps(occluders))  # as a worker receives them
+    file_vertices, file_faces = sight.scene.file_mesh
+    for start in (0, 8):
+        ids = np.arange(start, min(start + 8, len(candidates.positions)))
+        tile = cutter.cut(ids, candidates.positions[ids])
+        sent = tile.detached()
+        assert sent.scene.file_faces is None
+        assert (len(pickle.dumps(tile)) - len(pickle.dumps(sent))
+                >= file_vertices.nbytes + file_faces.nbytes)
+        whole, shared = qualify_tile(tile), qualify_tile(pickle.loads(pickle.dumps(sent)),
+                                                         occluders)
+        assert whole[1:] == shared[1:] and len(whole[0].face) == len(shared[0].face) > 0
+        for a, b in zip((whole[0].candidate, whole[0].face, whole[0].lpd_pts_m2),
+                        (shared[0].candidate, shared[0].face, shared[0].lpd_pts_m2),
+                        strict=True):
+            assert np.array_equal(a, b)
+        rows, rows_shared = overlap_tile(tile), overlap_tile(sent, occluders)
+        assert rows[1] == rows_shared[1]
+        assert all(np.array_equal(a, b) for a, b in zip(rows[0], rows_shared[0], strict=True))
+    assert occluders.bvh() is occluders.bvh()  # one BVH for every tile
