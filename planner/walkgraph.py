@@ -199,8 +199,9 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
     the lining and the threshold are not needed to pass and stay as they are, as do the
     walls: no face outside a filler's box is taken. A window down to the floor (within
     ``DOOR_SILL_MAX_M``) under a lintel is taken for a door: geometry alone cannot tell a
-    French window, or a door's glazed sidelight, from a glazed door. A door between floors more than ``STEP_M`` apart (an unmodelled
-    step) is not found: the walk cannot use it anyway.
+    French window, or a door's glazed sidelight, from a glazed door. A door between floors
+    more than ``STEP_M`` apart (an unmodelled step) is not found: the walk cannot use it
+    anyway.
     """
     vertices, faces = scene.file_mesh
     result = np.full(len(faces), -1, np.int64)
