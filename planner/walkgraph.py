@@ -93,6 +93,17 @@ DOOR_FITTING_SIZE_M = 0.35
 # a door's faces rise to its head less this (the gap over a leaf, a frame's rebate): a thin
 # part of a stair under the next flight is lower
 DOOR_LEAF_GAP_M = 0.1
+# and they rise in one piece: from knee height up, the leaf's parts (panels, rails, glass,
+# beads) touch, so no height band wider than this is free of the door's faces. A stair's
+# stringer met at knee height is as thin as a leaf, and the stringer of the flight above
+# lies in its plane (NiedriHa: 1.46 m of air between them); every IfcDoor of the shared
+# buildings is gap-free
+DOOR_STACK_GAP_M = 0.2
+# what a door stands on (the first surface under the filler, the doors open) is at most this
+# above the higher floor beside it: a threshold or one step, no higher than a stair riser
+# (<= 0.19 m in most building codes, see STEP_M). A window's sill is higher (Lantern
+# Hollow's casements: 0.46 m); a French window's frame on a 0.1 m sill is a door here
+DOOR_SILL_MAX_M = 0.2
 # passes over the crossings with the doors found so far open: a leaf of panels and glass is
 # met layer by layer (front, glass, back)
 DOOR_PASSES = 3
@@ -170,19 +181,27 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
        floor to ``DOOR_HEIGHT_M[1]``: the rest of the leaf, its panels, glass and edges),
        and the small faces (box diagonal up to ``DOOR_FITTING_SIZE_M``) within
        ``DOOR_FITTING_REACH_M`` of it across: handles, hinges, locks. A door whose faces
-       do not rise to ``DOOR_HEIGHT_M[0]`` less ``DOOR_LEAF_GAP_M`` is none (a thin part
-       of a stair under the next flight).
+       do not stack, with no band of air wider than ``DOOR_STACK_GAP_M`` in them, from
+       knee height or below up to ``DOOR_HEIGHT_M[0]`` less ``DOOR_LEAF_GAP_M`` is none:
+       a leaf is one piece, a stair's stringer under the next flight's is not.
     4. *Layer by layer*: the crossings are cast again with the doors found so far open;
        what still blocks them thinly and parallel to the filler (the back of a panel,
        glass behind a rail) joins their door, for up to ``DOOR_PASSES`` passes in all.
+    5. *On the floor*: with the doors open, the first surface under the filler (a ray
+       down from each crossing's middle at knee height) lies, over the median of the
+       door's crossings, at most ``DOOR_SILL_MAX_M`` above the higher of the two floors:
+       a threshold or a step; a window's parapet is higher. Nothing under it (the open
+       ground round a model without terrain) counts as floor. The doors left are
+       renumbered in order.
 
     The walk then passes the opening whatever the leaf's position: a leaf open wide does
     not block it and is no door here; one ajar in the opening is the filler. The frame,
     the lining and the threshold are not needed to pass and stay as they are, as do the
-    walls: no face outside a filler's box is taken. A window down to the floor between two
-    rooms, under a lintel, is taken for a door: geometry alone cannot tell a French window
-    from a glazed door. A door between floors more than ``STEP_M`` apart (an unmodelled
-    step) is not found: the walk cannot use it anyway.
+    walls: no face outside a filler's box is taken. A window down to the floor (within
+    ``DOOR_SILL_MAX_M``) under a lintel is taken for a door: geometry alone cannot tell a
+    French window, or a door's glazed sidelight, from a glazed door. A door between floors
+    more than ``STEP_M`` apart (an unmodelled step) is not found: the walk cannot use it
+    anyway.
     """
     vertices, faces = scene.file_mesh
     result = np.full(len(faces), -1, np.int64)
@@ -202,8 +221,10 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
     hit_faces = crossings.faces[keep]  # (K, 2) file faces, -1 none
     n_crossings = len(hit_faces)
     floor_z = crossings.floor_z[keep]
+    found_of = np.full(int(doors.max()) + 1 if len(doors) else 0, -1)  # door of a join
     for attempt in range(DOOR_PASSES):
         result[:] = -1
+        found_of[:] = -1
         n_found = 0
         for door in range(int(doors.max()) + 1 if len(doors) else 0):
             mine = doors == door
@@ -215,18 +236,16 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
             z0 = float(floor_z[mine].min())
             taken = _door_box_faces(triangles, lo, hi, diagonal, hit, z0)
             taken = taken[result[taken] < 0]
-            if len(taken) == 0 or hi[taken, 2].max() < z0 + DOOR_HEIGHT_M[0] - DOOR_LEAF_GAP_M:
+            if len(taken) == 0 or not _stacks_up(lo[taken, 2], hi[taken, 2], z0):
                 continue
             result[taken] = n_found
+            found_of[door] = n_found
             n_found += 1
         if attempt == DOOR_PASSES - 1 or n_found == 0:
             break
         # the crossings again, the doors open: what still blocks them thinly, parallel to
         # the filler, is more of it (the back of a panel, glass behind a rail)
-        opened = result < 0
-        walk = make_ray_caster(scene, opened if scene.file_faces is None
-                               else opened[scene.source_face],
-                               file_faces=scene.file_faces is not None)
+        walk = _open_caster(scene, result)
         thick, _, face_ab, face_ba, _ = _through(walk, crossings.a[keep], crossings.b[keep])
         more = _file_faces_hit(scene, np.stack([face_ab, face_ba], axis=1))
         still = np.isfinite(thick) & (thick <= DOOR_FILLER_MAX_M)
@@ -243,7 +262,38 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
         # the crossings come first in doors and floor_z, the faces of later passes after
         doors = np.concatenate([doors, doors[:n_crossings][found_more]])
         floor_z = np.concatenate([floor_z, floor_z[:n_crossings][found_more]])
+    if result.max() >= 0:
+        result = _on_the_floor(scene, crossings, keep, found_of[doors[:n_crossings]], result)
     return result if scene.file_faces is None else result[scene.source_face]
+
+
+def _open_caster(scene: Scene, door: NDArray[np.int64]) -> RayCaster:
+    """A caster over every file face but those of a door (``door`` (F0,) >= 0)."""
+    opened = door < 0
+    return make_ray_caster(scene, opened if scene.file_faces is None
+                           else opened[scene.source_face],
+                           file_faces=scene.file_faces is not None)
+
+
+def _on_the_floor(scene: Scene, crossings: _Crossings, keep: NDArray[np.bool_],
+                  door_of: NDArray[np.int64], result: NDArray[np.int64]) -> NDArray[np.int64]:
+    """``result`` (F0,) without the doors that do not stand on the floor (rule step 5),
+    the others renumbered in order. ``keep`` (K,) the crossings in a wall opening,
+    ``door_of`` (K',) the door of each kept crossing (-1 none)."""
+    n_found = int(result.max()) + 1
+    walk = _open_caster(scene, result)
+    floor_z = crossings.floor_z[keep]
+    start = crossings.x[keep].copy()
+    start[:, 2] = floor_z + KNEE_HEIGHT_M
+    down = np.tile([0.0, 0.0, -1.0], (len(start), 1))
+    _, distance = walk.first_hit(start, down)  # inf: nothing below (the open ground)
+    higher = np.maximum(crossings.a[keep, 2], crossings.b[keep, 2]) - KNEE_HEIGHT_M
+    sill = start[:, 2] - distance - higher  # (K',) m above the higher floor, -inf: none
+    standing = np.array([float(np.median(sill[door_of == door])) <= DOOR_SILL_MAX_M
+                         for door in range(n_found)])
+    number = np.where(standing, np.cumsum(standing) - 1, -1)
+    renumbered: NDArray[np.int64] = np.where(result >= 0, number[np.maximum(result, 0)], -1)
+    return renumbered
 
 
 def _thin_crossings(scene: Scene, caster: RayCaster) -> _Crossings:
@@ -380,6 +430,21 @@ def _join_crossings(x: NDArray[np.float64], normal: NDArray[np.float64]
     rank[order] = np.arange(len(order))
     result: NDArray[np.int64] = rank[labels]
     return result
+
+
+def _stacks_up(bottom_z: NDArray[np.float64], top_z: NDArray[np.float64], floor_z: float
+               ) -> bool:
+    """Whether faces spanning (n,) ``bottom_z`` to ``top_z`` stack, with no free band
+    wider than ``DOOR_STACK_GAP_M``, from knee height over ``floor_z`` or below to a door's
+    head (``DOOR_HEIGHT_M[0]`` less ``DOOR_LEAF_GAP_M``) or above (rule step 3)."""
+    order = np.argsort(bottom_z, kind="stable")
+    bottom, top = bottom_z[order], np.maximum.accumulate(top_z[order])
+    # a new stack starts where a face begins above everything below it, plus the gap
+    starts = np.concatenate([[True], bottom[1:] > top[:-1] + DOOR_STACK_GAP_M])
+    stack_bottom = bottom[starts]
+    stack_top = np.maximum.reduceat(top, np.flatnonzero(starts))
+    return bool(((stack_bottom <= floor_z + KNEE_HEIGHT_M)
+                 & (stack_top >= floor_z + DOOR_HEIGHT_M[0] - DOOR_LEAF_GAP_M)).any())
 
 
 def _door_box_faces(triangles: NDArray[np.float64], lo: NDArray[np.float64],

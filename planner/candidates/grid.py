@@ -80,6 +80,11 @@ _RAISED_EDGE_SHARE = 0.5
 # landing is a few m² (a 1.2 m wide stair's half landing: 3 to 6 m²), 1-3 % of an office's
 # footprint and under 10 % of a house's; a storey, even an attic or a gallery, holds more
 _MIN_STOREY_SHARE = 0.1
+# a building of one storey is planned on its lowest surface (as floor_levels "lowest") when
+# that gives at least this share of the storey's candidates: the lowest surface is then the
+# floor. A slab modelled with its underside is not: the underside is the lowest surface,
+# blocked by the slab's own top (Amersfoort's plain mesh: 1 candidate, its storey 1,458)
+_LOWEST_SHARE = 0.5
 # two floors closer in height than a person's head room (HEADROOM_M) are not one over the
 # other: the smaller is a split level of the larger's storey (a house's rooms a few steps
 # up or down, a stair landing a metre under the next storey)
@@ -248,7 +253,7 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
             positions = positions[on]
         if spec.floor_levels == "storeys":
             placed, placed_level, report, storey_dropped = storey_levels(
-                scene, xy, spec, caster, ground_found=len(positions) > 0)
+                scene, xy, spec, caster, ground_candidates=len(positions))
             names: list[str] = []
             if placed is not None and placed_level is not None:
                 storey_dropped["outside_area_of_interest"] += outside_polygon
@@ -326,15 +331,16 @@ def walkable_levels(
 
 def storey_levels(
     scene: Scene, xy: NDArray[np.float64], spec: PlanSpec, caster: RayCaster, *,
-    ground_found: bool,
+    ground_candidates: int,
 ) -> tuple[NDArray[np.float64] | None, NDArray[np.int64] | None, list[dict[str, object]],
            dict[str, int]]:
     """``floor_levels`` "storeys": (C, 3) candidates on every storey under the (N, 2) grid
     points with their (C,) level, the report of every level (storeys and what was
     excluded, with the reason) and the grid points dropped per reason (the points of
     excluded levels count as ``no_floor``). Positions and levels are None when the only
-    storey is the lowest level and ``ground_found``: the lowest surface then gives the
-    candidates, exactly as "lowest" does.
+    storey is the lowest level and the ``ground_candidates`` that the lowest surface gives
+    are at least ``_LOWEST_SHARE`` of the storey's: the lowest surface is the floor, and
+    gives the candidates exactly as "lowest" does (a slab's underside is not the floor).
 
     How a storey is told from furniture, without semantics or the walk graph:
 
@@ -453,7 +459,7 @@ def storey_levels(
     positions, storey_of_candidate = positions[order], storey_of_candidate[order]
     lowest_only = len(storey_of_candidate) == 0 or (storey_of_candidate
                                                      == storey_of_candidate.min()).all()
-    if ground_found and lowest_only:
+    if ground_candidates and lowest_only and ground_candidates >= _LOWEST_SHARE * len(positions):
         positions_out, level_out = None, None
     else:
         positions_out, level_out = positions, storey_of_candidate

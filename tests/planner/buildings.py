@@ -354,6 +354,10 @@ def export_plain_mesh(ifc_path: str | Path, out_path: str | Path,
 TOUCH_M = 0.05  # found faces this close belong to one found door
 DOOR_FOUND_SHARE = 0.25  # an IfcDoor is found when this share of its area is: its leaf
 TRUE_DOOR_SHARE = 0.5  # a found door is true when this share of its area is an IfcDoor's
+# a window whose frame stands no higher than this over the floor beside it is a window to
+# the floor (a French window, a sidelight): one step, as walkgraph.DOOR_SILL_MAX_M
+WINDOW_SILL_MAX_M = 0.2
+WINDOW_FLOOR_PROBE_M = 0.5  # the floor is looked for this far to each side of the glass
 _CELL_M = 0.5  # the grid that pairs nearby faces
 
 
@@ -365,10 +369,14 @@ class DoorScore:
     found: int  # found doors: groups of touching found faces
     true: int  # found doors mostly on IfcDoor faces
     ifc_doors_found: int  # IfcDoor elements with DOOR_FOUND_SHARE of their area found
+    # found doors not true, mostly on IfcDoor and IfcWindow faces, with an IfcWindow that
+    # comes down to the floor (its frame at most WINDOW_SILL_MAX_M over the floor beside it)
+    windows_to_floor: int = 0
 
     @property
     def false(self) -> int:
-        return self.found - self.true
+        """Found doors that are neither an IfcDoor nor a window to the floor."""
+        return self.found - self.true - self.windows_to_floor
 
     @property
     def missed(self) -> int:
@@ -428,11 +436,39 @@ def door_score(ifc: Scene, found: NDArray[np.bool_]) -> DoorScore:
     n_groups = int(groups.max()) + 1 if len(groups) else 0
     on_door = np.bincount(groups, area[index] * truth[index], n_groups)
     total = np.bincount(groups, area[index], n_groups)
+    window = np.array([e.ifc_class == "IfcWindow" for e in ifc.elements] + [False])[element]
+    on_window = np.bincount(groups, area[index] * window[index], n_groups)
+    true = on_door >= TRUE_DOOR_SHARE * total
+    glazed = ~true & (on_door + on_window >= TRUE_DOOR_SHARE * total) & (on_window > 0)
+    to_floor = [g for g in np.flatnonzero(glazed)
+                if _window_sill_m(ifc, index[(groups == g) & window[index]], area)
+                <= WINDOW_SILL_MAX_M]
     doors = np.unique(element[truth])
     size = int(element.max()) + 1
     door_area = np.bincount(element[truth], area[truth], size)
     found_area = np.bincount(element[truth & found], area[truth & found], size)
     return DoorScore(
-        ifc_doors=len(doors), found=n_groups,
-        true=int((on_door >= TRUE_DOOR_SHARE * total).sum()),
-        ifc_doors_found=int((found_area[doors] >= DOOR_FOUND_SHARE * door_area[doors]).sum()))
+        ifc_doors=len(doors), found=n_groups, true=int(true.sum()),
+        ifc_doors_found=int((found_area[doors] >= DOOR_FOUND_SHARE * door_area[doors]).sum()),
+        windows_to_floor=len(to_floor))
+
+
+def _window_sill_m(ifc: Scene, faces: NDArray[np.int64], area: NDArray[np.float64]) -> float:
+    """How high the lowest of a window's ``faces`` (indices into ``ifc``'s faces) stands
+    over the higher of the floors ``WINDOW_FLOOR_PROBE_M`` to each side of its largest face
+    (its glass), found by rays down from just over that lowest point; inf: no floor."""
+    from planner.rays import make_ray_caster
+
+    triangles = ifc.triangles[faces]
+    bottom = float(triangles[:, :, 2].min())
+    glass = faces[np.argmax(area[faces])]
+    across = np.array([*ifc.normals[glass][:2], 0.0])
+    across /= max(float(np.linalg.norm(across)), 1e-9)
+    centre = triangles.reshape(-1, 3).mean(axis=0)
+    starts = np.array([centre + side * WINDOW_FLOOR_PROBE_M * across for side in (-1, 1)])
+    starts[:, 2] = bottom + 0.05
+    caster = make_ray_caster(ifc, np.ones(ifc.n_faces, bool))
+    _, distance = caster.first_hit(starts, np.tile([0.0, 0.0, -1.0], (2, 1)))
+    if not np.isfinite(distance).any():
+        return float("inf")
+    return bottom - float((starts[:, 2] - distance).max())

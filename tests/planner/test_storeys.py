@@ -14,7 +14,7 @@ import pytest
 from planner.candidates.grid import generate_grid, levels_line
 from planner.parameters import PlanSpec
 from planner.rays import make_ray_caster
-from planner.scene import Scene
+from planner.scene import Scene, build_scene, remesh
 from planner.survey.route import Places, plan_route
 from planner.truth.legs import SWEEP_HEIGHTS_M, legs_through_walls
 from planner.walkgraph import KNEE_HEIGHT_M, build_walk_graph
@@ -100,6 +100,29 @@ def test_rooms_a_few_steps_up_are_a_split_level_of_their_storey() -> None:
     floor_z = candidates.positions[:, 2] - SPEC.scanner_height_m
     assert {round(float(z), 2) for z in floor_z} == {0.0, 0.6, 3.0, 3.6}
     assert len({label["storey"] for label in candidates.labels}) == 2
+
+
+def test_a_hall_on_a_slab_drawn_with_its_underside_is_planned_on_its_floor() -> None:
+    """A 12 x 8 m hall of one storey on a solid slab 0.2 m thick (its underside is the
+    lowest surface, with the slab's own top 0.2 m over it), but for a 2 x 2 m grating in
+    its middle drawn as one face: the candidates cover the hall's floor, not the grating
+    alone (Amersfoort's sports hall as a plain mesh was planned on 1 candidate)."""
+    boxes = _shell(12.0, 8.0, 4.0)
+    boxes += [((0.0, 0.0, -0.2), (5.0, 8.0, 0.0)), ((7.0, 0.0, -0.2), (12.0, 8.0, 0.0)),
+              ((5.0, 0.0, -0.2), (7.0, 3.0, 0.0)), ((5.0, 5.0, -0.2), (7.0, 8.0, 0.0))]
+    solid = _off_grid(boxes)
+    grating = np.array([[5.0, 3.0, 0.0], [7.0, 3.0, 0.0], [7.0, 5.0, 0.0], [5.0, 5.0, 0.0]])
+    grating[:, :2] += 0.13
+    scene = remesh(build_scene(np.concatenate([solid.vertices, grating]),
+                               np.concatenate([solid.faces, len(solid.vertices)
+                                               + np.array([[0, 1, 2], [0, 2, 3]])])), 0.5)
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    candidates = generate_grid(scene, SPEC, caster)
+    floor_z = candidates.positions[:, 2] - SPEC.scanner_height_m
+    assert np.allclose(floor_z, 0.0, atol=1e-6)
+    inside = candidates.positions[:, :2] - 0.13
+    on_grating = ((inside >= [5.0, 3.0]) & (inside <= [7.0, 5.0])).all(axis=1)
+    assert len(candidates) >= 200 and (~on_grating).sum() >= 180, len(candidates)
 
 
 # no leg through a wall: the check itself --------------------------------------------------
