@@ -14,7 +14,9 @@ The scale
     their pitch at it (the closest two stations of the storey are at least
     ``MARKER_PITCH_MM`` apart on paper); otherwise the coarsest of them at which markers
     keep their pitch, the storey tiled over several sheets. Stations closer than 0.5 m
-    (10 mm at 1:50) are drawn at 1:25, 1:20 or 1:10.
+    (10 mm at 1:50) are drawn at 1:25, 1:20 or 1:10. Stations one over the other (two
+    floors in one drawn storey, two instrument heights at one spot) share a marker at any
+    scale and do not set it (:func:`min_spacing_m`).
 Tiles
     Neighbouring tiles share a strip of ``OVERLAP_MM``; they are named by column (A, B, ...
     from the west) and row (1, 2, ... from the north), and each tiled sheet carries a key
@@ -63,6 +65,15 @@ LABEL_GAP_MM = 0.4  # between the disc and its visit number
 # 5.5 pt), so that two markers this far apart never overlap
 MARKER_PITCH_MM = 10.0
 STANDARD_SCALES = (50, 100, 200)
+# stations more than STACKED_DZ_M apart in height stand one over the other: floors of one
+# drawn storey are a head room apart (1.8 m and more), while a split level (0.45 m in the
+# Renga house) or instrument heights at neighbouring spots keep their markers apart on
+# paper and count. Closer than SAME_SPOT_M in plan they stand on one spot (instrument
+# heights at one point). Either way their markers coincide at any scale. Pairs are looked
+# for within STACKED_SEARCH_M (a marker's pitch at 1:200)
+STACKED_DZ_M = 1.0
+SAME_SPOT_M = 0.01
+STACKED_SEARCH_M = 2.0
 FINER_SCALES = (25, 20, 10)
 OVERLAP_MM = 15.0
 RASTER_DPI = 150
@@ -96,12 +107,28 @@ class DrawnSheet:
     markers: dict[int, tuple[Artist, ...]]
 
 
-def min_spacing_m(xy: NDArray[np.float64]) -> float:
-    """The smallest distance between two of the (N, 2) points; inf for fewer than two."""
-    if len(xy) < 2:
+def min_spacing_m(xyz: NDArray[np.float64]) -> float:
+    """The smallest plan distance between two of the (N, 3) stations whose markers could
+    stand apart on paper, m: at least ``STACKED_SEARCH_M`` (1:200 keeps their pitch) when
+    no two such are closer; inf for fewer than two stations.
+
+    Stations one over the other (more than ``STACKED_DZ_M`` apart in height: floors of
+    one drawn storey, or instrument heights at one spot) and stations on one spot (closer
+    than ``SAME_SPOT_M``) share a marker position at every scale, so they do not set it:
+    counted, a basement's station under a ground-floor one made a house's plain mesh 345
+    sheets at 1:10 instead of a few at 1:200."""
+    xyz = np.asarray(xyz, np.float64)
+    if len(xyz) < 2:
         return math.inf
-    distances, _ = cKDTree(xy).query(xy, k=2)
-    return float(distances[:, 1].min())
+    tree = cKDTree(xyz[:, :2])
+    pairs = tree.query_pairs(STACKED_SEARCH_M, output_type="ndarray")
+    if len(pairs) == 0:  # none nearer than the search: the nearest pair sets the pitch
+        distances, _ = tree.query(xyz[:, :2], k=2)
+        return float(distances[:, 1].min())
+    plan_m = np.linalg.norm(xyz[pairs[:, 0], :2] - xyz[pairs[:, 1], :2], axis=1)
+    rise_m = np.abs(xyz[pairs[:, 0], 2] - xyz[pairs[:, 1], 2])
+    apart = (plan_m >= SAME_SPOT_M) & (rise_m <= STACKED_DZ_M)
+    return float(plan_m[apart].min()) if apart.any() else STACKED_SEARCH_M
 
 
 def storey_scale(extent: tuple[float, float, float, float], spacing_m: float) -> int:
@@ -158,7 +185,7 @@ def sheets(result: PlanResult) -> list[Sheet]:
         members = np.asarray(sorted(set(level.candidates.tolist())
                                     .intersection(result.chosen.stations)), np.int64)
         extent = drawing.level_extent(result, level)
-        scale = storey_scale(extent, min_spacing_m(positions[members, :2]))
+        scale = storey_scale(extent, min_spacing_m(positions[members]))
         tiles = tuple(_tiles(extent, scale))
         out += [Sheet(level=level, level_index=index, scale=scale, view=view, tile=name,
                       tiles=tiles) for name, view in tiles]

@@ -223,6 +223,23 @@ def test_storey_scale_keeps_markers_apart_and_prefers_one_sheet() -> None:
     assert printset.storey_scale(house, spacing_m=0.3) == 25  # closer than 0.5 m
 
 
+def test_stations_one_over_the_other_do_not_set_the_scale() -> None:
+    """A drawn storey may hold two floors (a plain mesh's basement under its ground
+    floor) or a spot planned at two instrument heights: such stations share a marker at
+    any scale. Counted, Lantern Hollow's plain mesh printed 345 sheets at 1:10."""
+    hall = (0.0, 0.0, 50.0, 40.0)
+    ground = np.array([[x, y, 1.5] for x in (0.0, 6.0, 12.0) for y in (0.0, 5.0)])
+    basement = ground - [0.0, 0.0, 2.6]  # every station of the ground floor, right below
+    heights = np.array([[6.0, 0.0, 1.8]])  # a second instrument height at one spot
+    stations = np.vstack([ground, basement, heights])
+    assert printset.min_spacing_m(stations) >= printset.STACKED_SEARCH_M  # 5 m in fact
+    assert printset.storey_scale(hall, printset.min_spacing_m(stations)) == 200
+    # two stations on one floor half a metre apart still set it
+    close = np.vstack([stations, [[0.5, 0.0, 1.5]]])
+    assert printset.min_spacing_m(close) == pytest.approx(0.5)
+    assert printset.storey_scale(hall, printset.min_spacing_m(close)) == 50
+
+
 def hundred_stations(result: PlanResult) -> PlanResult:
     """The hall's plan with 100 stations spread over a 30 x 22 m storey, no two closer
     than 0.6 m (a jittered grid with a tight corner): tiled sheets at 1:50."""

@@ -169,3 +169,24 @@ def test_tiles_travel_without_the_file_mesh(house: Scene) -> None:
         assert rows[1] == rows_shared[1]
         assert all(np.array_equal(a, b) for a, b in zip(rows[0], rows_shared[0], strict=True))
     assert occluders.bvh() is occluders.bvh()  # one BVH for every tile
+
+
+def test_overlap_groups_stand_close_together() -> None:
+    """The overlap rows' tasks group candidates standing within a few metres of one
+    another (so a task's tile spans the reach around them, not three reaches), every
+    candidate once, at most ``size`` a group, each group ascending."""
+    from planner.scaleout.cluster import GROUP_SPREAD_M, _near_groups
+
+    # two storeys of an 80 x 19 m floor at a 3 m grid, in grid and storey order
+    x, y, z = np.meshgrid(np.arange(1.5, 80, 3.0), np.arange(1.5, 19, 3.0), [1.5, 5.0],
+                          indexing="ij")
+    positions = np.stack([a.transpose(2, 0, 1).ravel() for a in (x, y, z)], axis=1)
+    candidates = np.arange(0, len(positions), 2, dtype=np.int64)
+    groups = _near_groups(candidates, positions, 5)
+    assert np.array_equal(np.sort(np.concatenate(groups)), candidates)
+    assert [int(g[0]) for g in groups] == sorted(int(g[0]) for g in groups)
+    for group in groups:
+        assert 0 < len(group) <= 5 and np.all(np.diff(group) > 0)
+        spread = positions[group].max(axis=0) - positions[group].min(axis=0)
+        assert np.all(spread < GROUP_SPREAD_M)
+    assert len(groups) < len(candidates) / 2  # groups share their tiles
