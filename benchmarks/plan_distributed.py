@@ -35,6 +35,7 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing
+import resource
 import shutil
 import sys
 import time
@@ -50,6 +51,12 @@ def peak_mib() -> float:
         if line.startswith("VmHWM:"):
             return int(line.split()[1]) / 1024
     return float("nan")
+
+
+def cpu_s() -> float:
+    """This process's CPU time so far (user and system), seconds."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
 
 
 def _plan_files(model: Path, params: dict[str, Any], out: Path, scheduler: str | None
@@ -69,7 +76,8 @@ def _plan_files(model: Path, params: dict[str, Any], out: Path, scheduler: str |
     return {"seconds": seconds, "faces": result.scene.n_faces,
             "candidates": len(result.candidates), "pairs": result.table.n_pairs,
             "stages": {k: round(v, 2) for k, v in result.stats.seconds.items()},
-            "files": sorted(p.name for p in written), "peak_mib": peak_mib()}
+            "files": sorted(p.name for p in written), "peak_mib": peak_mib(),
+            "cpu_s": cpu_s()}
 
 
 def _single(model: Path, params: dict[str, Any], out: Path,
@@ -108,18 +116,21 @@ def main() -> None:
     child.join()
     print(f"one machine: {single['faces']:,} faces, {single['candidates']:,} candidates, "
           f"{single['pairs']:,} pairs; plan {single['seconds']:.1f} s, peak "
-          f"{single['peak_mib']:.0f} MiB; stages {single['stages']}")
+          f"{single['peak_mib']:.0f} MiB, CPU {single['cpu_s']:.0f} s; stages {single['stages']}")
     for n in args.workers:
         with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                           dashboard_address=None) as cluster, Client(cluster) as client:
             out = args.out / f"dask-{n}"
             fanned = _plan_files(model, params, out, cluster.scheduler_address)
             peaks = client.run(peak_mib)
+            cpus = client.run(cpu_s)
         differ = [name for name in single["files"]
                   if (args.out / "single" / name).read_bytes() != (out / name).read_bytes()]
         print(f"{n} worker(s): plan {fanned['seconds']:.1f} s; worker peaks "
-              f"{', '.join(f'{p:.0f}' for p in peaks.values())} MiB; client peak "
-              f"{fanned['peak_mib']:.0f} MiB (runs every stage but the fanned ones); "
+              f"{', '.join(f'{p:.0f}' for p in peaks.values())} MiB (CPU "
+              f"{', '.join(f'{c:.0f}' for c in cpus.values())} s); client peak "
+              f"{fanned['peak_mib']:.0f} MiB, CPU {fanned['cpu_s']:.0f} s (runs every stage "
+              "but the fanned ones); "
               f"stages {fanned['stages']}; "
               f"{len(single['files'])} files, "
               + ("all byte-identical" if not differ else f"DIFFER: {differ}"))
