@@ -20,10 +20,19 @@ faces split from 83,408 file faces, 424 candidates), ``--workers 2``: one machin
 1,414 MiB; 2 workers 1,215 and 1,398 MiB with the file's mesh in every task, 1,256 and
 1,160 MiB with it sent once per worker (CPU of the whole run 521 s and 524 s); every file
 byte-identical. The file's mesh is 2.1 MiB and its BVH 5 to 8 MiB there: a worker's peak
-is the libraries (197 MiB), the tile it runs and the next one queued (the overlap rows'
-tiles 92 to 321 MiB, 0.9 to 3.1 M of the 3.17 M faces: everything within 25 m of a few
-candidates; the coverage tiles 46 to 66 MiB) and the running tile's scratch (up to about
-1.5 times the tile).
+was the libraries (197 MiB), the tile it ran and the next one queued (the overlap rows'
+tiles 92 to 321 MiB, 0.9 to 3.1 M of the 3.17 M faces: everything within 25 m of
+candidates up to 25 m apart; the coverage tiles 46 to 66 MiB) and the running tile's
+scratch (up to about 1.5 times the tile).
+
+With one task out per worker thread (no queued tile) and the overlap rows' candidates
+grouped within 8 m cubes (a tile spans about 58 m), same parameters, ``--workers 2``,
+``--width-m`` 40 and 80 (1.32 and 5.14 M faces split, 13.1 M at 120 m: the split's faces
+grow about with the square of the width): one machine 903 and 1,628 MiB (2,946 at 120 m);
+2 workers 610 and 594, 1,023 and 1,011 MiB (before, 774 and 758 at 40 m, 1,668 and 1,473
+at 80 m); every file byte-identical each time. At 80 m the workers' CPU was 131 and 69 s
+(before 201 and 122 s), the client's 335 s (before 446 s), its peak 2,354 MiB (before
+3,817 MiB).
 
     PYTHONPATH=. .venv/bin/python benchmarks/plan_distributed.py [MODEL.ifc]
         [--storeys 8] [--width-m 12] [--depth-m 19] [--workers 1 2 4]
