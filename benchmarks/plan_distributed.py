@@ -27,10 +27,10 @@ scratch (up to about 1.5 times the tile).
 
 With one task out per worker thread (no queued tile) and the overlap rows' candidates
 grouped within 8 m cubes (a tile spans about 58 m), same parameters, ``--workers 2``,
-``--width-m`` 40 and 80 (1.32 and 5.14 M faces split, 13.1 M at 120 m: the split's faces
-grow about with the square of the width): one machine 903 and 1,628 MiB (2,946 at 120 m);
-2 workers 610 and 594, 1,023 and 1,011 MiB (before, 774 and 758 at 40 m, 1,668 and 1,473
-at 80 m); every file byte-identical each time. At 80 m the workers' CPU was 131 and 69 s
+``--width-m`` 40, 80 and 120 (1.32, 5.14 and 13.1 M faces split: the split's faces grow
+about with the square of the width): one machine 903, 1,628 and 2,946 MiB; 2 workers 610
+and 594, 1,023 and 1,011, 1,703 and 1,373 MiB (before, 774 and 758 at 40 m, 1,668 and
+1,473 at 80 m); every file byte-identical each time. At 80 m the workers' CPU was 131 and 69 s
 (before 201 and 122 s), the client's 335 s (before 446 s), its peak 2,354 MiB (before
 3,817 MiB).
 
