@@ -20,10 +20,19 @@ faces split from 83,408 file faces, 424 candidates), ``--workers 2``: one machin
 1,414 MiB; 2 workers 1,215 and 1,398 MiB with the file's mesh in every task, 1,256 and
 1,160 MiB with it sent once per worker (CPU of the whole run 521 s and 524 s); every file
 byte-identical. The file's mesh is 2.1 MiB and its BVH 5 to 8 MiB there: a worker's peak
-is the libraries (197 MiB), the tile it runs and the next one queued (the overlap rows'
-tiles 92 to 321 MiB, 0.9 to 3.1 M of the 3.17 M faces: everything within 25 m of a few
-candidates; the coverage tiles 46 to 66 MiB) and the running tile's scratch (up to about
-1.5 times the tile).
+was the libraries (197 MiB), the tile it ran and the next one queued (the overlap rows'
+tiles 92 to 321 MiB, 0.9 to 3.1 M of the 3.17 M faces: everything within 25 m of
+candidates up to 25 m apart; the coverage tiles 46 to 66 MiB) and the running tile's
+scratch (up to about 1.5 times the tile).
+
+With one task out per worker thread (no queued tile) and the overlap rows' candidates
+grouped within 8 m cubes (a tile spans about 58 m), same parameters, ``--workers 2``,
+``--width-m`` 40, 80 and 120 (1.32, 5.14 and 13.1 M faces split: the split's faces grow
+about with the square of the width): one machine 903, 1,628 and 2,946 MiB; 2 workers 610
+and 594, 1,023 and 1,011, 1,703 and 1,373 MiB (before, 774 and 758 at 40 m, 1,668 and
+1,473 at 80 m); every file byte-identical each time. At 80 m the workers' CPU was 131 and 69 s
+(before 201 and 122 s), the client's 335 s (before 446 s), its peak 2,354 MiB (before
+3,817 MiB).
 
     PYTHONPATH=. .venv/bin/python benchmarks/plan_distributed.py [MODEL.ifc]
         [--storeys 8] [--width-m 12] [--depth-m 19] [--workers 1 2 4]
@@ -35,6 +44,7 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing
+import resource
 import shutil
 import sys
 import time
@@ -50,6 +60,12 @@ def peak_mib() -> float:
         if line.startswith("VmHWM:"):
             return int(line.split()[1]) / 1024
     return float("nan")
+
+
+def cpu_s() -> float:
+    """This process's CPU time so far (user and system), seconds."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
 
 
 def _plan_files(model: Path, params: dict[str, Any], out: Path, scheduler: str | None
@@ -69,7 +85,8 @@ def _plan_files(model: Path, params: dict[str, Any], out: Path, scheduler: str |
     return {"seconds": seconds, "faces": result.scene.n_faces,
             "candidates": len(result.candidates), "pairs": result.table.n_pairs,
             "stages": {k: round(v, 2) for k, v in result.stats.seconds.items()},
-            "files": sorted(p.name for p in written), "peak_mib": peak_mib()}
+            "files": sorted(p.name for p in written), "peak_mib": peak_mib(),
+            "cpu_s": cpu_s()}
 
 
 def _single(model: Path, params: dict[str, Any], out: Path,
@@ -108,18 +125,21 @@ def main() -> None:
     child.join()
     print(f"one machine: {single['faces']:,} faces, {single['candidates']:,} candidates, "
           f"{single['pairs']:,} pairs; plan {single['seconds']:.1f} s, peak "
-          f"{single['peak_mib']:.0f} MiB; stages {single['stages']}")
+          f"{single['peak_mib']:.0f} MiB, CPU {single['cpu_s']:.0f} s; stages {single['stages']}")
     for n in args.workers:
         with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                           dashboard_address=None) as cluster, Client(cluster) as client:
             out = args.out / f"dask-{n}"
             fanned = _plan_files(model, params, out, cluster.scheduler_address)
             peaks = client.run(peak_mib)
+            cpus = client.run(cpu_s)
         differ = [name for name in single["files"]
                   if (args.out / "single" / name).read_bytes() != (out / name).read_bytes()]
         print(f"{n} worker(s): plan {fanned['seconds']:.1f} s; worker peaks "
-              f"{', '.join(f'{p:.0f}' for p in peaks.values())} MiB; client peak "
-              f"{fanned['peak_mib']:.0f} MiB (runs every stage but the fanned ones); "
+              f"{', '.join(f'{p:.0f}' for p in peaks.values())} MiB (CPU "
+              f"{', '.join(f'{c:.0f}' for c in cpus.values())} s); client peak "
+              f"{fanned['peak_mib']:.0f} MiB, CPU {fanned['cpu_s']:.0f} s (runs every stage "
+              "but the fanned ones); "
               f"stages {fanned['stages']}; "
               f"{len(single['files'])} files, "
               + ("all byte-identical" if not differ else f"DIFFER: {differ}"))

@@ -1,10 +1,11 @@
-"""The Dask side: a client of the cluster, tasks submitted a window at a time and read in
-order (:class:`DaskFanout`).
+"""The Dask side: a client of the cluster, one task out per worker thread, results read
+in order (:class:`DaskFanout`).
 
 Each task is a function of :mod:`planner.visibility.tiles` applied to one tile; the tile
 travels in the task (client -> scheduler -> worker), never scattered: scattered data is lost
-with its worker, a task's own arguments are not. At most a few tasks per worker thread are
-out at a time, so neither this process nor the scheduler holds more than those tiles.
+with its worker, a task's own arguments are not. One task per worker thread is out at a
+time, the next submitted when any finishes, so a worker holds the tile it runs and no
+other, and neither this process nor the scheduler holds more than those tiles.
 
 The occluders every tile shares (the file's mesh of a split model,
 :class:`~planner.visibility.tiles.Occluders`) are the result of one task of their own,
@@ -17,7 +18,6 @@ Array letters: C candidates, F faces.
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import itertools
 import math
@@ -48,11 +48,17 @@ if TYPE_CHECKING:
     from distributed import Client, Future
 
 _Item = TypeVar("_Item")
+_END = object()
 _Result = TypeVar("_Result")
 
-# tasks out per worker thread: enough that a worker never waits for its next tile, few
-# enough that the tiles held here and on the scheduler stay a handful per thread
-TASKS_AHEAD_PER_THREAD = 2
+# tasks out per worker thread: one, so a worker holds the tile it runs and no queued one
+# (a queued overlap tile is as big as the running one); the next is submitted as soon as
+# any task finishes, so a worker waits for its next tile only the round trip
+TASKS_PER_THREAD = 1
+# items submitted and not yet yielded per worker thread at most: the results that finish
+# before an earlier item's are kept here until it comes, so this bounds them (a result, a
+# tile's pairs or rows, is far smaller than its tile)
+RESULTS_BUFFERED_PER_THREAD = 4
 # a tile's candidates: at least this many (a task's BVH and bundles are made once for them)
 # and at most that many (its part of the model, and so the worker's memory, grows with them)
 MIN_TILE_CANDIDATES = 8
@@ -63,6 +69,13 @@ TILES_PER_THREAD = 4
 # the scheduler gives its tasks to the others, up to distributed.scheduler.allowed-failures)
 TASK_RETRIES = 1
 CONNECT_TIMEOUT_S = 10.0
+# the overlap rows' tasks: a group's candidates stand in a cube of this side, so its tile
+# (every piece within reach of one of them) spans the reach on either side and this, 58 m
+# at the default 25 m reach, not the three reaches candidates within one reach of the
+# group's first would span: a worker's memory follows the reach, not the building. Small
+# against the reach, yet a few grid steps of a coarse grid (many of the default 0.5 m), so
+# a group still has several candidates to share the cutting and sending of its tile
+GROUP_SPREAD_M = 8.0
 
 
 class DaskFanout:
@@ -143,51 +156,78 @@ class DaskFanout:
         """``work(item)`` of every item as tasks on the cluster (``work(item, shared)``
         with ``shared``, a future every task depends on), yielded in the order of
         ``items``; ``on_read`` gets the fraction read (of ``count``) after each and may raise
-        to stop (the tasks still out are cancelled)."""
+        to stop (the tasks still out are cancelled).
+
+        At most :data:`TASKS_PER_THREAD` tasks per worker thread are out, and the next item
+        is submitted as soon as any of them finishes, whichever: a worker holds the tile it
+        runs and no queued one, and none idles behind a slower one. Results that finish
+        before an earlier item's wait here (at most :data:`RESULTS_BUFFERED_PER_THREAD`
+        per thread are submitted and not yet yielded, so that many results at most)."""
         import dask
+        from distributed import as_completed
 
         client = self._client
-        window = max(2, TASKS_AHEAD_PER_THREAD * self.threads)
+        threads = self.threads
+        window = max(1, TASKS_PER_THREAD * threads)
+        ahead = max(window, RESULTS_BUFFERED_PER_THREAD * threads)
         pending = iter(items)
-        futures: collections.deque[Future[_Result]] = collections.deque()
+        running: dict[Any, tuple[int, Future[_Result]]] = {}  # by key: (item index, future)
+        finished: dict[int, _Result] = {}  # by item index, not yet yielded
+        done = as_completed(loop=client.loop)  # type: ignore[no-untyped-call]
         name = getattr(work, "__name__", "task")
         extra = () if shared is None else (shared,)
+        submitted = read = 0
 
-        def submit(item: _Item) -> Future[_Result]:
-            if isinstance(item, Tile):
-                self.tile_bytes += item.nbytes
-            self.tasks += 1
-            # the tile is the task's argument on purpose (see the module docstring)
-            with dask.config.set({"distributed.admin.large-graph-warning-threshold":
-                                  "4GiB"}):
-                return client.submit(work, item, *extra, pure=False, retries=TASK_RETRIES,
-                                     key=f"scanplan-{name}-{self._token}-{next(self._keys)}")
+        def submit_more() -> None:
+            nonlocal submitted
+            while len(running) < window and submitted - read < ahead:
+                item = next(pending, _END)
+                if item is _END:
+                    return
+                if isinstance(item, Tile):
+                    self.tile_bytes += item.nbytes
+                self.tasks += 1
+                # the tile is the task's argument on purpose (see the module docstring)
+                with dask.config.set({"distributed.admin.large-graph-warning-threshold":
+                                      "4GiB"}):
+                    future: Future[_Result] = client.submit(
+                        work, item, *extra, pure=False, retries=TASK_RETRIES,
+                        key=f"scanplan-{name}-{self._token}-{next(self._keys)}")
+                del item
+                running[future.key] = (submitted, future)
+                done.add(future)  # type: ignore[no-untyped-call]
+                submitted += 1
 
-        read = 0
         try:
-            for item in itertools.islice(pending, window):
-                futures.append(submit(item))
-            while futures:
-                future = futures.popleft()
-                try:
-                    result = future.result()
-                except PlannerError:
-                    raise
-                except Exception as exc:
-                    raise self._failed(exc) from exc
-                future.release()  # type: ignore[no-untyped-call]
-                del future
-                for item in itertools.islice(pending, 1):
-                    futures.append(submit(item))
+            submit_more()
+            while running or read in finished:
+                while read not in finished:
+                    ready = next(done)
+                    index, future = running.pop(ready.key)
+                    del ready
+                    try:
+                        finished[index] = future.result()
+                    except PlannerError:
+                        raise
+                    except Exception as exc:
+                        raise self._failed(exc) from exc
+                    future.release()  # type: ignore[no-untyped-call]
+                    del future
+                    submit_more()
+                result = finished.pop(read)
+                read += 1
+                submit_more()
                 yield result
                 del result
-                read += 1
                 if on_read is not None and count:
                     on_read(read / count)
         finally:
-            if futures:
+            with contextlib.suppress(Exception):
+                done.clear()  # type: ignore[no-untyped-call]
+            out = [future for _, future in running.values()]
+            if out:
                 with contextlib.suppress(Exception):
-                    client.cancel(list(futures))  # type: ignore[no-untyped-call]
+                    client.cancel(out)  # type: ignore[no-untyped-call]
 
     def _shared_occluders(self, occlusion: EmbreeOcclusion, cutter: TileCutter
                           ) -> Future[Occluders] | None:
@@ -247,7 +287,7 @@ class DaskFanout:
             self._cutters[rows] = cutter
         positions = rows.positions
         groups = _near_groups(np.array(sorted(candidates), np.int64), positions,
-                              self._tile_size(len(positions)), cutter.reach_m)
+                              self._tile_size(len(positions)))
         shared = self._shared_occluders(occlusion, cutter)
         tiles = (cutter.cut(ids, positions[ids]).detached() if shared is not None
                  else cutter.cut(ids, positions[ids]) for ids in groups)
@@ -261,17 +301,24 @@ class DaskFanout:
 
 
 def _near_groups(candidates: NDArray[np.int64], positions: NDArray[np.float64], size: int,
-                 reach_m: float) -> list[NDArray[np.int64]]:
-    """``candidates`` (ascending) in groups of at most ``size``, each within ``reach_m``
-    of its first candidate (candidates far apart would make one tile of two distant
-    parts of the model)."""
-    groups: list[NDArray[np.int64]] = []
-    start = 0
-    for k in range(1, len(candidates) + 1):
-        if k == len(candidates) or k - start >= size or np.linalg.norm(
-                positions[candidates[k]] - positions[candidates[start]]) > reach_m:
-            groups.append(candidates[start:k])
-            start = k
+                 spread_m: float = GROUP_SPREAD_M) -> list[NDArray[np.int64]]:
+    """``candidates`` (ascending) in groups of at most ``size`` that stand in one cube of
+    side ``spread_m`` (cubes from the origin): a group's tile then holds what lies within
+    reach of a box of ``spread_m``, not of candidates up to twice the reach apart. Groups
+    come in the order of their first candidates, each ascending.
+
+    ``positions``: (C, 3) float64, the plan's candidates."""
+    if len(candidates) == 0:
+        return []
+    cells = np.floor(positions[candidates] / spread_m).astype(np.int64)  # (n, 3)
+    _, cell = np.unique(cells, axis=0, return_inverse=True)
+    cell = cell.reshape(-1)
+    # a stable sort by cell keeps each cell's candidates ascending
+    order = np.argsort(cell, kind="stable")
+    bounds = np.flatnonzero(np.diff(cell[order])) + 1
+    groups = [candidates[part[i:i + size]] for part in np.split(order, bounds)
+              for i in range(0, len(part), size)]
+    groups.sort(key=lambda group: int(group[0]))
     return groups
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import signal
+import time
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,7 @@ from planner.outputs.report import write_outputs  # noqa: E402
 from planner.parameters import PlanSpec  # noqa: E402
 from planner.pipeline import PlanResult, plan  # noqa: E402
 from planner.scaleout import DaskFanout  # noqa: E402
+from planner.scaleout.cluster import RESULTS_BUFFERED_PER_THREAD  # noqa: E402
 from planner.scene import Scene  # noqa: E402
 
 # a house at a coarser grid and split than the defaults: every stage runs, in seconds
@@ -76,6 +78,36 @@ def test_hall_same_bytes(cluster: Any, scenes_dir: Path, tmp_path: Path) -> None
     local = plan(scene, spec)
     fanned = plan(scene, spec, dask_scheduler=cluster.scheduler_address)
     assert_same_files(local, fanned, tmp_path)
+
+
+def _wait_for_last(item: tuple[int, int, str]) -> int:
+    """A task of the map below: item 0 waits until the last item's task has finished (it
+    leaves a file), so the tasks finish out of order; each notes when it ends."""
+    index, last, folder = item
+    if index == 0:
+        for _ in range(1200):
+            if (Path(folder) / str(last)).exists():
+                break
+            time.sleep(0.05)
+    (Path(folder) / str(index)).touch()
+    with open(Path(folder) / "finished", "a") as finished:
+        finished.write(f"{index}\n")
+    return index
+
+
+def test_map_yields_in_item_order(cluster: Any, tmp_path: Path) -> None:
+    """The first item's task ends last: while it runs, the other worker goes on with the
+    later items (the next is submitted when any task ends), and the results still come in
+    the order of the items."""
+    with DaskFanout(cluster.scheduler_address) as fanout:
+        fanout.client.wait_for_workers(2)
+        n = RESULTS_BUFFERED_PER_THREAD * fanout.threads
+        results = list(fanout.map(_wait_for_last,
+                                  [(k, n - 1, str(tmp_path)) for k in range(n)]))
+    assert results == list(range(n))
+    finished = [int(line) for line in (tmp_path / "finished").read_text().split()]
+    assert sorted(finished) == list(range(n))
+    assert finished[-1] == 0  # the last item finished before the first
 
 
 def test_worker_killed_mid_plan(cluster: Any, house: Scene, tmp_path: Path) -> None:
