@@ -140,8 +140,13 @@ def test_unreachable_scheduler_is_named() -> None:
     assert "SCANPLAN_DASK_SCHEDULER" in message
 
 
-def test_tiles_hold_part_of_the_model(house: Scene) -> None:
-    """A tile's targets are those within reach of its candidates, not the model's."""
+HouseTiles = tuple[Any, Any, Any]  # the split house's Sight, its candidates, a TileCutter
+
+
+@pytest.fixture(scope="module")
+def house_tiles(house: Scene) -> HouseTiles:
+    """The house's sight split for its candidates, and a cutter of tiles of the coverage
+    pair search, as the fan-out makes them."""
     from planner.candidates.generate import plan_candidates
     from planner.visibility.qualify import Sight
     from planner.visibility.tiles import TileCutter
@@ -151,8 +156,15 @@ def test_tiles_hold_part_of_the_model(house: Scene) -> None:
     candidates, _ = plan_candidates(house, spec, sight.caster)
     sight = sight.split_as_needed(candidates.positions)
     limits = sight.limits
-    cutter = TileCutter(sight.scene, limits, limits.occludes, sight.occlusion,  # type: ignore[arg-type]
+    cutter = TileCutter(sight.scene, limits, limits.occludes, sight.occlusion,
                         min(limits.reach_m, limits.dof_max_m))
+    return sight, candidates, cutter
+
+
+def test_tiles_hold_part_of_the_model(house_tiles: HouseTiles) -> None:
+    """A tile's targets are those within reach of its candidates, not the model's."""
+    sight, candidates, cutter = house_tiles
+    limits = sight.limits
     ids = np.arange(min(8, len(candidates.positions)))
     tile = cutter.cut(ids, candidates.positions[ids])
     assert 0 < len(tile.faces) < sight.scene.n_faces
@@ -162,23 +174,15 @@ def test_tiles_hold_part_of_the_model(house: Scene) -> None:
     assert set(np.flatnonzero(within)) <= set(tile.faces[tile.limits.target].tolist())
 
 
-def test_tiles_travel_without_the_file_mesh(house: Scene) -> None:
+def test_tiles_travel_without_the_file_mesh(house_tiles: HouseTiles) -> None:
     """A task's tile leaves the file's mesh out (the worker gets it once, as the shared
     occluders, and builds one BVH over it for all its tiles), and still gives the same
     pairs and rows as the whole tile."""
     import pickle
 
-    from planner.candidates.generate import plan_candidates
-    from planner.visibility.qualify import Sight
-    from planner.visibility.tiles import TileCutter, overlap_tile, qualify_tile
+    from planner.visibility.tiles import overlap_tile, qualify_tile
 
-    spec = PlanSpec.from_mapping(HOUSE)
-    sight = Sight.of(house, spec, "embree")
-    candidates, _ = plan_candidates(house, spec, sight.caster)
-    sight = sight.split_as_needed(candidates.positions)
-    limits = sight.limits
-    cutter = TileCutter(sight.scene, limits, limits.occludes, sight.occlusion,  # type: ignore[arg-type]
-                        min(limits.reach_m, limits.dof_max_m))
+    sight, candidates, cutter = house_tiles
     occluders = cutter.occluders()
     assert occluders is not None
     occluders = pickle.loads(pickle.dumps(occluders))  # as a worker receives them
