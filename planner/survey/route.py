@@ -22,8 +22,9 @@ model has them):
   than a walk, or a stair's stringer);
 - *its part of the building is cut off* (checked where the part and the route's part come
   within ``_MEET_M`` of each other): at the same height, by a barrier at knee height at a
-  named place (the door there, when the model names one, that the model closes; else a
-  wall without a doorway or a door drawn as a wall); at another height, by a step higher
+  named place (the door there, when the model names one, that the model closes; a door
+  there whose sill the model sets higher than a step above the floor, its height given;
+  else a wall without a doorway or a door drawn as a wall); at another height, by a step higher
   than ``STEP_M`` with no stair modelled (the drop measured, where the higher floor's
   knee-high line over to the lower is free: the drop alone parts them); both where both
   are found;
@@ -33,6 +34,7 @@ model has them):
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -94,15 +96,31 @@ class Places:
     def door_near(self, point: NDArray[np.float64]) -> str | None:
         """The name of the door whose box comes within ``_DOOR_NEAR_M`` of the (3,) point
         horizontally and spans its height, the nearest; None when none does."""
-        best: tuple[float, str] | None = None
+        found = self._nearest_door(point, lambda lo, hi: lo - STEP_M <= point[2] <= hi)
+        return None if found is None else found[0]
+
+    def raised_door_near(self, point: NDArray[np.float64]) -> tuple[str, float] | None:
+        """The door within ``_DOOR_NEAR_M`` of the (3,) floor point horizontally whose
+        sill stands higher than a step but lower than head room above that floor (a door
+        the model sets at another level), the nearest: its name and the sill's height
+        over the floor, metres; None when none does."""
+        found = self._nearest_door(
+            point, lambda lo, hi: STEP_M < lo - point[2] < HEADROOM_M)
+        return None if found is None else (found[0], found[1] - float(point[2]))
+
+    def _nearest_door(self, point: NDArray[np.float64],
+                      fits: Callable[[float, float], bool]) -> tuple[str, float] | None:
+        """The nearest door within ``_DOOR_NEAR_M`` of the (3,) point horizontally whose
+        bottom and top heights ``fits``: its name and bottom height; None when none."""
+        best: tuple[float, str, float] | None = None
         for name, lo, hi in self.doors:
             gap = np.maximum(np.maximum(np.asarray(lo[:2]) - point[:2],
                                         point[:2] - np.asarray(hi[:2])), 0.0)
             distance = float(np.hypot(*gap))
-            if distance <= _DOOR_NEAR_M and lo[2] - STEP_M <= point[2] <= hi[2] and (
+            if distance <= _DOOR_NEAR_M and fits(lo[2], hi[2]) and (
                     best is None or distance < best[0]):
-                best = (distance, name)
-        return None if best is None else best[1]
+                best = (distance, name, lo[2])
+        return None if best is None else (best[1], best[2])
 
 
 @dataclass(frozen=True)
@@ -436,6 +454,13 @@ class _Why:
                         f"{place}, is blocked at {KNEE_HEIGHT_M:g} m above the floor: the "
                         "model closes that door's opening (a wall drawn through it, a leaf "
                         "outside the door, a sill higher than a step)")
+                elif (raised := self.places.raised_door_near(at)) is not None:
+                    clauses.append(
+                        f"its way to the route's floor beside it is through door "
+                        f"{raised[0]!r} at {place}, but the model sets that door's sill "
+                        f"{raised[1]:.2f} m above this floor, more than the {STEP_M:g} m a "
+                        "person steps, with no step modelled (a door placed at another "
+                        "level, or a step the model lacks)")
                 else:
                     clauses.append(
                         f"the route's floor lies beside it at the same height, but at {place} "

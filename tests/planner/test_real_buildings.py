@@ -93,6 +93,8 @@ def test_the_renga_house_is_read_despite_its_stars_and_both_storeys_with_rooms_a
                          for i in route["unreachable"]}
     assert unreachable_rooms <= behind_drop, route["unreachable_reasons"]
     assert len(route["visits"]) >= len(document["stations"]) - 2
+    for reason in route["unreachable_reasons"].values():  # the door and its sill named
+        assert "sets that door's sill 0.60 m above this floor" in reason, reason
 
 
 def _break_bodies(model: Any, text: str, keep: str) -> str:

@@ -238,6 +238,12 @@ def test_a_room_behind_a_door_drawn_as_a_wall_says_so_and_names_the_door() -> No
     door = Places(doors=(("Door 7 (IfcDoor)", (4.11, 1.63, 0.0), (4.15, 2.53, 2.1)),))
     _, reasons = _route(boxes, stations, door)
     assert "through door 'Door 7 (IfcDoor)'" in reasons[0], reasons
+    # the model sets the door's leaf 0.6 m up, at another level's height (Renga's upper
+    # hall): the door is named with its sill's height over this floor
+    raised = Places(doors=(("Door 7 (IfcDoor)", (4.11, 1.63, 0.6), (4.15, 2.53, 2.7)),))
+    _, reasons = _route(boxes, stations, raised)
+    assert "through door 'Door 7 (IfcDoor)'" in reasons[0], reasons
+    assert "sets that door's sill 0.60 m above this floor" in reasons[0], reasons
 
 
 def test_a_floor_a_step_too_high_above_the_rest_gives_the_step() -> None:
