@@ -412,10 +412,10 @@ class _Features:
         return self.classes[self.triangle_feature]
 
 
-def lpd_bands(result: PlanResult, classes: NDArray[np.uint8]) -> NDArray[np.uint8]:
+def lpd_bands(ratio: NDArray[np.float64], classes: NDArray[np.uint8]) -> NDArray[np.uint8]:
     """(F,) uint8 each face's LPD band: 0 for a face that is not covered, else 0 to
-    ``LPD_BANDS - 1`` as its best LPD is 1-2, 2-4, ... times its requirement or more."""
-    ratio = _lpd_ratio(result)
+    ``LPD_BANDS - 1`` as its best LPD is 1-2, 2-4, ... times its requirement or more
+    (``ratio``: (F,) best LPD over the requirement, :func:`_lpd_ratio`)."""
     bands = np.zeros(len(classes), np.uint8)
     covered = classes == COVERED
     doublings = np.floor(np.log2(np.maximum(ratio[covered], 1.0)))
@@ -441,14 +441,15 @@ def _features(result: PlanResult, classes: NDArray[np.uint8]) -> _Features:
                          worst=every.astype(np.int64), classes=classes,
                          corners=scene.faces, triangle_feature=None)
     source = scene.source_face
+    ratio = _lpd_ratio(result)
     key = source.astype(np.int64) * (len(CLASS_NAMES) * LPD_BANDS) + (
-        classes.astype(np.int64) * LPD_BANDS + lpd_bands(result, classes))
+        classes.astype(np.int64) * LPD_BANDS + lpd_bands(ratio, classes))
     rows = np.argsort(key, kind="stable").astype(np.int32)
     sorted_key = key[rows]
     offsets = np.append(np.flatnonzero(np.diff(sorted_key, prepend=-1)), n).astype(np.int64)
     del sorted_key
-    worst = np.lexsort((_lpd_ratio(result), key))[offsets[:-1]]  # stable: first of ties
-    del key
+    worst = np.lexsort((ratio, key))[offsets[:-1]]  # stable: first of ties
+    del key, ratio
     first = rows[offsets[:-1]]
     file_face = source[first].astype(np.int64)
     counts = np.diff(offsets)
