@@ -163,7 +163,6 @@ class DaskFanout:
         runs and no queued one, and none idles behind a slower one. Results that finish
         before an earlier item's wait here (at most :data:`RESULTS_BUFFERED_PER_THREAD`
         per thread are submitted and not yet yielded, so that many results at most)."""
-        import dask
         from distributed import as_completed
 
         client = self._client
@@ -186,13 +185,9 @@ class DaskFanout:
                     return
                 if isinstance(item, Tile):
                     self.tile_bytes += item.nbytes
-                self.tasks += 1
                 # the tile is the task's argument on purpose (see the module docstring)
-                with dask.config.set({"distributed.admin.large-graph-warning-threshold":
-                                      "4GiB"}):
-                    future: Future[_Result] = client.submit(
-                        work, item, *extra, pure=False, retries=TASK_RETRIES,
-                        key=f"scanplan-{name}-{self._token}-{next(self._keys)}")
+                future: Future[_Result] = self._submit(name, work, item, *extra,
+                                                       retries=TASK_RETRIES)
                 del item
                 running[future.key] = (submitted, future)
                 done.add(future)  # type: ignore[no-untyped-call]
@@ -229,6 +224,20 @@ class DaskFanout:
                 with contextlib.suppress(Exception):
                     client.cancel(out)  # type: ignore[no-untyped-call]
 
+    def _submit(self, name: str, work: Callable[..., _Result], *args: Any,
+                retries: int = 0) -> Future[_Result]:
+        """``work(*args)`` as a task of this plan, named ``name``; its arguments (a tile,
+        the occluders) travel in the task, so Dask's warning about large graphs is raised
+        to what a building's tile can weigh."""
+        import dask
+
+        self.tasks += 1
+        with dask.config.set({"distributed.admin.large-graph-warning-threshold": "4GiB"}):
+            future: Future[_Result] = self._client.submit(
+                work, *args, pure=False, retries=retries,
+                key=f"scanplan-{name}-{self._token}-{next(self._keys)}")
+        return future
+
     def _shared_occluders(self, occlusion: EmbreeOcclusion, cutter: TileCutter
                           ) -> Future[Occluders] | None:
         """The future of the occluders the cutter's tiles share (None: the tiles hold
@@ -239,15 +248,9 @@ class DaskFanout:
             occluders = cutter.occluders()
             if occluders is None:
                 return None
-            import dask
-
-            self.tasks += 1
             self.tile_bytes += occluders.nbytes
-            with dask.config.set({"distributed.admin.large-graph-warning-threshold":
-                                  "4GiB"}):
-                future = self._client.submit(
-                    Occluders, occluders.vertices, occluders.faces, occluders.part,
-                    pure=False, key=f"scanplan-occluders-{self._token}-{next(self._keys)}")
+            future = self._submit("occluders", Occluders, occluders.vertices,
+                                  occluders.faces, occluders.part)
             self._occluders[occlusion] = future
         return future
 
@@ -267,9 +270,8 @@ class DaskFanout:
         size = self._tile_size(len(positions))
         count = math.ceil(len(positions) / size)
         shared = self._shared_occluders(sight.occlusion, cutter)
-        tiles = (cutter.cut(ids, positions[ids]).detached() if shared is not None
-                 else cutter.cut(ids, positions[ids])
-                 for ids in contiguous_tiles(len(positions), size))
+        tiles = _tiles(cutter, positions, contiguous_tiles(len(positions), size),
+                       detached=shared is not None)
         return self.map(qualify_tile, tiles, count=count, shared=shared,
                         on_read=lambda fraction: notify(progress, "visibility", fraction))
 
@@ -289,8 +291,7 @@ class DaskFanout:
         groups = _near_groups(np.array(sorted(candidates), np.int64), positions,
                               self._tile_size(len(positions)))
         shared = self._shared_occluders(occlusion, cutter)
-        tiles = (cutter.cut(ids, positions[ids]).detached() if shared is not None
-                 else cutter.cut(ids, positions[ids]) for ids in groups)
+        tiles = _tiles(cutter, positions, groups, detached=shared is not None)
         found: dict[int, tuple[NDArray[np.int32], int]] = {}
         for ids, (faces, rays) in zip(groups, self.map(overlap_tile, tiles, shared=shared),
                                       strict=True):
@@ -298,6 +299,15 @@ class DaskFanout:
             for k, (c, row) in enumerate(zip(ids.tolist(), faces, strict=True)):
                 found[c] = (row, rays if k == 0 else 0)
         return iter([found[c] for c in candidates])
+
+
+def _tiles(cutter: TileCutter, positions: NDArray[np.float64],
+           groups: Iterable[NDArray[np.int64]], *, detached: bool) -> Iterator[Tile]:
+    """The tile of each group of candidates (``positions``: (C, 3) float64, the plan's),
+    cut as needed, without the occluders they share when ``detached``."""
+    for ids in groups:
+        tile = cutter.cut(ids, positions[ids])
+        yield tile.detached() if detached else tile
 
 
 def _near_groups(candidates: NDArray[np.int64], positions: NDArray[np.float64], size: int,

@@ -285,15 +285,21 @@ def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool)
     return part
 
 
+def _at_work(tile: Tile, occluders: Occluders | None) -> tuple[Tile, EmbreeOcclusion]:
+    """The tile as a task runs it (a :meth:`~Tile.detached` one attached again to its
+    ``occluders``) and its occlusion test (over the occluders' shared BVH, if given)."""
+    if occluders is not None:
+        tile = tile.attached(occluders)
+    return tile, tile.occlusion(occluders)
+
+
 def qualify_tile(tile: Tile, occluders: Occluders | None = None
                  ) -> tuple[QualifiedPairs, int, int]:
     """The qualified pairs of a tile's candidates, numbered by the model's candidates and
     faces and sorted by (candidate, face), with the pairs tested and the rays cast (run
     on a worker: one thread, as the worker runs tasks side by side). A
     :meth:`~Tile.detached` tile comes with its ``occluders``."""
-    if occluders is not None:
-        tile = tile.attached(occluders)
-    occlusion = tile.occlusion(occluders)
+    tile, occlusion = _at_work(tile, occluders)
     parts, tested, rays = [], 0, 0
     for qualified, block_tested, block_rays in qualify_pairs(
             tile.scene, tile.positions, tile.limits, occlusion, threads=1,
@@ -311,9 +317,7 @@ def overlap_tile(tile: Tile, occluders: Occluders | None = None
     """The overlap rows of a tile's candidates (its limits are the overlap limits, its
     occluders the rows'), each the model's faces ascending, and the rays cast. A
     :meth:`~Tile.detached` tile comes with its ``occluders``."""
-    if occluders is not None:
-        tile = tile.attached(occluders)
-    occlusion = tile.occlusion(occluders)
+    tile, occlusion = _at_work(tile, occluders)
     finder = PairFinder(tile.scene, tile.limits, reach_m=tile.reach_m)
     culler = bundle_culler(tile.scene, finder.reach_m, occlusion)
     rows, rays = [], 0
