@@ -449,8 +449,9 @@ def _features(result: PlanResult, classes: NDArray[np.uint8]) -> _Features:
     sorted_key = key[rows]
     offsets = np.append(np.flatnonzero(np.diff(sorted_key, prepend=-1)), n).astype(np.int64)
     del sorted_key
-    worst = np.lexsort((ratio, key))[offsets[:-1]]  # stable: first of ties
-    del key, ratio
+    del key
+    worst = _first_least(ratio, rows, offsets)
+    del ratio
     first = rows[offsets[:-1]]
     file_face = source[first].astype(np.int64)
     counts = np.diff(offsets)
@@ -494,27 +495,45 @@ _OUTLINED, _TO_MERGE = 0, 1
 
 
 @numba.njit(nogil=True, cache=True)
+def _first_least(values: NDArray[np.float64], rows: NDArray[np.int32],
+                 offsets: NDArray[np.int64]) -> NDArray[np.int64]:
+    """(N,) of each group ``rows[offsets[n]:offsets[n + 1]]`` (rows ascending) the row of
+    the least of ``values`` (the first such row; NaN above all, as a sort puts it)."""
+    least = np.empty(len(offsets) - 1, np.int64)
+    for n in range(len(offsets) - 1):
+        best = rows[offsets[n]]
+        for j in range(offsets[n] + 1, offsets[n + 1]):
+            value = values[rows[j]]
+            if value < values[best] or (np.isnan(values[best]) and not np.isnan(value)):
+                best = rows[j]
+        least[n] = best
+    return least
+
+
+@numba.njit(nogil=True, cache=True)
 def _outlines(faces: NDArray[np.int32], rows: NDArray[np.int32], offsets: NDArray[np.int64],
               chosen: NDArray[np.int64], vertices: NDArray[np.float64],
               axes: NDArray[np.int64], tolerance: float
               ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64],
-                         NDArray[np.bool_], NDArray[np.int8], NDArray[np.float64]]:
+                         NDArray[np.int64], NDArray[np.int8], NDArray[np.float64]]:
     """The outlines of the ``chosen`` features (their faces ``rows[offsets[n]:offsets[n +
-    1]]``, pieces of one file face that meet edge to edge, as :func:`remesh` splits).
+    1]]``: pieces of one file face, which meet edge to edge and share the vertex indices
+    along their common edges, as :func:`planner.scene.remesh` splits).
 
     Each feature is seen along the main axis of its normal: ``axes`` (k, 2) the other two
-    axes of ``vertices`` (V, 3). An edge of a feature's pieces that no other of
-    its pieces uses (the pieces share vertex indices along their common edges) is on its
-    outline; followed from corner to corner these make closed loops, wound as the pieces.
-    A corner within ``tolerance`` of the line from the last kept corner to the next one is
-    dropped. Loops wound the other way than the feature's area are holes.
+    axes of ``vertices`` (V, 3). An edge that no other piece of the feature uses is on its
+    outline; followed from corner to corner these make closed loops, wound as the pieces
+    (where the outline touches itself, each loop keeps to one side of the corner). A corner
+    within ``tolerance`` of the line from the last kept corner to the next one is dropped,
+    unless the outline touches itself there. Loops wound the other way than the feature's
+    area are holes, each in the smallest outer loop around the middle of its first edge.
 
     Returns the loops' kept vertices (one after another), their (L + 1,) offsets into
-    them, (L,) each loop's feature (into ``chosen``), (L,) whether it is a hole, (k,) per
-    feature ``_OUTLINED`` or ``_TO_MERGE`` (a corner where the outline touches itself, an
-    edge used by more than two pieces or twice the same way, several outer loops and holes,
-    a loop of fewer than 3 corners: left to :func:`_merge`), and (k,) the length of each
-    feature's outline before corners were dropped.
+    them, (L,) each loop's feature (into ``chosen``), (L,) the outer loop of each (itself
+    for an outer loop), (k,) per feature ``_OUTLINED`` or ``_TO_MERGE`` (an edge used by
+    more than two pieces or twice the same way, an outline that does not close, a loop of
+    fewer than 3 corners, a hole in no outer loop: left to :func:`_merge`), and (k,) the
+    length of each feature's outline before corners were dropped.
     """
     total = 0
     for n in chosen:
@@ -523,6 +542,7 @@ def _outlines(faces: NDArray[np.int32], rows: NDArray[np.int32], offsets: NDArra
     loop_offsets = np.zeros(total + 1, np.int64)
     loop_feature = np.empty(total, np.int64)
     loop_area = np.empty(total, np.float64)
+    loop_shell = np.empty(total, np.int64)
     status = np.zeros(len(chosen), np.int8)
     length = np.zeros(len(chosen), np.float64)
     n_loops = 0
@@ -611,76 +631,134 @@ def _outlines(faces: NDArray[np.int32], rows: NDArray[np.int32], offsets: NDArra
         if bad:
             status[f] = _TO_MERGE
             continue
+        # each edge's tail as a place in sorted_tails (the first of its vertex's)
+        slot = np.empty(nb, np.int64)
+        for k in range(nb):
+            slot[by_tail[k]] = k if k == 0 or sorted_tails[k] != sorted_tails[k - 1] else (
+                slot[by_tail[k - 1]])
         first_loop, first_vertex = n_loops, n_vertices
         seen = np.zeros(nb, np.bool_)
-        loop = np.empty(nb, np.int64)
-        fixed = np.empty(nb, np.bool_)  # kept whatever the line (the outline touches there)
+        # the path followed so far: vertices, kept whatever the line (the outline touches
+        # there), and where on it each vertex is (by slot; -1: not on it)
+        path = np.empty(nb, np.int64)
+        path_slot = np.empty(nb, np.int64)
+        fixed = np.empty(nb, np.bool_)
+        on_path = np.full(nb, -1, np.int64)
         signed = 0.0
         shells = 0
         for i0 in range(nb):
-            if seen[i0]:
+            if seen[i0] or bad:
                 continue
-            size = 0
+            top = 0
             i = i0
-            while not seen[i]:
+            while True:
+                # back at the start, or at a vertex of the path: the loop since then (a loop
+                # that touches itself is cut there: a shell and a hole, or two shells)
+                at = 0 if seen[i] else on_path[slot[i]]
+                if at >= 0:
+                    kept = _keep_corners(vertices, ax, ay, path[at:top], fixed[at:top],
+                                         tolerance, loop_vertices, n_vertices)
+                    if kept < 0:
+                        bad = True
+                        break
+                    area = 0.0
+                    for t in range(at, top):
+                        on_path[path_slot[t]] = -1
+                        p, q = path[t], path[t + 1 if t + 1 < top else at]
+                        length[f] += math.hypot(vertices[q, ax] - vertices[p, ax],
+                                                vertices[q, ay] - vertices[p, ay])
+                    for t in range(n_vertices, kept):
+                        p = loop_vertices[t]
+                        q = loop_vertices[t + 1 if t + 1 < kept else n_vertices]
+                        area += (vertices[p, ax] * vertices[q, ay]
+                                 - vertices[p, ay] * vertices[q, ax])
+                    n_vertices = kept
+                    loop_feature[n_loops] = f
+                    loop_area[n_loops] = area
+                    n_loops += 1
+                    loop_offsets[n_loops] = n_vertices
+                    signed += area
+                    top = at
+                    if seen[i]:
+                        break
                 seen[i] = True
-                loop[size] = start[boundary[i]]
-                fixed[size] = pinch[i]
-                size += 1
+                on_path[slot[i]] = top
+                path[top], path_slot[top], fixed[top] = start[boundary[i]], slot[i], pinch[i]
+                top += 1
                 i = after[i]
-            for t in range(size):
-                p, q = loop[t], loop[(t + 1) % size]
-                length[f] += math.hypot(vertices[q, ax] - vertices[p, ax],
-                                        vertices[q, ay] - vertices[p, ay])
-            # a corner to start from: one off the line through its neighbours
-            s = -1
-            for t in range(size):
-                if fixed[t] or not _on_line(vertices, ax, ay, loop[(t + size - 1) % size], loop[t],
-                                loop[(t + 1) % size], tolerance):
-                    s = t
-                    break
-            if s < 0:
-                bad = True
-                break
-            kept = n_vertices
-            loop_vertices[n_vertices] = loop[s]
-            n_vertices += 1
-            for t in range(1, size):
-                if fixed[(s + t) % size] or not _on_line(
-                        vertices, ax, ay, loop_vertices[n_vertices - 1], loop[(s + t) % size],
-                        loop[(s + t + 1) % size], tolerance):
-                    loop_vertices[n_vertices] = loop[(s + t) % size]
-                    n_vertices += 1
-            if n_vertices - kept < 3:
-                bad = True
-                break
-            area = 0.0
-            for t in range(kept, n_vertices):
-                p = loop_vertices[t]
-                q = loop_vertices[t + 1 if t + 1 < n_vertices else kept]
-                area += vertices[p, ax] * vertices[q, ay] - vertices[p, ay] * vertices[q, ax]
-            loop_feature[n_loops] = f
-            loop_area[n_loops] = area
-            n_loops += 1
-            loop_offsets[n_loops] = n_vertices
-            signed += area
         if not bad:
             for i in range(first_loop, n_loops):
-                if (loop_area[i] > 0) == (signed > 0):
+                loop_area[i] = loop_area[i] * signed  # > 0: an outer loop, < 0: a hole
+                loop_shell[i] = i
+                if loop_area[i] > 0:
                     shells += 1
-            # several outer loops and holes: which hole is in which is left to _merge
-            bad = shells == 0 or (shells > 1 and shells < n_loops - first_loop)
+            bad = shells == 0
+        if not bad and shells < n_loops - first_loop:
+            # each hole in the smallest outer loop around the middle of its first edge
+            for h in range(first_loop, n_loops):
+                if loop_area[h] > 0:
+                    continue
+                p, q = loop_vertices[loop_offsets[h]], loop_vertices[loop_offsets[h] + 1]
+                pu = 0.5 * (vertices[p, ax] + vertices[q, ax])
+                pv = 0.5 * (vertices[p, ay] + vertices[q, ay])
+                least = np.inf
+                for o in range(first_loop, n_loops):
+                    if (loop_area[o] > 0 and loop_area[o] < least
+                            and _inside(vertices, ax, ay, loop_vertices, loop_offsets[o],
+                                        loop_offsets[o + 1], pu, pv)):
+                        least, loop_shell[h] = loop_area[o], o
+                if least == np.inf:
+                    bad = True
+                    break
         if bad:
             status[f] = _TO_MERGE
             n_loops, n_vertices = first_loop, first_vertex
             continue
-        for i in range(first_loop, n_loops):
-            loop_area[i] = loop_area[i] * signed
-    hole = np.empty(n_loops, np.bool_)
-    for i in range(n_loops):
-        hole[i] = loop_area[i] < 0
     return (loop_vertices[:n_vertices].copy(), loop_offsets[:n_loops + 1].copy(),
-            loop_feature[:n_loops].copy(), hole, status, length)
+            loop_feature[:n_loops].copy(), loop_shell[:n_loops].copy(), status, length)
+
+
+@numba.njit(nogil=True, cache=True)
+def _inside(vertices: NDArray[np.float64], ax: int, ay: int, loop: NDArray[np.int64],
+            start: int, stop: int, pu: float, pv: float) -> bool:
+    """Whether the point (``pu``, ``pv``) is inside the loop ``loop[start:stop]`` (vertex
+    indices; seen along the axis other than ``ax`` and ``ay``): even-odd crossings."""
+    inside = False
+    for t in range(start, stop):
+        a, b = loop[t], loop[t + 1 if t + 1 < stop else start]
+        au, av, bu, bv = vertices[a, ax], vertices[a, ay], vertices[b, ax], vertices[b, ay]
+        if (av > pv) != (bv > pv) and pu < au + (pv - av) * (bu - au) / (bv - av):
+            inside = not inside
+    return inside
+
+
+@numba.njit(nogil=True, cache=True)
+def _keep_corners(vertices: NDArray[np.float64], ax: int, ay: int, loop: NDArray[np.int64],
+                  fixed: NDArray[np.bool_], tolerance: float, out: NDArray[np.int64],
+                  n_out: int) -> int:
+    """Write the corners of the closed ``loop`` (vertex indices) to ``out`` from ``n_out``
+    on, leaving out those within ``tolerance`` of the line from the last kept corner to the
+    next one (never a ``fixed`` one); returns where they end, -1 when fewer than 3 are
+    left (a loop seen along the axis other than ``ax`` and ``ay``)."""
+    size = len(loop)
+    s = -1  # a corner to start from: one off the line through its neighbours
+    for t in range(size):
+        if fixed[t] or not _on_line(vertices, ax, ay, loop[(t + size - 1) % size], loop[t],
+                                    loop[(t + 1) % size], tolerance):
+            s = t
+            break
+    if s < 0:
+        return -1
+    end = n_out
+    out[end] = loop[s]
+    end += 1
+    for t in range(1, size):
+        if fixed[(s + t) % size] or not _on_line(vertices, ax, ay, out[end - 1],
+                                                 loop[(s + t) % size],
+                                                 loop[(s + t + 1) % size], tolerance):
+            out[end] = loop[(s + t) % size]
+            end += 1
+    return end if end - n_out >= 3 else -1
 
 
 @numba.njit(nogil=True, cache=True)
@@ -733,14 +811,12 @@ def _outlined_part(scene: Scene, rows: NDArray[np.int32], offsets: NDArray[np.in
                    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
     """:func:`_outlined` for one chunk of features (``axes``: theirs, :func:`_outlines`)."""
     vertices = scene.vertices
-    loop_vertices, loop_offsets, loop_feature, hole, status, length = _outlines(
+    loop_vertices, loop_offsets, loop_feature, loop_shell, status, length = _outlines(
         scene.faces, rows, offsets, chosen, vertices, axes, _COLLINEAR_M)
-    # a polygon per outer loop, its feature's holes after it (a feature with holes has one)
+    # a polygon per outer loop, its holes after it
+    hole = loop_shell != np.arange(len(loop_shell))
     shell = ~hole
-    polygon_of = np.cumsum(shell) - 1
-    feature_polygon = np.zeros(len(chosen), np.int64)
-    feature_polygon[loop_feature[shell][::-1]] = polygon_of[shell][::-1]  # its first shell
-    loop_polygon = np.where(shell, polygon_of, feature_polygon[loop_feature])
+    loop_polygon = (np.cumsum(shell) - 1)[loop_shell]
     polygon_feature = loop_feature[shell]
     order = np.lexsort((hole, loop_polygon))  # each polygon's shell, then its holes
     sizes = np.diff(loop_offsets)[order]
