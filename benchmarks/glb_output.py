@@ -11,8 +11,8 @@ output (and compare two versions of it) the plan is made once and pickled::
 (:func:`planner.outputs.glb.coverage_glb`) ``--repeat`` times, printing per run the CPU
 seconds of the process (user + sys, ``getrusage``: on a shared machine wall time stretches
 with other work, CPU time much less), the bytes, and the peak resident memory while
-writing (``VmHWM``, reset before each run: the loaded result included; numba is imported
-beforehand, as a planning process has it); first the features and triangles drawn.
+writing (``VmHWM``, reset before each run: the loaded result included; numba's compiler is
+started beforehand, as in a planning process); first the features and triangles drawn.
 """
 
 from __future__ import annotations
@@ -72,12 +72,15 @@ def _reset_hwm() -> bool:
 
 
 def time_glb(result_path: Path, out: Path | None, repeat: int) -> None:
-    import numba  # noqa: F401  (loaded in a planning process already: not the output's memory)
+    import numba
 
     from planner.memory import release_freed_memory
     from planner.outputs import glb
     from planner.outputs.drawing import face_classes
 
+    # numba's compiler started (about 30 MiB), as in a planning process, which has run its
+    # kernels by the time it writes the outputs: not the output's memory
+    numba.njit(lambda x: x + 1)(1)
     with result_path.open("rb") as f:
         result = pickle.load(f)
     loaded_mib = _peak_mib()
