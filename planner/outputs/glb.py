@@ -489,7 +489,7 @@ def _features(result: PlanResult, classes: NDArray[np.uint8]) -> _Features:
 
 # a chunk of the features to outline holds about this many pieces (bounds the outlines'
 # scratch arrays: 3 edges a piece)
-_OUTLINE_CHUNK_PIECES = 1 << 20
+_OUTLINE_CHUNK_PIECES = 1 << 16
 # _outlines' verdict on a feature: outlined, or left to _merge (shapely's union)
 _OUTLINED, _TO_MERGE = 0, 1
 
