@@ -15,11 +15,14 @@ Layout
   state is written as the file face itself (its three corners), one of several states as
   the outline of each state's faces (holes and all, corners on a straight run dropped)
   triangulated with no new vertices (GEOS's constrained Delaunay through ``shapely``;
-  where that would not cover exactly the faces' area, the faces themselves). The
-  generated office of 9.7 M split faces takes 0.07 triangles a face. A feature is drawn in the
-  colour of its worst face (the lowest best LPD over the requirement), so a covered
-  feature's shade is what all of it reaches at least. An unsplit model (the paper's
-  halls) has a feature a face, feature ``i`` being face ``i``, drawn as before.
+  where that would not cover exactly the faces' area, the faces themselves). The outline
+  is the faces' edges that no other face of the state uses (the pieces of a file face
+  share their vertices along common edges), found for every feature in one compiled pass
+  (:func:`_outlines`); shapely's union of the faces only where those edges make no closed
+  loops. The generated office of 9.7 M split faces takes 0.07 triangles a face. A feature
+  is drawn in the colour of its worst face (the lowest best LPD over the requirement), so
+  a covered feature's shade is what all of it reaches at least. An unsplit model (the
+  paper's halls) has a feature a face, feature ``i`` being face ``i``, drawn as before.
 - One node and mesh per face class (``covered``, ``coverable_not_covered``,
   ``not_coverable``, ``not_target``; empty classes are left out), so a viewer toggles a
   class by hiding a node; its ``extras`` give ``faces`` (rows of ``faces.npz``) and
