@@ -463,7 +463,7 @@ def _features(result: PlanResult, classes: NDArray[np.uint8]) -> _Features:
         scene, rows, offsets, first, np.flatnonzero(~whole & (counts > 1)))
     merged = [triangles]
     merged_feature = [triangle_feature]
-    for feature in to_merge.tolist():  # outlines that touch themselves: shapely's union
+    for feature in to_merge.tolist():  # edges that make no closed loops: shapely's union
         members = rows[offsets[feature]:offsets[feature + 1]]
         merged.append(_merge(scene, scene.faces[members], int(first[feature]),
                              float(scene.areas[members].sum())))
