@@ -328,3 +328,100 @@ def test_split_model_is_drawn_by_file_face_and_state(split_result: PlanResult) -
 
 def test_split_model_same_bytes_twice(split_result: PlanResult) -> None:
     assert glb.coverage_glb(split_result) == glb.coverage_glb(split_result)
+
+
+def _outline_check(scene: Any, labels: np.ndarray) -> tuple[int, list[int]]:
+    """Group ``scene``'s faces by source face and ``labels`` as coverage.glb does, outline
+    the groups of several faces that are not a whole file face, and check each outlined
+    group's triangles: corners among its faces' vertices, wound as its faces, covering
+    exactly their area once. Returns the triangles made and the groups left to _merge."""
+    import shapely
+
+    key = scene.source_face.astype(np.int64) * 64 + labels
+    rows = np.argsort(key, kind="stable").astype(np.int32)
+    offsets = np.append(np.flatnonzero(np.diff(key[rows], prepend=-1)), len(key))
+    first = rows[offsets[:-1]]
+    counts = np.diff(offsets)
+    whole = counts == np.bincount(scene.source_face)[scene.source_face[first]]
+    chosen = np.flatnonzero(~whole & (counts > 1))
+    features, triangles, to_merge = glb._outlined(scene, rows, offsets, first, chosen)
+    assert (np.diff(features) >= 0).all() and set(features) <= set(chosen)
+    axes = [0, 1]  # the test scenes lie in z = 0
+    for feature in sorted(set(chosen) - set(to_merge)):
+        members = rows[offsets[feature]:offsets[feature + 1]]
+        mine = triangles[features == feature]
+        assert np.isin(mine, scene.faces[members]).all()
+        corners = scene.vertices[mine]
+        normal = scene.normals[members[0]]
+        assert (glb._cross(corners) @ normal > 0).all()
+        flat = corners[:, :, axes]
+        drawn = shapely.polygons(np.concatenate([flat, flat[:, :1]], axis=1))
+        pieces = scene.vertices[scene.faces[members]][:, :, axes]
+        union = shapely.union_all(shapely.polygons(np.concatenate([pieces, pieces[:, :1]],
+                                                                  axis=1)))
+        assert shapely.area(drawn).sum() == pytest.approx(union.area, rel=1e-9)
+        assert shapely.symmetric_difference(shapely.union_all(drawn), union).area < 1e-9
+    return len(triangles), sorted(int(f) for f in to_merge)
+
+
+def _split_square(edge_m: float) -> Any:
+    """A 4 m square of two triangles in z = 0, split into pieces of ``edge_m``."""
+    from planner.scene import remesh
+
+    vertices = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [4.0, 4.0, 0.0], [0.0, 4.0, 0.0]])
+    return remesh(build_scene(vertices, np.array([[0, 1, 2], [0, 2, 3]])), edge_m)
+
+
+def _loops(scene: Any, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per group of faces of one label (of several faces): its outer loops and its holes."""
+    rows = np.argsort(labels, kind="stable").astype(np.int32)
+    offsets = np.append(np.flatnonzero(np.diff(labels[rows], prepend=-1)), len(labels))
+    chosen = np.flatnonzero(np.diff(offsets) > 1)
+    axes = np.tile(np.array([0, 1], np.int64), (len(chosen), 1))
+    _, _, feature, shell, status, _ = glb._outlines(scene.faces, rows, offsets, chosen,
+                                                    scene.vertices, axes, glb._COLLINEAR_M)
+    assert (status == 0).all()
+    hole = shell != np.arange(len(shell))
+    return (np.bincount(feature[~hole], minlength=len(chosen)),
+            np.bincount(feature[hole], minlength=len(chosen)))
+
+
+@pytest.mark.parametrize("pattern", ["checkerboard", "blobs", "random"])
+def test_outlines_of_pieces(pattern: str) -> None:
+    """Outlines that touch themselves at corners (a checkerboard), outer loops with holes
+    and islands in them (blobs), ragged groups: every group is outlined, none left to
+    shapely's union, its triangles cover exactly its faces, fewer of them than faces."""
+    scene = _split_square(0.3)
+    centre = scene.centroids
+    if pattern == "checkerboard":
+        cells = np.floor(centre[:, :2] / 0.5).astype(np.int64)
+        labels = (cells.sum(axis=1) % 2).astype(np.int64)
+    elif pattern == "blobs":
+        r = np.hypot(centre[:, 0] - 2.0, centre[:, 1] - 2.0)
+        labels = ((np.sin(r * 4.0) > 0) ^ (np.sin(centre[:, 0] * 5) * np.sin(centre[:, 1] * 5)
+                                            > 0.6)).astype(np.int64)
+    else:
+        labels = np.random.default_rng(0).integers(0, 3, scene.n_faces)
+    made, left = _outline_check(scene, labels)
+    assert left == []
+    assert made < scene.n_faces / (2 if pattern == "blobs" else 3 if pattern == "checkerboard"
+                                   else 1)
+    shells, holes = _loops(scene, scene.source_face.astype(np.int64) * 64 + labels)
+    if pattern == "checkerboard":  # squares that touch at their corners: one loop each
+        assert shells.max() >= 16 and holes.sum() == 0
+    if pattern == "blobs":  # several outer loops and holes in one group
+        assert ((shells > 1) & (holes > 0)).any()
+
+
+def test_outline_with_a_t_junction() -> None:
+    """Pieces that meet a neighbour's edge in its middle (remesh does not split so) still
+    give triangles that cover exactly their area."""
+    vertices = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [2.0, 2.0, 0.0], [0.0, 2.0, 0.0],
+                         [1.0, 1.0, 0.0], [3.0, 0.0, 0.0]])
+    faces = np.array([[0, 1, 3], [1, 2, 4], [4, 2, 3], [1, 5, 2]])
+    scene = dataclasses.replace(build_scene(vertices, faces),
+                                source_face=np.zeros(4, np.int32),
+                                file_vertices=vertices, file_faces=np.array([[0, 5, 3]]),
+                                file_face_group=np.zeros(1, np.int32),
+                                file_face_element=np.full(1, -1, np.int32))
+    assert _outline_check(scene, np.array([0, 0, 0, 1])) == (2, [])  # the square
