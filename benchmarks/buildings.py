@@ -9,7 +9,8 @@ planned in 143 CPU s, its plan.pdf takes 533 more and 7.4 GB, 346 A3 sheets tili
 storeys with the site around them). Prints per model and storey
 the candidates, stations, rooms without stations, unreachable stations and their reasons,
 and the legs through walls (:func:`planner.truth.legs.legs_through_walls`, with the IFC's
-own door faces as the door mask, also for the plain mesh); per model the wall and CPU
+own door faces as the door mask; for the plain mesh its doors and its windows to the floor,
+which a plain mesh cannot tell from glazed doors); per model the wall and CPU
 seconds (reading and planning, then writing the outputs, apart) and the child's peak memory
 (``ru_maxrss``). Prints figures, never passes or fails on them::
 
@@ -51,17 +52,17 @@ LARGE = ("lantern", "amersfoort")
 
 
 def _export(ifc: str, obj: str, doors: str) -> None:
-    """Child: the plain OBJ of ``ifc`` and the IFC's door faces (in the OBJ's face order)
-    as a .npy mask."""
+    """Child: the plain OBJ of ``ifc`` and the IFC's doorways for a plain mesh (its doors
+    and its windows to the floor, :func:`tests.planner.buildings.plain_mesh_doorways`, in
+    the OBJ's face order) as a .npy mask."""
     import numpy as np
 
     from planner.io.ifc import read_ifc
-    from planner.walkgraph import door_faces
-    from tests.planner.buildings import export_plain_mesh
+    from tests.planner.buildings import export_plain_mesh, plain_mesh_doorways
 
     scene = read_ifc(ifc)
     export_plain_mesh(ifc, obj, scene)
-    np.save(doors, scene.on_file_faces(door_faces(scene)))
+    np.save(doors, scene.on_file_faces(plain_mesh_doorways(scene)))
 
 
 def _storey_of(station: dict[str, Any]) -> str:

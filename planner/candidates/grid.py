@@ -72,6 +72,11 @@ _MAX_SURFACES = 32
 _SURFACE_STEP_M = 1e-4
 _LEVEL_GAP_M = 0.15
 _MIN_LEVEL_AREA_M2 = 4.0
+# floor_levels "storeys": a floor is level. A walking surface steeper than 1:20 is a ramp
+# (ADA 2010 405.1, ISO 21542), or the terrain around a building: it fills the heights
+# between two floors, so only level surfaces tell a storey's height (a slope joins the level
+# it meets, never two levels)
+_LEVEL_FLOOR_NORMAL_Z = 20.0 / math.hypot(1.0, 20.0)
 # floor_levels "storeys": a patch with a lower floor beside it along more than this share of
 # its edge is raised (furniture), not a storey
 _RAISED_EDGE_SHARE = 0.5
@@ -356,6 +361,9 @@ def storey_levels(
        more than 1.8 m below, so people fit under it.
     4. *Area*: the patches that are not raised are grouped by height into levels; a level
        of less than ``_MIN_LEVEL_AREA_M2`` is stair treads or a small landing, no floor.
+       Only level surfaces (no steeper than 1:20) are grouped so: a slope (a ramp, the
+       terrain around the building) joins the level it meets and is no floor elsewhere,
+       since it fills every height between two floors (:func:`_floor_levels`).
     5. *Split levels*: two floor levels closer in height than ``HEADROOM_M`` are not one
        over the other (nobody stands under a floor 1.8 m above his own), so they are one
        storey: the larger level is the storey, the smaller a split level of it (a
@@ -373,18 +381,18 @@ def storey_levels(
     station nobody reaches, with the reason).
     """
     dropped = dict.fromkeys(DROP_REASONS, 0)
-    point, floor_z = walkable_surfaces(scene, xy, spec, caster, dropped)
+    point, floor_z, normal_z = walkable_surfaces(scene, xy, spec, caster, dropped)
     # a grid point inside a wall stands on the wall's foot with the wall's height over it:
     # such surfaces would join a floor to the ground outside the wall, so they go first
     inside = inside_closed_groups(
         scene, np.column_stack([xy[point], floor_z + spec.scanner_height_m]))
     dropped["inside_geometry"] += int(inside.sum())
-    point, floor_z = point[~inside], floor_z[~inside]
+    point, floor_z, normal_z = point[~inside], floor_z[~inside], normal_z[~inside]
     if spec.area_of_interest is None and len(point):  # the building, not the site
         on = on_the_building(scene, spec, np.column_stack(
             [xy[point], floor_z + spec.scanner_height_m]), floor_z, caster)
         dropped["outside_area_of_interest"] += int((~on).sum())
-        point, floor_z = point[on], floor_z[on]
+        point, floor_z, normal_z = point[on], floor_z[on], normal_z[on]
     if len(point) == 0:
         return None, None, [], dropped
     cell = spec.grid_spacing_m
@@ -429,10 +437,15 @@ def storey_levels(
     patch_lower = np.bincount(patch, lower, n_patches)
     raised_patch = patch_lower > _RAISED_EDGE_SHARE * np.maximum(patch_edge, 1)
     raised = raised_patch[patch]
-    level = _height_levels(floor_z)
+    flat = normal_z >= _LEVEL_FLOOR_NORMAL_Z
+    if not flat.any():  # no level surface (a mesh with noisy normals): heights alone
+        flat[:] = True
+    level, sloped_level = _floor_levels(floor_z, flat)
     n_levels = int(level.max()) + 1
     area = np.bincount(level, ~raised, n_levels) * cell ** 2
-    floor_level = area >= _MIN_LEVEL_AREA_M2
+    # a floor needs its least area of level floor: slopes joined to a terrace do not make one
+    floor_level = np.bincount(level, ~raised & flat, n_levels) * cell ** 2 \
+        >= _MIN_LEVEL_AREA_M2
     eligible = floor_level[level] & ~raised
     dropped["no_floor"] += int((~eligible).sum())  # listed under the levels, with the reason
     positions = np.column_stack([xy[point[eligible]],
@@ -445,7 +458,9 @@ def storey_levels(
     positions, level_of = positions[keep], level_of[keep]
     grid_row = point[eligible][keep]
     counts = np.bincount(level_of, minlength=n_levels)
-    heights = np.array([float(np.median(floor_z[level == k])) for k in range(n_levels)])
+    # a level's height is its level floor's (a slope joined to it spans heights)
+    heights = np.array([float(np.median(floor_z[(level == k) & (flat | sloped_level[k])]))
+                        for k in range(n_levels)])
     # the building's footprint: every grid cell with a floor on some level
     footprint_m2 = len(np.unique(key[~raised])) * cell ** 2
     storey_of, kind = _storeys_of_levels(heights, np.asarray(area, np.float64), counts,
@@ -484,6 +499,12 @@ def storey_levels(
                            "candidates": int(counts[k]), "storey_floor_z_m":
                            round(float(heights[storey_of[k]]), 3) + 0.0,
                            "excluded": _NOT_A_STOREY[kind[k]].format(storey=owner)})
+        elif area[k] > 0 and sloped_level[k]:
+            report.append({"floor_z_m": height, "area_m2": round(float(area[k]), 2),
+                           "candidates": 0,
+                           "excluded": "sloped: steeper than 1:20 (a ramp, the terrain) and "
+                                       "more than " + f"{_LEVEL_GAP_M:g}" + " m from the "
+                                       "height of any level floor, so no floor of a storey"})
         elif area[k] > 0:
             report.append({"floor_z_m": height, "area_m2": round(float(area[k]), 2),
                            "candidates": 0,
@@ -546,9 +567,10 @@ def _storeys_of_levels(heights_m: NDArray[np.float64], area_m2: NDArray[np.float
 def walkable_surfaces(
     scene: Scene, xy: NDArray[np.float64], spec: PlanSpec, caster: RayCaster,
     dropped: dict[str, int],
-) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-    """Every walkable surface under the (N, 2) points: (K,) point index and (K,) floor
-    height, by point, then height.
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """Every walkable surface under the (N, 2) points: (K,) point index, (K,) floor
+    height and (K,) upward normal of the face under the point (1: level), by point, then
+    height.
 
     Rays go up through the model, surface after surface. A surface is walkable when it is
     flatter than 30 degrees and the next surface above is more than ``scanner_height_m`` +
@@ -557,12 +579,12 @@ def walkable_surfaces(
     as :func:`place_on_floor` does.
     """
     if len(xy) == 0:
-        return np.zeros(0, np.int64), np.zeros(0)
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
     steep = math.cos(math.radians(_MAX_FLOOR_SLOPE_DEG))
     reach = spec.scanner_height_m + spec.clearance_m
     hit_point: list[NDArray[np.int64]] = []
     hit_z: list[NDArray[np.float64]] = []
-    hit_flat: list[NDArray[np.bool_]] = []
+    hit_up: list[NDArray[np.float64]] = []
     active = np.arange(len(xy))
     z = np.full(len(xy), scene.bounds[0, 2] - 1.0)
     up = np.tile([0.0, 0.0, 1.0], (len(xy), 1))
@@ -575,14 +597,15 @@ def walkable_surfaces(
             break
         hit_point.append(active)
         hit_z.append(z_hit)
-        hit_flat.append(np.abs(scene.normals[face, 2]) >= steep)
+        hit_up.append(np.abs(scene.normals[face, 2]))
         z[active] = z_hit + _SURFACE_STEP_M
     if not hit_point:
         dropped["no_floor"] += len(xy)
-        return np.zeros(0, np.int64), np.zeros(0)
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
     point = np.concatenate(hit_point)
     order = np.lexsort((np.concatenate(hit_z), point))
-    point, zs, flat = point[order], np.concatenate(hit_z)[order], np.concatenate(hit_flat)[order]
+    point, zs, up_z = point[order], np.concatenate(hit_z)[order], np.concatenate(hit_up)[order]
+    flat = up_z >= steep
     last = np.r_[point[1:] != point[:-1], True]
     head_room = np.where(last, np.inf, np.r_[zs[1:], np.inf] - zs)
     first = np.r_[True, point[1:] != point[:-1]]
@@ -590,7 +613,7 @@ def walkable_surfaces(
     dropped["blocked_above_floor"] += int((first & flat & (head_room <= reach)).sum())
     # above the lowest surface, a level needs a roof over it: the top of a roof is outside
     walkable = flat & (head_room > reach) & (first | np.isfinite(head_room))
-    return point[walkable], zs[walkable]
+    return point[walkable], zs[walkable], up_z[walkable]
 
 
 def _height_levels(floor_z: NDArray[np.float64]) -> NDArray[np.int64]:
@@ -603,6 +626,47 @@ def _height_levels(floor_z: NDArray[np.float64]) -> NDArray[np.int64]:
     return level
 
 
+def _floor_levels(floor_z: NDArray[np.float64], flat: NDArray[np.bool_]
+                  ) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """(K,) level of each floor height, numbered from the lowest, and per level whether it
+    is sloped only. ``flat``: (K,) the surface is level (no steeper than 1:20).
+
+    The level surfaces are grouped by :func:`_height_levels`; a sloped surface (a ramp,
+    the terrain) joins the level whose level surface lies nearest its height, within
+    ``_LEVEL_GAP_M``, and the sloped surfaces near no level floor are levels of their own,
+    by height, marked sloped. So a slope between two floors (a house's terrain from its
+    basement's door to its ground floor's) joins neither to the other. At least one
+    surface must be level."""
+    level = np.empty(len(floor_z), np.int64)
+    level[flat] = _height_levels(floor_z[flat])
+    level_z = floor_z[flat]
+    by_height = np.argsort(level_z, kind="stable")
+    sorted_z, sorted_level = level_z[by_height], level[flat][by_height]
+    slope = np.flatnonzero(~flat)
+    at = np.searchsorted(sorted_z, floor_z[slope])
+    below = np.clip(at - 1, 0, len(sorted_z) - 1)
+    above = np.clip(at, 0, len(sorted_z) - 1)
+    d_below = np.abs(floor_z[slope] - sorted_z[below])
+    d_above = np.abs(sorted_z[above] - floor_z[slope])
+    nearest = np.where(d_below <= d_above, below, above)
+    joins = np.minimum(d_below, d_above) <= _LEVEL_GAP_M
+    level[slope[joins]] = sorted_level[nearest[joins]]
+    alone = slope[~joins]
+    n_flat = int(level[flat].max()) + 1
+    if len(alone) == 0:
+        return level, np.zeros(n_flat, bool)
+    level[alone] = n_flat + _height_levels(floor_z[alone])
+    n = int(level.max()) + 1
+    sloped = np.arange(n) >= n_flat
+    # number all levels from the lowest
+    heights = np.array([float(floor_z[level == k].min()) for k in range(n)])
+    rank = np.empty(n, np.int64)
+    rank[np.argsort(heights, kind="stable")] = np.arange(n)
+    sloped_ranked = np.empty(n, bool)
+    sloped_ranked[rank] = sloped
+    return rank[level], sloped_ranked
+
+
 def place_on_levels(
     scene: Scene, xy: NDArray[np.float64], spec: PlanSpec, caster: RayCaster,
     dropped: dict[str, int],
@@ -613,7 +677,7 @@ def place_on_levels(
     (:func:`_height_levels`); a level smaller than ``_MIN_LEVEL_AREA_M2`` of grid cells is
     a table top or a stair tread, not a floor, and its points count as ``no_floor``.
     """
-    point, floor_z = walkable_surfaces(scene, xy, spec, caster, dropped)
+    point, floor_z, _ = walkable_surfaces(scene, xy, spec, caster, dropped)
     if len(point) == 0:
         return np.zeros((0, 3)), np.zeros(0, np.int64)
     level = _height_levels(floor_z)

@@ -12,7 +12,10 @@ column, a stair's underside or a slab's edge at head height: anything a person c
 walk through).
 
 Doors are excepted as the survey opens them: the ``door`` mask (IFC doors by class; for a
-plain mesh exported from an IFC model the IFC's own door faces, the ground truth). Nothing
+plain mesh exported from an IFC model the ground truth from the IFC: its doors, and its
+windows that come down to the floor, since a plain mesh cannot tell a French window from a
+glazed door and its door rule opens both, see ``tests.planner.buildings.
+plain_mesh_doorways``; a window with a parapet, a wall or a stair still blocks). Nothing
 of the walk graph is used: not its floor samples, links or room floors, only the legs'
 points and the model's faces, so a defect in the graph's links shows here.
 

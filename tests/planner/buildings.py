@@ -33,6 +33,7 @@ import numpy as np
 import trimesh
 from numpy.typing import NDArray
 
+from planner.rays import RayCaster
 from planner.scene import Scene
 
 STOREY_M = 3.2  # floor to floor
@@ -453,10 +454,41 @@ def door_score(ifc: Scene, found: NDArray[np.bool_]) -> DoorScore:
         windows_to_floor=len(to_floor))
 
 
-def _window_sill_m(ifc: Scene, faces: NDArray[np.int64], area: NDArray[np.float64]) -> float:
+def plain_mesh_doorways(ifc: Scene) -> NDArray[np.bool_]:
+    """(F,) bool over ``ifc``'s faces: what a leg of a plain export's route may pass, by the
+    IFC model's own classes (the ground truth of :func:`planner.truth.legs.
+    legs_through_walls` for a plain mesh): its IfcDoor faces, and the faces of every
+    IfcWindow that comes down to the floor (its lowest face at most ``WINDOW_SILL_MAX_M``
+    over the floor beside it: a French window). A plain mesh cannot tell a French window
+    from a glazed door (both a thin glazed filler from the floor to a lintel), so its door
+    rule opens both (:func:`planner.walkgraph.mesh_doors`); a window with a parapet, a wall,
+    a stair or anything else stays a wall here. An IFC model tells them apart: its own plan
+    opens IfcDoor only."""
+    from planner.rays import make_ray_caster
+    from planner.walkgraph import door_faces
+
+    passable = door_faces(ifc).copy()
+    element = np.asarray(ifc.face_element)
+    windows = [k for k, e in enumerate(ifc.elements) if e.ifc_class == "IfcWindow"]
+    if not windows:
+        return passable
+    triangles = ifc.triangles
+    area = np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0],
+                                   triangles[:, 2] - triangles[:, 0]), axis=1) / 2
+    caster = make_ray_caster(ifc, np.ones(ifc.n_faces, bool))
+    for k in windows:
+        faces = np.flatnonzero(element == k)
+        if len(faces) and _window_sill_m(ifc, faces, area, caster) <= WINDOW_SILL_MAX_M:
+            passable[faces] = True
+    return passable
+
+
+def _window_sill_m(ifc: Scene, faces: NDArray[np.int64], area: NDArray[np.float64],
+                   caster: RayCaster | None = None) -> float:
     """How high the lowest of a window's ``faces`` (indices into ``ifc``'s faces) stands
     over the higher of the floors ``WINDOW_FLOOR_PROBE_M`` to each side of its largest face
-    (its glass), found by rays down from just over that lowest point; inf: no floor."""
+    (its glass), found by rays down from just over that lowest point; inf: no floor.
+    ``caster``: over every face of ``ifc``, when one is made already."""
     from planner.rays import make_ray_caster
 
     triangles = ifc.triangles[faces]
@@ -467,7 +499,8 @@ def _window_sill_m(ifc: Scene, faces: NDArray[np.int64], area: NDArray[np.float6
     centre = triangles.reshape(-1, 3).mean(axis=0)
     starts = np.array([centre + side * WINDOW_FLOOR_PROBE_M * across for side in (-1, 1)])
     starts[:, 2] = bottom + 0.05
-    caster = make_ray_caster(ifc, np.ones(ifc.n_faces, bool))
+    if caster is None:
+        caster = make_ray_caster(ifc, np.ones(ifc.n_faces, bool))
     _, distance = caster.first_hit(starts, np.tile([0.0, 0.0, -1.0], (2, 1)))
     if not np.isfinite(distance).any():
         return float("inf")

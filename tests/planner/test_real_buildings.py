@@ -42,7 +42,8 @@ def planned(path: Path, spec: PlanSpec = SPEC) -> dict[str, Any]:
     ``legs_through_walls`` the route's legs through walls
     (:func:`planner.truth.legs.legs_through_walls`, against the plan's scene; the doors are
     an IFC model's own, or for a plain mesh the mask saved beside it as ``.doors.npy``:
-    the IFC's door faces, in the export's face order)."""
+    the IFC's doorways for a plain mesh, its doors and windows to the floor
+    (:func:`tests.planner.buildings.plain_mesh_doorways`), in the export's face order)."""
     from planner.truth.legs import legs_in_plan, legs_through_walls
     from planner.walkgraph import door_faces
 
@@ -303,16 +304,21 @@ def test_the_corpus_as_ifc_reaches_every_station_without_a_leg_through_a_wall(
 def niedriha_plain(scenes_dir: Path, tmp_path_factory: pytest.TempPathFactory
                    ) -> dict[str, Any]:
     """The ArchiCAD house as a plain OBJ (no classes, no groups), planned once."""
-    from planner.walkgraph import door_faces
-    from tests.planner.buildings import export_plain_mesh
+    return _plain(buildings_dir(scenes_dir) / "AC90R1-niedriha-V2-2x3.ifc",
+                  tmp_path_factory.mktemp("plain") / "niedriha.obj")
+
+
+def _plain(ifc: Path, obj: Path) -> dict[str, Any]:
+    """``ifc`` exported to the plain OBJ ``obj`` and planned (:func:`planned`)."""
+    from tests.planner.buildings import export_plain_mesh, plain_mesh_doorways
     from tests.planner.ifc_models import read_ifc_once
 
-    ifc = buildings_dir(scenes_dir) / "AC90R1-niedriha-V2-2x3.ifc"
     reference = read_ifc_once(ifc)
-    obj = export_plain_mesh(ifc, tmp_path_factory.mktemp("plain") / "niedriha.obj",
-                            reference)
-    # the ground truth for the legs' check: the IFC's doors, in the export's face order
-    np.save(obj.with_suffix(".doors.npy"), reference.on_file_faces(door_faces(reference)))
+    export_plain_mesh(ifc, obj, reference)
+    # the ground truth for the legs' check: the IFC's doors and windows to the floor, in
+    # the export's face order
+    np.save(obj.with_suffix(".doors.npy"),
+            reference.on_file_faces(plain_mesh_doorways(reference)))
     return planned(obj)
 
 
@@ -362,3 +368,44 @@ def test_the_renga_house_as_a_plain_mesh_has_two_storeys_with_split_levels(
     split = [list(map(float, str(lv["with_levels_m"]).strip("[]").split(", ")))
              for lv in storeys]
     assert -0.45 in split[0] and 2.85 in split[1], storeys
+
+
+def test_the_archicad_house_with_french_windows_as_a_plain_mesh_has_no_leg_through_a_wall(
+        scenes_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Jasmin's ground floor has French windows (IfcWindow from the floor to door height).
+    A plain mesh cannot tell them from glazed doors, so its door rule opens them and the
+    legs' check lets a leg through them; through anything else (a window with a parapet, a
+    wall) no leg passes, and every station is reached."""
+    document = _plain(buildings_dir(scenes_dir) / "AC90R1-Jasmin-Sun-105-2x3.ifc",
+                      tmp_path_factory.mktemp("plain") / "jasmin.obj")
+    assert document["legs_through_walls"] == []
+    route = document["route"]
+    assert route["unreachable"] == [], route["unreachable_reasons"]
+    storeys = [lv for lv in document["candidates"]["levels"] if "excluded" not in lv]
+    assert [lv["floor_z_m"] for lv in storeys] == [-2.9, 0.0, 2.9], storeys
+
+
+def test_a_house_on_a_sloping_site_as_a_plain_mesh_keeps_its_basement_and_ground_floor(
+        scenes_dir: Path, tmp_path: Path) -> None:
+    """Lantern Hollow as a plain mesh: its terrain slopes from the basement's door (-2.5 m)
+    up to the ground floor (0 m), a walkable slope at every height between them. The
+    storeys are the level floors, the slope joins neither to the other: two storeys, at
+    the basement's and the ground floor's heights, not one between them."""
+    from planner.candidates.grid import generate_grid
+    from planner.limits import FaceLimits
+    from planner.rays import make_ray_caster
+    from tests.planner.buildings import export_plain_mesh
+    from tests.planner.ifc_models import read_ifc_once
+
+    ifc = buildings_dir(scenes_dir) / "Lantern_Hollow.ifc"
+    obj = export_plain_mesh(ifc, tmp_path / "lantern.obj", read_ifc_once(ifc))
+    scene = read_scene(obj, max_edge_m=SPEC.max_edge_m, split_faces="as_needed")
+    caster = make_ray_caster(scene, FaceLimits.from_spec(SPEC, scene).occludes,
+                             file_faces=True)
+    levels = generate_grid(scene, SPEC, caster).levels
+    assert levels is not None
+    storeys = [lv for lv in levels if "excluded" not in lv]
+    heights = [float(str(lv["floor_z_m"])) for lv in storeys]
+    assert len(heights) == 2 and abs(heights[0] + 2.49) < 0.05 and abs(heights[1]) < 0.1, \
+        levels
+    assert all(int(str(lv["candidates"])) >= 50 for lv in storeys), storeys

@@ -81,7 +81,7 @@ def test_half_landings_between_storeys_are_not_storeys_and_keep_their_candidates
 
 
 def test_rooms_a_few_steps_up_are_a_split_level_of_their_storey() -> None:
-    """A 10 x 8 m house: the east 4 m of its ground floor 0.6 m up, its upper floor (3 m)
+    """A 10 x 14 m house: the east 4 m of its ground floor 0.6 m up, its upper floor (3 m)
     likewise 0.6 m up in the east: two storeys, not four (as the Renga house's plain
     mesh: rooms at -0.45 and 0 m, at +2.85 and +3.45 m)."""
     boxes = _shell(10.0, 8.0, 6.0)
@@ -100,6 +100,32 @@ def test_rooms_a_few_steps_up_are_a_split_level_of_their_storey() -> None:
     floor_z = candidates.positions[:, 2] - SPEC.scanner_height_m
     assert {round(float(z), 2) for z in floor_z} == {0.0, 0.6, 3.0, 3.6}
     assert len({label["storey"] for label in candidates.labels}) == 2
+
+
+def test_a_slope_from_the_basement_up_to_the_ground_floor_joins_neither_storey() -> None:
+    """A 10 x 14 m house, its basement floor at 0 and its ground floor at 3 m, on a site
+    whose terrain slopes (12 degrees, walkable, askew to the grid) from the basement's
+    level up to the ground floor's beside it, as Lantern Hollow's: the slope fills every
+    height between the two floors, yet they stay two storeys (a level floor tells a
+    storey's height, a slope does not), and the slope is no storey of its own."""
+    boxes = _shell(10.0, 14.0, 6.0)
+    boxes += [((-0.2, -0.2, -0.3), (10.2, 14.2, 0.0)), ((0.0, 0.0, 2.7), (10.0, 14.0, 3.0))]
+    house = _off_grid(boxes)
+    # the terrain's slope, one sheet as a site model's: from the basement's wall up to +3 m,
+    # along the house's east wall, rising 0.2 m a metre north and 0.05 m a metre east
+    x0, x1, y1 = 10.33, 14.33, 14.13
+    slope = np.array([[x0, 0.13, 0.0], [x1, 0.13, 0.2], [x1, y1, 3.0], [x0, y1, 2.8]])
+    scene = remesh(build_scene(np.concatenate([house.vertices, slope]), np.concatenate(
+        [house.faces, np.array([[0, 1, 2], [0, 2, 3]]) + len(house.vertices)])), 0.5)
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    candidates = generate_grid(scene, SPEC, caster)
+    assert candidates.levels is not None
+    storeys = [lv for lv in candidates.levels if "excluded" not in lv]
+    assert [lv["floor_z_m"] for lv in storeys] == [0.0, 3.0], candidates.levels
+    sloped = [lv for lv in candidates.levels if str(lv.get("excluded", "")).startswith(
+        "sloped")]
+    assert sloped and all(0.1 < float(str(lv["floor_z_m"])) < 2.9 for lv in sloped), \
+        candidates.levels
 
 
 def test_a_hall_on_a_slab_drawn_with_its_underside_is_planned_on_its_floor() -> None:
