@@ -212,13 +212,12 @@ class TileCutter:
     def cut(self, candidates: NDArray[np.int64], positions: NDArray[np.float64]) -> Tile:
         """The tile of the plan's ``candidates`` (ascending) at the (n, 3) ``positions``."""
         scene, limits, bvh = self.scene, self.limits, self.bvh
-        tree = cKDTree(positions)
         low, high = positions.min(axis=0), positions.max(axis=0)
         # the targets within reach (with a hair of slack: the kernel decides the rest)
         reach = self.reach_m * (1 + 1e-6) + 1e-9
         near = self._targets[_in_box(self._target_grid, low - reach, high + reach)]
-        distance, _ = tree.query(scene.centroids[near], distance_upper_bound=reach)
-        targets = np.sort(near[np.isfinite(distance)]).astype(np.int64)
+        targets = np.sort(near[_within(scene.centroids[near], positions, low, high, reach)]
+                          ).astype(np.int64)
         faces = targets if self._file_bvh else np.union1d(targets, self._occluding)
         part = _part_scene(scene, faces, keep_file_mesh=self._file_bvh)
         target = np.zeros(len(faces), bool)
@@ -254,8 +253,8 @@ def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool)
     """The part of ``scene`` of its ``faces`` (ascending): with ``keep_file_mesh`` (a split
     scene whose rays meet the file's faces) over the file's whole mesh, else over the file
     faces of its own faces."""
-    used, local = np.unique(scene.faces[faces], return_inverse=True)
-    vertices, triangles = scene.vertices[used], local.reshape(-1, 3).astype(np.int32)
+    used, triangles = _compact(scene.faces[faces], len(scene.vertices))
+    vertices = scene.vertices[used]
     if scene.file_faces is not None and scene.file_vertices is not None:
         if keep_file_mesh:
             file_ids = np.arange(len(scene.file_faces), dtype=np.int64)
@@ -267,22 +266,52 @@ def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool)
             file_vertices = scene.file_vertices[file_used]
             file_faces = file_local.reshape(-1, 3).astype(np.int32)
             source = np.searchsorted(file_ids, scene.source_face[faces]).astype(np.int32)
-        part = Scene(vertices=vertices, faces=triangles,
-                     file_face_group=scene.file_face_group[file_ids], groups=scene.groups,
-                     source_face=source,
-                     file_face_element=np.full(len(file_ids), -1, np.int32),
-                     file_vertices=file_vertices, file_faces=file_faces)
+        fields: dict[str, Any] = {
+            "file_face_group": scene.file_face_group[file_ids], "source_face": source,
+            "file_face_element": np.full(len(file_ids), -1, np.int32),
+            "file_vertices": file_vertices, "file_faces": file_faces}
     else:
-        part = Scene(vertices=vertices, faces=triangles,
-                     file_face_group=scene.file_face_group[faces], groups=scene.groups,
-                     source_face=np.arange(len(faces), dtype=np.int32),
-                     file_face_element=np.full(len(faces), -1, np.int32))
-    # the model's own float64 values, whatever the part's arithmetic would give
-    for name in ("centroids", "normals", "areas"):
-        values = np.ascontiguousarray(getattr(scene, name)[faces])
-        values.flags.writeable = False
-        object.__setattr__(part, name, values)
-    return part
+        fields = {"file_face_group": scene.file_face_group[faces],
+                  "source_face": np.arange(len(faces), dtype=np.int32),
+                  "file_face_element": np.full(len(faces), -1, np.int32)}
+    # the model's own float64 values, whatever the part's arithmetic would give (and so
+    # none of it is done)
+    return Scene.with_face_values(
+        scene.centroids[faces], scene.normals[faces], scene.areas[faces],
+        vertices=vertices, faces=triangles, groups=scene.groups, **fields)
+
+
+def _compact(indices: NDArray[np.int32], size: int) -> tuple[NDArray[np.int64],
+                                                            NDArray[np.int32]]:
+    """The values of ``indices`` (any shape, each in ``range(size)``) ascending, once each,
+    and ``indices`` renumbered into them (int32): ``np.unique(indices,
+    return_inverse=True)`` without its sort, by a mark over ``range(size)`` (a tile's
+    vertices: millions of indices into a few million vertices)."""
+    used = np.zeros(size, bool)
+    used[indices] = True
+    renumber = np.cumsum(used, dtype=np.int32)
+    renumber -= 1
+    return np.flatnonzero(used), renumber[indices]
+
+
+def _within(points: NDArray[np.float64], positions: NDArray[np.float64],
+            low: NDArray[np.float64], high: NDArray[np.float64], reach: float
+            ) -> NDArray[np.bool_]:
+    """(k,) bool: which of the (k, 3) ``points`` lie within ``reach`` of one of the (n, 3)
+    ``positions`` (``low`` and ``high``: their box), as a k-d tree of the positions finds
+    them. Only the points the cheap bounds leave in doubt are looked up in the tree: those
+    clearly within reach of the position nearest the box's middle are in, those clearly
+    farther than the reach from the box are out (a margin of 1e-9 of the reach, far beyond
+    any rounding of the distances, so the tree would decide both the same)."""
+    middle = positions[np.argmin(((positions - (low + high) / 2) ** 2).sum(axis=1))]
+    sure: NDArray[np.bool_] = ((points - middle) ** 2).sum(axis=1) <= (reach * (1 - 1e-9)) ** 2
+    gap = np.maximum(low - points, 0.0) + np.maximum(points - high, 0.0)  # (k, 3)
+    beyond = (gap ** 2).sum(axis=1) > (reach * (1 + 1e-9)) ** 2
+    doubt = np.flatnonzero(~sure & ~beyond)
+    if len(doubt):
+        distance, _ = cKDTree(positions).query(points[doubt], distance_upper_bound=reach)
+        sure[doubt] = np.isfinite(distance)
+    return sure
 
 
 def _at_work(tile: Tile, occluders: Occluders | None) -> tuple[Tile, EmbreeOcclusion]:
