@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import ClusterError, PlannerError, SchedulerUnreachableError
+from planner.memory import release_freed_memory
 from planner.progress import ProgressCallback, notify
 from planner.rays.embree import EmbreeOcclusion
 from planner.visibility.coverage import QualifiedPairs
@@ -189,6 +190,9 @@ class DaskFanout:
                 future: Future[_Result] = self._submit(name, work, item, *extra,
                                                        retries=TASK_RETRIES)
                 del item
+                # the cut's scratch, freed into the heap where it stays resident until a
+                # trim, before the next tile is cut beside the ones out
+                release_freed_memory()
                 running[future.key] = (submitted, future)
                 done.add(future)  # type: ignore[no-untyped-call]
                 submitted += 1
