@@ -120,12 +120,14 @@ class Scene:
         object.__setattr__(self, "areas", _frozen(areas))
 
     @classmethod
-    def with_face_values(cls, centroids: FloatArray, normals: FloatArray, areas: FloatArray,
-                         **fields: Any) -> Scene:
+    def with_face_values(cls, centroids: FloatArray | None, normals: FloatArray | None,
+                         areas: FloatArray | None, **fields: Any) -> Scene:
         """The scene of ``fields`` (the constructor's) whose (F, 3) ``centroids``, (F, 3)
         ``normals`` and (F,) ``areas`` are given rather than derived from its vertices: a
         part of a scene keeps the scene's own float64 values, and the arithmetic that would
-        only be thrown away is skipped (a tile of a few million faces: seconds)."""
+        only be thrown away is skipped (a tile of a few million faces: seconds). None
+        leaves them out: only for a part on its way to where they are derived again (a
+        tile in a task, :meth:`planner.visibility.tiles.Tile.detached`)."""
         scene = cls.__new__(cls)
         for spec in dataclasses.fields(cls):
             if not spec.init:
@@ -145,6 +147,9 @@ class Scene:
         n = len(scene.faces)
         for name, values, shape in (("centroids", centroids, (n, 3)),
                                     ("normals", normals, (n, 3)), ("areas", areas, (n,))):
+            if values is None:
+                object.__setattr__(scene, name, None)
+                continue
             values = np.asarray(values, np.float64)
             if values.shape != shape:
                 raise ValueError(f"{name} of shape {values.shape}, not {shape}")

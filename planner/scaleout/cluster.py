@@ -310,14 +310,8 @@ def _tiles(cutter: TileCutter, positions: NDArray[np.float64],
     """The tile of each group of candidates (``positions``: (C, 3) float64, the plan's),
     cut as needed, without the occluders they share when ``detached``."""
     for ids in groups:
-        # cut and detached in one expression: this frame keeps no tile while it waits
-        yield _cut(cutter, positions, ids, detached=detached)
-
-
-def _cut(cutter: TileCutter, positions: NDArray[np.float64], ids: NDArray[np.int64], *,
-         detached: bool) -> Tile:
-    tile = cutter.cut(ids, positions[ids])
-    return tile.detached() if detached else tile
+        # yielded as cut: this frame keeps no tile while it waits
+        yield cutter.cut(ids, positions[ids], detached=detached)
 
 
 def _near_groups(candidates: NDArray[np.int64], positions: NDArray[np.float64], size: int,
