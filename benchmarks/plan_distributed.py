@@ -34,6 +34,31 @@ and 594, 1,023 and 1,011, 1,703 and 1,373 MiB (before, 774 and 758 at 40 m, 1,66
 (before 201 and 122 s), the client's 335 s (before 446 s), its peak 2,354 MiB (before
 3,817 MiB).
 
+The client (which here hosts the ``LocalCluster``'s scheduler too, and the scheduler keeps
+each task's arguments, its tile, until the task ends) then spent most of its extra CPU
+cutting the tiles, profiled with py-spy at 40 m: the part's scene derived its faces'
+centroids, normals and areas only to have them replaced by the model's, its vertices were
+renumbered by ``np.unique`` (a sort), every target in the box around the candidates was
+looked up in a k-d tree; and a tile carried the centroids, normals and areas (56 of about
+125 bytes a face) the worker can derive again to the same bits. With those gone (the
+bounds sort the targets out in one compiled pass, the tree is asked only about those in
+doubt; a tile travels without its faces' values and the worker derives them, some 0.34 s
+of CPU a million faces), same parameters, ``--workers 2``, each figure beside the same
+session's run of the code before (2 cores shared with other jobs, so the CPU times carry
+some noise):
+
+- 40 m: one machine 954 MiB, CPU 69 s (1,055 MiB, 75 s in the run before); workers 625
+  and 646 MiB (CPU 50 and 50 s; before 635 and 632 MiB, 48 and 38 s); client 990 MiB,
+  CPU 71 s (before 1,549 MiB, 96 s);
+- 80 m: one machine 1,644 MiB, CPU 226 s (1,732 MiB, 244 s in the run before); workers
+  1,034 and 1,026 MiB (CPU 198 and 199 s; before 1,051 and 1,040 MiB, 148 and 203 s);
+  client 1,693 MiB, CPU 234 s (before 2,805 MiB, 458 s);
+
+every file byte-identical each time. The client's peak is now about the single machine's
+(within the single machine's own spread from run to run) and its CPU about the same: it
+runs every stage but the fanned ones, and besides holds Dask's libraries and the started
+scheduler (some 25 MiB) and, while tasks run, the scheduler's copies of their tiles.
+
     PYTHONPATH=. .venv/bin/python benchmarks/plan_distributed.py [MODEL.ifc]
         [--storeys 8] [--width-m 12] [--depth-m 19] [--workers 1 2 4]
         [--params '{"grid_spacing_m": 1.0}'] [--out /tmp/plan-distributed]

@@ -99,6 +99,65 @@ class Scene:
     areas: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
+        self._check()
+        n = len(self.faces)
+        centroids, normals, areas = np.empty((n, 3)), np.zeros((n, 3)), np.empty(n)
+
+        def derive(start: int) -> None:
+            block = slice(start, start + _DERIVE_BLOCK_FACES)
+            triangles = self.vertices[self.faces[block]]  # (B, 3, 3)
+            cross = np.cross(triangles[:, 1] - triangles[:, 0],
+                             triangles[:, 2] - triangles[:, 0])
+            doubled = np.linalg.norm(cross, axis=1)
+            np.divide(cross, doubled[:, None], out=normals[block], where=doubled[:, None] > 0)
+            centroids[block] = triangles.mean(axis=1)
+            areas[block] = doubled / 2.0
+
+        # blocks on a few threads (numpy releases the GIL), each into its own rows
+        list(in_block_order(derive, range(0, n, _DERIVE_BLOCK_FACES)))
+        object.__setattr__(self, "centroids", _frozen(centroids))
+        object.__setattr__(self, "normals", _frozen(normals))
+        object.__setattr__(self, "areas", _frozen(areas))
+
+    @classmethod
+    def with_face_values(cls, centroids: FloatArray | None, normals: FloatArray | None,
+                         areas: FloatArray | None, **fields: Any) -> Scene:
+        """The scene of ``fields`` (the constructor's) whose (F, 3) ``centroids``, (F, 3)
+        ``normals`` and (F,) ``areas`` are given rather than derived from its vertices: a
+        part of a scene keeps the scene's own float64 values, and the arithmetic that would
+        only be thrown away is skipped (a tile of a few million faces: seconds). None
+        leaves them out: only for a part on its way to where they are derived again (a
+        tile in a task, :meth:`planner.visibility.tiles.Tile.detached`)."""
+        scene = cls.__new__(cls)
+        for spec in dataclasses.fields(cls):
+            if not spec.init:
+                continue
+            if spec.name in fields:
+                value = fields.pop(spec.name)
+            elif spec.default is not dataclasses.MISSING:
+                value = spec.default
+            elif spec.default_factory is not dataclasses.MISSING:
+                value = spec.default_factory()
+            else:
+                raise TypeError(f"Scene.with_face_values needs {spec.name}")
+            object.__setattr__(scene, spec.name, value)
+        if fields:
+            raise TypeError(f"Scene has no field {', '.join(sorted(fields))}")
+        scene._check()
+        n = len(scene.faces)
+        for name, values, shape in (("centroids", centroids, (n, 3)),
+                                    ("normals", normals, (n, 3)), ("areas", areas, (n,))):
+            if values is None:
+                object.__setattr__(scene, name, None)
+                continue
+            values = np.asarray(values, np.float64)
+            if values.shape != shape:
+                raise ValueError(f"{name} of shape {values.shape}, not {shape}")
+            object.__setattr__(scene, name, _frozen(values))
+        return scene
+
+    def _check(self) -> None:
+        """Checks the fields and makes the arrays read-only (int32 indices)."""
         if max(len(self.vertices), len(self.faces), len(self.groups)) >= 2**31 - 1:
             raise SceneError("the model has more than 2**31 vertices or faces; split it")
         if self.faces.ndim != 2 or self.faces.shape[1] != 3 or len(self.faces) == 0:
@@ -124,24 +183,6 @@ class Scene:
                 f"vertex {bad} has a non-finite coordinate {self.vertices[bad].tolist()}; "
                 "fix or remove it in the model"
             )
-        n = len(self.faces)
-        centroids, normals, areas = np.empty((n, 3)), np.zeros((n, 3)), np.empty(n)
-
-        def derive(start: int) -> None:
-            block = slice(start, start + _DERIVE_BLOCK_FACES)
-            triangles = self.vertices[self.faces[block]]  # (B, 3, 3)
-            cross = np.cross(triangles[:, 1] - triangles[:, 0],
-                             triangles[:, 2] - triangles[:, 0])
-            doubled = np.linalg.norm(cross, axis=1)
-            np.divide(cross, doubled[:, None], out=normals[block], where=doubled[:, None] > 0)
-            centroids[block] = triangles.mean(axis=1)
-            areas[block] = doubled / 2.0
-
-        # blocks on a few threads (numpy releases the GIL), each into its own rows
-        list(in_block_order(derive, range(0, n, _DERIVE_BLOCK_FACES)))
-        object.__setattr__(self, "centroids", _frozen(centroids))
-        object.__setattr__(self, "normals", _frozen(normals))
-        object.__setattr__(self, "areas", _frozen(areas))
 
     @property
     def n_faces(self) -> int:

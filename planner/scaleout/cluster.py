@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.errors import ClusterError, PlannerError, SchedulerUnreachableError
+from planner.memory import release_freed_memory
 from planner.progress import ProgressCallback, notify
 from planner.rays.embree import EmbreeOcclusion
 from planner.visibility.coverage import QualifiedPairs
@@ -189,6 +190,9 @@ class DaskFanout:
                 future: Future[_Result] = self._submit(name, work, item, *extra,
                                                        retries=TASK_RETRIES)
                 del item
+                # the cut's scratch, freed into the heap where it stays resident until a
+                # trim, before the next tile is cut beside the ones out
+                release_freed_memory()
                 running[future.key] = (submitted, future)
                 done.add(future)  # type: ignore[no-untyped-call]
                 submitted += 1
@@ -306,8 +310,8 @@ def _tiles(cutter: TileCutter, positions: NDArray[np.float64],
     """The tile of each group of candidates (``positions``: (C, 3) float64, the plan's),
     cut as needed, without the occluders they share when ``detached``."""
     for ids in groups:
-        tile = cutter.cut(ids, positions[ids])
-        yield tile.detached() if detached else tile
+        # yielded as cut: this frame keeps no tile while it waits
+        yield cutter.cut(ids, positions[ids], detached=detached)
 
 
 def _near_groups(candidates: NDArray[np.int64], positions: NDArray[np.float64], size: int,

@@ -44,6 +44,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
@@ -95,39 +96,42 @@ class Tile:
 
     def detached(self) -> Tile:
         """The tile without the file's mesh and which of its faces occlude (what
-        :meth:`TileCutter.occluders` holds): what travels in a task, valid again once
-        :meth:`attached` to the occluders on the worker."""
+        :meth:`TileCutter.occluders` holds), and without its faces' centroids, normals and
+        areas (what its vertices give again, the same bits: each face's arithmetic is the
+        model's, whatever faces stand beside it): what travels in a task, 56 bytes a face
+        less, valid again once :meth:`attached` to the occluders on the worker."""
         if self.scene.file_faces is None or self.bvh.bvh_occludes is None:
             return self
         scene = copy.copy(self.scene)
-        object.__setattr__(scene, "file_vertices", None)
-        object.__setattr__(scene, "file_faces", None)
+        for name in ("file_vertices", "file_faces", "centroids", "normals", "areas"):
+            object.__setattr__(scene, name, None)
         return dataclasses.replace(self, scene=scene,
                                    bvh=dataclasses.replace(self.bvh, bvh_occludes=None))
 
     def attached(self, occluders: Occluders) -> Tile:
         """The :meth:`detached` tile with the file's mesh of ``occluders`` (the same arrays,
-        not copies)."""
-        scene = copy.copy(self.scene)
-        object.__setattr__(scene, "file_vertices", occluders.vertices)
-        object.__setattr__(scene, "file_faces", occluders.faces)
+        not copies) and its faces' centroids, normals and areas derived again."""
+        bare = self.scene
+        scene = Scene(vertices=bare.vertices, faces=bare.faces,
+                      file_face_group=bare.file_face_group, groups=bare.groups,
+                      source_face=bare.source_face, file_face_element=bare.file_face_element,
+                      elements=bare.elements, metadata=bare.metadata,
+                      file_vertices=occluders.vertices, file_faces=occluders.faces,
+                      split_max_edge_m=bare.split_max_edge_m)
         return dataclasses.replace(self, scene=scene, bvh=occluders.part)
 
     @property
     def nbytes(self) -> int:
         """The size of the tile's arrays (what a worker receives)."""
         scene = self.scene
-        arrays: list[NDArray[Any]] = [
+        arrays: list[NDArray[Any] | None] = [
             scene.vertices, scene.faces, scene.source_face, scene.file_face_group,
             scene.file_face_element, scene.centroids, scene.normals, scene.areas,
-            self.faces, self.positions, self.candidates, self.limits.target,
-            self.limits.occludes, self.limits.min_density_pts_m2,
-            self.limits.min_incidence_deg]
-        if scene.file_vertices is not None and scene.file_faces is not None:
-            arrays += [scene.file_vertices, scene.file_faces]
-        if self.bvh.bvh_occludes is not None:
-            arrays.append(self.bvh.bvh_occludes)
-        return int(sum(a.nbytes for a in arrays))
+            scene.file_vertices, scene.file_faces, self.faces, self.positions,
+            self.candidates, self.limits.target, self.limits.occludes,
+            self.limits.min_density_pts_m2, self.limits.min_incidence_deg,
+            self.bvh.bvh_occludes]
+        return int(sum(a.nbytes for a in arrays if a is not None))
 
 
 class Occluders:
@@ -209,18 +213,21 @@ class TileCutter:
         return Occluders(file_vertices, file_faces,
                          BvhPart(self._bvh_occludes, self.bvh.scale_m, self.bvh.quads))
 
-    def cut(self, candidates: NDArray[np.int64], positions: NDArray[np.float64]) -> Tile:
-        """The tile of the plan's ``candidates`` (ascending) at the (n, 3) ``positions``."""
+    def cut(self, candidates: NDArray[np.int64], positions: NDArray[np.float64], *,
+            detached: bool = False) -> Tile:
+        """The tile of the plan's ``candidates`` (ascending) at the (n, 3) ``positions``
+        (:meth:`Tile.detached` with ``detached``, without gathering what it leaves out)."""
         scene, limits, bvh = self.scene, self.limits, self.bvh
-        tree = cKDTree(positions)
         low, high = positions.min(axis=0), positions.max(axis=0)
         # the targets within reach (with a hair of slack: the kernel decides the rest)
         reach = self.reach_m * (1 + 1e-6) + 1e-9
         near = self._targets[_in_box(self._target_grid, low - reach, high + reach)]
-        distance, _ = tree.query(scene.centroids[near], distance_upper_bound=reach)
-        targets = np.sort(near[np.isfinite(distance)]).astype(np.int64)
+        targets = np.sort(near[_within(scene.centroids, near, positions, low, high, reach)]
+                          ).astype(np.int64)
         faces = targets if self._file_bvh else np.union1d(targets, self._occluding)
-        part = _part_scene(scene, faces, keep_file_mesh=self._file_bvh)
+        # a detached tile's faces travel without their centroids, normals and areas
+        bare = detached and self._file_bvh and scene.file_faces is not None
+        part = _part_scene(scene, faces, keep_file_mesh=self._file_bvh, face_values=not bare)
         target = np.zeros(len(faces), bool)
         target[np.searchsorted(faces, targets)] = True
         part_limits = dataclasses.replace(
@@ -229,10 +236,11 @@ class TileCutter:
             min_density_pts_m2=np.ascontiguousarray(limits.min_density_pts_m2[faces]),
             target=target & limits.target[faces],
             occludes=np.ascontiguousarray(self.occludes[faces]))
-        return Tile(part, part_limits, faces.astype(np.int32),
+        tile = Tile(part, part_limits, faces.astype(np.int32),
                     np.ascontiguousarray(positions, np.float64),
                     np.asarray(candidates, np.int64), self.reach_m, bvh.file_faces,
                     BvhPart(self._bvh_occludes, bvh.scale_m, bvh.quads))
+        return tile.detached() if detached else tile
 
 
 def _in_box(grid: PointGrid, low: NDArray[np.float64], high: NDArray[np.float64]
@@ -250,12 +258,14 @@ def _in_box(grid: PointGrid, low: NDArray[np.float64], high: NDArray[np.float64]
     return np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, np.int64)
 
 
-def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool) -> Scene:
+def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool,
+                face_values: bool = True) -> Scene:
     """The part of ``scene`` of its ``faces`` (ascending): with ``keep_file_mesh`` (a split
     scene whose rays meet the file's faces) over the file's whole mesh, else over the file
-    faces of its own faces."""
-    used, local = np.unique(scene.faces[faces], return_inverse=True)
-    vertices, triangles = scene.vertices[used], local.reshape(-1, 3).astype(np.int32)
+    faces of its own faces; without its faces' centroids, normals and areas unless
+    ``face_values`` (see :meth:`Tile.detached`)."""
+    used, triangles = _compact(scene.faces[faces], len(scene.vertices))
+    vertices = scene.vertices[used]
     if scene.file_faces is not None and scene.file_vertices is not None:
         if keep_file_mesh:
             file_ids = np.arange(len(scene.file_faces), dtype=np.int64)
@@ -267,22 +277,89 @@ def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool)
             file_vertices = scene.file_vertices[file_used]
             file_faces = file_local.reshape(-1, 3).astype(np.int32)
             source = np.searchsorted(file_ids, scene.source_face[faces]).astype(np.int32)
-        part = Scene(vertices=vertices, faces=triangles,
-                     file_face_group=scene.file_face_group[file_ids], groups=scene.groups,
-                     source_face=source,
-                     file_face_element=np.full(len(file_ids), -1, np.int32),
-                     file_vertices=file_vertices, file_faces=file_faces)
+        fields: dict[str, Any] = {
+            "file_face_group": scene.file_face_group[file_ids], "source_face": source,
+            "file_face_element": np.full(len(file_ids), -1, np.int32),
+            "file_vertices": file_vertices, "file_faces": file_faces}
     else:
-        part = Scene(vertices=vertices, faces=triangles,
-                     file_face_group=scene.file_face_group[faces], groups=scene.groups,
-                     source_face=np.arange(len(faces), dtype=np.int32),
-                     file_face_element=np.full(len(faces), -1, np.int32))
-    # the model's own float64 values, whatever the part's arithmetic would give
-    for name in ("centroids", "normals", "areas"):
-        values = np.ascontiguousarray(getattr(scene, name)[faces])
-        values.flags.writeable = False
-        object.__setattr__(part, name, values)
-    return part
+        fields = {"file_face_group": scene.file_face_group[faces],
+                  "source_face": np.arange(len(faces), dtype=np.int32),
+                  "file_face_element": np.full(len(faces), -1, np.int32)}
+    # the model's own float64 values, whatever the part's arithmetic would give (and so
+    # none of it is done)
+    if not face_values:
+        return Scene.with_face_values(None, None, None, vertices=vertices, faces=triangles,
+                                      groups=scene.groups, **fields)
+    return Scene.with_face_values(
+        scene.centroids[faces], scene.normals[faces], scene.areas[faces],
+        vertices=vertices, faces=triangles, groups=scene.groups, **fields)
+
+
+def _compact(indices: NDArray[np.int32], size: int) -> tuple[NDArray[np.int64],
+                                                            NDArray[np.int32]]:
+    """The values of ``indices`` (any shape, each in ``range(size)``) ascending, once each,
+    and ``indices`` renumbered into them (int32): ``np.unique(indices,
+    return_inverse=True)`` without its sort, by a mark over ``range(size)`` (a tile's
+    vertices: millions of indices into a few million vertices)."""
+    used = np.zeros(size, bool)
+    used[indices] = True
+    renumber = np.cumsum(used, dtype=np.int32)
+    renumber -= 1
+    return np.flatnonzero(used), renumber[indices]
+
+
+def _within(xyz: NDArray[np.float64], points: NDArray[np.integer[Any]],
+            positions: NDArray[np.float64], low: NDArray[np.float64],
+            high: NDArray[np.float64], reach: float) -> NDArray[np.bool_]:
+    """(k,) bool: which of the (k,) ``points`` (rows of the (N, 3) ``xyz``) lie within
+    ``reach`` of one of the (n, 3) ``positions`` (``low`` and ``high``: their box), as a
+    k-d tree of the positions finds them. Only the points the cheap bounds leave in doubt
+    are looked up in the tree: those clearly within reach of the position nearest the box's
+    middle are in, those clearly farther than the reach from the box are out (a margin of
+    1e-9 of the reach, far beyond any rounding of the distances, so the tree would decide
+    both the same)."""
+    middle = positions[np.argmin(((positions - (low + high) / 2) ** 2).sum(axis=1))]
+    verdict = np.empty(len(points), np.int8)
+    _bounds_verdict(xyz, points, middle, low, high, (reach * (1 - 1e-9)) ** 2,
+                    (reach * (1 + 1e-9)) ** 2, verdict)
+    sure: NDArray[np.bool_] = verdict == _IN
+    doubt = np.flatnonzero(verdict == _DOUBT)
+    if len(doubt):
+        distance, _ = cKDTree(positions).query(xyz[points[doubt]],
+                                               distance_upper_bound=reach)
+        sure[doubt] = np.isfinite(distance)
+    return sure
+
+
+_OUT, _IN, _DOUBT = 0, 1, 2
+
+
+@numba.njit(nogil=True, cache=True)
+def _bounds_verdict(xyz: NDArray[np.float64], points: NDArray[np.integer[Any]],
+                    middle: NDArray[np.float64], low: NDArray[np.float64],
+                    high: NDArray[np.float64], inside2: float, outside2: float,
+                    verdict: NDArray[np.int8]) -> None:  # compiled; see test_distributed
+    """Each point's verdict (into ``verdict``): :data:`_IN` within ``inside2`` (squared)
+    of ``middle``, :data:`_OUT` farther than ``outside2`` (squared) from the box from
+    ``low`` to ``high``, :data:`_DOUBT` else."""
+    for i in range(len(points)):
+        p = points[i]
+        to_middle = 0.0
+        to_box = 0.0
+        for axis in range(3):
+            value = xyz[p, axis]
+            d = value - middle[axis]
+            to_middle += d * d
+            if value < low[axis]:
+                to_box += (low[axis] - value) ** 2
+            elif value > high[axis]:
+                to_box += (value - high[axis]) ** 2
+        if to_middle <= inside2:
+            verdict[i] = _IN
+        elif to_box > outside2:
+            verdict[i] = _OUT
+        else:
+            verdict[i] = _DOUBT
 
 
 def _at_work(tile: Tile, occluders: Occluders | None) -> tuple[Tile, EmbreeOcclusion]:

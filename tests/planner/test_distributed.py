@@ -191,7 +191,15 @@ def test_tiles_travel_without_the_file_mesh(house_tiles: HouseTiles) -> None:
         ids = np.arange(start, min(start + 8, len(candidates.positions)))
         tile = cutter.cut(ids, candidates.positions[ids])
         sent = tile.detached()
-        assert sent.scene.file_faces is None
+        assert sent.scene.file_faces is None and sent.scene.centroids is None
+        bare = cutter.cut(ids, candidates.positions[ids], detached=True)  # as a task's
+        assert bare.nbytes == sent.nbytes
+        assert np.array_equal(bare.faces, sent.faces)
+        assert np.array_equal(bare.scene.vertices, sent.scene.vertices)
+        assert np.array_equal(bare.scene.faces, sent.scene.faces)
+        for name in ("centroids", "normals", "areas"):  # derived again, the same bits
+            assert np.array_equal(getattr(bare.attached(occluders).scene, name),
+                                  getattr(tile.scene, name))
         assert (len(pickle.dumps(tile)) - len(pickle.dumps(sent))
                 >= file_vertices.nbytes + file_faces.nbytes)
         whole, shared = qualify_tile(tile), qualify_tile(pickle.loads(pickle.dumps(sent)),
@@ -226,3 +234,27 @@ def test_overlap_groups_stand_close_together() -> None:
         spread = positions[group].max(axis=0) - positions[group].min(axis=0)
         assert np.all(spread < GROUP_SPREAD_M)
     assert len(groups) < len(candidates) / 2  # groups share their tiles
+
+
+def test_tile_cut_bounds_decide_as_the_k_d_tree() -> None:
+    """A tile's targets: the points the bounds are sure of and those the k-d tree decides
+    are the points a k-d tree of the candidates finds within reach; its vertices are
+    renumbered as ``np.unique`` would."""
+    from scipy.spatial import cKDTree
+
+    from planner.visibility.tiles import _compact, _within
+
+    rng = np.random.default_rng(7)
+    for _ in range(10):
+        positions = rng.uniform(0.0, 8.0, (int(rng.integers(1, 30)), 3))
+        xyz = rng.uniform(-40.0, 50.0, (20_000, 3))
+        points = np.sort(rng.choice(len(xyz), 10_000, replace=False)).astype(np.int32)
+        distance, _ = cKDTree(positions).query(xyz[points], distance_upper_bound=25.0)
+        within = _within(xyz, points, positions, positions.min(axis=0),
+                         positions.max(axis=0), 25.0)
+        assert np.array_equal(within, np.isfinite(distance))
+        indices = rng.integers(0, 5_000, (3_000, 3)).astype(np.int32)
+        used, renumbered = _compact(indices, 5_000)
+        unique, inverse = np.unique(indices, return_inverse=True)
+        assert np.array_equal(used, unique)
+        assert np.array_equal(renumbered, inverse.reshape(-1, 3))
