@@ -345,23 +345,30 @@ def test_the_archicad_house_as_a_plain_mesh_has_no_leg_through_a_wall(
     assert niedriha_plain["legs_through_walls"] == []
 
 
-def test_the_renga_house_as_a_plain_mesh_has_two_storeys_with_split_levels(
-        scenes_dir: Path, tmp_path: Path) -> None:
-    """Renga's rooms lie at -0.45 and 0 m (Level 1) and at +2.85 and +3.45 m (Level 2):
-    a plain mesh of it has two storeys, each with a split level, not four."""
+def _plain_mesh_levels(ifc: Path, obj: Path) -> list[dict[str, Any]]:
+    """``candidates.levels`` of the IFC model ``ifc`` exported as the plain mesh ``obj``:
+    the candidates alone (the grid and its storeys), no plan."""
     from planner.candidates.grid import generate_grid
     from planner.limits import FaceLimits
     from planner.rays import make_ray_caster
     from tests.planner.buildings import export_plain_mesh
     from tests.planner.ifc_models import read_ifc_once
 
-    ifc = buildings_dir(scenes_dir) / "Renga-House.ifc"
-    obj = export_plain_mesh(ifc, tmp_path / "renga.obj", read_ifc_once(ifc))
-    scene = read_scene(obj, max_edge_m=SPEC.max_edge_m, split_faces="as_needed")
+    mesh = export_plain_mesh(ifc, obj, read_ifc_once(ifc))
+    scene = read_scene(mesh, max_edge_m=SPEC.max_edge_m, split_faces="as_needed")
     caster = make_ray_caster(scene, FaceLimits.from_spec(SPEC, scene).occludes,
                              file_faces=True)
     levels = generate_grid(scene, SPEC, caster).levels
     assert levels is not None
+    return list(levels)
+
+
+def test_the_renga_house_as_a_plain_mesh_has_two_storeys_with_split_levels(
+        scenes_dir: Path, tmp_path: Path) -> None:
+    """Renga's rooms lie at -0.45 and 0 m (Level 1) and at +2.85 and +3.45 m (Level 2):
+    a plain mesh of it has two storeys, each with a split level, not four."""
+    levels = _plain_mesh_levels(buildings_dir(scenes_dir) / "Renga-House.ifc",
+                                tmp_path / "renga.obj")
     storeys = [lv for lv in levels if "excluded" not in lv]
     assert [lv["floor_z_m"] for lv in storeys] == [0.0, 3.45], levels
     # on this 1 m grid a few stair treads and roof patches add up to 4 m² near +3.45 m
@@ -391,19 +398,8 @@ def test_a_house_on_a_sloping_site_as_a_plain_mesh_keeps_its_basement_and_ground
     up to the ground floor (0 m), a walkable slope at every height between them. The
     storeys are the level floors, the slope joins neither to the other: two storeys, at
     the basement's and the ground floor's heights, not one between them."""
-    from planner.candidates.grid import generate_grid
-    from planner.limits import FaceLimits
-    from planner.rays import make_ray_caster
-    from tests.planner.buildings import export_plain_mesh
-    from tests.planner.ifc_models import read_ifc_once
-
-    ifc = buildings_dir(scenes_dir) / "Lantern_Hollow.ifc"
-    obj = export_plain_mesh(ifc, tmp_path / "lantern.obj", read_ifc_once(ifc))
-    scene = read_scene(obj, max_edge_m=SPEC.max_edge_m, split_faces="as_needed")
-    caster = make_ray_caster(scene, FaceLimits.from_spec(SPEC, scene).occludes,
-                             file_faces=True)
-    levels = generate_grid(scene, SPEC, caster).levels
-    assert levels is not None
+    levels = _plain_mesh_levels(buildings_dir(scenes_dir) / "Lantern_Hollow.ifc",
+                                tmp_path / "lantern.obj")
     storeys = [lv for lv in levels if "excluded" not in lv]
     heights = [float(str(lv["floor_z_m"])) for lv in storeys]
     assert len(heights) == 2 and abs(heights[0] + 2.49) < 0.05 and abs(heights[1]) < 0.1, \
