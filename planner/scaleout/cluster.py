@@ -35,6 +35,7 @@ from planner.progress import ProgressCallback, notify
 from planner.rays.embree import EmbreeOcclusion
 from planner.visibility.coverage import QualifiedPairs
 from planner.visibility.overlap import OverlapRows
+from planner.visibility.pairs import search_reach_m
 from planner.visibility.qualify import Sight
 from planner.visibility.tiles import (
     Occluders,
@@ -269,7 +270,7 @@ class DaskFanout:
             return None
         limits = sight.limits
         cutter = TileCutter(sight.scene, limits, limits.occludes, sight.occlusion,
-                            min(limits.reach_m, limits.dof_max_m))
+                            search_reach_m(limits))
         positions = np.asarray(positions, np.float64)
         size = self._tile_size(len(positions))
         count = math.ceil(len(positions) / size)

@@ -29,7 +29,7 @@ from planner.memory import released_every
 from planner.rays import Occlusion, make_occlusion
 from planner.scene import Scene
 from planner.visibility.bundles import BundleCuller, bundle_culler
-from planner.visibility.pairs import PairFinder
+from planner.visibility.pairs import PairFinder, search_reach_m
 from planner.walkgraph import door_faces
 
 
@@ -77,10 +77,11 @@ class OverlapRows:
         self._positions = np.asarray(positions, np.float64)  # (C, 3)
         self._centroids = scene.centroids  # (F, 3), for the float64 rays
         self._occlusion = occlusion
-        self._finder = PairFinder(scene, overlap_limits(limits, overlap_density_pts_m2))
-        # a row reaches far (25 m at the default overlap density), mostly into other rooms:
-        # bundles hidden behind a wall are ruled out with four rays instead of one a piece
-        self._culler = bundle_culler(scene, self._finder.reach_m, occlusion)
+        self._limits = overlap_limits(limits, overlap_density_pts_m2)
+        # the pair search and the bundles of the rows computed here, made with the first
+        # of them: rows fanned out to a cluster never need them (a grid of every face and
+        # the bundles' arrays, on a 13 M-face model some hundreds of MB and seconds)
+        self._search: tuple[PairFinder, BundleCuller | None] | None = None
         self.workers = (threads or os.cpu_count() or 1) if fanout is None else fanout.threads
         self._rows: dict[int, NDArray[np.int32]] = {}  # candidate -> (k,) sorted face ids
         self.seconds = 0.0  # time spent computing rows
@@ -94,8 +95,19 @@ class OverlapRows:
         """How many candidates' rows have been computed."""
         return len(self._rows)
 
+    def _local_search(self) -> tuple[PairFinder, BundleCuller | None]:
+        """The pair search and the bundle culler of the rows computed here (made once)."""
+        if self._search is None:
+            finder = PairFinder(self._scene, self._limits)
+            # a row reaches far (25 m at the default overlap density), mostly into other
+            # rooms: bundles hidden behind a wall are ruled out with four rays, not one a piece
+            self._search = (finder, bundle_culler(self._scene, finder.reach_m,
+                                                  self._occlusion))
+        return self._search
+
     def _row(self, candidate: int) -> tuple[NDArray[np.int32], int]:
-        return overlap_row(self._finder, self._culler, self._occlusion, self._positions,
+        finder, culler = self._local_search()
+        return overlap_row(finder, culler, self._occlusion, self._positions,
                            self._centroids, candidate)
 
     @property
@@ -110,12 +122,12 @@ class OverlapRows:
     @property
     def limits(self) -> FaceLimits:
         """The limits of the rows (the overlap density's)."""
-        return self._finder.limits
+        return self._limits
 
     @property
     def reach_m(self) -> float:
         """The rows' pair search reach."""
-        return self._finder.reach_m
+        return search_reach_m(self._limits)
 
     @property
     def occlusion(self) -> Occlusion:
@@ -141,6 +153,7 @@ class OverlapRows:
                     self.rays_cast += rays
                 self.seconds += time.perf_counter() - started
                 return
+        self._local_search()  # made here, before the threads that share it
         # no threads are started for one row or one worker (the pool starts them on demand)
         with ThreadPoolExecutor(max_workers=min(self.workers, len(todo))) as pool:
             parallel = len(todo) > 1 and self.workers > 1

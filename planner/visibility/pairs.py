@@ -76,6 +76,12 @@ class Pairs:
 _PAIR_COLUMNS = ("candidate", "face", "origin", "direction", "distance_m", "lpd_pts_m2")
 
 
+def search_reach_m(limits: FaceLimits) -> float:
+    """How far a candidate's pair search under ``limits`` reaches: no face beyond it can
+    pass them."""
+    return min(limits.reach_m, limits.dof_max_m)
+
+
 def sorted_by_face(candidate: NDArray[np.int32], face: NDArray[np.int32]) -> NDArray[np.intp]:
     """(P,) the order that sorts P pairs by (candidate, face); a candidate holds a face
     once, so the order is unique.
@@ -323,7 +329,7 @@ class PairFinder:
         self.limits = limits
         # a tile of a model (planner.visibility.tiles) searches as far as the whole model
         # does, whatever the densities of its own targets
-        self.reach_m = min(limits.reach_m, limits.dof_max_m) if reach_m is None else reach_m
+        self.reach_m = search_reach_m(limits) if reach_m is None else reach_m
         self._faces = np.flatnonzero(limits.target).astype(np.int32)  # (f,) the targets
         # the scene's own (F, 3) arrays, read through self._faces: no (f, 3) copies
         self._face_xyz = scene.centroids

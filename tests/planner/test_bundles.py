@@ -69,7 +69,7 @@ def test_overlap_rows_are_the_same_with_and_without_bundles(office: Scene) -> No
                           file_faces=True)
     plain = OverlapRows(office, positions, limits, occlusion, spec.overlap_density_pts_m2,
                         file_faces=True)
-    plain._culler = None  # every piece its own ray, as before bundles
+    plain._search = (plain._local_search()[0], None)  # every piece its own ray, no bundles
     a, b = bundled.matrix(range(len(positions))), plain.matrix(range(len(positions)))
     assert a.nnz > 1000
     assert (a != b).nnz == 0
