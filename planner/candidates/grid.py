@@ -503,8 +503,8 @@ def storey_levels(
             report.append({"floor_z_m": height, "area_m2": round(float(area[k]), 2),
                            "candidates": 0,
                            "excluded": "sloped: steeper than 1:20 (a ramp, the terrain) and "
-                                       "more than " + f"{_LEVEL_GAP_M:g}" + " m from the "
-                                       "height of any level floor, so no floor of a storey"})
+                                       f"more than {_LEVEL_GAP_M:g} m from the height of "
+                                       "any level floor, so no floor of a storey"})
         elif area[k] > 0:
             report.append({"floor_z_m": height, "area_m2": round(float(area[k]), 2),
                            "candidates": 0,

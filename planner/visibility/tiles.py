@@ -111,13 +111,9 @@ class Tile:
     def attached(self, occluders: Occluders) -> Tile:
         """The :meth:`detached` tile with the file's mesh of ``occluders`` (the same arrays,
         not copies) and its faces' centroids, normals and areas derived again."""
-        bare = self.scene
-        scene = Scene(vertices=bare.vertices, faces=bare.faces,
-                      file_face_group=bare.file_face_group, groups=bare.groups,
-                      source_face=bare.source_face, file_face_element=bare.file_face_element,
-                      elements=bare.elements, metadata=bare.metadata,
-                      file_vertices=occluders.vertices, file_faces=occluders.faces,
-                      split_max_edge_m=bare.split_max_edge_m)
+        # the constructor derives the centroids, normals and areas again
+        scene = dataclasses.replace(self.scene, file_vertices=occluders.vertices,
+                                    file_faces=occluders.faces)
         return dataclasses.replace(self, scene=scene, bvh=occluders.part)
 
     @property
@@ -273,9 +269,9 @@ def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool,
             source = scene.source_face[faces]
         else:
             file_ids = np.unique(scene.source_face[faces]).astype(np.int64)
-            file_used, file_local = np.unique(scene.file_faces[file_ids], return_inverse=True)
+            file_used, file_faces = _compact(scene.file_faces[file_ids],
+                                             len(scene.file_vertices))
             file_vertices = scene.file_vertices[file_used]
-            file_faces = file_local.reshape(-1, 3).astype(np.int32)
             source = np.searchsorted(file_ids, scene.source_face[faces]).astype(np.int32)
         fields: dict[str, Any] = {
             "file_face_group": scene.file_face_group[file_ids], "source_face": source,

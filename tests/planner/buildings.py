@@ -33,8 +33,9 @@ import numpy as np
 import trimesh
 from numpy.typing import NDArray
 
-from planner.rays import RayCaster
+from planner.rays import RayCaster, make_ray_caster
 from planner.scene import Scene
+from planner.walkgraph import DOOR_SILL_MAX_M, door_faces
 
 STOREY_M = 3.2  # floor to floor
 SLAB_M = 0.25
@@ -356,8 +357,8 @@ TOUCH_M = 0.05  # found faces this close belong to one found door
 DOOR_FOUND_SHARE = 0.25  # an IfcDoor is found when this share of its area is: its leaf
 TRUE_DOOR_SHARE = 0.5  # a found door is true when this share of its area is an IfcDoor's
 # a window whose frame stands no higher than this over the floor beside it is a window to
-# the floor (a French window, a sidelight): one step, as walkgraph.DOOR_SILL_MAX_M
-WINDOW_SILL_MAX_M = 0.2
+# the floor (a French window, a sidelight): one step, as a door's sill
+WINDOW_SILL_MAX_M = DOOR_SILL_MAX_M
 WINDOW_FLOOR_PROBE_M = 0.5  # the floor is looked for this far to each side of the glass
 _CELL_M = 0.5  # the grid that pairs nearby faces
 
@@ -425,13 +426,10 @@ def touching_groups(triangles: NDArray[np.float64]) -> NDArray[np.int64]:
 def door_score(ifc: Scene, found: NDArray[np.bool_]) -> DoorScore:
     """Score ``found`` (F,) bool, the door faces a rule found in the plain export of the
     IFC reading ``ifc`` (same faces, same order), against its IfcDoor faces."""
-    from planner.walkgraph import door_faces
-
     truth = door_faces(ifc)
     element = np.asarray(ifc.face_element)
     triangles = ifc.triangles
-    area = np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0],
-                                   triangles[:, 2] - triangles[:, 0]), axis=1) / 2
+    area = ifc.areas
     index = np.flatnonzero(found)
     groups = touching_groups(triangles[index])
     n_groups = int(groups.max()) + 1 if len(groups) else 0
@@ -441,9 +439,13 @@ def door_score(ifc: Scene, found: NDArray[np.bool_]) -> DoorScore:
     on_window = np.bincount(groups, area[index] * window[index], n_groups)
     true = on_door >= TRUE_DOOR_SHARE * total
     glazed = ~true & (on_door + on_window >= TRUE_DOOR_SHARE * total) & (on_window > 0)
-    to_floor = [g for g in np.flatnonzero(glazed)
-                if _window_sill_m(ifc, index[(groups == g) & window[index]], area)
-                <= WINDOW_SILL_MAX_M]
+    to_floor = 0
+    if glazed.any():  # one caster for every glazed door's window
+        caster = make_ray_caster(ifc, np.ones(ifc.n_faces, bool))
+        to_floor = sum(
+            1 for g in np.flatnonzero(glazed)
+            if _window_sill_m(ifc, index[(groups == g) & window[index]], caster)
+            <= WINDOW_SILL_MAX_M)
     doors = np.unique(element[truth])
     size = int(element.max()) + 1
     door_area = np.bincount(element[truth], area[truth], size)
@@ -451,7 +453,7 @@ def door_score(ifc: Scene, found: NDArray[np.bool_]) -> DoorScore:
     return DoorScore(
         ifc_doors=len(doors), found=n_groups, true=int(true.sum()),
         ifc_doors_found=int((found_area[doors] >= DOOR_FOUND_SHARE * door_area[doors]).sum()),
-        windows_to_floor=len(to_floor))
+        windows_to_floor=to_floor)
 
 
 def plain_mesh_doorways(ifc: Scene) -> NDArray[np.bool_]:
@@ -464,43 +466,32 @@ def plain_mesh_doorways(ifc: Scene) -> NDArray[np.bool_]:
     rule opens both (:func:`planner.walkgraph.mesh_doors`); a window with a parapet, a wall,
     a stair or anything else stays a wall here. An IFC model tells them apart: its own plan
     opens IfcDoor only."""
-    from planner.rays import make_ray_caster
-    from planner.walkgraph import door_faces
-
     passable = door_faces(ifc).copy()
     element = np.asarray(ifc.face_element)
     windows = [k for k, e in enumerate(ifc.elements) if e.ifc_class == "IfcWindow"]
     if not windows:
         return passable
-    triangles = ifc.triangles
-    area = np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0],
-                                   triangles[:, 2] - triangles[:, 0]), axis=1) / 2
     caster = make_ray_caster(ifc, np.ones(ifc.n_faces, bool))
     for k in windows:
         faces = np.flatnonzero(element == k)
-        if len(faces) and _window_sill_m(ifc, faces, area, caster) <= WINDOW_SILL_MAX_M:
+        if len(faces) and _window_sill_m(ifc, faces, caster) <= WINDOW_SILL_MAX_M:
             passable[faces] = True
     return passable
 
 
-def _window_sill_m(ifc: Scene, faces: NDArray[np.int64], area: NDArray[np.float64],
-                   caster: RayCaster | None = None) -> float:
+def _window_sill_m(ifc: Scene, faces: NDArray[np.int64], caster: RayCaster) -> float:
     """How high the lowest of a window's ``faces`` (indices into ``ifc``'s faces) stands
     over the higher of the floors ``WINDOW_FLOOR_PROBE_M`` to each side of its largest face
-    (its glass), found by rays down from just over that lowest point; inf: no floor.
-    ``caster``: over every face of ``ifc``, when one is made already."""
-    from planner.rays import make_ray_caster
-
+    (its glass), found by rays down from just over that lowest point with ``caster`` (over
+    every face of ``ifc``); inf: no floor."""
     triangles = ifc.triangles[faces]
     bottom = float(triangles[:, :, 2].min())
-    glass = faces[np.argmax(area[faces])]
+    glass = faces[np.argmax(ifc.areas[faces])]
     across = np.array([*ifc.normals[glass][:2], 0.0])
     across /= max(float(np.linalg.norm(across)), 1e-9)
     centre = triangles.reshape(-1, 3).mean(axis=0)
     starts = np.array([centre + side * WINDOW_FLOOR_PROBE_M * across for side in (-1, 1)])
     starts[:, 2] = bottom + 0.05
-    if caster is None:
-        caster = make_ray_caster(ifc, np.ones(ifc.n_faces, bool))
     _, distance = caster.first_hit(starts, np.tile([0.0, 0.0, -1.0], (2, 1)))
     if not np.isfinite(distance).any():
         return float("inf")
