@@ -20,19 +20,13 @@ from __future__ import annotations
 import argparse
 import json
 import pickle
-import resource
 import sys
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-def _cpu_s() -> float:
-    usage = resource.getrusage(resource.RUSAGE_SELF)
-    return usage.ru_utime + usage.ru_stime
-
-
-def _peak_mib() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+from benchmarks.plan_stages import MIB, cpu_seconds, maxrss_mib, reset_peak, status_kib
 
 
 def plan_model(model: Path, result_path: Path, params: dict[str, object]) -> None:
@@ -43,32 +37,18 @@ def plan_model(model: Path, result_path: Path, params: dict[str, object]) -> Non
     spec = PlanSpec.from_mapping(params)
     scene = read_scene(model, max_edge_m=spec.max_edge_m, unit_scale=spec.unit_scale,
                        up_axis=spec.up_axis, split_faces="as_needed")
-    start = _cpu_s()
+    start = cpu_seconds()
     result = plan(scene, spec)
     print(f"planned {model.name}: {result.scene.n_faces:,} faces, "
-          f"{len(result.chosen.stations)} stations, {_cpu_s() - start:.1f} s CPU", flush=True)
+          f"{len(result.chosen.stations)} stations, {cpu_seconds() - start:.1f} s CPU", flush=True)
     with result_path.open("wb") as out:
         pickle.dump(result, out, protocol=pickle.HIGHEST_PROTOCOL)
 
 
 def _hwm_mib() -> float | None:
     """The process's resident high-water mark (``VmHWM``), None where unknown."""
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return float(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return None
-
-
-def _reset_hwm() -> bool:
-    """Reset ``VmHWM`` to the current resident size (Linux ``clear_refs``)."""
-    try:
-        Path("/proc/self/clear_refs").write_text("5")
-    except OSError:
-        return False
-    return True
+    hwm = status_kib("VmHWM")
+    return None if hwm is None else hwm / MIB
 
 
 def time_glb(result_path: Path, out: Path | None, repeat: int) -> None:
@@ -83,20 +63,20 @@ def time_glb(result_path: Path, out: Path | None, repeat: int) -> None:
     numba.njit(lambda x: x + 1)(1)
     with result_path.open("rb") as f:
         result = pickle.load(f)
-    loaded_mib = _peak_mib()
+    loaded_mib = maxrss_mib()
     classes = face_classes(result.faces, result.limits.target)
-    cpu = _cpu_s()
+    cpu = cpu_seconds()
     features = glb._features(result, classes)  # warm-up (imports, numba's cache)
     print(f"{result_path.name}: {result.scene.n_faces:,} faces, {features.count:,} features, "
           f"{len(features.corners):,} triangles; loaded: peak {loaded_mib:.0f} MiB; "
-          f"features (first call): {_cpu_s() - cpu:.2f} s CPU")
+          f"features (first call): {cpu_seconds() - cpu:.2f} s CPU")
     del features, classes
     for _ in range(repeat):
         release_freed_memory()
-        before = _hwm_mib() if _reset_hwm() else None
-        cpu, wall = _cpu_s(), time.perf_counter()
+        before = _hwm_mib() if reset_peak() else None
+        cpu, wall = cpu_seconds(), time.perf_counter()
         data = glb.coverage_glb(result)
-        cpu, wall = _cpu_s() - cpu, time.perf_counter() - wall
+        cpu, wall = cpu_seconds() - cpu, time.perf_counter() - wall
         during = _hwm_mib() if before is not None else None
         stage = "" if during is None or before is None else (
             f", output peak {during:.0f} MiB (+{during - before:.0f} over {before:.0f})")

@@ -56,7 +56,8 @@ def maxrss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / MIB
 
 
-def _status_kib(field: str) -> float | None:
+def status_kib(field: str) -> float | None:
+    """A field of ``/proc/self/status`` in KiB (``VmRSS``, ``VmHWM``), None where unknown."""
     try:
         for line in Path("/proc/self/status").read_text().splitlines():
             if line.startswith(field + ":"):
@@ -91,8 +92,8 @@ class StageTimer:
         can_reset = reset_peak()
         wall, cpu = time.perf_counter(), cpu_seconds()
         yield notes
-        hwm = _status_kib("VmHWM") if can_reset else None
-        rss = _status_kib("VmRSS")
+        hwm = status_kib("VmHWM") if can_reset else None
+        rss = status_kib("VmRSS")
         self.peak_mib = max(self.peak_mib, maxrss_mib(), 0.0 if hwm is None else hwm / MIB)
         figures = StageFigures(
             stage=name, wall_s=time.perf_counter() - wall, cpu_s=cpu_seconds() - cpu,
@@ -131,7 +132,7 @@ CPU seconds between one call and the next are added to the stage of the first
 
     def _sample(self) -> None:
         while self._running:
-            rss = _status_kib("VmRSS")
+            rss = status_kib("VmRSS")
             if rss is not None:
                 stage = self.stage
                 self.peak_mib[stage] = max(self.peak_mib.get(stage, 0.0), rss / MIB)
@@ -156,7 +157,7 @@ CPU seconds between one call and the next are added to the stage of the first
         step = (stage, int(fraction * 10))
         if step != self.last:
             self.last = step
-            rss = _status_kib("VmRSS") or 0.0
+            rss = status_kib("VmRSS") or 0.0
             print(f"  [{time.perf_counter() - self.wall:7.0f} s wall, "
                   f"{cpu_seconds() - self.cpu:7.0f} s cpu, {rss / MIB:6.0f} MiB] "
                   f"{stage} {fraction:4.0%}", file=sys.stderr, flush=True)
