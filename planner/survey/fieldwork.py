@@ -160,7 +160,7 @@ def places_of(scene: Scene, candidates: CandidateSet | None, stations: list[int]
     if scene.elements:
         door = door_faces(scene)
         element = scene.face_element[door]
-        corners = scene.triangles[door]  # (D, 3, 3)
+        corners = scene.vertices[scene.faces[door]]  # (D, 3, 3); not every face's corners
         for e in np.unique(element[element >= 0]).tolist():
             points = corners[element == e].reshape(-1, 3)
             lo, hi = points.min(axis=0), points.max(axis=0)

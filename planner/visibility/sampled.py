@@ -91,7 +91,7 @@ def relaxed_limits(scene: Scene, limits: FaceLimits) -> FaceLimits:
     limit drops to a fifth (the grid's gain off the horizon, see the module constants).
     """
     target = limits.target
-    corners = scene.triangles[target]
+    corners = scene.vertices[scene.faces[target]]  # (T, 3, 3); not every face's corners
     radius_m = float(np.linalg.norm(corners - scene.centroids[target][:, None], axis=2).max()
                      ) if target.any() else 0.0
     pad_deg = 90.0 if radius_m >= limits.dof_min_m else math.degrees(
