@@ -104,6 +104,11 @@ DOOR_STACK_GAP_M = 0.2
 # (<= 0.19 m in most building codes, see STEP_M). A window's sill is higher (Lantern
 # Hollow's casements: 0.46 m); a French window's frame on a 0.1 m sill is a door here
 DOOR_SILL_MAX_M = 0.2
+# the thinnest door leaf in common use: 1 3/8 in (35 mm), the US interior flush door (WDMA
+# I.S. 1A: 1 3/8 and 1 3/4 in); European leaves are 39-40 mm or more (DIN 68706-1). A filler
+# thinner than this at knee height is a pane (glass 4-12 mm, a sealed unit up to ~30 mm as
+# BIM tools draw it): a glazed door or a French window, which geometry cannot tell apart
+DOOR_LEAF_MIN_M = 0.03
 # passes over the crossings with the doors found so far open: a leaf of panels and glass is
 # met layer by layer (front, glass, back)
 DOOR_PASSES = 3
@@ -143,9 +148,44 @@ class _Crossings:
     faces: NDArray[np.int64]
 
 
+@dataclass(frozen=True, eq=False)
+class MeshDoors:
+    """The doors :func:`mesh_doors` finds in a plain mesh: D doors.
+
+    Attributes: ``face_door`` (F,) int64, the door of each scene face (0..D-1; -1 none);
+    ``lo_m``, ``hi_m`` (D, 3) the corners of each door's box (plan frame, metres);
+    ``filler_m`` (D,) how thick the filler the walk meets at knee height is, across its
+    plane (the median over the door's crossings).
+    """
+
+    face_door: NDArray[np.int64]
+    lo_m: NDArray[np.float64]
+    hi_m: NDArray[np.float64]
+    filler_m: NDArray[np.float64]
+
+    @property
+    def n_doors(self) -> int:
+        return len(self.filler_m)
+
+    @property
+    def glazed(self) -> NDArray[np.bool_]:
+        """(D,) bool: doors whose filler at knee height is thinner than a door leaf
+        (``DOOR_LEAF_MIN_M``): a pane of glass down to the floor, as in a glazed door and in
+        a French window or a door's sidelight alike, which geometry cannot tell apart
+        (:func:`mesh_doors`). A crew walked through one checks that it opens."""
+        result: NDArray[np.bool_] = self.filler_m < DOOR_LEAF_MIN_M
+        return result
+
+
 def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
     """(F,) int64: the door each face belongs to (0, 1, ...; -1: none), in a mesh without
-    semantics, from geometry alone.
+    semantics, from geometry alone (:func:`found_doors`' ``face_door``)."""
+    return found_doors(scene, caster).face_door
+
+
+def found_doors(scene: Scene, caster: RayCaster) -> MeshDoors:
+    """The doors of a mesh without semantics, from geometry alone: which faces, where, and
+    how thick their filler is at knee height.
 
     The rule works on what the walk meets, not on how an exporter splits a door into parts
     or whether it shares vertices, so that door families from any authoring tool (frame,
@@ -202,12 +242,16 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
     French window, or a door's glazed sidelight, from a glazed door. A door between floors
     more than ``STEP_M`` apart (an unmodelled step) is not found: the walk cannot use it
     anyway.
+
+    A door whose filler at knee height is thinner than ``DOOR_LEAF_MIN_M`` across its plane
+    (:attr:`MeshDoors.glazed`) is glass there: a glazed door, or a French window that may
+    be fixed; the route warns where it passes one.
     """
     vertices, faces = scene.file_mesh
     result = np.full(len(faces), -1, np.int64)
     crossings = _thin_crossings(scene, caster)
     if len(crossings.thick) == 0:
-        return result if scene.file_faces is None else result[scene.source_face]
+        return _mesh_doors_of(scene, result, np.zeros(0))
     keep = _in_wall_opening(crossings, caster)
     triangles = vertices[faces]  # (F0, 3, 3)
     # the filler's plane at each crossing: the side met from a
@@ -262,9 +306,33 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
         # the crossings come first in doors and floor_z, the faces of later passes after
         doors = np.concatenate([doors, doors[:n_crossings][found_more]])
         floor_z = np.concatenate([floor_z, floor_z[:n_crossings][found_more]])
+    door_of = found_of[doors[:n_crossings]]  # (K',) the door of each kept crossing
+    # the filler's thickness across its plane: a link crosses it at an angle (diagonal
+    # links, a door at 30 degrees to the grid)
+    across = crossings.thick[keep] * np.abs(np.einsum(
+        "kc,kc->k", crossings.b[keep] - crossings.a[keep], normal)) / np.maximum(
+        np.linalg.norm(crossings.b[keep] - crossings.a[keep], axis=1), _EPS_M)
+    filler_m = np.array([float(np.median(across[door_of == door]))
+                         for door in range(int(result.max()) + 1)])
     if result.max() >= 0:
-        result = _on_the_floor(scene, crossings, keep, found_of[doors[:n_crossings]], result)
-    return result if scene.file_faces is None else result[scene.source_face]
+        result, standing = _on_the_floor(scene, crossings, keep, door_of, result)
+        filler_m = filler_m[standing]
+    return _mesh_doors_of(scene, result, filler_m)
+
+
+def _mesh_doors_of(scene: Scene, result: NDArray[np.int64], filler_m: NDArray[np.float64]
+                   ) -> MeshDoors:
+    """:class:`MeshDoors` of the door of each file face, ``result`` (F0,), whose fillers are
+    (D,) ``filler_m`` thick."""
+    face_door = result if scene.file_faces is None else result[scene.source_face]
+    n = len(filler_m)
+    lo, hi = np.full((n, 3), np.inf), np.full((n, 3), -np.inf)
+    if n:
+        corners = scene.vertices[scene.faces[face_door >= 0]]  # (n', 3, 3)
+        which = face_door[face_door >= 0]
+        np.minimum.at(lo, which, corners.min(axis=1))
+        np.maximum.at(hi, which, corners.max(axis=1))
+    return MeshDoors(face_door, lo, hi, filler_m)
 
 
 def _open_caster(scene: Scene, door: NDArray[np.int64]) -> RayCaster:
@@ -276,10 +344,12 @@ def _open_caster(scene: Scene, door: NDArray[np.int64]) -> RayCaster:
 
 
 def _on_the_floor(scene: Scene, crossings: _Crossings, keep: NDArray[np.bool_],
-                  door_of: NDArray[np.int64], result: NDArray[np.int64]) -> NDArray[np.int64]:
+                  door_of: NDArray[np.int64], result: NDArray[np.int64]
+                  ) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
     """``result`` (F0,) without the doors that do not stand on the floor (rule step 5),
-    the others renumbered in order. ``keep`` (K,) the crossings in a wall opening,
-    ``door_of`` (K',) the door of each kept crossing (-1 none)."""
+    the others renumbered in order, and which of the doors of ``result`` stand (D,) bool.
+    ``keep`` (K,) the crossings in a wall opening, ``door_of`` (K',) the door of each kept
+    crossing (-1 none)."""
     n_found = int(result.max()) + 1
     walk = _open_caster(scene, result)
     floor_z = crossings.floor_z[keep]
@@ -293,7 +363,7 @@ def _on_the_floor(scene: Scene, crossings: _Crossings, keep: NDArray[np.bool_],
                          for door in range(n_found)])
     number = np.where(standing, np.cumsum(standing) - 1, -1)
     renumbered: NDArray[np.int64] = np.where(result >= 0, number[np.maximum(result, 0)], -1)
-    return renumbered
+    return renumbered, standing
 
 
 def _thin_crossings(scene: Scene, caster: RayCaster) -> _Crossings:
