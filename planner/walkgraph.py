@@ -214,16 +214,21 @@ def found_doors(scene: Scene, caster: RayCaster) -> MeshDoors:
        it).
     3. *One door per opening*: such crossings closer than ``DOOR_JOIN_M`` whose fillers are
        parallel are one door (both leaves of a double door; two doors at right angles in
-       a corner stay two). Its faces: the faces the crossings met (no larger than
-       ``DOOR_WIDTH_MAX_M`` by ``DOOR_HEIGHT_M[1]``, and within ``DOOR_FILLER_MAX_M`` of the
-       filler's median plane: a wall met past a jamb is not the door's), every face
+       a corner stay two). Its faces: the faces the crossings met (each no wider than
+       ``DOOR_WIDTH_MAX_M`` and no higher than ``DOOR_HEIGHT_M[1]``: a wall's face, met
+       from a floor sample inside that wall with an open leaf beside it, is longer; and
+       within ``DOOR_FILLER_MAX_M`` of the filler's median plane: a wall met past a jamb is
+       not the door's), every face
        within their box (along the filler's main horizontal axis and across it, from the
        floor to ``DOOR_HEIGHT_M[1]``: the rest of the leaf, its panels, glass and edges),
        and the small faces (box diagonal up to ``DOOR_FITTING_SIZE_M``) within
        ``DOOR_FITTING_REACH_M`` of it across: handles, hinges, locks. A door whose faces
        do not stack, with no band of air wider than ``DOOR_STACK_GAP_M`` in them, from
        knee height or below up to ``DOOR_HEIGHT_M[0]`` less ``DOOR_LEAF_GAP_M`` is none:
-       a leaf is one piece, a stair's stringer under the next flight's is not.
+       a leaf is one piece, a stair's stringer under the next flight's is not. Of its
+       faces only that stack is the door's: faces in the box over a band of air wider than
+       ``DOOR_STACK_GAP_M`` above the leaf (the steps of a stair that runs past the door's
+       head) are not.
     4. *Layer by layer*: the crossings are cast again with the doors found so far open;
        what still blocks them thinly and parallel to the filler (the back of a panel,
        glass behind a rail) joins their door, for up to ``DOOR_PASSES`` passes in all.
@@ -261,7 +266,10 @@ def found_doors(scene: Scene, caster: RayCaster) -> MeshDoors:
     doors = _join_crossings(crossings.x[keep], normal)
     lo, hi = triangles.min(axis=1), triangles.max(axis=1)
     diagonal = np.linalg.norm(hi - lo, axis=1)
-    largest = math.hypot(DOOR_WIDTH_MAX_M, DOOR_HEIGHT_M[1])
+    # a face of a leaf fits in the largest leaf: no wider than DOOR_WIDTH_MAX_M, no higher
+    # than DOOR_HEIGHT_M[1] (a wall's face met past a jamb or from inside the wall is longer)
+    leaf_sized = ((np.linalg.norm(hi[:, :2] - lo[:, :2], axis=1) <= DOOR_WIDTH_MAX_M)
+                  & (hi[:, 2] - lo[:, 2] <= DOOR_HEIGHT_M[1]))
     hit_faces = crossings.faces[keep]  # (K, 2) file faces, -1 none
     n_crossings = len(hit_faces)
     floor_z = crossings.floor_z[keep]
@@ -274,13 +282,15 @@ def found_doors(scene: Scene, caster: RayCaster) -> MeshDoors:
             mine = doors == door
             hit = np.unique(hit_faces[mine])
             hit = hit[hit >= 0]
-            hit = hit[diagonal[hit] <= largest]
+            hit = hit[leaf_sized[hit]]
             if len(hit) == 0:
                 continue
             z0 = float(floor_z[mine].min())
             taken = _door_box_faces(triangles, lo, hi, diagonal, hit, z0)
             taken = taken[result[taken] < 0]
-            if len(taken) == 0 or not _stacks_up(lo[taken, 2], hi[taken, 2], z0):
+            # the leaf's own stack: a band of faces over a gap above it is not the door's
+            taken = taken[_leaf_stack(lo[taken, 2], hi[taken, 2], z0)]
+            if len(taken) == 0:
                 continue
             result[taken] = n_found
             found_of[door] = n_found
@@ -502,19 +512,27 @@ def _join_crossings(x: NDArray[np.float64], normal: NDArray[np.float64]
     return result
 
 
-def _stacks_up(bottom_z: NDArray[np.float64], top_z: NDArray[np.float64], floor_z: float
-               ) -> bool:
-    """Whether faces spanning (n,) ``bottom_z`` to ``top_z`` stack, with no free band
-    wider than ``DOOR_STACK_GAP_M``, from knee height over ``floor_z`` or below to a door's
-    head (``DOOR_HEIGHT_M[0]`` less ``DOOR_LEAF_GAP_M``) or above (rule step 3)."""
+def _leaf_stack(bottom_z: NDArray[np.float64], top_z: NDArray[np.float64], floor_z: float
+                ) -> NDArray[np.bool_]:
+    """(n,) bool: which of the faces spanning (n,) ``bottom_z`` to ``top_z`` are in a stack,
+    with no free band wider than ``DOOR_STACK_GAP_M`` in it, from knee height over
+    ``floor_z`` or below to a door's head (``DOOR_HEIGHT_M[0]`` less ``DOOR_LEAF_GAP_M``) or
+    above: the leaf (rule step 3). None: no leaf. Faces in a stack of their own over a gap
+    (the steps of a stair beside the door, in its box) are not the door's."""
+    if len(bottom_z) == 0:
+        return np.zeros(0, bool)
     order = np.argsort(bottom_z, kind="stable")
     bottom, top = bottom_z[order], np.maximum.accumulate(top_z[order])
     # a new stack starts where a face begins above everything below it, plus the gap
     starts = np.concatenate([[True], bottom[1:] > top[:-1] + DOOR_STACK_GAP_M])
-    stack_bottom = bottom[starts]
-    stack_top = np.maximum.reduceat(top, np.flatnonzero(starts))
-    return bool(((stack_bottom <= floor_z + KNEE_HEIGHT_M)
-                 & (stack_top >= floor_z + DOOR_HEIGHT_M[0] - DOOR_LEAF_GAP_M)).any())
+    first = np.flatnonzero(starts)
+    stack_bottom = bottom[first]
+    stack_top = np.maximum.reduceat(top, first)
+    leaf = ((stack_bottom <= floor_z + KNEE_HEIGHT_M)
+            & (stack_top >= floor_z + DOOR_HEIGHT_M[0] - DOOR_LEAF_GAP_M))
+    result = np.zeros(len(bottom_z), bool)
+    result[order] = leaf[np.cumsum(starts) - 1]
+    return result
 
 
 def _door_box_faces(triangles: NDArray[np.float64], lo: NDArray[np.float64],
