@@ -109,6 +109,10 @@ DOOR_SILL_MAX_M = 0.2
 # thinner than this at knee height is a pane (glass 4-12 mm, a sealed unit up to ~30 mm as
 # BIM tools draw it): a glazed door or a French window, which geometry cannot tell apart
 DOOR_LEAF_MIN_M = 0.03
+# a glazed door narrower than this is a strip of another door's opening (the glass edge of
+# a leaf drawn ajar): narrower than a person's shoulders (bideltoid breadth, ISO 7250-1's
+# measure, about 0.4 m and more in adults), so no one is sent through it alone
+DOOR_CHECK_WIDTH_MIN_M = 0.4
 # passes over the crossings with the doors found so far open: a leaf of panels and glass is
 # met layer by layer (front, glass, back)
 DOOR_PASSES = 3
@@ -172,8 +176,12 @@ class MeshDoors:
         """(D,) bool: doors whose filler at knee height is thinner than a door leaf
         (``DOOR_LEAF_MIN_M``): a pane of glass down to the floor, as in a glazed door and in
         a French window or a door's sidelight alike, which geometry cannot tell apart
-        (:func:`mesh_doors`). A crew walked through one checks that it opens."""
-        result: NDArray[np.bool_] = self.filler_m < DOOR_LEAF_MIN_M
+        (:func:`mesh_doors`), at least ``DOOR_CHECK_WIDTH_MIN_M`` wide (a narrower one is
+        a strip of another door's opening, which a person does not pass alone). A crew
+        walked through one checks that it opens."""
+        width_m = np.linalg.norm(self.hi_m[:, :2] - self.lo_m[:, :2], axis=1)
+        result: NDArray[np.bool_] = ((self.filler_m < DOOR_LEAF_MIN_M)
+                                     & (width_m >= DOOR_CHECK_WIDTH_MIN_M))
         return result
 
 
