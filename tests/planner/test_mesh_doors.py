@@ -31,6 +31,11 @@ pytest.importorskip("ifcopenshell")
 # a building per tool: Renga (a leaf as one box, flush with the jambs), Revit (frames,
 # linings and leaves as parts, feet, a site around), ArchiCAD (leaves ajar, finely tessellated)
 BUILDINGS = ("Renga-House", "Lantern_Hollow", "AC90R1-niedriha-V2-2x3")
+# false doors left: Lantern Hollow's basement partition, 4.75 in thick, stands under a steel
+# beam (W12x26) whose bottom, 1.93 m over the floor, is a lintel to the rule, with the
+# joists' higher soffit on both sides; its doors in that partition stand under the same
+# beam, 80 in leaves rising into it, so nothing but the jambs beside a leaf tells them apart
+FALSE_DOORS_AT_MOST = {"Renga-House": 0, "Lantern_Hollow": 1, "AC90R1-niedriha-V2-2x3": 0}
 
 
 @pytest.fixture(scope="module")
@@ -61,9 +66,25 @@ def test_the_doors_of_a_plain_export_are_the_ifc_models_doors(
     np.testing.assert_array_equal(doors >= 0, door_faces(plain, caster))
     score = door_score(ifc, doors >= 0)
     assert score.ifc_doors_found >= 0.9 * score.ifc_doors, score
-    assert score.false <= score.ifc_doors // 4 + 1, score
+    assert score.false <= FALSE_DOORS_AT_MOST[name], score
     # every door is numbered once, in order
     assert np.array_equal(np.unique(doors[doors >= 0]), np.arange(doors.max() + 1))
+
+
+def test_a_stair_beside_a_door_and_a_wall_beside_an_open_leaf_are_no_doors(
+        scenes_dir: Path, plain_dir: Path) -> None:
+    """Renga: a flight runs past a door's head in the leaf's plane, its steps over a band of
+    air above the leaf; NiedriHa: a floor sample inside the exterior wall meets the wall's
+    face from inside, and a door's leaf opened flat beside it. Neither the steps nor the
+    wall's face are a door's."""
+    # NiedriHa: 6.4 m² of wall faces were taken, the exterior wall's 3 m face among them;
+    # 1.3 m² stay, the reveals of jambs beside two doors, in their leaves' boxes
+    for name, wrong, most_m2 in (("Renga-House", "IfcStairFlight", 0.0),
+                                 ("AC90R1-niedriha-V2-2x3", "IfcWallStandardCase", 2.0)):
+        ifc, plain = building(name, scenes_dir, plain_dir)
+        found = door_faces(plain, make_ray_caster(plain, np.ones(plain.n_faces, bool)))
+        classes = np.array([e.ifc_class for e in ifc.elements] + [""])[ifc.face_element]
+        assert ifc.areas[found & (classes == wrong)].sum() <= most_m2, name
 
 
 @pytest.mark.parametrize("name", ["Lantern_Hollow", "Renga-House"])
