@@ -104,6 +104,15 @@ DOOR_STACK_GAP_M = 0.2
 # (<= 0.19 m in most building codes, see STEP_M). A window's sill is higher (Lantern
 # Hollow's casements: 0.46 m); a French window's frame on a 0.1 m sill is a door here
 DOOR_SILL_MAX_M = 0.2
+# the thinnest door leaf in common use: 1 3/8 in (35 mm), the US interior flush door (WDMA
+# I.S. 1A: 1 3/8 and 1 3/4 in); European leaves are 39-40 mm or more (DIN 68706-1). A filler
+# thinner than this at knee height is a pane (glass 4-12 mm, a sealed unit up to ~30 mm as
+# BIM tools draw it): a glazed door or a French window, which geometry cannot tell apart
+DOOR_LEAF_MIN_M = 0.03
+# a glazed door narrower than this is a strip of another door's opening (the glass edge of
+# a leaf drawn ajar): narrower than a person's shoulders (bideltoid breadth, ISO 7250-1's
+# measure, about 0.4 m and more in adults), so no one is sent through it alone
+DOOR_CHECK_WIDTH_MIN_M = 0.4
 # passes over the crossings with the doors found so far open: a leaf of panels and glass is
 # met layer by layer (front, glass, back)
 DOOR_PASSES = 3
@@ -143,9 +152,48 @@ class _Crossings:
     faces: NDArray[np.int64]
 
 
+@dataclass(frozen=True, eq=False)
+class MeshDoors:
+    """The doors :func:`mesh_doors` finds in a plain mesh: D doors.
+
+    Attributes: ``face_door`` (F,) int64, the door of each scene face (0..D-1; -1 none);
+    ``lo_m``, ``hi_m`` (D, 3) the corners of each door's box (plan frame, metres);
+    ``filler_m`` (D,) how thick the filler the walk meets at knee height is, across its
+    plane (the median over the door's crossings).
+    """
+
+    face_door: NDArray[np.int64]
+    lo_m: NDArray[np.float64]
+    hi_m: NDArray[np.float64]
+    filler_m: NDArray[np.float64]
+
+    @property
+    def n_doors(self) -> int:
+        return len(self.filler_m)
+
+    @property
+    def glazed(self) -> NDArray[np.bool_]:
+        """(D,) bool: doors whose filler at knee height is thinner than a door leaf
+        (``DOOR_LEAF_MIN_M``): a pane of glass down to the floor, as in a glazed door and in
+        a French window or a door's sidelight alike, which geometry cannot tell apart
+        (:func:`mesh_doors`), at least ``DOOR_CHECK_WIDTH_MIN_M`` wide (a narrower one is
+        a strip of another door's opening, which a person does not pass alone). A crew
+        walked through one checks that it opens."""
+        width_m = np.linalg.norm(self.hi_m[:, :2] - self.lo_m[:, :2], axis=1)
+        result: NDArray[np.bool_] = ((self.filler_m < DOOR_LEAF_MIN_M)
+                                     & (width_m >= DOOR_CHECK_WIDTH_MIN_M))
+        return result
+
+
 def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
     """(F,) int64: the door each face belongs to (0, 1, ...; -1: none), in a mesh without
-    semantics, from geometry alone.
+    semantics, from geometry alone (:func:`found_doors`' ``face_door``)."""
+    return found_doors(scene, caster).face_door
+
+
+def found_doors(scene: Scene, caster: RayCaster) -> MeshDoors:
+    """The doors of a mesh without semantics, from geometry alone: which faces, where, and
+    how thick their filler is at knee height.
 
     The rule works on what the walk meets, not on how an exporter splits a door into parts
     or whether it shares vertices, so that door families from any authoring tool (frame,
@@ -174,16 +222,21 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
        it).
     3. *One door per opening*: such crossings closer than ``DOOR_JOIN_M`` whose fillers are
        parallel are one door (both leaves of a double door; two doors at right angles in
-       a corner stay two). Its faces: the faces the crossings met (no larger than
-       ``DOOR_WIDTH_MAX_M`` by ``DOOR_HEIGHT_M[1]``, and within ``DOOR_FILLER_MAX_M`` of the
-       filler's median plane: a wall met past a jamb is not the door's), every face
+       a corner stay two). Its faces: the faces the crossings met (each no wider than
+       ``DOOR_WIDTH_MAX_M`` and no higher than ``DOOR_HEIGHT_M[1]``: a wall's face, met
+       from a floor sample inside that wall with an open leaf beside it, is longer; and
+       within ``DOOR_FILLER_MAX_M`` of the filler's median plane: a wall met past a jamb is
+       not the door's), every face
        within their box (along the filler's main horizontal axis and across it, from the
        floor to ``DOOR_HEIGHT_M[1]``: the rest of the leaf, its panels, glass and edges),
        and the small faces (box diagonal up to ``DOOR_FITTING_SIZE_M``) within
        ``DOOR_FITTING_REACH_M`` of it across: handles, hinges, locks. A door whose faces
        do not stack, with no band of air wider than ``DOOR_STACK_GAP_M`` in them, from
        knee height or below up to ``DOOR_HEIGHT_M[0]`` less ``DOOR_LEAF_GAP_M`` is none:
-       a leaf is one piece, a stair's stringer under the next flight's is not.
+       a leaf is one piece, a stair's stringer under the next flight's is not. Of its
+       faces only that stack is the door's: faces in the box over a band of air wider than
+       ``DOOR_STACK_GAP_M`` above the leaf (the steps of a stair that runs past the door's
+       head) are not.
     4. *Layer by layer*: the crossings are cast again with the doors found so far open;
        what still blocks them thinly and parallel to the filler (the back of a panel,
        glass behind a rail) joins their door, for up to ``DOOR_PASSES`` passes in all.
@@ -202,12 +255,16 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
     French window, or a door's glazed sidelight, from a glazed door. A door between floors
     more than ``STEP_M`` apart (an unmodelled step) is not found: the walk cannot use it
     anyway.
+
+    A door whose filler at knee height is thinner than ``DOOR_LEAF_MIN_M`` across its plane
+    (:attr:`MeshDoors.glazed`) is glass there: a glazed door, or a French window that may
+    be fixed; the route warns where it passes one.
     """
     vertices, faces = scene.file_mesh
     result = np.full(len(faces), -1, np.int64)
     crossings = _thin_crossings(scene, caster)
     if len(crossings.thick) == 0:
-        return result if scene.file_faces is None else result[scene.source_face]
+        return _mesh_doors_of(scene, result, np.zeros(0))
     keep = _in_wall_opening(crossings, caster)
     triangles = vertices[faces]  # (F0, 3, 3)
     # the filler's plane at each crossing: the side met from a
@@ -217,7 +274,10 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
     doors = _join_crossings(crossings.x[keep], normal)
     lo, hi = triangles.min(axis=1), triangles.max(axis=1)
     diagonal = np.linalg.norm(hi - lo, axis=1)
-    largest = math.hypot(DOOR_WIDTH_MAX_M, DOOR_HEIGHT_M[1])
+    # a face of a leaf fits in the largest leaf: no wider than DOOR_WIDTH_MAX_M, no higher
+    # than DOOR_HEIGHT_M[1] (a wall's face met past a jamb or from inside the wall is longer)
+    leaf_sized = ((np.linalg.norm(hi[:, :2] - lo[:, :2], axis=1) <= DOOR_WIDTH_MAX_M)
+                  & (hi[:, 2] - lo[:, 2] <= DOOR_HEIGHT_M[1]))
     hit_faces = crossings.faces[keep]  # (K, 2) file faces, -1 none
     n_crossings = len(hit_faces)
     floor_z = crossings.floor_z[keep]
@@ -230,13 +290,15 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
             mine = doors == door
             hit = np.unique(hit_faces[mine])
             hit = hit[hit >= 0]
-            hit = hit[diagonal[hit] <= largest]
+            hit = hit[leaf_sized[hit]]
             if len(hit) == 0:
                 continue
             z0 = float(floor_z[mine].min())
             taken = _door_box_faces(triangles, lo, hi, diagonal, hit, z0)
             taken = taken[result[taken] < 0]
-            if len(taken) == 0 or not _stacks_up(lo[taken, 2], hi[taken, 2], z0):
+            # the leaf's own stack: a band of faces over a gap above it is not the door's
+            taken = taken[_leaf_stack(lo[taken, 2], hi[taken, 2], z0)]
+            if len(taken) == 0:
                 continue
             result[taken] = n_found
             found_of[door] = n_found
@@ -262,9 +324,33 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
         # the crossings come first in doors and floor_z, the faces of later passes after
         doors = np.concatenate([doors, doors[:n_crossings][found_more]])
         floor_z = np.concatenate([floor_z, floor_z[:n_crossings][found_more]])
+    door_of = found_of[doors[:n_crossings]]  # (K',) the door of each kept crossing
+    # the filler's thickness across its plane: a link crosses it at an angle (diagonal
+    # links, a door at 30 degrees to the grid)
+    across = crossings.thick[keep] * np.abs(np.einsum(
+        "kc,kc->k", crossings.b[keep] - crossings.a[keep], normal)) / np.maximum(
+        np.linalg.norm(crossings.b[keep] - crossings.a[keep], axis=1), _EPS_M)
+    filler_m = np.array([float(np.median(across[door_of == door]))
+                         for door in range(int(result.max()) + 1)])
     if result.max() >= 0:
-        result = _on_the_floor(scene, crossings, keep, found_of[doors[:n_crossings]], result)
-    return result if scene.file_faces is None else result[scene.source_face]
+        result, standing = _on_the_floor(scene, crossings, keep, door_of, result)
+        filler_m = filler_m[standing]
+    return _mesh_doors_of(scene, result, filler_m)
+
+
+def _mesh_doors_of(scene: Scene, result: NDArray[np.int64], filler_m: NDArray[np.float64]
+                   ) -> MeshDoors:
+    """:class:`MeshDoors` of the door of each file face, ``result`` (F0,), whose fillers are
+    (D,) ``filler_m`` thick."""
+    face_door = result if scene.file_faces is None else result[scene.source_face]
+    n = len(filler_m)
+    lo, hi = np.full((n, 3), np.inf), np.full((n, 3), -np.inf)
+    if n:
+        corners = scene.vertices[scene.faces[face_door >= 0]]  # (n', 3, 3)
+        which = face_door[face_door >= 0]
+        np.minimum.at(lo, which, corners.min(axis=1))
+        np.maximum.at(hi, which, corners.max(axis=1))
+    return MeshDoors(face_door, lo, hi, filler_m)
 
 
 def _open_caster(scene: Scene, door: NDArray[np.int64]) -> RayCaster:
@@ -276,10 +362,12 @@ def _open_caster(scene: Scene, door: NDArray[np.int64]) -> RayCaster:
 
 
 def _on_the_floor(scene: Scene, crossings: _Crossings, keep: NDArray[np.bool_],
-                  door_of: NDArray[np.int64], result: NDArray[np.int64]) -> NDArray[np.int64]:
+                  door_of: NDArray[np.int64], result: NDArray[np.int64]
+                  ) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
     """``result`` (F0,) without the doors that do not stand on the floor (rule step 5),
-    the others renumbered in order. ``keep`` (K,) the crossings in a wall opening,
-    ``door_of`` (K',) the door of each kept crossing (-1 none)."""
+    the others renumbered in order, and which of the doors of ``result`` stand (D,) bool.
+    ``keep`` (K,) the crossings in a wall opening, ``door_of`` (K',) the door of each kept
+    crossing (-1 none)."""
     n_found = int(result.max()) + 1
     walk = _open_caster(scene, result)
     floor_z = crossings.floor_z[keep]
@@ -293,7 +381,7 @@ def _on_the_floor(scene: Scene, crossings: _Crossings, keep: NDArray[np.bool_],
                          for door in range(n_found)])
     number = np.where(standing, np.cumsum(standing) - 1, -1)
     renumbered: NDArray[np.int64] = np.where(result >= 0, number[np.maximum(result, 0)], -1)
-    return renumbered
+    return renumbered, standing
 
 
 def _thin_crossings(scene: Scene, caster: RayCaster) -> _Crossings:
@@ -432,19 +520,27 @@ def _join_crossings(x: NDArray[np.float64], normal: NDArray[np.float64]
     return result
 
 
-def _stacks_up(bottom_z: NDArray[np.float64], top_z: NDArray[np.float64], floor_z: float
-               ) -> bool:
-    """Whether faces spanning (n,) ``bottom_z`` to ``top_z`` stack, with no free band
-    wider than ``DOOR_STACK_GAP_M``, from knee height over ``floor_z`` or below to a door's
-    head (``DOOR_HEIGHT_M[0]`` less ``DOOR_LEAF_GAP_M``) or above (rule step 3)."""
+def _leaf_stack(bottom_z: NDArray[np.float64], top_z: NDArray[np.float64], floor_z: float
+                ) -> NDArray[np.bool_]:
+    """(n,) bool: which of the faces spanning (n,) ``bottom_z`` to ``top_z`` are in a stack,
+    with no free band wider than ``DOOR_STACK_GAP_M`` in it, from knee height over
+    ``floor_z`` or below to a door's head (``DOOR_HEIGHT_M[0]`` less ``DOOR_LEAF_GAP_M``) or
+    above: the leaf (rule step 3). None: no leaf. Faces in a stack of their own over a gap
+    (the steps of a stair beside the door, in its box) are not the door's."""
+    if len(bottom_z) == 0:
+        return np.zeros(0, bool)
     order = np.argsort(bottom_z, kind="stable")
     bottom, top = bottom_z[order], np.maximum.accumulate(top_z[order])
     # a new stack starts where a face begins above everything below it, plus the gap
     starts = np.concatenate([[True], bottom[1:] > top[:-1] + DOOR_STACK_GAP_M])
-    stack_bottom = bottom[starts]
-    stack_top = np.maximum.reduceat(top, np.flatnonzero(starts))
-    return bool(((stack_bottom <= floor_z + KNEE_HEIGHT_M)
-                 & (stack_top >= floor_z + DOOR_HEIGHT_M[0] - DOOR_LEAF_GAP_M)).any())
+    first = np.flatnonzero(starts)
+    stack_bottom = bottom[first]
+    stack_top = np.maximum.reduceat(top, first)
+    leaf = ((stack_bottom <= floor_z + KNEE_HEIGHT_M)
+            & (stack_top >= floor_z + DOOR_HEIGHT_M[0] - DOOR_LEAF_GAP_M))
+    result = np.zeros(len(bottom_z), bool)
+    result[order] = leaf[np.cumsum(starts) - 1]
+    return result
 
 
 def _door_box_faces(triangles: NDArray[np.float64], lo: NDArray[np.float64],

@@ -673,14 +673,20 @@ def place_on_levels(
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """(C, 3) positions above every walkable surface under the (N, 2) points, (C,) level.
 
-    The surfaces are those of :func:`walkable_surfaces`, their heights grouped into levels
-    (:func:`_height_levels`); a level smaller than ``_MIN_LEVEL_AREA_M2`` of grid cells is
-    a table top or a stair tread, not a floor, and its points count as ``no_floor``.
+    The surfaces are those of :func:`walkable_surfaces`, grouped into levels as the
+    storeys' are (:func:`_floor_levels`): the level surfaces (no steeper than 1:20) by
+    height, a sloped one (a ramp, the terrain) with the level floor nearest its height, or
+    in a level of its own, so that a slope between two floors joins neither to the other;
+    a level smaller than ``_MIN_LEVEL_AREA_M2`` of grid cells is a table top or a stair
+    tread, not a floor, and its points count as ``no_floor``.
     """
-    point, floor_z, _ = walkable_surfaces(scene, xy, spec, caster, dropped)
+    point, floor_z, normal_z = walkable_surfaces(scene, xy, spec, caster, dropped)
     if len(point) == 0:
         return np.zeros((0, 3)), np.zeros(0, np.int64)
-    level = _height_levels(floor_z)
+    flat = normal_z >= _LEVEL_FLOOR_NORMAL_Z
+    if not flat.any():  # no level surface (a mesh with noisy normals): heights alone
+        flat[:] = True
+    level, _ = _floor_levels(floor_z, flat)
     area = np.bincount(level) * spec.grid_spacing_m ** 2
     big = area[level] >= _MIN_LEVEL_AREA_M2
     dropped["no_floor"] += int((~big).sum())

@@ -76,6 +76,8 @@ VISIT_RGB = (0.85, 0.35, 0.0)  # the walking route and visit numbers (matplotlib
 EDGE_RGB = (0.15, 0.45, 0.15)  # registration edges
 # ring around a critical station (its worst setup within placement_tolerance_m breaks the goal)
 CRITICAL_RGB = (0.85, 0.1, 0.1)
+# a glazed opening the route passes that may be a fixed window (route.door_checks)
+CHECK_RGB = (0.85, 0.1, 0.1)
 
 DPI = 150
 PREVIEW_SIZE_IN = (11.69, 8.27)  # A4 landscape
@@ -637,6 +639,14 @@ def draw_survey_lines(ax: Axes, result: PlanResult, level: Level, members: set[i
         if segments:  # most legs are on another storey: nothing to draw
             ax.add_collection(LineCollection(segments, colors=[VISIT_RGB], linewidths=1.3,
                                              zorder=7), autolim=False)
+    for check in result.survey.route.door_checks:  # at knee height: within the band
+        x, y, z = check.at
+        if low <= z <= high:
+            ax.plot([x], [y], marker="^", markersize=9, color=CHECK_RGB,
+                    markeredgecolor="white", markeredgewidth=0.6, zorder=9)
+            ax.annotate(f"leg {check.leg}: check it opens", (x, y), xytext=(7, -9),
+                        textcoords="offset points", fontsize=6, color=CHECK_RGB,
+                        fontweight="bold", zorder=9)
 
 
 def _nice_length(span_m: float) -> float:
@@ -730,6 +740,10 @@ def legend_handles(result: PlanResult) -> list[Any]:
     if math.isfinite(reach):
         handles.append(Line2D([], [], color=_rgb(STATION_RGB), linestyle=(0, (4, 3)),
                               alpha=0.7, label=f"head-on density range {reach:.2f} m"))
+    if result.survey is not None and result.survey.route.door_checks:
+        handles.append(Line2D([], [], marker="^", color="none", markerfacecolor=CHECK_RGB,
+                              markeredgecolor="white", markersize=9,
+                              label="glazing to the floor on the route: check it opens"))
     return handles
 
 
@@ -752,6 +766,10 @@ def plan_lines(result: PlanResult) -> list[str]:
         lines.append(f"{field_time.scanner}: scans {scan}, field time "
                      + ("unknown" if field_time.total_s is None
                         else f"{field_time.total_s / 60:.1f} min"))
+    checks = () if result.survey is None else result.survey.route.door_checks
+    if checks:  # a plain mesh's glazed doors on the route (planner.survey.route)
+        lines.append(f"Route: {len(checks)} glazed opening{'s' if len(checks) > 1 else ''} "
+                     "to check (route.door_checks)")
     return lines
 
 

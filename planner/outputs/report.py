@@ -67,7 +67,8 @@ def model_positions(result: PlanResult) -> np.ndarray:
 
 
 def _route_in_model(result: PlanResult) -> dict[str, Any]:
-    """The walking route with its leg paths in the model's own coordinates (``up_axis``)."""
+    """The walking route with its leg paths and door checks' points in the model's own
+    coordinates (``up_axis``)."""
     assert result.survey is not None
     route = result.survey.route.to_dict()
     rotation = scene_rotation(result.scene.metadata)
@@ -76,6 +77,11 @@ def _route_in_model(result: PlanResult) -> dict[str, Any]:
             if leg["path"]:
                 leg["path"] = [[round(float(v), 3) for v in p]
                                for p in to_model(rotation, np.asarray(leg["path"]))]
+        checks = result.survey.route.door_checks
+        if checks:
+            points = to_model(rotation, np.asarray([check.at for check in checks]))
+            route["door_checks"] = [check.to_dict((float(x), float(y), float(z)))
+                                    for check, (x, y, z) in zip(checks, points, strict=True)]
     return route
 
 

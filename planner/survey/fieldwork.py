@@ -7,6 +7,7 @@ the constrained selection itself lives in :mod:`planner.survey.registration`.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -23,9 +24,9 @@ from planner.rays import Occlusion, RayCaster, make_ray_caster
 from planner.scanners import StationScan, missing_duration_reason, station_scans, step_note
 from planner.scene import Scene
 from planner.survey.registration import Registration, station_registration
-from planner.survey.route import Places, Route, plan_route
+from planner.survey.route import Places, Route, door_checks, plan_route
 from planner.visibility.overlap import OverlapRows, RowsFanout, shared_faces_only
-from planner.walkgraph import build_walk_graph, door_faces
+from planner.walkgraph import MeshDoors, build_walk_graph, door_faces, found_doors
 
 DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the scanner gives one
 
@@ -122,17 +123,18 @@ def scans_of(spec: PlanSpec, density_margins: list[float] | None, n_stations: in
 
 
 def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool
-                 ) -> RayCaster:
+                 ) -> tuple[RayCaster, MeshDoors | None]:
     """Rays for walking: every face blocks (glass too, which coverage may see through)
     except doors (IFC doors; in a plain mesh the thin fillers of wall openings that
-    :func:`~planner.walkgraph.mesh_doors` finds with
-    the coverage ``caster``); the coverage caster is reused when it blocks exactly those
+    :func:`~planner.walkgraph.found_doors` finds with the coverage ``caster``, returned
+    too; None for an IFC model); the coverage caster is reused when it blocks exactly those
     faces. ``file_faces``: cast against the file's faces, as the plan's rays
     (``occluders``)."""
-    blocks = ~door_faces(scene, caster)
+    doors = None if scene.elements else found_doors(scene, caster)
+    blocks = ~door_faces(scene) if doors is None else doors.face_door < 0
     if np.array_equal(blocks, limits.occludes):
-        return caster
-    return make_ray_caster(scene, blocks, file_faces=file_faces)
+        return caster, doors
+    return make_ray_caster(scene, blocks, file_faces=file_faces), doors
 
 
 def places_of(scene: Scene, candidates: CandidateSet | None, stations: list[int]
@@ -202,7 +204,7 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     del shared
     t1 = time.perf_counter()
     seconds["overlap"] = seconds.get("overlap", 0.0) + t1 - t0
-    walk_caster = _walk_caster(scene, limits, caster, spec.occluders == "file")
+    walk_caster, doors = _walk_caster(scene, limits, caster, spec.occluders == "file")
     if scene.metadata.get("spaces"):  # rooms are floors where the model has no slab
         from planner.survey.space_floors import with_room_floors
 
@@ -213,6 +215,8 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
         x, y, z = to_plan(scene_rotation(scene.metadata), np.asarray([start], np.float64))[0]
         start = (float(x), float(y), float(z))
     route = plan_route(graph, walk_caster, stations_xyz, start, places)
+    if doors is not None:  # a plain mesh: the legs through doors that may be fixed windows
+        route = dataclasses.replace(route, door_checks=door_checks(scene, route, doors))
     seconds["walk graph"] = time.perf_counter() - t1
     scans = scans_of(spec, density_margins, len(stations_xyz))
     return Survey(registration, route, field_time(spec, len(stations_xyz), route, scans), scans)

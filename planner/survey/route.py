@@ -29,6 +29,13 @@ model has them):
   knee-high line over to the lower is free: the drop alone parts them); both where both
   are found;
   and where the two parts never meet, the two storeys that no stair, ramp or steps join.
+
+In a plain mesh the walk passes the doors :func:`planner.walkgraph.found_doors` finds, and
+geometry alone cannot tell a glazed door from a French window, which may be fixed. Where a
+leg passes through a found door glazed at knee height (:attr:`planner.walkgraph.MeshDoors.
+glazed`), the route carries a *door check* (:func:`door_checks`): the leg, its stations,
+where it passes and the pane, so that the crew checks that it opens. An IFC model opens its
+IfcDoor only: no check.
 """
 
 from __future__ import annotations
@@ -44,11 +51,13 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from planner.errors import ParameterError
-from planner.rays import RayCaster
+from planner.rays import RayCaster, make_ray_caster
+from planner.scene import Scene
 from planner.walkgraph import (
     HEADROOM_M,
     KNEE_HEIGHT_M,
     STEP_M,
+    MeshDoors,
     WalkGraph,
     free_both_ways,
     upright_free,
@@ -132,18 +141,57 @@ class Leg:
 
 
 @dataclass(frozen=True)
+class DoorCheck:
+    """A leg of the route through a found door of a plain mesh that may be a fixed window
+    (glazed at knee height, :attr:`planner.walkgraph.MeshDoors.glazed`)."""
+
+    leg: int  # the leg's place in Route.legs, 1 the first
+    start: int | None  # the leg's station ids, as Leg's
+    end: int
+    door: int  # the door's number among the mesh's found doors (MeshDoors)
+    at: tuple[float, float, float]  # where the leg passes it, at knee height (plan frame)
+    floor_z_m: float  # the floor under that point
+    width_m: float  # the door's width (its box, horizontally)
+    pane_m: float  # the filler's thickness at knee height (MeshDoors.filler_m)
+
+    def warning(self, at: tuple[float, float, float] | None = None) -> str:
+        """What the crew is told, in a sentence; ``at``: the point in the model's own
+        coordinates (else the plan frame's, :attr:`at`)."""
+        x, y, z = self.at if at is None else at
+        start = "the route's start" if self.start is None else f"station {self.start}"
+        return (f"leg {self.leg} of the route, from {start} to station {self.end}, passes at "
+                f"({x:.2f}, {y:.2f}, {z:.2f}), floor at {_m(self.floor_z_m)}, through an "
+                f"opening glazed to the floor ({self.width_m:.2f} m wide, a "
+                f"{self.pane_m * 1000:.0f} mm pane at knee height) that the plan takes for a "
+                "door: a model without classes cannot tell a glazed door from a French "
+                "window, which may be fixed. Check that it opens; if not, walk round")
+
+    def to_dict(self, at: tuple[float, float, float] | None = None) -> dict[str, Any]:
+        """plan.json's entry; ``at``: the point in the model's own coordinates (else the
+        plan frame's)."""
+        point = self.at if at is None else at
+        return {"leg": self.leg, "from": self.start, "to": self.end, "door": self.door,
+                "at": [round(float(v), 3) for v in point],
+                "width_m": round(self.width_m, 3), "pane_m": round(self.pane_m, 4),
+                "warning": self.warning(point)}
+
+
+@dataclass(frozen=True)
 class Route:
     visits: tuple[int, ...]  # station ids in walking order
     legs: tuple[Leg, ...]
     unreachable: tuple[int, ...]
     unreachable_reasons: tuple[str, ...] = ()  # one per unreachable station
+    # legs through found doors of a plain mesh that may be fixed windows (door_checks)
+    door_checks: tuple[DoorCheck, ...] = ()
 
     @property
     def length_m(self) -> float:
         return sum(leg.length_m for leg in self.legs)
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        """plan.json's ``route``; ``door_checks`` only where there are any."""
+        data: dict[str, Any] = {
             "visits": list(self.visits),
             "length_m": round(self.length_m, 3),
             "legs": [{"from": leg.start, "to": leg.end, "length_m": round(leg.length_m, 3),
@@ -154,6 +202,63 @@ class Route:
                                     in zip(self.unreachable, self.unreachable_reasons,
                                            strict=True)},
         }
+        if self.door_checks:
+            data["door_checks"] = [check.to_dict() for check in self.door_checks]
+        return data
+
+
+def door_checks(scene: Scene, route: Route, doors: MeshDoors) -> tuple[DoorCheck, ...]:
+    """Where the ``route``'s legs pass through a glazed door of ``doors`` (the found doors
+    of the plain mesh ``scene``): each leg's path, segment by segment, is cast against the
+    glazed doors' faces alone; the first crossing of each door on a leg is a check, in the
+    order of the legs and along each."""
+    glazed = doors.glazed
+    if not glazed.any() or not route.legs:
+        return ()
+    faces = (doors.face_door >= 0) & glazed[np.maximum(doors.face_door, 0)]
+    caster = make_ray_caster(scene, faces)
+    checks: list[DoorCheck] = []
+    for number, leg in enumerate(route.legs, start=1):
+        path = np.asarray(leg.path, np.float64)  # (P, 3)
+        if len(path) < 2:
+            continue
+        delta = path[1:] - path[:-1]
+        length = np.linalg.norm(delta, axis=1)
+        moving = np.flatnonzero(length > 1e-6)
+        if len(moving) == 0:
+            continue
+        face, distance = caster.first_hit(path[moving], delta[moving] / length[moving, None])
+        crossed = np.flatnonzero((face >= 0) & (distance <= length[moving]))
+        seen: set[int] = set()
+        for k in crossed.tolist():
+            door = int(doors.face_door[face[k]])
+            if door in seen:
+                continue
+            seen.add(door)
+            segment = int(moving[k])
+            at = path[segment] + delta[segment] / length[segment] * distance[k]
+            lo, hi = doors.lo_m[door], doors.hi_m[door]
+            checks.append(DoorCheck(
+                leg=number, start=leg.start, end=leg.end, door=door,
+                at=(float(at[0]), float(at[1]), float(at[2])),
+                floor_z_m=float(at[2]) - KNEE_HEIGHT_M,
+                width_m=float(np.hypot(*(hi[:2] - lo[:2]))),
+                pane_m=float(doors.filler_m[door])))
+    return tuple(checks)
+
+
+def door_checks_line(route: dict[str, Any] | None) -> str | None:
+    """A clause for a job's message from plan.json's ``route``: how many legs pass a
+    glazed opening the crew must check; None when none does."""
+    checks = (route or {}).get("door_checks") or []
+    if not checks:
+        return None
+    legs = sorted({int(check["leg"]) for check in checks})
+    return (f"check that {len(checks)} glazed opening{'s' if len(checks) > 1 else ''} to the "
+            f"floor open{'s' if len(checks) == 1 else ''}: leg{'s' if len(legs) > 1 else ''} "
+            f"{', '.join(map(str, legs))} of the route pass{'es' if len(legs) == 1 else ''} "
+            "through one that the plan takes for a door and that may be a fixed window "
+            "(route.door_checks)")
 
 
 def attach(graph: WalkGraph, caster: RayCaster, points: NDArray[np.float64]

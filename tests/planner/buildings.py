@@ -374,6 +374,8 @@ class DoorScore:
     # found doors not true, mostly on IfcDoor and IfcWindow faces, with an IfcWindow that
     # comes down to the floor (its frame at most WINDOW_SILL_MAX_M over the floor beside it)
     windows_to_floor: int = 0
+    # the middle of each false door's box (model metres), to look it up in the model
+    false_at: tuple[tuple[float, float, float], ...] = ()
 
     @property
     def false(self) -> int:
@@ -439,13 +441,18 @@ def door_score(ifc: Scene, found: NDArray[np.bool_]) -> DoorScore:
     on_window = np.bincount(groups, area[index] * window[index], n_groups)
     true = on_door >= TRUE_DOOR_SHARE * total
     glazed = ~true & (on_door + on_window >= TRUE_DOOR_SHARE * total) & (on_window > 0)
-    to_floor = 0
+    to_floor = np.zeros(n_groups, bool)
     if glazed.any():  # one caster for every glazed door's window
         caster = make_ray_caster(ifc, np.ones(ifc.n_faces, bool))
-        to_floor = sum(
-            1 for g in np.flatnonzero(glazed)
-            if _window_sill_m(ifc, index[(groups == g) & window[index]], caster)
-            <= WINDOW_SILL_MAX_M)
+        for g in np.flatnonzero(glazed):
+            to_floor[g] = (_window_sill_m(ifc, index[(groups == g) & window[index]], caster)
+                           <= WINDOW_SILL_MAX_M)
+    false_at = []
+    for g in np.flatnonzero(~true & ~to_floor):
+        corners = triangles[index[groups == g]].reshape(-1, 3)
+        middle = (corners.min(axis=0) + corners.max(axis=0)) / 2
+        false_at.append((round(float(middle[0]), 2), round(float(middle[1]), 2),
+                         round(float(middle[2]), 2)))
     doors = np.unique(element[truth])
     size = int(element.max()) + 1
     door_area = np.bincount(element[truth], area[truth], size)
@@ -453,7 +460,7 @@ def door_score(ifc: Scene, found: NDArray[np.bool_]) -> DoorScore:
     return DoorScore(
         ifc_doors=len(doors), found=n_groups, true=int(true.sum()),
         ifc_doors_found=int((found_area[doors] >= DOOR_FOUND_SHARE * door_area[doors]).sum()),
-        windows_to_floor=to_floor)
+        windows_to_floor=int(to_floor.sum()), false_at=tuple(false_at))
 
 
 def plain_mesh_doorways(ifc: Scene) -> NDArray[np.bool_]:

@@ -243,6 +243,50 @@ def _two_storeys() -> Scene:
     return scene_of(*parts)
 
 
+def _two_storeys_on_a_ramp() -> Scene:
+    """A 14 x 6 m house, storeys of 3 m on 0.2 m slabs, joined by a ramp (a wedge rising
+    3.2 m over 7 m, 24.6 degrees: walkable, and steeper than 1:20) in a hole of the upper
+    slab along y < 1.5 for x > 6."""
+    boxes: list[tuple[tuple[float, float, float], tuple[float, float, float]]] = [
+        ((0, 0, -0.2), (14, 6, 0)), ((0, 1.5, 3.0), (14, 6, 3.2)),
+        ((0, 0, 3.0), (6, 1.5, 3.2)), ((13, 0, 3.0), (14, 1.5, 3.2)),
+        ((0, 0, 6.2), (14, 6, 6.4)),
+        ((-0.2, -0.2, -0.2), (0, 6.2, 6.4)), ((14, -0.2, -0.2), (14.2, 6.2, 6.4)),
+        ((0, -0.2, -0.2), (14, 0, 6.4)), ((0, 6, -0.2), (14, 6.2, 6.4)),
+    ]
+    parts = []
+    for lo, hi in boxes:
+        box = trimesh.creation.box(bounds=[lo, hi])
+        parts.append((np.asarray(box.vertices), np.asarray(box.faces)))
+    wedge = trimesh.convex.convex_hull(np.array(
+        [[6, 0, 0], [13, 0, 0], [13, 0, 3.2], [6, 1.5, 0], [13, 1.5, 0], [13, 1.5, 3.2]],
+        float))
+    parts.append((np.asarray(wedge.vertices), np.asarray(wedge.faces)))
+    return scene_of(*parts)
+
+
+@pytest.mark.parametrize("floor_levels", ["walkable", "all"])
+def test_a_ramp_between_two_storeys_joins_neither_to_the_other(floor_levels: str) -> None:
+    """With "all" or "walkable" the floors are grouped into levels as the storeys are: a
+    ramp fills every height between the two floors, so heights alone made one level of
+    the house; level surfaces only give the two floors as two levels, the ramp apart."""
+    scene = remesh(_two_storeys_on_a_ramp(), 1.0)
+    spec = PlanSpec.from_mapping({"floor_levels": floor_levels, "grid_spacing_m": 0.25,
+                                  "max_edge_m": 1.0})
+    candidates = generate_grid(scene, spec, make_ray_caster(scene, np.ones(scene.n_faces,
+                                                                            bool)))
+    levels = candidates.levels
+    assert levels is not None
+    floors = [float(str(level["floor_z_m"])) for level in levels]
+    assert 0.0 in floors and 3.2 in floors, levels
+    # each floor's candidates lie on that floor, none on the ramp between
+    by_name = {str(level["name"]): float(str(level["floor_z_m"])) for level in levels}
+    floor_z = candidates.positions[:, 2] - spec.scanner_height_m
+    for z, label in zip(floor_z, candidates.labels, strict=True):
+        if by_name[label["storey"]] in (0.0, 3.2):
+            assert abs(z - by_name[label["storey"]]) < 0.01
+
+
 @pytest.mark.parametrize("floor_levels", ["storeys", "walkable", "all"])
 def test_a_two_storey_mesh_gets_candidates_and_stations_on_both_storeys(
         floor_levels: str) -> None:

@@ -31,6 +31,11 @@ pytest.importorskip("ifcopenshell")
 # a building per tool: Renga (a leaf as one box, flush with the jambs), Revit (frames,
 # linings and leaves as parts, feet, a site around), ArchiCAD (leaves ajar, finely tessellated)
 BUILDINGS = ("Renga-House", "Lantern_Hollow", "AC90R1-niedriha-V2-2x3")
+# false doors left: Lantern Hollow's basement partition, 4.75 in thick, stands under a steel
+# beam (W12x26) whose bottom, 1.93 m over the floor, is a lintel to the rule, with the
+# joists' higher soffit on both sides; its doors in that partition stand under the same
+# beam, 80 in leaves rising into it, so nothing but the jambs beside a leaf tells them apart
+FALSE_DOORS_AT_MOST = {"Renga-House": 0, "Lantern_Hollow": 1, "AC90R1-niedriha-V2-2x3": 0}
 
 
 @pytest.fixture(scope="module")
@@ -61,9 +66,25 @@ def test_the_doors_of_a_plain_export_are_the_ifc_models_doors(
     np.testing.assert_array_equal(doors >= 0, door_faces(plain, caster))
     score = door_score(ifc, doors >= 0)
     assert score.ifc_doors_found >= 0.9 * score.ifc_doors, score
-    assert score.false <= score.ifc_doors // 4 + 1, score
+    assert score.false <= FALSE_DOORS_AT_MOST[name], score
     # every door is numbered once, in order
     assert np.array_equal(np.unique(doors[doors >= 0]), np.arange(doors.max() + 1))
+
+
+def test_a_stair_beside_a_door_and_a_wall_beside_an_open_leaf_are_no_doors(
+        scenes_dir: Path, plain_dir: Path) -> None:
+    """Renga: a flight runs past a door's head in the leaf's plane, its steps over a band of
+    air above the leaf; NiedriHa: a floor sample inside the exterior wall meets the wall's
+    face from inside, and a door's leaf opened flat beside it. Neither the steps nor the
+    wall's face are a door's."""
+    # NiedriHa: 6.4 m² of wall faces were taken, the exterior wall's 3 m face among them;
+    # 1.3 m² stay, the reveals of jambs beside two doors, in their leaves' boxes
+    for name, wrong, most_m2 in (("Renga-House", "IfcStairFlight", 0.0),
+                                 ("AC90R1-niedriha-V2-2x3", "IfcWallStandardCase", 2.0)):
+        ifc, plain = building(name, scenes_dir, plain_dir)
+        found = door_faces(plain, make_ray_caster(plain, np.ones(plain.n_faces, bool)))
+        classes = np.array([e.ifc_class for e in ifc.elements] + [""])[ifc.face_element]
+        assert ifc.areas[found & (classes == wrong)].sum() <= most_m2, name
 
 
 @pytest.mark.parametrize("name", ["Lantern_Hollow", "Renga-House"])
@@ -91,3 +112,56 @@ def test_the_plain_exports_walk_joins_every_room_the_ifc_doors_join(
         if (np.sort(pieces)[:-1] >= smallest).any():
             split.append(int(part))
     assert split == [], f"{len(split)} parts of the floor joined through IfcDoor are cut"
+
+
+# a glazed opening to the floor on the route ---------------------------------------------------
+
+
+def _two_rooms_with(leaf_m: float) -> Scene:
+    """Two rooms whose shared wall's doorway (``two_rooms``) is filled by a panel
+    ``leaf_m`` thick, 5 mm clear of the opening: a pane of glass or a door leaf."""
+    from tests.planner.survey_scenes import DOOR_Y_M, boxes_scene
+
+    h = 2.5
+    boxes = [((-0.2, -0.2, -0.2), (8.4, 4.2, 0.0)), ((-0.2, -0.2, h), (8.4, 4.2, h + 0.2)),
+             ((-0.2, -0.2, 0.0), (0.0, 4.2, h)), ((8.2, -0.2, 0.0), (8.4, 4.2, h)),
+             ((0.0, -0.2, 0.0), (8.2, 0.0, h)), ((0.0, 4.0, 0.0), (8.2, 4.2, h)),
+             ((4.0, 0.0, 0.0), (4.2, DOOR_Y_M[0], h)), ((4.0, DOOR_Y_M[1], 0.0), (4.2, 4.0, h)),
+             ((4.0, DOOR_Y_M[0], 2.1), (4.2, DOOR_Y_M[1], h)),
+             ((4.1 - leaf_m / 2, DOOR_Y_M[0] + 0.005, 0.005),
+              (4.1 + leaf_m / 2, DOOR_Y_M[1] - 0.005, 2.095))]
+    return boxes_scene(boxes)
+
+
+@pytest.mark.parametrize(("leaf_m", "glazed"), [(0.01, True), (0.04, False)])
+def test_a_leg_through_a_glazed_opening_to_the_floor_tells_the_crew_to_check_it_opens(
+        leaf_m: float, glazed: bool) -> None:
+    """A 10 mm pane from the floor to the lintel (a glazed door, or a French window that
+    may be fixed: a plain mesh cannot tell) is a door to the walk, and the leg through it
+    carries a check naming the leg, its stations and the place; a 40 mm leaf (a door leaf
+    is 35 mm or more) carries none."""
+    from planner.survey.route import door_checks, door_checks_line, plan_route
+    from planner.walkgraph import found_doors
+
+    scene = _two_rooms_with(leaf_m)
+    doors = found_doors(scene, make_ray_caster(scene, np.ones(scene.n_faces, bool)))
+    assert doors.n_doors == 1 and bool(doors.glazed[0]) is glazed
+    walk = make_ray_caster(scene, doors.face_door < 0)
+    route = plan_route(build_walk_graph(scene, walk), walk,
+                       np.array([[2.0, 2.0, 1.5], [6.0, 2.0, 1.5]]), None)
+    assert len(route.legs) == 1  # through the doorway: the rooms have no other way
+    checks = door_checks(scene, route, doors)
+    if not glazed:
+        assert checks == () and "door_checks" not in route.to_dict()
+        return
+    (check,) = checks
+    assert (check.leg, {check.start, check.end}) == (1, {1, 2})
+    assert abs(check.at[0] - 4.1) < 0.05 and 0.3 < check.at[1] < 1.2  # in the doorway
+    assert abs(check.pane_m - leaf_m) < 0.002
+    entry = check.to_dict()
+    assert entry["warning"].startswith(f"leg 1 of the route, from station {check.start} "
+                                       f"to station {check.end}, passes at (4.")
+    assert "French window" in entry["warning"] and "Check that it opens" in entry["warning"]
+    line = door_checks_line({"door_checks": [entry]})
+    assert line is not None and "leg 1 of the route passes" in line
+    assert door_checks_line({"legs": []}) is None

@@ -9,6 +9,7 @@ seconds on two cores; reading the files with IfcOpenShell is most of it.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections import Counter
 from pathlib import Path
@@ -36,26 +37,36 @@ def buildings_dir(scenes_dir: Path) -> Path:
 
 
 @functools.cache
-def planned(path: Path, spec: PlanSpec = SPEC) -> dict[str, Any]:
-    """plan.json of ``path`` planned with ``spec``, as the command line would write it
+def planned(path: Path, route_start: tuple[float, float, float] | None = None
+            ) -> dict[str, Any]:
+    """plan.json of ``path`` planned with ``SPEC`` (from ``route_start`` when given), as the
+    command line would write it
     (once a session: several tests check the same plan), and under the test's own key
     ``legs_through_walls`` the route's legs through walls
     (:func:`planner.truth.legs.legs_through_walls`, against the plan's scene; the doors are
     an IFC model's own, or for a plain mesh the mask saved beside it as ``.doors.npy``:
     the IFC's doorways for a plain mesh, its doors and windows to the floor
-    (:func:`tests.planner.buildings.plain_mesh_doorways`), in the export's face order)."""
+    (:func:`tests.planner.buildings.plain_mesh_doorways`), in the export's face order); with
+    a mask of the IFC's doors alone beside it (``.ifcdoors.npy``), under
+    ``legs_through_non_doors`` the legs through anything else (a French window)."""
     from planner.truth.legs import legs_in_plan, legs_through_walls
     from planner.walkgraph import door_faces
 
+    spec = dataclasses.replace(SPEC, route_start=route_start)
     scene = read_scene(path, max_edge_m=spec.max_edge_m, split_faces="as_needed")
     result = plan(scene, spec)
     document: dict[str, Any] = plan_document(result)
     scene = result.scene
     mask = path.with_suffix(".doors.npy")
     door = scene.of_file_faces(np.load(mask)) if mask.exists() else door_faces(scene)
-    document["legs_through_walls"] = [
-        leg.to_dict() for leg in legs_through_walls(scene, door,
-                                                    legs_in_plan(scene, document["route"]))]
+    legs = legs_in_plan(scene, document["route"])
+    document["legs_through_walls"] = [leg.to_dict()
+                                      for leg in legs_through_walls(scene, door, legs)]
+    ifc_doors = path.with_suffix(".ifcdoors.npy")
+    if ifc_doors.exists():  # a plain mesh: the legs through anything but an IfcDoor too
+        document["legs_through_non_doors"] = [
+            leg.to_dict() for leg in legs_through_walls(
+                scene, scene.of_file_faces(np.load(ifc_doors)), legs)]
     return document
 
 
@@ -282,6 +293,7 @@ def test_the_corpus_as_ifc_reaches_every_station_without_a_leg_through_a_wall(
     document = planned(path)
     route = document["route"]
     assert document["legs_through_walls"] == []
+    assert "door_checks" not in route  # IFC: IfcDoor alone opens, never a window
     # every IfcSpace accounted for, each without candidates with its reason
     model = ifcopenshell.open(str(path))
     rooms = document["candidates"]["rooms"]
@@ -308,18 +320,21 @@ def niedriha_plain(scenes_dir: Path, tmp_path_factory: pytest.TempPathFactory
                   tmp_path_factory.mktemp("plain") / "niedriha.obj")
 
 
-def _plain(ifc: Path, obj: Path) -> dict[str, Any]:
+def _plain(ifc: Path, obj: Path, route_start: tuple[float, float, float] | None = None
+           ) -> dict[str, Any]:
     """``ifc`` exported to the plain OBJ ``obj`` and planned (:func:`planned`)."""
+    from planner.walkgraph import door_faces
     from tests.planner.buildings import export_plain_mesh, plain_mesh_doorways
     from tests.planner.ifc_models import read_ifc_once
 
     reference = read_ifc_once(ifc)
     export_plain_mesh(ifc, obj, reference)
     # the ground truth for the legs' check: the IFC's doors and windows to the floor, in
-    # the export's face order
+    # the export's face order; and its doors alone
     np.save(obj.with_suffix(".doors.npy"),
             reference.on_file_faces(plain_mesh_doorways(reference)))
-    return planned(obj)
+    np.save(obj.with_suffix(".ifcdoors.npy"), reference.on_file_faces(door_faces(reference)))
+    return planned(obj, route_start)
 
 
 def test_the_archicad_house_as_a_plain_mesh_gets_its_storeys_not_its_landings(
@@ -377,19 +392,43 @@ def test_the_renga_house_as_a_plain_mesh_has_two_storeys_with_split_levels(
     assert -0.45 in split[0] and 2.85 in split[1], storeys
 
 
+# Jasmin: in the garden, outside the west French window of its ground floor (model metres)
+JASMIN_GARDEN = (1.58, 8.6, 1.0)
+
+
 def test_the_archicad_house_with_french_windows_as_a_plain_mesh_has_no_leg_through_a_wall(
         scenes_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> None:
     """Jasmin's ground floor has French windows (IfcWindow from the floor to door height).
     A plain mesh cannot tell them from glazed doors, so its door rule opens them and the
     legs' check lets a leg through them; through anything else (a window with a parapet, a
-    wall) no leg passes, and every station is reached."""
+    wall) no leg passes, and every station is reached. The crew, starting in the garden by
+    a French window, walks in through it: that leg, and every leg through a French window,
+    carries a check naming the leg, its stations and where, so that the crew checks that
+    the window opens; the job's message says so."""
+    from planner.survey.route import door_checks_line
+
     document = _plain(buildings_dir(scenes_dir) / "AC90R1-Jasmin-Sun-105-2x3.ifc",
-                      tmp_path_factory.mktemp("plain") / "jasmin.obj")
+                      tmp_path_factory.mktemp("plain") / "jasmin.obj",
+                      JASMIN_GARDEN)
     assert document["legs_through_walls"] == []
     route = document["route"]
     assert route["unreachable"] == [], route["unreachable_reasons"]
     storeys = [lv for lv in document["candidates"]["levels"] if "excluded" not in lv]
     assert [lv["floor_z_m"] for lv in storeys] == [-2.9, 0.0, 2.9], storeys
+    through_windows = document["legs_through_non_doors"]
+    assert through_windows and through_windows[0]["leg"] == 0, through_windows
+    checks = route["door_checks"]
+    for leg in through_windows:
+        named = [c for c in checks if c["leg"] == leg["leg"] + 1
+                 and np.hypot(*np.subtract(c["at"][:2], leg["at"][:2])) < 0.3]
+        assert len(named) == 1, (leg, checks)
+        check = named[0]
+        assert (check["from"], check["to"]) == (leg["from"], leg["to"])
+        assert f"leg {check['leg']} of the route, from " in check["warning"]
+        assert "French window" in check["warning"]
+    assert checks[0]["from"] is None and "from the route's start" in checks[0]["warning"]
+    line = door_checks_line(route)
+    assert line is not None and "may be a fixed window" in line
 
 
 def test_a_house_on_a_sloping_site_as_a_plain_mesh_keeps_its_basement_and_ground_floor(
