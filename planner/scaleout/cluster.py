@@ -7,6 +7,12 @@ with its worker, a task's own arguments are not. One task per worker thread is o
 time, the next submitted when any finishes, so a worker holds the tile it runs and no
 other, and neither this process nor the scheduler holds more than those tiles.
 
+A tile holds at most about :data:`TILE_FACES` target faces: a group of candidates with more
+within reach (the overlap rows' 25 m take in much of a building of many storeys) is sent
+in parts, each with all the group's candidates and some of its targets, and the parts'
+pairs and rows are merged here into the group's, the same as one tile's. So a task's
+memory, and a worker's, follows that budget, not the building.
+
 The occluders every tile shares (the file's mesh of a split model,
 :class:`~planner.visibility.tiles.Occluders`) are the result of one task of their own,
 whose arguments they are: each tile task depends on it, so a worker fetches them once

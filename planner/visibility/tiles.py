@@ -23,6 +23,12 @@ their verdict against a BVH of the occluders within reach. Over the same faces i
 order Embree builds the same BVH, so the tile's verdicts are the model's, and so are the
 clear margin and the quads (:class:`~planner.rays.embree.BvhPart`).
 
+A tile whose targets are many is cut in *parts* (:meth:`TileCutter.cut_parts`): each
+with all the tile's candidates and some of its targets, the pieces of whole file faces in
+the file's order (so a part's bundles are the tile's). Which pairs qualify is decided
+pair by pair, so the parts' pairs together are the tile's, and so are each candidate's
+rows; a part is as big as the budget, whatever the reach takes in.
+
 The occluders are the same for every tile of a plan, so on a split model they travel apart
 (:class:`Occluders`, :meth:`Tile.detached`): a worker receives the file's mesh once and
 builds one BVH over it, in the file's order, for all the plan's tiles it runs.
@@ -225,12 +231,17 @@ class TileCutter:
         are cut as they are asked for. Only a tile whose rays meet the file's mesh is cut
         in parts (another holds every occluding face of the model in each part)."""
         targets = self._within_reach(positions)
-        parts = (target_parts(targets, self.scene.source_face, most_faces)
-                 if self._file_bvh else [targets])
-        del targets
+        if not self._file_bvh or len(targets) <= most_faces:
+            yield self._cut(candidates, positions, targets, detached), True
+            return
+        parts = target_parts(targets, self.scene.source_face, most_faces)
+        # the tile's vertices, renumbered once: a part's are then renumbered among these,
+        # not among every vertex of the model
+        corners = _compact(self.scene.faces[targets], len(self.scene.vertices))
         while parts:
-            part = parts.pop(0)
-            yield self._cut(candidates, positions, part, detached), not parts
+            ids = parts.pop(0)
+            yield self._cut(candidates, positions, targets[ids], detached,
+                            (corners[0], corners[1][ids])), not parts
 
     def _within_reach(self, positions: NDArray[np.float64]) -> NDArray[np.int64]:
         """(k,) int64, ascending: the target faces whose centroids lie within reach of one
@@ -243,13 +254,16 @@ class TileCutter:
                        ).astype(np.int64)
 
     def _cut(self, candidates: NDArray[np.int64], positions: NDArray[np.float64],
-             targets: NDArray[np.int64], detached: bool) -> Tile:
-        """The tile of ``candidates`` at ``positions`` with the (k,) ascending ``targets``."""
+             targets: NDArray[np.int64], detached: bool,
+             corners: tuple[NDArray[np.int64], NDArray[np.int32]] | None = None) -> Tile:
+        """The tile of ``candidates`` at ``positions`` with the (k,) ascending ``targets``
+        (``corners``: see :func:`_part_scene`)."""
         scene, limits, bvh = self.scene, self.limits, self.bvh
         faces = targets if self._file_bvh else np.union1d(targets, self._occluding)
         # a detached tile's faces travel without their centroids, normals and areas
         bare = detached and self._file_bvh and scene.file_faces is not None
-        part = _part_scene(scene, faces, keep_file_mesh=self._file_bvh, face_values=not bare)
+        part = _part_scene(scene, faces, keep_file_mesh=self._file_bvh, face_values=not bare,
+                           corners=corners)
         target = np.zeros(len(faces), bool)
         target[np.searchsorted(faces, targets)] = True
         part_limits = dataclasses.replace(
@@ -266,16 +280,17 @@ class TileCutter:
 
 
 def target_parts(targets: NDArray[np.int64], source_face: NDArray[np.int32],
-                 most_faces: int) -> list[NDArray[np.int64]]:
-    """The (k,) ascending ``targets`` in parts of about ``most_faces`` at most, each
-    ascending: the pieces of one file face (``source_face``: (F,) int32, each face's file
-    face) stay in one part, so a part's bundles are the tile's, and the parts follow the
-    file's faces in order (a building's elements one after another: a part stands in a few
-    of them). A part exceeds ``most_faces`` by less than its last file face's pieces; one
-    part when the targets are no more than ``most_faces``."""
+                 most_faces: int) -> list[NDArray[np.intp]]:
+    """The (k,) ascending ``targets`` in parts of about ``most_faces`` at most, each given
+    by its places in ``targets`` (ascending): the pieces of one file face (``source_face``:
+    (F,) int32, each face's file face) stay in one part, so a part's bundles are the
+    tile's, and the parts follow the file's faces in order (a building's elements one after
+    another: a part stands in a few of them). A part exceeds ``most_faces`` by less than
+    its last file face's pieces; one part when the targets are no more than
+    ``most_faces``."""
     most_faces = max(1, most_faces)
     if len(targets) <= most_faces:
-        return [targets]
+        return [np.arange(len(targets))]
     # as many parts as the budget asks for, of about the same size each
     size = -(-len(targets) // -(-len(targets) // most_faces))
     source = source_face[targets]
@@ -285,7 +300,7 @@ def target_parts(targets: NDArray[np.int64], source_face: NDArray[np.int32],
     del source, pieces, before
     order = np.argsort(part, kind="stable")  # each part's targets stay ascending
     bounds = np.flatnonzero(np.diff(part[order])) + 1
-    return [targets[ids] for ids in np.split(order, bounds)]
+    return np.split(order, bounds)
 
 
 def _in_box(grid: PointGrid, low: NDArray[np.float64], high: NDArray[np.float64]
@@ -304,12 +319,20 @@ def _in_box(grid: PointGrid, low: NDArray[np.float64], high: NDArray[np.float64]
 
 
 def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool,
-                face_values: bool = True) -> Scene:
+                face_values: bool = True,
+                corners: tuple[NDArray[np.int64], NDArray[np.int32]] | None = None) -> Scene:
     """The part of ``scene`` of its ``faces`` (ascending): with ``keep_file_mesh`` (a split
     scene whose rays meet the file's faces) over the file's whole mesh, else over the file
     faces of its own faces; without its faces' centroids, normals and areas unless
-    ``face_values`` (see :meth:`Tile.detached`)."""
-    used, triangles = _compact(scene.faces[faces], len(scene.vertices))
+    ``face_values`` (see :meth:`Tile.detached`). ``corners``: the faces' corners given
+    among a subset of the vertices, the (u,) ascending vertex ids of the subset and the
+    (f, 3) int32 corners as indices into it (the same part, renumbered among those)."""
+    if corners is None:
+        used, triangles = _compact(scene.faces[faces], len(scene.vertices))
+    else:
+        subset, among = corners
+        used, triangles = _compact(among, len(subset))
+        used = subset[used]
     vertices = scene.vertices[used]
     if scene.file_faces is not None and scene.file_vertices is not None:
         if keep_file_mesh:

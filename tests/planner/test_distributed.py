@@ -287,7 +287,7 @@ def test_tile_parts_hold_few_faces_and_give_the_tiles_pairs(house_tiles: HouseTi
     import pickle
 
     from planner.scaleout.cluster import _by_candidate_and_face
-    from planner.visibility.tiles import overlap_tile, qualify_tile
+    from planner.visibility.tiles import _part_scene, overlap_tile, qualify_tile
 
     sight, candidates, cutter = house_tiles
     scene = sight.scene
@@ -305,6 +305,9 @@ def test_tile_parts_hold_few_faces_and_give_the_tiles_pairs(house_tiles: HouseTi
         assert 0 < len(tile.faces) < most_faces + largest
         assert np.all(np.diff(tile.faces) > 0)
         assert np.array_equal(tile.candidates, whole.candidates)
+        alone = _part_scene(scene, tile.faces.astype(np.int64), keep_file_mesh=True)
+        assert np.array_equal(tile.scene.vertices, alone.vertices)  # as if cut alone
+        assert np.array_equal(tile.scene.faces, alone.faces)
     every = np.concatenate([tile.faces for tile in tiles])
     assert np.array_equal(np.sort(every), whole.faces)  # each target in one part
     sources = [set(scene.source_face[tile.faces].tolist()) for tile in tiles]
