@@ -78,17 +78,19 @@ about 10: CPU times carry noise, wall times are meaningless):
   610 and 614 MiB, 36 and 34 s); client 1,023 MiB, CPU 41 s (before 1,018 MiB, 42 s);
   some 100 tasks a worker, the largest 252,865 target faces (before 23 and 27 tasks, up
   to 1.30 M);
-- 80 m: one machine 1,634 MiB, CPU 140 s; workers 444 and 422 MiB, CPU 153 and 156 s
-  (before 1,003 and 965 MiB, 116 and 119 s); client 1,721 MiB, CPU 171 s (before 1,688
+- 80 m: one machine 1,640 MiB, CPU 141 s; workers 416 and 441 MiB, CPU 136 and 133 s
+  (before 1,003 and 965 MiB, 116 and 119 s); client 1,709 MiB, CPU 147 s (before 1,688
   MiB, 128 s); some 430 tasks a worker, the largest 257,737 target faces (before 41 and
   49, up to 3.94 M);
 
 every file byte-identical each time. A worker's peak now grows by some 10 % when the
 building's faces grow four times (the file's mesh and its BVHs, and the floor the worker's
-heap keeps between tasks), the single machine's by 74 %. At 80 m the CPU rose by some 30 %
+heap keeps between tasks), the single machine's by 75 %. At 80 m the CPU rose by some 15 %
 on the workers and the client: ten times the tasks, each paying once for what does not
 shrink with it (its bundles take the planes of every face of the file's mesh, 7.5 % of a
-worker's samples in py-spy).
+worker's samples in py-spy). An earlier run at 80 m, whose client renumbered each part's
+vertices among the model's (now among its tile's), gave workers 444 and 422 MiB, CPU 153
+and 156 s, client 1,721 MiB, 171 s.
 
     PYTHONPATH=. .venv/bin/python benchmarks/plan_distributed.py [MODEL.ifc]
         [--storeys 8] [--width-m 12] [--depth-m 19] [--workers 1 2 4]
