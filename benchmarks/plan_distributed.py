@@ -59,6 +59,39 @@ every file byte-identical each time. The client's peak is now about the single m
 runs every stage but the fanned ones, and besides holds Dask's libraries and the started
 scheduler (some 25 MiB) and, while tasks run, the scheduler's copies of their tiles.
 
+A worker's peak still grew with the building (625 and 646 MiB at 40 m, 1,034 and 1,026 at
+80 m). Measured inside the tasks (a worker plugin reading VmRSS and VmHWM, the latter
+reset, as each task starts and ends): a worker's process is 62 MiB, 209 MiB with
+planner's libraries, and some 55 MiB more once the compiled kernels are loaded; the rest
+was the task's tile. An overlap tile (the candidates of one 8 m cube and every piece within
+25 m of them) held 0.6 to 1.3 M of the 1.3 M faces at 40 m, 1.1 to 3.9 M of the 5.1 M at
+80 m (30 to 181 MiB of arrays, and the task's scratch 2 to 4.5 times that on top); a
+coverage tile (the plan's candidates in 8 blocks: 38 candidates at 40 m, 70 at 80 m) 0.2
+to 0.3 M and 0.7 to 0.9 M. The file's mesh and its BVHs (two, the overlap rows' with the
+doors open) are 6 MiB each at 40 m, 10 at 80 m. With a tile's targets sent in parts of
+about 250,000 faces (whole file faces, in the file's order; the client merges the parts'
+pairs and rows), each task trimming the heap as it ends, same parameters, ``--workers 2``,
+beside the same session's run of the code before (2 cores shared with other jobs, load
+about 10: CPU times carry noise, wall times are meaningless):
+
+- 40 m: one machine 939 MiB, CPU 41 s; workers 391 and 376 MiB, CPU 36 and 37 s (before
+  610 and 614 MiB, 36 and 34 s); client 1,023 MiB, CPU 41 s (before 1,018 MiB, 42 s);
+  some 100 tasks a worker, the largest 252,865 target faces (before 23 and 27 tasks, up
+  to 1.30 M);
+- 80 m: one machine 1,640 MiB, CPU 141 s; workers 416 and 441 MiB, CPU 136 and 133 s
+  (before 1,003 and 965 MiB, 116 and 119 s); client 1,709 MiB, CPU 147 s (before 1,688
+  MiB, 128 s); some 430 tasks a worker, the largest 257,737 target faces (before 41 and
+  49, up to 3.94 M);
+
+every file byte-identical each time. A worker's peak now grows by some 10 % when the
+building's faces grow four times (the file's mesh and its BVHs, and the floor the worker's
+heap keeps between tasks), the single machine's by 75 %. At 80 m the CPU rose by some 15 %
+on the workers and the client: ten times the tasks, each paying once for what does not
+shrink with it (its bundles take the planes of every face of the file's mesh, 7.5 % of a
+worker's samples in py-spy). An earlier run at 80 m, whose client renumbered each part's
+vertices among the model's (now among its tile's), gave workers 444 and 422 MiB, CPU 153
+and 156 s, client 1,721 MiB, 171 s.
+
     PYTHONPATH=. .venv/bin/python benchmarks/plan_distributed.py [MODEL.ifc]
         [--storeys 8] [--width-m 12] [--depth-m 19] [--workers 1 2 4]
         [--params '{"grid_spacing_m": 1.0}'] [--out /tmp/plan-distributed]

@@ -5,7 +5,8 @@
 Dask scheduler (:class:`~planner.scaleout.cluster.DaskFanout`) and computes there:
 
 - the coverage table's qualified pairs: one task per tile of contiguous candidates, each
-  with the part of the model within its reach (:mod:`planner.visibility.tiles`);
+  with the part of the model within its reach (:mod:`planner.visibility.tiles`), in parts
+  of at most about 250,000 target faces where more lie within reach;
 - the overlap rows (the registration density's, about 25 m of reach): every candidate's for
   the ``optimal`` method, the few the connected greedy asks for, the stations' for the
   survey.

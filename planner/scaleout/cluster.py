@@ -7,6 +7,12 @@ with its worker, a task's own arguments are not. One task per worker thread is o
 time, the next submitted when any finishes, so a worker holds the tile it runs and no
 other, and neither this process nor the scheduler holds more than those tiles.
 
+A tile holds at most about :data:`TILE_FACES` target faces: a group of candidates with more
+within reach (the overlap rows' 25 m take in much of a building of many storeys) is sent
+in parts, each with all the group's candidates and some of its targets, and the parts'
+pairs and rows are merged here into the group's, the same as one tile's. So a task's
+memory, and a worker's, follows that budget, not the building.
+
 The occluders every tile shares (the file's mesh of a split model,
 :class:`~planner.visibility.tiles.Occluders`) are the result of one task of their own,
 whose arguments they are: each tile task depends on it, so a worker fetches them once
@@ -23,7 +29,8 @@ import itertools
 import math
 import uuid
 import weakref
-from collections.abc import Callable, Iterable, Iterator
+from collections import deque
+from collections.abc import Callable, Generator, Iterable, Iterator
 from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
@@ -67,6 +74,13 @@ MIN_TILE_CANDIDATES = 8
 MAX_TILE_CANDIDATES = 128
 # tiles per worker thread at least, so a slow tile does not leave the others idle
 TILES_PER_THREAD = 4
+# a task's target faces at most (about: a file face's pieces stay together): a tile with
+# more is sent in parts, each with all its candidates and some of its targets
+# (:meth:`~planner.visibility.tiles.TileCutter.cut_parts`). A task's memory follows its
+# faces (some 250 bytes a face of tile and scratch on the worker), so this bounds it
+# whatever the building: the overlap rows' reach (25 m) takes in much of a building of
+# many storeys around every candidate
+TILE_FACES = 250_000
 # runs of a task that raised before the plan fails (a worker that dies is another matter:
 # the scheduler gives its tasks to the others, up to distributed.scheduler.allowed-failures)
 TASK_RETRIES = 1
@@ -86,11 +100,13 @@ class DaskFanout:
     Connects at once: a scheduler that cannot be reached raises
     :class:`~planner.errors.SchedulerUnreachableError` naming the address. ``tile_candidates``:
     candidates per tile (default: from the candidates and the cluster's threads, between
-    :data:`MIN_TILE_CANDIDATES` and :data:`MAX_TILE_CANDIDATES`). Close it (or use it as a
-    context manager) when the plan is done.
+    :data:`MIN_TILE_CANDIDATES` and :data:`MAX_TILE_CANDIDATES`); ``tile_faces``: a task's
+    target faces at most (:data:`TILE_FACES`), what bounds a worker's memory. Close it (or
+    use it as a context manager) when the plan is done.
     """
 
     def __init__(self, address: str, *, tile_candidates: int | None = None,
+                 tile_faces: int | None = None,
                  connect_timeout_s: float = CONNECT_TIMEOUT_S) -> None:
         try:
             from distributed import Client
@@ -100,6 +116,7 @@ class DaskFanout:
                 "scanplan[dask] (dask[distributed]) where the plan runs") from exc
         self.address = address
         self.tile_candidates = tile_candidates
+        self.tile_faces = max(1, TILE_FACES if tile_faces is None else tile_faces)
         try:
             self._client: Client = Client(  # type: ignore[no-untyped-call]
                 address, timeout=connect_timeout_s, set_as_default=False)
@@ -154,7 +171,7 @@ class DaskFanout:
 
     def map(self, work: Callable[..., _Result], items: Iterable[_Item], *,
             count: int | None = None, on_read: Callable[[float], None] | None = None,
-            shared: Future[Any] | None = None) -> Iterator[_Result]:
+            shared: Future[Any] | None = None) -> Generator[_Result, None, None]:
         """``work(item)`` of every item as tasks on the cluster (``work(item, shared)``
         with ``shared``, a future every task depends on), yielded in the order of
         ``items``; ``on_read`` gets the fraction read (of ``count``) after each and may raise
@@ -275,10 +292,11 @@ class DaskFanout:
         size = self._tile_size(len(positions))
         count = math.ceil(len(positions) / size)
         shared = self._shared_occluders(sight.occlusion, cutter)
+        lasts: deque[bool] = deque()
         tiles = _tiles(cutter, positions, contiguous_tiles(len(positions), size),
-                       detached=shared is not None)
-        return self.map(qualify_tile, tiles, count=count, shared=shared,
-                        on_read=lambda fraction: notify(progress, "visibility", fraction))
+                       detached=shared is not None, most_faces=self.tile_faces, lasts=lasts)
+        return _merged_pairs(self.map(qualify_tile, tiles, shared=shared), lasts,
+                             lambda groups: notify(progress, "visibility", groups / count))
 
     def overlap_rows(self, rows: OverlapRows, candidates: list[int]
                      ) -> Iterator[tuple[NDArray[np.int32], int]] | None:
@@ -296,10 +314,12 @@ class DaskFanout:
         groups = _near_groups(np.array(sorted(candidates), np.int64), positions,
                               self._tile_size(len(positions)))
         shared = self._shared_occluders(occlusion, cutter)
-        tiles = _tiles(cutter, positions, groups, detached=shared is not None)
+        lasts: deque[bool] = deque()
+        tiles = _tiles(cutter, positions, groups, detached=shared is not None,
+                       most_faces=self.tile_faces, lasts=lasts)
         found: dict[int, tuple[NDArray[np.int32], int]] = {}
-        for ids, (faces, rays) in zip(groups, self.map(overlap_tile, tiles, shared=shared),
-                                      strict=True):
+        for ids, (faces, rays) in zip(groups, _merged_rows(
+                self.map(overlap_tile, tiles, shared=shared), lasts), strict=True):
             # the rays are counted once per group, with its first row
             for k, (c, row) in enumerate(zip(ids.tolist(), faces, strict=True)):
                 found[c] = (row, rays if k == 0 else 0)
@@ -307,12 +327,84 @@ class DaskFanout:
 
 
 def _tiles(cutter: TileCutter, positions: NDArray[np.float64],
-           groups: Iterable[NDArray[np.int64]], *, detached: bool) -> Iterator[Tile]:
-    """The tile of each group of candidates (``positions``: (C, 3) float64, the plan's),
-    cut as needed, without the occluders they share when ``detached``."""
+           groups: Iterable[NDArray[np.int64]], *, detached: bool, most_faces: int,
+           lasts: deque[bool]) -> Iterator[Tile]:
+    """The tiles of each group of candidates (``positions``: (C, 3) float64, the plan's),
+    in parts of about ``most_faces`` targets at most (:meth:`TileCutter.cut_parts`), cut
+    as needed, without the occluders they share when ``detached``; ``lasts`` gets, as
+    each part is yielded, whether it is its group's last."""
     for ids in groups:
-        # yielded as cut: this frame keeps no tile while it waits
-        yield cutter.cut(ids, positions[ids], detached=detached)
+        for tile, last in cutter.cut_parts(ids, positions[ids], most_faces,
+                                           detached=detached):
+            lasts.append(last)
+            # yielded as cut: this frame keeps no tile while it waits
+            yield tile
+            del tile
+
+
+def _merged_pairs(results: Generator[tuple[QualifiedPairs, int, int], None, None],
+                  lasts: deque[bool], on_group: Callable[[int], None]
+                  ) -> Iterator[tuple[QualifiedPairs, int, int]]:
+    """The qualified pairs of each group of candidates, as one tile of the group gives
+    them (sorted by (candidate, face)), from the ``results`` of its parts (in order,
+    ``lasts`` saying which ends a group: :func:`_tiles`), with the pairs tested and the
+    rays cast summed; ``on_group`` gets the groups read so far after each (it may raise to
+    stop: the tasks still out are cancelled)."""
+    parts: list[QualifiedPairs] = []
+    tested = rays = groups = 0
+    try:
+        for pairs, part_tested, part_rays in results:
+            parts.append(pairs)
+            tested += part_tested
+            rays += part_rays
+            del pairs
+            if not lasts.popleft():
+                continue
+            merged = parts.pop() if len(parts) == 1 else _by_candidate_and_face(parts)
+            parts.clear()
+            yield merged, tested, rays
+            del merged
+            tested = rays = 0
+            groups += 1
+            on_group(groups)
+    finally:
+        results.close()
+
+
+def _by_candidate_and_face(parts: list[QualifiedPairs]) -> QualifiedPairs:
+    """The pairs of ``parts`` (of one group of candidates, their faces apart) in one,
+    sorted by (candidate, face); ``parts`` is emptied."""
+    merged = QualifiedPairs.concatenate(parts)
+    key = merged.candidate.astype(np.int64) << 32
+    key |= merged.face.astype(np.int64)
+    order = np.argsort(key, kind="stable")
+    del key
+    return QualifiedPairs(merged.candidate[order], merged.face[order],
+                          merged.lpd_pts_m2[order])
+
+
+def _merged_rows(results: Generator[tuple[list[NDArray[np.int32]], int], None, None],
+                 lasts: deque[bool]) -> Iterator[tuple[list[NDArray[np.int32]], int]]:
+    """The overlap rows of each group of candidates, as one tile of the group gives them
+    (each row's faces ascending), from the ``results`` of its parts (in order, ``lasts``
+    saying which ends a group: :func:`_tiles`), with the rays cast summed."""
+    parts: list[list[NDArray[np.int32]]] = []
+    rays = 0
+    try:
+        for rows, part_rays in results:
+            parts.append(rows)
+            rays += part_rays
+            del rows
+            if not lasts.popleft():
+                continue
+            merged = parts[0] if len(parts) == 1 else [
+                np.sort(np.concatenate(row)) for row in zip(*parts, strict=True)]
+            parts.clear()
+            yield merged, rays
+            del merged
+            rays = 0
+    finally:
+        results.close()
 
 
 def _near_groups(candidates: NDArray[np.int64], positions: NDArray[np.float64], size: int,

@@ -23,6 +23,12 @@ their verdict against a BVH of the occluders within reach. Over the same faces i
 order Embree builds the same BVH, so the tile's verdicts are the model's, and so are the
 clear margin and the quads (:class:`~planner.rays.embree.BvhPart`).
 
+A tile whose targets are many is cut in *parts* (:meth:`TileCutter.cut_parts`): each
+with all the tile's candidates and some of its targets, the pieces of whole file faces in
+the file's order (so a part's bundles are the tile's). Which pairs qualify is decided
+pair by pair, so the parts' pairs together are the tile's, and so are each candidate's
+rows; a part is as big as the budget, whatever the reach takes in.
+
 The occluders are the same for every tile of a plan, so on a split model they travel apart
 (:class:`Occluders`, :meth:`Tile.detached`): a worker receives the file's mesh once and
 builds one BVH over it, in the file's order, for all the plan's tiles it runs.
@@ -40,7 +46,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import threading
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -50,6 +56,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from planner.limits import FaceLimits
+from planner.memory import release_freed_memory
 from planner.rays.embree import BvhFaces, BvhPart, EmbreeBvh, EmbreeOcclusion
 from planner.scene import Scene
 from planner.visibility.bundles import bundle_culler
@@ -213,17 +220,50 @@ class TileCutter:
             detached: bool = False) -> Tile:
         """The tile of the plan's ``candidates`` (ascending) at the (n, 3) ``positions``
         (:meth:`Tile.detached` with ``detached``, without gathering what it leaves out)."""
-        scene, limits, bvh = self.scene, self.limits, self.bvh
+        return self._cut(candidates, positions, self._within_reach(positions), detached)
+
+    def cut_parts(self, candidates: NDArray[np.int64], positions: NDArray[np.float64],
+                  most_faces: int, *, detached: bool = False) -> Iterator[tuple[Tile, bool]]:
+        """The tile of :meth:`cut` in parts of about ``most_faces`` targets at most, each
+        with whether it is the last part: each part holds all the candidates and some of
+        their targets (the pieces of whole file faces, in the file's order, see
+        :func:`target_parts`), and the parts' pairs (rows) together are the tile's. Parts
+        are cut as they are asked for. Only a tile whose rays meet the file's mesh is cut
+        in parts (another holds every occluding face of the model in each part)."""
+        targets = self._within_reach(positions)
+        if not self._file_bvh or len(targets) <= most_faces:
+            yield self._cut(candidates, positions, targets, detached), True
+            return
+        parts = target_parts(targets, self.scene.source_face, most_faces)
+        # the tile's vertices, renumbered once: a part's are then renumbered among these,
+        # not among every vertex of the model
+        corners = _compact(self.scene.faces[targets], len(self.scene.vertices))
+        while parts:
+            ids = parts.pop(0)
+            yield self._cut(candidates, positions, targets[ids], detached,
+                            (corners[0], corners[1][ids])), not parts
+
+    def _within_reach(self, positions: NDArray[np.float64]) -> NDArray[np.int64]:
+        """(k,) int64, ascending: the target faces whose centroids lie within reach of one
+        of the (n, 3) ``positions``."""
         low, high = positions.min(axis=0), positions.max(axis=0)
         # the targets within reach (with a hair of slack: the kernel decides the rest)
         reach = self.reach_m * (1 + 1e-6) + 1e-9
         near = self._targets[_in_box(self._target_grid, low - reach, high + reach)]
-        targets = np.sort(near[_within(scene.centroids, near, positions, low, high, reach)]
-                          ).astype(np.int64)
+        return np.sort(near[_within(self.scene.centroids, near, positions, low, high, reach)]
+                       ).astype(np.int64)
+
+    def _cut(self, candidates: NDArray[np.int64], positions: NDArray[np.float64],
+             targets: NDArray[np.int64], detached: bool,
+             corners: tuple[NDArray[np.int64], NDArray[np.int32]] | None = None) -> Tile:
+        """The tile of ``candidates`` at ``positions`` with the (k,) ascending ``targets``
+        (``corners``: see :func:`_part_scene`)."""
+        scene, limits, bvh = self.scene, self.limits, self.bvh
         faces = targets if self._file_bvh else np.union1d(targets, self._occluding)
         # a detached tile's faces travel without their centroids, normals and areas
         bare = detached and self._file_bvh and scene.file_faces is not None
-        part = _part_scene(scene, faces, keep_file_mesh=self._file_bvh, face_values=not bare)
+        part = _part_scene(scene, faces, keep_file_mesh=self._file_bvh, face_values=not bare,
+                           corners=corners)
         target = np.zeros(len(faces), bool)
         target[np.searchsorted(faces, targets)] = True
         part_limits = dataclasses.replace(
@@ -237,6 +277,30 @@ class TileCutter:
                     np.asarray(candidates, np.int64), self.reach_m, bvh.file_faces,
                     BvhPart(self._bvh_occludes, bvh.scale_m, bvh.quads))
         return tile.detached() if detached else tile
+
+
+def target_parts(targets: NDArray[np.int64], source_face: NDArray[np.int32],
+                 most_faces: int) -> list[NDArray[np.intp]]:
+    """The (k,) ascending ``targets`` in parts of about ``most_faces`` at most, each given
+    by its places in ``targets`` (ascending): the pieces of one file face (``source_face``:
+    (F,) int32, each face's file face) stay in one part, so a part's bundles are the
+    tile's, and the parts follow the file's faces in order (a building's elements one after
+    another: a part stands in a few of them). A part exceeds ``most_faces`` by less than
+    its last file face's pieces; one part when the targets are no more than
+    ``most_faces``."""
+    most_faces = max(1, most_faces)
+    if len(targets) <= most_faces:
+        return [np.arange(len(targets))]
+    # as many parts as the budget asks for, of about the same size each
+    size = -(-len(targets) // -(-len(targets) // most_faces))
+    source = source_face[targets]
+    pieces = np.bincount(source)  # (F0',) the targets' pieces of each file face
+    before = np.cumsum(pieces) - pieces  # (F0',) the targets of the file faces before
+    part = before[source] // size  # (k,) by where its file face starts
+    del source, pieces, before
+    order = np.argsort(part, kind="stable")  # each part's targets stay ascending
+    bounds = np.flatnonzero(np.diff(part[order])) + 1
+    return np.split(order, bounds)
 
 
 def _in_box(grid: PointGrid, low: NDArray[np.float64], high: NDArray[np.float64]
@@ -255,12 +319,20 @@ def _in_box(grid: PointGrid, low: NDArray[np.float64], high: NDArray[np.float64]
 
 
 def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool,
-                face_values: bool = True) -> Scene:
+                face_values: bool = True,
+                corners: tuple[NDArray[np.int64], NDArray[np.int32]] | None = None) -> Scene:
     """The part of ``scene`` of its ``faces`` (ascending): with ``keep_file_mesh`` (a split
     scene whose rays meet the file's faces) over the file's whole mesh, else over the file
     faces of its own faces; without its faces' centroids, normals and areas unless
-    ``face_values`` (see :meth:`Tile.detached`)."""
-    used, triangles = _compact(scene.faces[faces], len(scene.vertices))
+    ``face_values`` (see :meth:`Tile.detached`). ``corners``: the faces' corners given
+    among a subset of the vertices, the (u,) ascending vertex ids of the subset and the
+    (f, 3) int32 corners as indices into it (the same part, renumbered among those)."""
+    if corners is None:
+        used, triangles = _compact(scene.faces[faces], len(scene.vertices))
+    else:
+        subset, among = corners
+        used, triangles = _compact(among, len(subset))
+        used = subset[used]
     vertices = scene.vertices[used]
     if scene.file_faces is not None and scene.file_vertices is not None:
         if keep_file_mesh:
@@ -372,7 +444,12 @@ def qualify_tile(tile: Tile, occluders: Occluders | None = None
     faces and sorted by (candidate, face), with the pairs tested and the rays cast (run
     on a worker: one thread, as the worker runs tasks side by side). A
     :meth:`~Tile.detached` tile comes with its ``occluders``."""
-    tile, occlusion = _at_work(tile, occluders)
+    result = _qualified(*_at_work(tile, occluders))
+    release_freed_memory()  # the task's scratch, before the worker's next task
+    return result
+
+
+def _qualified(tile: Tile, occlusion: EmbreeOcclusion) -> tuple[QualifiedPairs, int, int]:
     parts, tested, rays = [], 0, 0
     for qualified, block_tested, block_rays in qualify_pairs(
             tile.scene, tile.positions, tile.limits, occlusion, threads=1,
@@ -390,7 +467,12 @@ def overlap_tile(tile: Tile, occluders: Occluders | None = None
     """The overlap rows of a tile's candidates (its limits are the overlap limits, its
     occluders the rows'), each the model's faces ascending, and the rays cast. A
     :meth:`~Tile.detached` tile comes with its ``occluders``."""
-    tile, occlusion = _at_work(tile, occluders)
+    result = _rows(*_at_work(tile, occluders))
+    release_freed_memory()  # the task's scratch, before the worker's next task
+    return result
+
+
+def _rows(tile: Tile, occlusion: EmbreeOcclusion) -> tuple[list[NDArray[np.int32]], int]:
     finder = PairFinder(tile.scene, tile.limits, reach_m=tile.reach_m)
     culler = bundle_culler(tile.scene, finder.reach_m, occlusion)
     rows, rays = [], 0

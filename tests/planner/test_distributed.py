@@ -258,3 +258,71 @@ def test_tile_cut_bounds_decide_as_the_k_d_tree() -> None:
         unique, inverse = np.unique(indices, return_inverse=True)
         assert np.array_equal(used, unique)
         assert np.array_equal(renumbered, inverse.reshape(-1, 3))
+
+
+@pytest.mark.parametrize("method, min_overlap_m2", [
+    ("greedy", 2.0),
+    ("weighted_greedy", None),
+    ("optimal", 2.0),
+])
+def test_house_in_parts_same_bytes(cluster: Any, house: Scene, tmp_path: Path,
+                                   monkeypatch: pytest.MonkeyPatch, method: str,
+                                   min_overlap_m2: float | None) -> None:
+    """Tiles sent in parts of a few thousand faces (a task's faces bounded as on a large
+    building, where the overlap rows' reach takes in much of it) give the same files."""
+    from planner.scaleout import cluster as scaleout
+
+    spec = PlanSpec.from_mapping({**HOUSE, "method": method, "min_overlap_m2": min_overlap_m2})
+    local = plan(house, spec)
+    monkeypatch.setattr(scaleout, "TILE_FACES", 3_000)
+    fanned = plan(house, spec, dask_scheduler=cluster.scheduler_address)
+    assert_same_files(local, fanned, tmp_path)
+
+
+def test_tile_parts_hold_few_faces_and_give_the_tiles_pairs(house_tiles: HouseTiles) -> None:
+    """A tile cut in parts of at most about ``most_faces`` targets: each part's faces are
+    bounded by that budget, not by the tile's reach or the model, its faces are the model's
+    ascending and whole file faces; the parts' pairs and rows, merged as the fan-out merges
+    them, are the whole tile's."""
+    import pickle
+
+    from planner.scaleout.cluster import _by_candidate_and_face
+    from planner.visibility.tiles import _part_scene, overlap_tile, qualify_tile
+
+    sight, candidates, cutter = house_tiles
+    scene = sight.scene
+    occluders = pickle.loads(pickle.dumps(cutter.occluders()))
+    ids = np.arange(min(8, len(candidates.positions)))
+    whole = cutter.cut(ids, candidates.positions[ids], detached=True)
+    most_faces = 2_000
+    largest = int(np.bincount(scene.source_face[whole.faces]).max())
+    assert len(whole.faces) > 3 * most_faces  # cut in several parts
+    parts = list(cutter.cut_parts(ids, candidates.positions[ids], most_faces, detached=True))
+    assert [last for _, last in parts] == [False] * (len(parts) - 1) + [True]
+    tiles = [tile for tile, _ in parts]
+    assert len(tiles) >= len(whole.faces) // (most_faces + largest)
+    for tile in tiles:
+        assert 0 < len(tile.faces) < most_faces + largest
+        assert np.all(np.diff(tile.faces) > 0)
+        assert np.array_equal(tile.candidates, whole.candidates)
+        alone = _part_scene(scene, tile.faces.astype(np.int64), keep_file_mesh=True)
+        assert np.array_equal(tile.scene.vertices, alone.vertices)  # as if cut alone
+        assert np.array_equal(tile.scene.faces, alone.faces)
+    every = np.concatenate([tile.faces for tile in tiles])
+    assert np.array_equal(np.sort(every), whole.faces)  # each target in one part
+    sources = [set(scene.source_face[tile.faces].tolist()) for tile in tiles]
+    assert sum(len(s) for s in sources) == len(set().union(*sources))  # file faces whole
+    pairs, _, rays = qualify_tile(whole, occluders)
+    results = [qualify_tile(tile, occluders) for tile in tiles]
+    merged = _by_candidate_and_face([result[0] for result in results])
+    assert len(pairs.face) > 0
+    # whole file faces in each part: the same bundles, so the same rays cast
+    assert sum(r[2] for r in results) == rays
+    for a, b in zip((pairs.candidate, pairs.face, pairs.lpd_pts_m2),
+                    (merged.candidate, merged.face, merged.lpd_pts_m2), strict=True):
+        assert a.dtype == b.dtype and np.array_equal(a, b)
+    rows, rows_rays = overlap_tile(whole, occluders)
+    part_rows = [overlap_tile(tile, occluders) for tile in tiles]
+    assert sum(p[1] for p in part_rows) == rows_rays
+    for k, row in enumerate(rows):
+        assert np.array_equal(row, np.sort(np.concatenate([p[0][k] for p in part_rows])))
