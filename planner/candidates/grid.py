@@ -49,7 +49,7 @@ from planner.limits import FaceLimits
 from planner.memory import release_freed_memory
 from planner.parameters import PlanSpec
 from planner.rays import RayCaster
-from planner.scene import Scene, subdivide
+from planner.scene import Scene, longest_edges_m, subdivide
 from planner.threads import in_block_order
 from planner.walkgraph import HEADROOM_M, KNEE_HEIGHT_M, build_walk_graph, cell_pairs
 
@@ -1026,15 +1026,27 @@ def closer_than(
     if scene.split_max_edge_m is not None:
         # a scene still to be split: the obstacles are the pieces a full split gives (a
         # piece reaches into the span over less than its whole face), split here for
-        # these faces only
-        pieces = subdivide(vertices, faces[useful], scene.split_max_edge_m)
+        # these faces only. A face no longer than split_max_edge_m is its own one piece
+        # (the split leaves it whole): only the longer ones go through the split, not the
+        # million small faces of a furnished interior beside them
+        long = longest_edges_m(vertices, faces[useful]) > scene.split_max_edge_m  # (U,)
+        pieces = subdivide(vertices, faces[useful[long]], scene.split_max_edge_m) \
+            if long.any() else None
         if pieces is not None:
-            vertices, faces, _ = pieces
-            corner_z = vertices[faces, 2]  # (pieces, 3)
+            piece_vertices, piece_faces, _ = pieces
+            corner_z = piece_vertices[piece_faces, 2]  # (pieces, 3)
             low, high = corner_z.min(axis=1), corner_z.max(axis=1)
             keep = np.flatnonzero(_in_spans(low, high, span_low_m, span_high_m))
-            useful, z_low, z_high = keep.astype(np.int32), low[keep], high[keep]
-            del corner_z, low, high
+            whole = ~long
+            # the whole faces, then the pieces that reach into a span (their corners
+            # after the scene's own)
+            faces = np.concatenate([faces[useful[whole]],
+                                    piece_faces[keep] + np.int32(len(vertices))])
+            vertices = np.concatenate([vertices, piece_vertices])
+            z_low = np.concatenate([z_low[whole], low[keep]])
+            z_high = np.concatenate([z_high[whole], high[keep]])
+            useful = np.arange(len(faces), dtype=np.int32)
+            del corner_z, low, high, piece_vertices, piece_faces
             release_freed_memory()  # the split's scratch, freed into its threads' heaps
 
     def footprints(index: NDArray[np.int64]) -> NDArray[np.float64]:
