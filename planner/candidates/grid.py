@@ -1225,7 +1225,11 @@ def inside_closed_groups(scene: Scene, points: NDArray[np.float64]) -> NDArray[n
             triangles = scene.file_triangles
         # one group of every face (a plain mesh): the file's corners, not a copy
         tri = triangles if len(faces) == len(triangles) else triangles[faces]
-        lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
+        corners = tri.reshape(-1, 3)  # coordinate by coordinate: a reduction down the
+        # first axis of (3 T, 3) corners is ten times slower
+        lo = np.array([corners[:, k].min() for k in range(3)])
+        hi = np.array([corners[:, k].max() for k in range(3)])
+        del corners
         boxed = np.flatnonzero(((points > lo) & (points < hi)).all(axis=1) & ~result)
         if needs_cells(len(tri), len(boxed)):
             vertices, file_faces = scene.file_mesh
