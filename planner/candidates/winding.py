@@ -48,7 +48,11 @@ def winding_numbers(triangles: NDArray[np.float64], points: NDArray[np.float64]
     if len(points) == 0 or len(triangles) == 0:
         return np.zeros(len(points))
     if not needs_cells(len(triangles), len(points)):
-        return _in_threads(points, lambda chunk: _direct(triangles, chunk))
+        # a point's sum over many triangles is worth a thread of its own (the tripod setups
+        # around two stations: 16 points over a million faces)
+        return _in_threads(points, lambda chunk: _direct(triangles, chunk),
+                           points_per_worker=1 if len(triangles) >= _DIRECT_PAIRS // 16
+                           else 16)
     return cells_winding_numbers(winding_cells(triangles), points)
 
 
@@ -93,10 +97,11 @@ def cells_winding_numbers(cells: WindingCells, points: NDArray[np.float64]
 
 
 def _in_threads(points: NDArray[np.float64],
-                kernel: Callable[[NDArray[np.float64]], NDArray[np.float64]]
-                ) -> NDArray[np.float64]:
-    """Run a nogil kernel over parts of the points on the machine's cores (same result)."""
-    workers = min(os.cpu_count() or 1, max(1, len(points) // 16))
+                kernel: Callable[[NDArray[np.float64]], NDArray[np.float64]],
+                points_per_worker: int = 16) -> NDArray[np.float64]:
+    """Run a nogil kernel over parts of the points on the machine's cores, at least
+    ``points_per_worker`` points a part (the same result: each point's sum is its own)."""
+    workers = min(os.cpu_count() or 1, max(1, len(points) // points_per_worker))
     if workers == 1:
         return np.asarray(kernel(points))
     bounds = np.linspace(0, len(points), workers + 1).astype(int)
