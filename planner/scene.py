@@ -379,6 +379,19 @@ def longest_edges_m(vertices: FloatArray, faces: IndexArray) -> FloatArray:
     return edge_m
 
 
+def compact_indices(indices: NDArray[np.integer[Any]], size: int
+                    ) -> tuple[NDArray[np.int64], NDArray[np.int32]]:
+    """The values of ``indices`` (any shape, each in ``range(size)``) ascending, once each,
+    and ``indices`` renumbered into them (int32): ``np.unique(indices,
+    return_inverse=True)`` without its sort, by a mark over ``range(size)`` (a mesh's
+    faces: millions of indices into a few million vertices)."""
+    used = np.zeros(size, bool)
+    used[indices] = True
+    renumber = np.cumsum(used, dtype=np.int32)
+    renumber -= 1
+    return np.flatnonzero(used), renumber[indices]
+
+
 def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
               split: NDArray[np.bool_] | None = None
               ) -> tuple[FloatArray, IndexArray, IndexArray] | None:
@@ -405,8 +418,7 @@ def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
         """(v, 3) vertices, (f, 3) faces (local indices) and (f,) file-order source face
         (within the block) of the pieces of faces ``start:stop``, in file order."""
         start, stop = block
-        used, local = np.unique(faces[start:stop], return_inverse=True)
-        local = local.reshape(-1, 3)
+        used, local = compact_indices(faces[start:stop], len(vertices))  # local: (f, 3)
         # the block's faces to split (all, or those of ``split``); the others pass through
         cut: slice | NDArray[np.intp] = (
             slice(None) if split is None else np.flatnonzero(split[start:stop]))
