@@ -156,6 +156,17 @@ class Scene:
             object.__setattr__(scene, name, _frozen(values))
         return scene
 
+    def replaced(self, **changes: Any) -> Scene:
+        """``dataclasses.replace`` for fields other than ``vertices`` and ``faces``: the
+        faces' centroids, normals and areas are the same, so they are kept rather than
+        derived again (a million faces: 0.35 CPU s)."""
+        if {"vertices", "faces"} & changes.keys():
+            raise ValueError("replaced keeps the vertices and faces; build a new Scene")
+        fields = {spec.name: getattr(self, spec.name) for spec in dataclasses.fields(self)
+                  if spec.init}
+        return Scene.with_face_values(self.centroids, self.normals, self.areas,
+                                      **{**fields, **changes})
+
     def _check(self) -> None:
         """Checks the fields and makes the arrays read-only (int32 indices)."""
         if max(len(self.vertices), len(self.faces), len(self.groups)) >= 2**31 - 1:
@@ -348,8 +359,8 @@ def remesh(scene: Scene, max_edge_m: float, split: NDArray[np.bool_] | None = No
     """
     pieces = subdivide(scene.vertices, scene.faces, max_edge_m, split)
     if pieces is None:
-        return scene if scene.split_max_edge_m is None else dataclasses.replace(
-            scene, split_max_edge_m=None)
+        return scene if scene.split_max_edge_m is None else scene.replaced(
+            split_max_edge_m=None)
     new_vertices, new_faces, index = pieces
     file_vertices, file_faces = scene.file_mesh
     return Scene(
