@@ -409,9 +409,11 @@ def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
     """The pieces of :func:`remesh` as arrays: (V', 3) vertices, (F', 3) int32 faces and
     (F',) int32 the index of each piece's face in the (F, 3) ``faces``; None when no face of
     ``split`` (default: every face) is longer than ``max_edge_m``."""
-    edge_m = longest_edges_m(vertices, faces)
-    if split is not None:
-        edge_m[~split] = 0.0  # kept whole: as if already small enough
+    if split is None:
+        edge_m = longest_edges_m(vertices, faces)
+    else:  # the others are kept whole: as if already small enough
+        edge_m = np.zeros(len(faces))
+        edge_m[split] = longest_edges_m(vertices, faces[split])
     longest = float(edge_m.max())
     if longest <= max_edge_m:
         return None

@@ -885,7 +885,8 @@ def _upright_samples(scene: Scene, target_file: NDArray[np.bool_]) -> NDArray[np
     steep = math.cos(math.radians(_MAX_FLOOR_SLOPE_DEG))
     upright = (length > 0) & (np.abs(normal[:, 2]) < steep * np.maximum(length, 1e-300))
     triangles = triangles[upright]
-    longest = np.linalg.norm(triangles - np.roll(triangles, 1, axis=1), axis=2).max(axis=1)
+    edge_m = np.linalg.norm(triangles - np.roll(triangles, 1, axis=1), axis=2)  # (T, 3)
+    longest = np.maximum(np.maximum(edge_m[:, 0], edge_m[:, 1]), edge_m[:, 2])
     steps = np.clip(np.ceil(longest / _BUILDING_SAMPLE_M), 1, 64).astype(np.int64)
     parts: list[NDArray[np.float64]] = []
     for k in np.unique(steps):
@@ -909,12 +910,18 @@ def _first_in_each_cube(points: NDArray[np.float64], size_m: float) -> NDArray[n
     cube = np.floor(points / size_m).astype(np.int64)  # (N, 3)
     if len(cube) == 0:
         return np.zeros(0, np.int64)
-    low = cube.min(axis=0)
-    span = cube.max(axis=0) - low + 1  # (3,) cubes along each axis
+    # the bounds column by column (a reduction down axis 0 of (N, 3) is ten times slower)
+    low = np.array([cube[:, k].min() for k in range(3)])
+    span = np.array([cube[:, k].max() for k in range(3)]) - low + 1  # (3,) cubes per axis
     if float(span[0]) * float(span[1]) * float(span[2]) < 2.0 ** 62:
         cube -= low
         key = (cube[:, 0] * span[1] + cube[:, 1]) * span[2] + cube[:, 2]
-        _, first = np.unique(key, return_index=True)
+        # the first point in a cube starts a run of points in that cube: only the runs'
+        # first points are sorted (a face's corners and a prop's neighbouring faces share
+        # their cube: 3 M corners, some ten thousand runs)
+        runs = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        _, first_run = np.unique(key[runs], return_index=True)
+        first = runs[first_run]
     else:
         _, first = np.unique(cube, axis=0, return_index=True)
     return np.sort(first).astype(np.int64)
