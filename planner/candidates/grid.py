@@ -37,7 +37,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 from shapely import Polygon, intersects_xy
 
-from planner.candidates.scratch import keep, kept_or_none, prefetch, reused
+from planner.candidates.scratch import keep, kept_or_none, reused
 from planner.candidates.winding import (
     cells_winding_numbers,
     coordinate_ranks,
@@ -233,8 +233,6 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
         dropped["outside_area_of_interest"] = int((~inside).sum())
         xy = xy[inside]
     if polygon is None and len(xy):  # the building, not the site: a quick first cut
-        # on_the_building's samples are made on the other core while the floors are found
-        prefetch_building_samples(scene, spec)
         near = near_targets_xy(scene, spec, xy)
         dropped["outside_area_of_interest"] += int((~near).sum())
         xy = xy[near]
@@ -808,7 +806,8 @@ def on_the_building(scene: Scene, spec: PlanSpec, positions: NDArray[np.float64]
     face, _ = caster.first_hit(positions, up)
     keep = face >= 0
     keep[keep] = target[face[keep]]
-    samples, tree = reused(scene, _samples_key(target), lambda: _building_samples(scene, target))
+    samples, tree = reused(scene, ("upright samples", target.tobytes()),
+                           lambda: _building_samples(scene, target))
     rest = np.flatnonzero(~keep)
     if len(samples) == 0 or len(rest) == 0 or reach <= 0 or tree is None:
         return keep
@@ -864,18 +863,6 @@ def near_targets_xy(scene: Scene, spec: PlanSpec, xy: NDArray[np.float64]
     ij = np.floor((xy - origin) / cell).astype(np.int64)
     near: NDArray[np.bool_] = covered[ij[:, 0], ij[:, 1]]
     return near
-
-
-def prefetch_building_samples(scene: Scene, spec: PlanSpec) -> None:
-    """Start making :func:`on_the_building`'s samples of ``scene`` under ``spec`` on a
-    thread (within :func:`planner.candidates.scratch.stage_scratch`; else nothing)."""
-    target = np.asarray(FaceLimits.from_spec(spec, scene).target)
-    prefetch(scene, _samples_key(target), lambda: _building_samples(scene, target))
-
-
-def _samples_key(target: NDArray[np.bool_]) -> tuple[str, bytes]:
-    """The scratch key of the upright samples of the (F,) ``target`` faces."""
-    return ("upright samples", target.tobytes())
 
 
 def _building_samples(scene: Scene, target: NDArray[np.bool_]

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import weakref
 from collections.abc import Callable, Hashable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
@@ -23,49 +22,27 @@ from planner.scene import Scene
 T = TypeVar("T")
 
 _SCRATCH: weakref.WeakKeyDictionary[Scene, dict[Hashable, Any]] = weakref.WeakKeyDictionary()
-# per scene within stage_scratch: the thread that makes what prefetch asked for
-_MAKERS: weakref.WeakKeyDictionary[Scene, ThreadPoolExecutor] = weakref.WeakKeyDictionary()
 
 
 @contextmanager
 def stage_scratch(scene: Scene) -> Iterator[None]:
     """Within the block, :func:`reused` keeps what it makes for ``scene``; dropped at its
-    end (after what :func:`prefetch` started has finished)."""
+    end."""
     _SCRATCH[scene] = {}
     try:
         yield
     finally:
-        maker = _MAKERS.pop(scene, None)
-        if maker is not None:
-            maker.shutdown(wait=True, cancel_futures=True)
         _SCRATCH.pop(scene, None)
-
-
-def prefetch(scene: Scene, key: Hashable, make: Callable[[], Any]) -> None:
-    """Start ``make()`` on a thread of its own within :func:`stage_scratch` of ``scene``,
-    for :func:`reused` of ``key`` to take when it is asked for (it waits for it then):
-    numpy releases the GIL, so the other core makes it while the stage goes on. The value
-    is what ``make()`` gives, whichever thread made it. Nothing outside a block."""
-    kept = _SCRATCH.get(scene)
-    if kept is None or key in kept:
-        return
-    maker = _MAKERS.get(scene)
-    if maker is None:
-        maker = _MAKERS[scene] = ThreadPoolExecutor(max_workers=1)
-    kept[key] = maker.submit(make)
 
 
 def reused(scene: Scene, key: Hashable, make: Callable[[], T]) -> T:
     """``make()``, made once per ``key`` within :func:`stage_scratch` of ``scene`` (every
-    call outside one), or taken from :func:`prefetch`. ``make`` must depend on the scene
-    and ``key`` alone."""
+    call outside one). ``make`` must depend on the scene and ``key`` alone."""
     kept = _SCRATCH.get(scene)
     if kept is None:
         return make()
     if key not in kept:
         kept[key] = make()
-    elif isinstance(kept[key], Future):  # prefetched: made (or raised) on its thread
-        kept[key] = kept[key].result()
     value: T = kept[key]
     return value
 

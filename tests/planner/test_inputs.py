@@ -14,13 +14,8 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from planner.candidates.grid import (
-    generate_grid,
-    inside_closed_groups,
-    on_the_building,
-    prefetch_building_samples,
-)
-from planner.candidates.scratch import kept_or_none, prefetch, reused, stage_scratch
+from planner.candidates.grid import generate_grid, inside_closed_groups, on_the_building
+from planner.candidates.scratch import kept_or_none, stage_scratch
 from planner.candidates.winding import (
     _Cells,
     _direct,
@@ -233,40 +228,12 @@ def test_the_candidate_stage_makes_what_it_derives_from_the_scene_once(
         through_cells = inside_closed_groups(one_group, few)
         on_first = on_the_building(one_group, spec, points, floors, caster)
         on_again = on_the_building(one_group, spec, points, floors, caster)
-    with stage_scratch(one_group):  # the samples made on another thread, asked for later
-        prefetch_building_samples(one_group, spec)
-        on_prefetched = on_the_building(one_group, spec, points, floors, caster)
     assert kept_or_none(one_group, ("winding cells", 0)) is None
     np.testing.assert_array_equal(many, alone[0])
     np.testing.assert_array_equal(through_cells, alone[1])
     assert alone[0].any() and not alone[0].all()
     np.testing.assert_array_equal(on_first, on_alone)
     np.testing.assert_array_equal(on_again, on_alone)
-    np.testing.assert_array_equal(on_prefetched, on_alone)
-
-
-def test_what_is_prefetched_is_made_once_and_its_error_reaches_the_caller() -> None:
-    scene = build_scene(np.eye(3), np.array([[0, 1, 2]]))
-    made: list[int] = []
-
-    def make() -> int:
-        made.append(1)
-        return 7
-
-    def broken() -> int:
-        raise ValueError("no samples")
-
-    with stage_scratch(scene):
-        prefetch(scene, "value", make)
-        prefetch(scene, "value", make)  # already asked for
-        prefetch(scene, "broken", broken)
-        assert reused(scene, "value", make) == 7
-        assert reused(scene, "value", make) == 7
-        with pytest.raises(ValueError, match="no samples"):
-            reused(scene, "broken", broken)
-    assert made == [1]
-    prefetch(scene, "value", make)  # outside a block: nothing is made
-    assert made == [1]
 
 
 @pytest.mark.parametrize(("name", "considered", "kept", "dropped"), [
