@@ -40,6 +40,7 @@ from shapely import Polygon, intersects_xy
 from planner.candidates.scratch import keep, kept_or_none, reused
 from planner.candidates.winding import (
     cells_winding_numbers,
+    coordinate_ranks,
     needs_cells,
     winding_cells,
     winding_numbers,
@@ -49,7 +50,7 @@ from planner.limits import FaceLimits
 from planner.memory import release_freed_memory
 from planner.parameters import PlanSpec
 from planner.rays import RayCaster
-from planner.scene import Scene, subdivide
+from planner.scene import Scene, longest_edges_m, subdivide
 from planner.threads import in_block_order
 from planner.walkgraph import HEADROOM_M, KNEE_HEIGHT_M, build_walk_graph, cell_pairs
 
@@ -65,6 +66,9 @@ _MAX_FLOOR_SLOPE_DEG = 30.0
 _POINTS_PER_QUERY = 256
 # faces whose footprint closer_than measures at a time (bounds its (B, 3, 2) corners)
 _FOOTPRINTS_PER_BLOCK = 1 << 20
+# closer_than: a face's centre this much nearer than the radius puts the face within it,
+# whatever the rounding of the distances (far below a micrometre on a model of kilometres)
+_SURE_MARGIN_M = 1e-6
 # floor_levels "all": surfaces followed up each ray, the step past each, the height gap
 # that separates two levels, and the least area of a level (a table top or a stair tread
 # is smaller; a landing of 2 x 2 m is not)
@@ -844,19 +848,23 @@ def near_targets_xy(scene: Scene, spec: PlanSpec, xy: NDArray[np.float64]
     origin = xy.min(axis=0) - cell
     dims = np.floor((xy.max(axis=0) - origin) / cell).astype(np.int64) + 2
     count = np.zeros(dims + 1, np.int64)  # a difference array of the boxes, summed below
+    flat = count.reshape(-1)  # (count's cells,) a view: adding to it adds to count
     for start in range(0, len(faces), _FOOTPRINTS_PER_BLOCK):
         block = faces[start:start + _FOOTPRINTS_PER_BLOCK][target[start:start
                                                                   + _FOOTPRINTS_PER_BLOCK]]
         corners = vertices[block][:, :, :2]
-        first = np.floor((corners.min(axis=1) - reach - origin) / cell).astype(np.int64)
-        last = np.floor((corners.max(axis=1) + reach - origin) / cell).astype(np.int64) + 1
+        least, most = corner_extremes(corners)
+        first = np.floor((least - reach - origin) / cell).astype(np.int64)
+        last = np.floor((most + reach - origin) / cell).astype(np.int64) + 1
         inside = (last > 0).all(axis=1) & (first < dims).all(axis=1)
         first = np.clip(first[inside], 0, dims)
         last = np.clip(last[inside], 0, dims)
-        np.add.at(count, (first[:, 0], first[:, 1]), 1)
-        np.add.at(count, (last[:, 0], first[:, 1]), -1)
-        np.add.at(count, (first[:, 0], last[:, 1]), -1)
-        np.add.at(count, (last[:, 0], last[:, 1]), 1)
+        # the four corners of each box, counted by bincount over the flat array
+        # (np.add.at of 4 x B elements is several times slower, the sums the same)
+        width = int(dims[1]) + 1
+        for rows, cols, sign in ((first, first, 1), (last, first, -1), (first, last, -1),
+                                 (last, last, 1)):
+            flat += sign * np.bincount(rows[:, 0] * width + cols[:, 1], minlength=len(flat))
     covered = count.cumsum(axis=0).cumsum(axis=1) > 0
     ij = np.floor((xy - origin) / cell).astype(np.int64)
     near: NDArray[np.bool_] = covered[ij[:, 0], ij[:, 1]]
@@ -883,7 +891,8 @@ def _upright_samples(scene: Scene, target_file: NDArray[np.bool_]) -> NDArray[np
     steep = math.cos(math.radians(_MAX_FLOOR_SLOPE_DEG))
     upright = (length > 0) & (np.abs(normal[:, 2]) < steep * np.maximum(length, 1e-300))
     triangles = triangles[upright]
-    longest = np.linalg.norm(triangles - np.roll(triangles, 1, axis=1), axis=2).max(axis=1)
+    edge_m = np.linalg.norm(triangles - np.roll(triangles, 1, axis=1), axis=2)  # (T, 3)
+    longest = np.maximum(np.maximum(edge_m[:, 0], edge_m[:, 1]), edge_m[:, 2])
     steps = np.clip(np.ceil(longest / _BUILDING_SAMPLE_M), 1, 64).astype(np.int64)
     parts: list[NDArray[np.float64]] = []
     for k in np.unique(steps):
@@ -893,13 +902,35 @@ def _upright_samples(scene: Scene, target_file: NDArray[np.bool_]) -> NDArray[np
         tri = triangles[steps == k]
         points = (tri[:, None, 0] + u[None, :, None] * (tri[:, None, 1] - tri[:, None, 0])
                   + v[None, :, None] * (tri[:, None, 2] - tri[:, None, 0]))
-        cell = np.floor(points.reshape(-1, 3) / _BUILDING_SAMPLE_M).astype(np.int64)
-        _, first = np.unique(cell, axis=0, return_index=True)
-        parts.append(points.reshape(-1, 3)[np.sort(first)])
+        points = points.reshape(-1, 3)
+        parts.append(points[_first_in_each_cube(points, _BUILDING_SAMPLE_M)])
     samples = np.concatenate(parts)
-    cell = np.floor(samples / _BUILDING_SAMPLE_M).astype(np.int64)
-    _, first = np.unique(cell, axis=0, return_index=True)
-    return np.asarray(samples[np.sort(first)])
+    return np.asarray(samples[_first_in_each_cube(samples, _BUILDING_SAMPLE_M)])
+
+
+def _first_in_each_cube(points: NDArray[np.float64], size_m: float) -> NDArray[np.int64]:
+    """(k,) ascending: the first of the (N, 3) points in each cube of ``size_m`` that holds
+    any. The cubes' three integer coordinates are packed into one int64 key where they fit
+    (a stable sort of N keys, not of N rows of three): the same points as ``np.unique`` of
+    the rows with ``return_index``."""
+    cube = np.floor(points / size_m).astype(np.int64)  # (N, 3)
+    if len(cube) == 0:
+        return np.zeros(0, np.int64)
+    # the bounds column by column (a reduction down axis 0 of (N, 3) is ten times slower)
+    low = np.array([cube[:, k].min() for k in range(3)])
+    span = np.array([cube[:, k].max() for k in range(3)]) - low + 1  # (3,) cubes per axis
+    if float(span[0]) * float(span[1]) * float(span[2]) < 2.0 ** 62:
+        cube -= low
+        key = (cube[:, 0] * span[1] + cube[:, 1]) * span[2] + cube[:, 2]
+        # the first point in a cube starts a run of points in that cube: only the runs'
+        # first points are sorted (a face's corners and a prop's neighbouring faces share
+        # their cube: 3 M corners, some ten thousand runs)
+        runs = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+        _, first_run = np.unique(key[runs], return_index=True)
+        first = runs[first_run]
+    else:
+        _, first = np.unique(cube, axis=0, return_index=True)
+    return np.sort(first).astype(np.int64)
 
 
 def place_on_floor(
@@ -1019,10 +1050,10 @@ def closer_than(
     for start in range(0, scene.n_faces, _FOOTPRINTS_PER_BLOCK):
         block_faces = scene.faces[start:start + _FOOTPRINTS_PER_BLOCK]
         corner_z = scene.vertices[block_faces, 2]
-        low, high = corner_z.min(axis=1), corner_z.max(axis=1)  # (B,) each
+        low, high = corner_extremes(corner_z)  # (B,) each
         keep = np.flatnonzero(_in_spans(low, high, span_low_m, span_high_m))
         corner_xy = scene.vertices[block_faces[keep], :2]  # (k, 3, 2): the faces kept so far
-        keep = keep[near.any_in(corner_xy.min(axis=1), corner_xy.max(axis=1))]
+        keep = keep[near.any_in(*corner_extremes(corner_xy))]
         parts.append(((keep + start).astype(np.int32), low[keep], high[keep]))
     useful = np.concatenate([p[0] for p in parts])  # (U,) the faces kept
     z_low = np.concatenate([p[1] for p in parts])  # (U,) their lowest corner
@@ -1032,15 +1063,27 @@ def closer_than(
     if scene.split_max_edge_m is not None:
         # a scene still to be split: the obstacles are the pieces a full split gives (a
         # piece reaches into the span over less than its whole face), split here for
-        # these faces only
-        pieces = subdivide(vertices, faces[useful], scene.split_max_edge_m)
+        # these faces only. A face no longer than split_max_edge_m is its own one piece
+        # (the split leaves it whole): only the longer ones go through the split, not the
+        # million small faces of a furnished interior beside them
+        long = longest_edges_m(vertices, faces[useful]) > scene.split_max_edge_m  # (U,)
+        pieces = subdivide(vertices, faces[useful[long]], scene.split_max_edge_m) \
+            if long.any() else None
         if pieces is not None:
-            vertices, faces, _ = pieces
-            corner_z = vertices[faces, 2]  # (pieces, 3)
-            low, high = corner_z.min(axis=1), corner_z.max(axis=1)
+            piece_vertices, piece_faces, _ = pieces
+            corner_z = piece_vertices[piece_faces, 2]  # (pieces, 3)
+            low, high = corner_extremes(corner_z)
             keep = np.flatnonzero(_in_spans(low, high, span_low_m, span_high_m))
-            useful, z_low, z_high = keep.astype(np.int32), low[keep], high[keep]
-            del corner_z, low, high
+            whole = ~long
+            # the whole faces, then the pieces that reach into a span (their corners
+            # after the scene's own)
+            faces = np.concatenate([faces[useful[whole]],
+                                    piece_faces[keep] + np.int32(len(vertices))])
+            vertices = np.concatenate([vertices, piece_vertices])
+            z_low = np.concatenate([z_low[whole], low[keep]])
+            z_high = np.concatenate([z_high[whole], high[keep]])
+            useful = np.arange(len(faces), dtype=np.int32)
+            del corner_z, low, high, piece_vertices, piece_faces
             release_freed_memory()  # the split's scratch, freed into its threads' heaps
 
     def footprints(index: NDArray[np.int64]) -> NDArray[np.float64]:
@@ -1076,6 +1119,9 @@ def closer_than(
             (the class's tree, reach and faces bound here: the chunks are all read
             before the next class)."""
             chunk = np.arange(s, min(s + _POINTS_PER_QUERY, len(points)))
+            chunk = chunk[~result[chunk]]  # close to a face of an earlier class: decided
+            if len(chunk) == 0:
+                return np.zeros(0, np.int64)
             lists = tree.query_ball_point(points[chunk, :2], reach)
             counts = np.array([len(x) for x in lists])
             if counts.sum() == 0:
@@ -1087,8 +1133,16 @@ def closer_than(
             span_high = points[point_of_pair, 2] + radius_m
             in_span = (z_high[face_of_pair] >= span_low) & (z_low[face_of_pair] <= span_high)
             p, f = point_of_pair[in_span], face_of_pair[in_span]
-            gap = _distance_to_triangles_xy(points[p, :2], footprints(f))
-            close: NDArray[np.int64] = p[gap < radius_m]
+            # a face whose footprint's centre lies within radius_m of the axis, by more than
+            # any rounding, is closer than radius_m (the centre is on the footprint): such a
+            # point is close without the exact distance to its other faces (a counter top
+            # among a million props: most of the pairs)
+            offset = points[p, :2] - centre_xy[f]
+            centre_near = np.hypot(offset[:, 0], offset[:, 1]) < radius_m - _SURE_MARGIN_M
+            sure = np.unique(p[centre_near])
+            rest = np.flatnonzero(~np.isin(p, sure))
+            gap = _distance_to_triangles_xy(points[p[rest], :2], footprints(f[rest]))
+            close: NDArray[np.int64] = np.concatenate([sure, p[rest][gap < radius_m]])
             return close
 
         # chunks of points on the thread pool, each querying the tree on its own thread
@@ -1135,6 +1189,17 @@ class _NearPoints:
         return held
 
 
+def corner_extremes(corners: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The least and the most of the (B, 3, ...) corners of B faces, coordinate by
+    coordinate: (B, ...) each, as ``corners.min(axis=1)`` and ``max(axis=1)`` (two
+    element-wise passes over the corners; a reduction down the short middle axis is
+    several times slower)."""
+    first, second, third = corners[:, 0], corners[:, 1], corners[:, 2]
+    return (np.minimum(np.minimum(first, second), third),
+            np.maximum(np.maximum(first, second), third))
+
+
 def _distance_to_triangles_xy(
     points: NDArray[np.float64], triangles: NDArray[np.float64]
 ) -> NDArray[np.float64]:
@@ -1171,6 +1236,7 @@ def inside_closed_groups(scene: Scene, points: NDArray[np.float64]) -> NDArray[n
     """
     result = np.zeros(len(points), bool)
     triangles: NDArray[np.float64] | None = None  # made when a group is not kept
+    vertex_rank: NDArray[np.int64] | None = None  # made when a group's cells are built
     face_group = scene.file_face_group
     for g in range(len(scene.groups)):
         kept = kept_or_none(scene, ("winding cells", g))
@@ -1186,10 +1252,17 @@ def inside_closed_groups(scene: Scene, points: NDArray[np.float64]) -> NDArray[n
             triangles = scene.file_triangles
         # one group of every face (a plain mesh): the file's corners, not a copy
         tri = triangles if len(faces) == len(triangles) else triangles[faces]
-        lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
+        corners = tri.reshape(-1, 3)  # coordinate by coordinate: a reduction down the
+        # first axis of (3 T, 3) corners is ten times slower
+        lo = np.array([corners[:, k].min() for k in range(3)])
+        hi = np.array([corners[:, k].max() for k in range(3)])
+        del corners
         boxed = np.flatnonzero(((points > lo) & (points < hi)).all(axis=1) & ~result)
         if needs_cells(len(tri), len(boxed)):
-            cells = winding_cells(tri)
+            vertices, file_faces = scene.file_mesh
+            if vertex_rank is None:  # the corners' order by the file's V vertices
+                vertex_rank = coordinate_ranks(vertices)
+            cells = winding_cells(tri, vertex_rank[file_faces[faces]])
             keep(scene, ("winding cells", g), (lo, hi, cells))
             result[boxed] = cells_winding_numbers(cells, points[boxed]) > 0.5
         else:

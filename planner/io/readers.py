@@ -11,7 +11,6 @@ Group labels per face: OBJ ``g`` (or ``o``) names, glTF node names, the PLY face
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import re
 from pathlib import Path
@@ -138,7 +137,7 @@ def read_scene(
         scene.metadata.setdefault("warnings", []).append(warning)
     if max_edge_m is not None:
         scene = (remesh(scene, max_edge_m) if split_faces == "all"
-                 else dataclasses.replace(scene, split_max_edge_m=max_edge_m))
+                 else scene.replaced(split_max_edge_m=max_edge_m))
     return scene
 
 

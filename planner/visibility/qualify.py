@@ -104,7 +104,8 @@ class Sight:
         scene = remesh(scene, scene.split_max_edge_m, split=split)
         limits = FaceLimits.from_spec(self.spec, scene)
         return Sight(scene, self.spec, limits,
-                     make_occlusion(scene, limits.occludes, self.backend, file_faces=True),
+                     make_occlusion(scene, limits.occludes, self.backend, file_faces=True,
+                                    like=self.occlusion),
                      self.backend)
 
     def qualifier(self, most_tests: int = TESTS_PER_BLOCK

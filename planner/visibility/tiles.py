@@ -58,7 +58,7 @@ from scipy.spatial import cKDTree
 from planner.limits import FaceLimits
 from planner.memory import release_freed_memory
 from planner.rays.embree import BvhFaces, BvhPart, EmbreeBvh, EmbreeOcclusion
-from planner.scene import Scene
+from planner.scene import Scene, compact_indices
 from planner.visibility.bundles import bundle_culler
 from planner.visibility.cells import PointGrid
 from planner.visibility.coverage import QualifiedPairs
@@ -237,7 +237,7 @@ class TileCutter:
         parts = target_parts(targets, self.scene.source_face, most_faces)
         # the tile's vertices, renumbered once: a part's are then renumbered among these,
         # not among every vertex of the model
-        corners = _compact(self.scene.faces[targets], len(self.scene.vertices))
+        corners = compact_indices(self.scene.faces[targets], len(self.scene.vertices))
         while parts:
             ids = parts.pop(0)
             yield self._cut(candidates, positions, targets[ids], detached,
@@ -328,10 +328,10 @@ def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool,
     among a subset of the vertices, the (u,) ascending vertex ids of the subset and the
     (f, 3) int32 corners as indices into it (the same part, renumbered among those)."""
     if corners is None:
-        used, triangles = _compact(scene.faces[faces], len(scene.vertices))
+        used, triangles = compact_indices(scene.faces[faces], len(scene.vertices))
     else:
         subset, among = corners
-        used, triangles = _compact(among, len(subset))
+        used, triangles = compact_indices(among, len(subset))
         used = subset[used]
     vertices = scene.vertices[used]
     if scene.file_faces is not None and scene.file_vertices is not None:
@@ -341,8 +341,8 @@ def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool,
             source = scene.source_face[faces]
         else:
             file_ids = np.unique(scene.source_face[faces]).astype(np.int64)
-            file_used, file_faces = _compact(scene.file_faces[file_ids],
-                                             len(scene.file_vertices))
+            file_used, file_faces = compact_indices(scene.file_faces[file_ids],
+                                                    len(scene.file_vertices))
             file_vertices = scene.file_vertices[file_used]
             source = np.searchsorted(file_ids, scene.source_face[faces]).astype(np.int32)
         fields: dict[str, Any] = {
@@ -361,19 +361,6 @@ def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool,
     return Scene.with_face_values(
         scene.centroids[faces], scene.normals[faces], scene.areas[faces],
         vertices=vertices, faces=triangles, groups=scene.groups, **fields)
-
-
-def _compact(indices: NDArray[np.int32], size: int) -> tuple[NDArray[np.int64],
-                                                            NDArray[np.int32]]:
-    """The values of ``indices`` (any shape, each in ``range(size)``) ascending, once each,
-    and ``indices`` renumbered into them (int32): ``np.unique(indices,
-    return_inverse=True)`` without its sort, by a mark over ``range(size)`` (a tile's
-    vertices: millions of indices into a few million vertices)."""
-    used = np.zeros(size, bool)
-    used[indices] = True
-    renumber = np.cumsum(used, dtype=np.int32)
-    renumber -= 1
-    return np.flatnonzero(used), renumber[indices]
 
 
 def _within(xyz: NDArray[np.float64], points: NDArray[np.integer[Any]],

@@ -242,7 +242,8 @@ def test_tile_cut_bounds_decide_as_the_k_d_tree() -> None:
     renumbered as ``np.unique`` would."""
     from scipy.spatial import cKDTree
 
-    from planner.visibility.tiles import _compact, _within
+    from planner.scene import compact_indices
+    from planner.visibility.tiles import _within
 
     rng = np.random.default_rng(7)
     for _ in range(10):
@@ -254,7 +255,7 @@ def test_tile_cut_bounds_decide_as_the_k_d_tree() -> None:
                          positions.max(axis=0), 25.0)
         assert np.array_equal(within, np.isfinite(distance))
         indices = rng.integers(0, 5_000, (3_000, 3)).astype(np.int32)
-        used, renumbered = _compact(indices, 5_000)
+        used, renumbered = compact_indices(indices, 5_000)
         unique, inverse = np.unique(indices, return_inverse=True)
         assert np.array_equal(used, unique)
         assert np.array_equal(renumbered, inverse.reshape(-1, 3))

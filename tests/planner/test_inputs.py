@@ -16,7 +16,13 @@ from scipy.spatial.transform import Rotation
 
 from planner.candidates.grid import generate_grid, inside_closed_groups, on_the_building
 from planner.candidates.scratch import kept_or_none, stage_scratch
-from planner.candidates.winding import _Cells, _direct, winding_numbers
+from planner.candidates.winding import (
+    _Cells,
+    _direct,
+    coordinate_ranks,
+    winding_cells,
+    winding_numbers,
+)
 from planner.errors import ParameterError
 from planner.io.readers import read_scene
 from planner.outputs.report import plan_document, write_outputs
@@ -172,6 +178,29 @@ def test_winding_numbers_through_cells_equal_the_direct_sum(scenes_dir: Path) ->
     assert len(cells.caps) < one_group.n_faces  # far cells cost their boundary only
     np.testing.assert_allclose(cells.winding(points), direct, atol=1e-9)
     assert ((direct > 0.5) | (direct < -0.5)).any()  # the sample hits inside and outside
+
+
+def test_winding_cells_from_the_meshs_vertex_ranks_are_the_cells_of_the_corners(
+        scenes_dir: Path) -> None:
+    """The cells built with the corners ordered through the mesh's vertices (a vertex
+    repeated at the same coordinates, as files have them, shares its rank) are the same
+    arrays as those built from the corners alone, so every winding number is the same."""
+    scene = read_scene(scenes_dir / "hall-full" / "hall.obj", max_edge_m=None)
+    # every face with its own three vertices (a triangle soup), the first corners shared
+    soup = scene.vertices[scene.faces].reshape(-1, 3)
+    faces = np.arange(len(soup)).reshape(-1, 3)
+    faces[: len(faces) // 2] = scene.faces[: len(faces) // 2]
+    vertices = np.concatenate([scene.vertices, soup])
+    faces[len(faces) // 2:] += len(scene.vertices)
+    triangles = vertices[faces]
+    alone = _Cells.build(triangles)
+    ranked = winding_cells(triangles, coordinate_ranks(vertices)[faces])
+    for name in ("triangles", "face_start", "caps", "cap_start", "lo", "hi"):
+        assert np.array_equal(getattr(alone, name), getattr(ranked, name)), name
+    rng = np.random.default_rng(3)
+    lo, hi = scene.bounds
+    points = lo + rng.random((50, 3)) * (hi - lo)
+    assert np.array_equal(alone.winding(points), ranked.winding(points))
 
 
 def test_the_candidate_stage_makes_what_it_derives_from_the_scene_once(

@@ -99,6 +99,20 @@ def test_remeshing_keeps_a_map_to_the_source_faces(tmp_path: Path) -> None:
     assert remesh(scene, 10.0) is scene
 
 
+def test_a_scene_read_to_be_split_as_needed_is_the_file_with_the_split_still_to_do(
+        tmp_path: Path) -> None:
+    """The faces, their centroids, normals and areas are the file's, as read whole."""
+    path = write(tmp_path, "m.obj", OBJ)
+    whole = read_scene(path, max_edge_m=None)
+    later = read_scene(path, max_edge_m=0.2, split_faces="as_needed")
+    assert later.split_max_edge_m == 0.2 and whole.split_max_edge_m is None
+    for name in ("vertices", "faces", "centroids", "normals", "areas", "source_face"):
+        assert np.array_equal(getattr(later, name), getattr(whole, name)), name
+    assert remesh(later, 10.0).split_max_edge_m is None  # nothing longer: the faces are final
+    with pytest.raises(ValueError, match="vertices and faces"):
+        later.replaced(faces=later.faces[:1])
+
+
 @pytest.mark.parametrize(
     ("name", "data", "error", "words"),
     [
