@@ -126,6 +126,25 @@ def cpu_s() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
+# the plan's stages (result.stats.seconds) whose work runs as tasks on the cluster
+FANNED_STAGES = ("visibility", "overlap")
+CORES_REASONED = (16,)
+
+
+def task_seconds(records: list[dict[str, Any]]) -> dict[str, tuple[int, float, float]]:
+    """Per kind of task (its name in the key, ``scanplan-<name>-<token>-<n>``): how many
+    ran, their compute seconds in all and the longest's, from a task stream's records
+    (``startstops``)."""
+    kinds: dict[str, list[float]] = {}
+    for record in records:
+        seconds = sum(part["stop"] - part["start"] for part in record["startstops"]
+                      if part["action"] == "compute")
+        key = str(record["key"])
+        name = key.split("-")[1] if key.startswith("scanplan-") else key
+        kinds.setdefault(name, []).append(seconds)
+    return {name: (len(times), sum(times), max(times)) for name, times in kinds.items()}
+
+
 def _plan_files(model: Path, params: dict[str, Any], out: Path, scheduler: str | None
                 ) -> dict[str, Any]:
     from planner.io.readers import read_scene
@@ -134,6 +153,7 @@ def _plan_files(model: Path, params: dict[str, Any], out: Path, scheduler: str |
     from planner.pipeline import plan
 
     spec = PlanSpec.from_mapping(params)
+    cpu_started = cpu_s()  # the client plans once per cluster size in one process
     scene = read_scene(model, max_edge_m=spec.max_edge_m, split_faces="as_needed")
     started = time.perf_counter()
     result = plan(scene, spec, dask_scheduler=scheduler)
@@ -144,7 +164,7 @@ def _plan_files(model: Path, params: dict[str, Any], out: Path, scheduler: str |
             "candidates": len(result.candidates), "pairs": result.table.n_pairs,
             "stages": {k: round(v, 2) for k, v in result.stats.seconds.items()},
             "files": sorted(p.name for p in written), "peak_mib": peak_mib(),
-            "cpu_s": cpu_s()}
+            "cpu_s": cpu_s() - cpu_started}
 
 
 def _single(model: Path, params: dict[str, Any], out: Path,
@@ -162,7 +182,7 @@ def main() -> None:
     parser.add_argument("--params", default="{}", help="JSON object of plan parameters")
     parser.add_argument("--out", type=Path, default=Path("/tmp/plan-distributed"))
     args = parser.parse_args()
-    from distributed import Client, LocalCluster
+    from distributed import Client, LocalCluster, get_task_stream
 
     params = json.loads(args.params)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -188,9 +208,11 @@ def main() -> None:
         with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                           dashboard_address=None) as cluster, Client(cluster) as client:
             out = args.out / f"dask-{n}"
-            fanned = _plan_files(model, params, out, cluster.scheduler_address)
+            with get_task_stream(client) as stream:
+                fanned = _plan_files(model, params, out, cluster.scheduler_address)
             peaks = client.run(peak_mib)
             cpus = client.run(cpu_s)
+            tasks = task_seconds(stream.data)
         differ = [name for name in single["files"]
                   if (args.out / "single" / name).read_bytes() != (out / name).read_bytes()]
         print(f"{n} worker(s): plan {fanned['seconds']:.1f} s; worker peaks "
@@ -201,6 +223,24 @@ def main() -> None:
               f"stages {fanned['stages']}; "
               f"{len(single['files'])} files, "
               + ("all byte-identical" if not differ else f"DIFFER: {differ}"))
+        print("  tasks: " + "; ".join(
+            f"{name} {count} tasks, {total:.1f} s computing, the longest {longest:.2f} s"
+            for name, (count, total, longest) in sorted(tasks.items())))
+        serial_s = single["seconds"] - sum(single["stages"].get(stage, 0.0)
+                                           for stage in FANNED_STAGES)
+        for cores in CORES_REASONED:
+            fanned_s = sum(max(total / cores, longest)
+                           for _, total, longest in tasks.values())
+            # the client cuts and sends every tile itself, besides the stages it runs: its
+            # CPU beyond the single machine's (which computed the tiles' work too) is a
+            # floor of the fanned stages' wall time
+            cutting_s = max(fanned["cpu_s"] - single["cpu_s"], 0.0)
+            print(f"  on {cores} one-thread workers, reasoned: about "
+                  f"{serial_s + max(fanned_s, cutting_s):.0f} s: the stages that stay on the "
+                  f"planning machine ({serial_s:.0f} s on one machine), then the tasks spread "
+                  f"evenly ({fanned_s:.0f} s, none shorter than its longest task) or the "
+                  f"client's CPU beyond one machine's ({cutting_s:.0f} s: it cuts and sends "
+                  "every tile on its own), the longer")
 
 
 if __name__ == "__main__":
