@@ -383,11 +383,27 @@ def longest_edges_m(vertices: FloatArray, faces: IndexArray) -> FloatArray:
     for first in range(0, len(faces), _DERIVE_BLOCK_FACES):
         block = faces[first:first + _DERIVE_BLOCK_FACES]
         edges = vertices[np.roll(block, 1, axis=1)] - vertices[block]  # (B, 3, 3)
-        length_m = np.linalg.norm(edges, axis=2)  # (B, 3)
-        # the longest of the three element-wise (a reduction down the short axis is slower)
-        edge_m[first:first + len(block)] = np.maximum(
-            np.maximum(length_m[:, 0], length_m[:, 1]), length_m[:, 2])
+        _, edge_m[first:first + len(block)] = corner_extremes(
+            np.linalg.norm(edges, axis=2))  # the longest of each face's (B, 3) edges
     return edge_m
+
+
+def corner_extremes(corners: NDArray[Any]) -> tuple[NDArray[Any], NDArray[Any]]:
+    """The least and the most of the (B, 3, ...) values of B faces' three corners (or
+    edges), coordinate by coordinate: (B, ...) each, as ``corners.min(axis=1)`` and
+    ``max(axis=1)`` (two element-wise passes; a reduction down the short middle axis is
+    several times slower)."""
+    first, second, third = corners[:, 0], corners[:, 1], corners[:, 2]
+    return (np.minimum(np.minimum(first, second), third),
+            np.maximum(np.maximum(first, second), third))
+
+
+def column_bounds(points: NDArray[Any]) -> tuple[NDArray[Any], NDArray[Any]]:
+    """(3,) the least and (3,) the most of the (N, 3) ``points``, column by column, as
+    ``points.min(axis=0)`` and ``max(axis=0)`` (a reduction down the long first axis of
+    an (N, 3) array is some ten times slower). N must be positive."""
+    return (np.array([points[:, k].min() for k in range(3)]),
+            np.array([points[:, k].max() for k in range(3)]))
 
 
 def compact_indices(indices: NDArray[np.integer[Any]], size: int

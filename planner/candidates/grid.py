@@ -50,7 +50,7 @@ from planner.limits import FaceLimits
 from planner.memory import release_freed_memory
 from planner.parameters import PlanSpec
 from planner.rays import RayCaster
-from planner.scene import Scene, longest_edges_m, subdivide
+from planner.scene import Scene, column_bounds, corner_extremes, longest_edges_m, subdivide
 from planner.threads import in_block_order
 from planner.walkgraph import HEADROOM_M, KNEE_HEIGHT_M, build_walk_graph, cell_pairs
 
@@ -892,7 +892,7 @@ def _upright_samples(scene: Scene, target_file: NDArray[np.bool_]) -> NDArray[np
     upright = (length > 0) & (np.abs(normal[:, 2]) < steep * np.maximum(length, 1e-300))
     triangles = triangles[upright]
     edge_m = np.linalg.norm(triangles - np.roll(triangles, 1, axis=1), axis=2)  # (T, 3)
-    longest = np.maximum(np.maximum(edge_m[:, 0], edge_m[:, 1]), edge_m[:, 2])
+    _, longest = corner_extremes(edge_m)
     steps = np.clip(np.ceil(longest / _BUILDING_SAMPLE_M), 1, 64).astype(np.int64)
     parts: list[NDArray[np.float64]] = []
     for k in np.unique(steps):
@@ -916,9 +916,8 @@ def _first_in_each_cube(points: NDArray[np.float64], size_m: float) -> NDArray[n
     cube = np.floor(points / size_m).astype(np.int64)  # (N, 3)
     if len(cube) == 0:
         return np.zeros(0, np.int64)
-    # the bounds column by column (a reduction down axis 0 of (N, 3) is ten times slower)
-    low = np.array([cube[:, k].min() for k in range(3)])
-    span = np.array([cube[:, k].max() for k in range(3)]) - low + 1  # (3,) cubes per axis
+    low, high = column_bounds(cube)
+    span = high - low + 1  # (3,) cubes per axis
     if float(span[0]) * float(span[1]) * float(span[2]) < 2.0 ** 62:
         cube -= low
         key = (cube[:, 0] * span[1] + cube[:, 1]) * span[2] + cube[:, 2]
@@ -1189,17 +1188,6 @@ class _NearPoints:
         return held
 
 
-def corner_extremes(corners: NDArray[np.float64]
-                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The least and the most of the (B, 3, ...) corners of B faces, coordinate by
-    coordinate: (B, ...) each, as ``corners.min(axis=1)`` and ``max(axis=1)`` (two
-    element-wise passes over the corners; a reduction down the short middle axis is
-    several times slower)."""
-    first, second, third = corners[:, 0], corners[:, 1], corners[:, 2]
-    return (np.minimum(np.minimum(first, second), third),
-            np.maximum(np.maximum(first, second), third))
-
-
 def _distance_to_triangles_xy(
     points: NDArray[np.float64], triangles: NDArray[np.float64]
 ) -> NDArray[np.float64]:
@@ -1252,11 +1240,7 @@ def inside_closed_groups(scene: Scene, points: NDArray[np.float64]) -> NDArray[n
             triangles = scene.file_triangles
         # one group of every face (a plain mesh): the file's corners, not a copy
         tri = triangles if len(faces) == len(triangles) else triangles[faces]
-        corners = tri.reshape(-1, 3)  # coordinate by coordinate: a reduction down the
-        # first axis of (3 T, 3) corners is ten times slower
-        lo = np.array([corners[:, k].min() for k in range(3)])
-        hi = np.array([corners[:, k].max() for k in range(3)])
-        del corners
+        lo, hi = column_bounds(tri.reshape(-1, 3))
         boxed = np.flatnonzero(((points > lo) & (points < hi)).all(axis=1) & ~result)
         if needs_cells(len(tri), len(boxed)):
             vertices, file_faces = scene.file_mesh

@@ -29,6 +29,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from planner.scene import column_bounds, corner_extremes
+
 # below this many point-triangle pairs the direct sum is cheaper than building cells
 _DIRECT_PAIRS = 4_000_000
 # up to this many points the direct sum is cheaper than building cells whatever the
@@ -155,9 +157,7 @@ class _Cells:
                 id_type = np.int64
             flat_id = flat_id.astype(id_type)
         corner_id = flat_id.reshape(-1, 3)
-        # per coordinate (a reduction down the (3T, 3) corners' first axis is slower)
-        lo_all = np.array([corners[:, k].min() for k in range(3)])
-        hi_all = np.array([corners[:, k].max() for k in range(3)])
+        lo_all, hi_all = column_bounds(corners)
         # caps cost about T / sqrt(n) per point for n triangles per cell, the cells around
         # the point about n: both balance at n = T^(2/3)
         per_cell = max(_MIN_FACES_PER_CELL, len(triangles) ** (2 / 3))
@@ -175,14 +175,11 @@ class _Cells:
         ids = corner_id[order]
         del order, flat_id, corner_id
         face_start = np.searchsorted(cell_of_face, np.arange(n_cells + 1)).astype(np.int64)
-        # each face's box from its three corners (a reduction down the middle axis of the
-        # (T, 3, 3) corners is slower), then each cell's
-        corner0, corner1, corner2 = sorted_tri[:, 0], sorted_tri[:, 1], sorted_tri[:, 2]
-        lo = np.minimum.reduceat(np.minimum(np.minimum(corner0, corner1), corner2),
-                                 face_start[:-1])
-        hi = np.maximum.reduceat(np.maximum(np.maximum(corner0, corner1), corner2),
-                                 face_start[:-1])
-        del corner0, corner1, corner2
+        # each face's box from its three corners, then each cell's
+        face_lo, face_hi = corner_extremes(sorted_tri)
+        lo = np.minimum.reduceat(face_lo, face_start[:-1])
+        hi = np.maximum.reduceat(face_hi, face_start[:-1])
+        del face_lo, face_hi
 
         # boundary: directed edges u->v that their reverse does not cancel, per cell
         u = ids.ravel()
