@@ -172,6 +172,13 @@ class MeshDoors:
         return len(self.filler_m)
 
     @property
+    def width_m(self) -> NDArray[np.float64]:
+        """(D,) each door's width: its box's horizontal diagonal."""
+        span = self.hi_m[:, :2] - self.lo_m[:, :2]  # (D, 2)
+        width: NDArray[np.float64] = np.hypot(span[:, 0], span[:, 1])
+        return width
+
+    @property
     def glazed(self) -> NDArray[np.bool_]:
         """(D,) bool: doors whose filler at knee height is thinner than a door leaf
         (``DOOR_LEAF_MIN_M``): a pane of glass down to the floor, as in a glazed door and in
@@ -179,9 +186,8 @@ class MeshDoors:
         (:func:`mesh_doors`), at least ``DOOR_CHECK_WIDTH_MIN_M`` wide (a narrower one is
         a strip of another door's opening, which a person does not pass alone). A crew
         walked through one checks that it opens."""
-        width_m = np.linalg.norm(self.hi_m[:, :2] - self.lo_m[:, :2], axis=1)
         result: NDArray[np.bool_] = ((self.filler_m < DOOR_LEAF_MIN_M)
-                                     & (width_m >= DOOR_CHECK_WIDTH_MIN_M))
+                                     & (self.width_m >= DOOR_CHECK_WIDTH_MIN_M))
         return result
 
 
@@ -525,8 +531,8 @@ def _leaf_stack(bottom_z: NDArray[np.float64], top_z: NDArray[np.float64], floor
     """(n,) bool: which of the faces spanning (n,) ``bottom_z`` to ``top_z`` are in a stack,
     with no free band wider than ``DOOR_STACK_GAP_M`` in it, from knee height over
     ``floor_z`` or below to a door's head (``DOOR_HEIGHT_M[0]`` less ``DOOR_LEAF_GAP_M``) or
-    above: the leaf (rule step 3). None: no leaf. Faces in a stack of their own over a gap
-    (the steps of a stair beside the door, in its box) are not the door's."""
+    above: the leaf (rule step 3); none is when there is no leaf. Faces in a stack of their
+    own over a gap (the steps of a stair beside the door, in its box) are not the door's."""
     if len(bottom_z) == 0:
         return np.zeros(0, bool)
     order = np.argsort(bottom_z, kind="stable")

@@ -237,12 +237,11 @@ def door_checks(scene: Scene, route: Route, doors: MeshDoors) -> tuple[DoorCheck
             seen.add(door)
             segment = int(moving[k])
             at = path[segment] + delta[segment] / length[segment] * distance[k]
-            lo, hi = doors.lo_m[door], doors.hi_m[door]
             checks.append(DoorCheck(
                 leg=number, start=leg.start, end=leg.end, door=door,
                 at=(float(at[0]), float(at[1]), float(at[2])),
                 floor_z_m=float(at[2]) - KNEE_HEIGHT_M,
-                width_m=float(np.hypot(*(hi[:2] - lo[:2]))),
+                width_m=float(doors.width_m[door]),
                 pane_m=float(doors.filler_m[door])))
     return tuple(checks)
 
