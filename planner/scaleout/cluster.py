@@ -342,38 +342,48 @@ def _tiles(cutter: TileCutter, positions: NDArray[np.float64],
             del tile
 
 
-def _merged_pairs(results: Generator[tuple[QualifiedPairs, int, int], None, None],
-                  lasts: deque[bool], on_group: Callable[[int], None]
-                  ) -> Iterator[tuple[QualifiedPairs, int, int]]:
-    """The qualified pairs of each group of candidates, as one tile of the group gives
-    them (sorted by (candidate, face)), from the ``results`` of its parts (in order,
-    ``lasts`` saying which ends a group: :func:`_tiles`), with the pairs tested and the
-    rays cast summed; ``on_group`` gets the groups read so far after each (it may raise to
-    stop: the tasks still out are cancelled)."""
-    parts: list[QualifiedPairs] = []
-    tested = rays = groups = 0
+def _by_group(results: Generator[_Result, None, None], lasts: deque[bool]
+              ) -> Generator[list[_Result], None, None]:
+    """The ``results`` of the parts (in order) gathered by group of candidates, ``lasts``
+    saying which part ends a group (:func:`_tiles`). Closing this closes ``results`` (the
+    tasks still out are cancelled)."""
+    parts: list[_Result] = []
     try:
-        for pairs, part_tested, part_rays in results:
-            parts.append(pairs)
-            tested += part_tested
-            rays += part_rays
-            del pairs
-            if not lasts.popleft():
-                continue
-            merged = parts.pop() if len(parts) == 1 else _by_candidate_and_face(parts)
-            parts.clear()
-            yield merged, tested, rays
-            del merged
-            tested = rays = 0
-            groups += 1
-            on_group(groups)
+        for result in results:
+            parts.append(result)
+            del result
+            if lasts.popleft():
+                group, parts = parts, []
+                yield group
+                del group
     finally:
         results.close()
 
 
+def _merged_pairs(results: Generator[tuple[QualifiedPairs, int, int], None, None],
+                  lasts: deque[bool], on_group: Callable[[int], None]
+                  ) -> Iterator[tuple[QualifiedPairs, int, int]]:
+    """The qualified pairs of each group of candidates, as one tile of the group gives
+    them (sorted by (candidate, face)), from the ``results`` of its parts
+    (:func:`_by_group`), with the pairs tested and the rays cast summed; ``on_group`` gets
+    the groups read so far after each (it may raise to stop: the tasks still out are
+    cancelled)."""
+    with contextlib.closing(_by_group(results, lasts)) as groups:
+        for count, parts in enumerate(groups, start=1):
+            tested = sum(part_tested for _, part_tested, _ in parts)
+            rays = sum(part_rays for _, _, part_rays in parts)
+            pairs = [part_pairs for part_pairs, _, _ in parts]
+            del parts
+            merged = pairs.pop() if len(pairs) == 1 else _by_candidate_and_face(pairs)
+            del pairs
+            yield merged, tested, rays
+            del merged
+            on_group(count)
+
+
 def _by_candidate_and_face(parts: list[QualifiedPairs]) -> QualifiedPairs:
     """The pairs of ``parts`` (of one group of candidates, their faces apart) in one,
-    sorted by (candidate, face); ``parts`` is emptied."""
+    sorted by (candidate, face)."""
     merged = QualifiedPairs.concatenate(parts)
     key = merged.candidate.astype(np.int64) << 32
     key |= merged.face.astype(np.int64)
@@ -386,25 +396,17 @@ def _by_candidate_and_face(parts: list[QualifiedPairs]) -> QualifiedPairs:
 def _merged_rows(results: Generator[tuple[list[NDArray[np.int32]], int], None, None],
                  lasts: deque[bool]) -> Iterator[tuple[list[NDArray[np.int32]], int]]:
     """The overlap rows of each group of candidates, as one tile of the group gives them
-    (each row's faces ascending), from the ``results`` of its parts (in order, ``lasts``
-    saying which ends a group: :func:`_tiles`), with the rays cast summed."""
-    parts: list[list[NDArray[np.int32]]] = []
-    rays = 0
-    try:
-        for rows, part_rays in results:
-            parts.append(rows)
-            rays += part_rays
-            del rows
-            if not lasts.popleft():
-                continue
-            merged = parts[0] if len(parts) == 1 else [
-                np.sort(np.concatenate(row)) for row in zip(*parts, strict=True)]
-            parts.clear()
+    (each row's faces ascending), from the ``results`` of its parts (:func:`_by_group`),
+    with the rays cast summed."""
+    with contextlib.closing(_by_group(results, lasts)) as groups:
+        for parts in groups:
+            rays = sum(part_rays for _, part_rays in parts)
+            merged = parts[0][0] if len(parts) == 1 else [
+                np.sort(np.concatenate(row))
+                for row in zip(*(rows for rows, _ in parts), strict=True)]
+            del parts
             yield merged, rays
             del merged
-            rays = 0
-    finally:
-        results.close()
 
 
 def _near_groups(candidates: NDArray[np.int64], positions: NDArray[np.float64], size: int,
