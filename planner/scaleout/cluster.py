@@ -345,8 +345,9 @@ def _tiles(cutter: TileCutter, positions: NDArray[np.float64],
 def _by_group(results: Generator[_Result, None, None], lasts: deque[bool]
               ) -> Generator[list[_Result], None, None]:
     """The ``results`` of the parts (in order) gathered by group of candidates, ``lasts``
-    saying which part ends a group (:func:`_tiles`). Closing this closes ``results`` (the
-    tasks still out are cancelled)."""
+    saying which part ends a group (:func:`_tiles`). A caller clears each group's list
+    once it has read it (this frame holds it until the next), and closing this closes
+    ``results`` (the tasks still out are cancelled)."""
     parts: list[_Result] = []
     try:
         for result in results:
@@ -373,7 +374,7 @@ def _merged_pairs(results: Generator[tuple[QualifiedPairs, int, int], None, None
             tested = sum(part_tested for _, part_tested, _ in parts)
             rays = sum(part_rays for _, _, part_rays in parts)
             pairs = [part_pairs for part_pairs, _, _ in parts]
-            del parts
+            parts.clear()
             merged = pairs.pop() if len(pairs) == 1 else _by_candidate_and_face(pairs)
             del pairs
             yield merged, tested, rays
@@ -383,7 +384,7 @@ def _merged_pairs(results: Generator[tuple[QualifiedPairs, int, int], None, None
 
 def _by_candidate_and_face(parts: list[QualifiedPairs]) -> QualifiedPairs:
     """The pairs of ``parts`` (of one group of candidates, their faces apart) in one,
-    sorted by (candidate, face)."""
+    sorted by (candidate, face); ``parts`` is emptied."""
     merged = QualifiedPairs.concatenate(parts)
     key = merged.candidate.astype(np.int64) << 32
     key |= merged.face.astype(np.int64)
@@ -404,7 +405,7 @@ def _merged_rows(results: Generator[tuple[list[NDArray[np.int32]], int], None, N
             merged = parts[0][0] if len(parts) == 1 else [
                 np.sort(np.concatenate(row))
                 for row in zip(*(rows for rows, _ in parts), strict=True)]
-            del parts
+            parts.clear()
             yield merged, rays
             del merged
 
