@@ -7,7 +7,8 @@ as the command line makes it (read, plan, write the outputs; ``--outputs plan`` 
 plan.json only, which is all the figures need: Lantern Hollow's plain mesh is read and
 planned in 143 CPU s, its plan.pdf takes 533 more and 7.4 GB, 346 A3 sheets tiling its
 storeys with the site around them). Prints per model and storey
-the candidates, stations, rooms without stations, unreachable stations and their reasons,
+the candidates, stations, rooms without stations (no station on their floor: one in rooms
+that overlap counts in each), unreachable stations and their reasons,
 and the legs through walls (:func:`planner.truth.legs.legs_through_walls`, with the IFC's
 own door faces as the door mask; for the plain mesh its doors and its windows to the floor,
 which a plain mesh cannot tell from glazed doors); per model the wall and CPU
@@ -130,7 +131,9 @@ def _child(model: str, spec_json: str, out: str, doors: str, outputs: str) -> No
     for room in document["candidates"].get("rooms") or []:
         entry = row(str(room["storey"]) or "no storey")
         entry["rooms"] += 1
-        entry["candidates"] = (entry["candidates"] or 0) + int(room["candidates"])
+        # a room overlapping an earlier one counts the candidates it shares with it too
+        shared = int((room.get("shared") or {}).get("candidates", 0))
+        entry["candidates"] = (entry["candidates"] or 0) + int(room["candidates"]) - shared
         if entry["floor_z_m"] is None and room["floor_z_m"] is not None:
             entry["floor_z_m"] = room["floor_z_m"]
         if not room.get("stations"):

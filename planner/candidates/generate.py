@@ -44,6 +44,7 @@ def plan_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster
             candidates = dataclasses.replace(
                 candidates, positions=positions,
                 labels=candidates.labels + ({},) * added if candidates.labels else (),
+                also_in=candidates.also_in + ((),) * added if candidates.also_in else (),
                 heights_m=None if candidates.heights_m is None
                 else np.r_[candidates.heights_m, np.full(added, np.nan)])
     return candidates, fixed

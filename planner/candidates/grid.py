@@ -130,6 +130,9 @@ class CandidateSet:
         room_report`)
     heights_m : (C,) float64, each candidate's height above its floor when it was placed
         on one (NaN: not known, e.g. a fixed station); None for explicit candidates
+    also_in : room candidates: per candidate, the GlobalIds of the rooms besides its
+        label's that it stands in (rooms overlapping the label's, listed after it; empty
+        for most), or empty when unknown
     """
 
     positions: NDArray[np.float64]
@@ -141,6 +144,7 @@ class CandidateSet:
     floor_from_space: tuple[str, ...] | None = None
     heights_m: NDArray[np.float64] | None = None
     rooms: list[dict[str, object]] | None = None
+    also_in: tuple[tuple[str, ...], ...] = ()
 
     def __len__(self) -> int:
         return len(self.positions)

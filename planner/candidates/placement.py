@@ -172,13 +172,16 @@ def at_heights(spec: PlanSpec, generate: Callable[[PlanSpec], CandidateSet]) -> 
         levels=levels,
         floor_from_space=tuple(spaces) if any(s.floor_from_space is not None for s in sets)
         else None,
-        heights_m=heights_m, rooms=_merged_rooms(sets))
+        heights_m=heights_m, rooms=_merged_rooms(sets),
+        also_in=tuple(rooms for s in sets for rooms in s.also_in)
+        if all(s.also_in for s in sets) else ())
 
 
 def _merged_rooms(sets: list[CandidateSet]) -> list[dict[str, object]] | None:
-    """``candidates.rooms`` over several heights: grid points, candidates and the points
-    left out summed room by room; a room keeps a reason only while no height gives it a
-    candidate (the first height's reason)."""
+    """``candidates.rooms`` over several heights: grid points, candidates, the points left
+    out and those shared with an earlier, overlapping room summed room by room; a room
+    keeps a reason only while no height gives it a candidate (the first height's
+    reason)."""
     if all(s.rooms is None for s in sets):
         return None
     merged: dict[str, dict[str, object]] = {}
@@ -195,6 +198,9 @@ def _merged_rooms(sets: list[CandidateSet]) -> list[dict[str, object]] | None:
                 continue
             for key in ("grid_points", "candidates"):
                 entry[key] = int(str(entry[key])) + int(str(room[key]))
+            if "shared" in room:  # the points an earlier, overlapping room counts too
+                entry["shared"] = {key: int(v) + _counts(room["shared"]).get(key, 0)
+                                   for key, v in _counts(entry["shared"]).items()}
     rooms = list(merged.values())
     for room in rooms:
         counts = left_out[str(room["room_global_id"])]

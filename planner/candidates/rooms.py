@@ -15,9 +15,16 @@ wherever nothing lies within head room below, i.e. not over a stair's hole;
 ``blocked_above_floor``: a table, a stair under the scanner), when it is inside a closed
 object (``inside_geometry``), or when the tripod lacks ``clearance_m`` of room around its
 axis from that floor to above the scanner (``too_close``, as
-:func:`planner.candidates.grid.closer_than` measures it). A point on the boundary shared by two
-rooms belongs to the first. Order: rooms as in
+:func:`planner.candidates.grid.closer_than` measures it). Order: rooms as in
 ``metadata["spaces"]``, then grid rows (y, then x).
+
+Each grid point is one candidate, labelled with the first room that holds it. A point on
+the wall line two neighbouring rooms share belongs to the first of them only. IfcSpaces may
+also overlap (:func:`space_overlaps`): a tool that writes each room once per area scheme
+(gross, lettable, usable: Revit's area plans, the Dutch NEN 2580 BVO/VVO/GO), a hall and
+its sections, a copy left behind. A point in two overlapping rooms stands in both: the
+rooms' report counts it in each (``CandidateSet.also_in`` names the later ones), and says
+how much of the later room's floor the earlier one shares.
 """
 
 from __future__ import annotations
@@ -26,7 +33,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from shapely import Polygon, intersects_xy
+from shapely import Polygon, STRtree, intersects_xy, make_valid
 
 from planner.candidates.grid import (
     DROP_REASONS,
@@ -45,6 +52,10 @@ from planner.walkgraph import HEADROOM_M
 FLOOR_TOLERANCE_M = 0.3
 # a room whose floor is found under fewer than this share of its points has no slab
 MIN_SLAB_SHARE = 0.5
+# two rooms' floors overlap where they share a part wider than this; a part of one outside
+# the other no wider than this is the same outline drawn to another wall face (a finish, a
+# wall line drawn twice), not floor of its own
+OVERLAP_WIDTH_M = 0.05
 
 
 def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateSet:
@@ -72,35 +83,48 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
             raise ParameterError(
                 "area_of_interest", "is not a valid polygon (self-intersecting or flat)")
     dropped = dict.fromkeys(DROP_REASONS, 0)
+    overlaps = space_overlaps(scene.metadata.get("spaces", []))
     points: list[NDArray[np.float64]] = []
     labels: list[dict[str, str]] = []
-    seen: set[tuple[float, float, float]] = set()
-    shared: dict[str, int] = {}  # room GlobalId -> its grid points an earlier room holds
+    also_in: list[tuple[str, ...]] = []  # per point: the later rooms that hold it too
+    held: dict[tuple[float, float, float], int] = {}  # grid point -> its index in points
+    # room GlobalId -> the rooms listed before it that hold some of its grid points on
+    # their shared wall line, with how many
+    on_boundary: dict[str, dict[str, int]] = {}
     for space in spaces:
+        gid = space["global_id"]
+        overlapping = {str(o["room_global_id"]) for o in overlaps.get(gid, ())}
         room = Polygon(space["polygon"], space.get("holes") or None)
         xy = grid_points_xy(np.asarray(room.bounds, np.float64).reshape(2, 2),
                             spec.grid_spacing_m, room)
         if len(xy):
             xy = xy[intersects_xy(room, xy[:, 0], xy[:, 1])]
         z = float(space["floor_z_m"]) + spec.scanner_height_m
-        keep = []
+        keep: list[tuple[float, float, float]] = []
         for x, y in xy:
             key = (round(float(x), 6), round(float(y), 6), round(z, 6))
-            if key not in seen:  # a point on a shared wall line belongs to the first room
-                seen.add(key)
+            first = held.get(key)
+            if first is None:
+                held[key] = len(labels) + len(keep)
                 keep.append((x, y, z))
-            else:
-                shared[space["global_id"]] = shared.get(space["global_id"], 0) + 1
+                continue
+            holder = labels[first]["room_global_id"]
+            if overlapping.intersection((holder, *also_in[first])):
+                also_in[first] = (*also_in[first], gid)  # in rooms that overlap: in each
+            else:  # on a wall line shared with a neighbour: the neighbour's
+                counts = on_boundary.setdefault(gid, {})
+                counts[holder] = counts.get(holder, 0) + 1
         if not keep:
             continue
         points.append(np.asarray(keep, np.float64))
         label = {
-            "room": str(space["long_name"] or space["name"] or space["global_id"]),
+            "room": str(space["long_name"] or space["name"] or gid),
             "room_name": str(space["name"]),
-            "room_global_id": str(space["global_id"]),
+            "room_global_id": str(gid),
             "storey": str(space["storey"]),
         }
         labels.extend([label] * len(keep))
+        also_in.extend([()] * len(keep))
     positions = np.concatenate(points) if points else np.zeros((0, 3))
     considered = len(positions)
     keep_mask = np.ones(considered, bool)
@@ -126,7 +150,8 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
     why[keep_mask & no_floor] = DROP_REASONS.index("no_floor")
     keep_mask &= on_floor
     keep_mask &= _clear(scene, positions, spec.clearance_m, floor_z, keep_mask, dropped, why)
-    rooms = room_report(scene.metadata, spaces, labels, why, spec, shared)
+    rooms = room_report(scene.metadata, spaces, labels, why, spec, on_boundary, also_in,
+                        overlaps)
     if not keep_mask.any():
         raise NoCandidatesError(
             f"no point is left in the {len(spaces)} room(s) out of {considered} "
@@ -140,6 +165,7 @@ def room_candidates(scene: Scene, spec: PlanSpec, caster: RayCaster) -> Candidat
         positions=positions[index], source="rooms", considered=considered,
         dropped=dropped, labels=tuple(labels[i] for i in index),
         floor_from_space=tuple(from_space.values()), rooms=rooms,
+        also_in=tuple(also_in[i] for i in index),
     )
 
 
@@ -157,30 +183,46 @@ ROOM_REASONS = {
 
 def room_report(metadata: dict[str, Any], chosen: list[dict[str, Any]],
                 labels: list[dict[str, str]], why: NDArray[np.int8], spec: PlanSpec,
-                shared: dict[str, int]) -> list[dict[str, object]]:
+                on_boundary: dict[str, dict[str, int]], also_in: list[tuple[str, ...]],
+                overlaps: dict[str, list[dict[str, object]]]) -> list[dict[str, object]]:
     """``candidates.rooms``: every IfcSpace of the model, in model order, with its storey,
     floor height and area, grid points, candidates and the points left out per reason;
     a room without candidates says why (``reason``): not asked for (``storeys`` /
-    ``rooms``), no grid point inside it (smaller than the grid, or its points belong to
-    a neighbour), or the reason that left out most of its points. IfcSpaces whose
-    geometry could not be read (``metadata["spaces_unread"]``) are listed too.
+    ``rooms``), no grid point inside it (smaller than the grid, or its points lie on the
+    wall line of a neighbour listed before it, which holds them), or the reason that left
+    out most of its points. IfcSpaces whose geometry could not be read
+    (``metadata["spaces_unread"]``) are listed too.
+
+    A room whose floor overlaps rooms listed before it (``overlaps``, see
+    :func:`space_overlaps`) names them, and counts every point that stands in it, those
+    the earlier rooms hold too included; ``shared`` says how many of its grid points and
+    candidates are such (their labels name the earlier room), so that a storey's total
+    counts each once.
 
     ``labels`` and ``why`` are per grid point considered (``why``: index in
-    ``DROP_REASONS``, -1 for a candidate), ``shared``: per room, its grid points an
-    earlier room holds.
+    ``DROP_REASONS``, -1 for a candidate), ``also_in`` per grid point the later rooms that
+    hold it too; ``on_boundary``: per room, the rooms listed before it that hold some of
+    its grid points on their shared wall line, with how many.
     """
     wanted = {space["global_id"] for space in chosen}
     grid: dict[str, int] = {}
     kept: dict[str, int] = {}
+    shared_grid: dict[str, int] = {}
+    shared_kept: dict[str, int] = {}
     left_out: dict[str, dict[str, int]] = {}
-    for label, reason in zip(labels, why.tolist(), strict=True):
-        gid = label["room_global_id"]
-        grid[gid] = grid.get(gid, 0) + 1
-        if reason < 0:
-            kept[gid] = kept.get(gid, 0) + 1
-        else:
-            counts = left_out.setdefault(gid, {})
-            counts[DROP_REASONS[reason]] = counts.get(DROP_REASONS[reason], 0) + 1
+    for label, reason, later in zip(labels, why.tolist(), also_in, strict=True):
+        for gid in (label["room_global_id"], *later):
+            grid[gid] = grid.get(gid, 0) + 1
+            if reason < 0:
+                kept[gid] = kept.get(gid, 0) + 1
+            else:
+                counts = left_out.setdefault(gid, {})
+                counts[DROP_REASONS[reason]] = counts.get(DROP_REASONS[reason], 0) + 1
+        for gid in later:
+            shared_grid[gid] = shared_grid.get(gid, 0) + 1
+            if reason < 0:
+                shared_kept[gid] = shared_kept.get(gid, 0) + 1
+    names = {space["global_id"]: _room_name(space) for space in metadata.get("spaces", [])}
     report: list[dict[str, object]] = []
     for space in metadata.get("spaces", []):
         gid = space["global_id"]
@@ -194,12 +236,19 @@ def room_report(metadata: dict[str, Any], chosen: list[dict[str, Any]],
         }
         if left_out.get(gid):
             entry["left_out"] = dict(sorted(left_out[gid].items()))
+        if overlaps.get(gid):
+            entry["overlaps"] = list(overlaps[gid])
+            entry["shared"] = {"grid_points": shared_grid.get(gid, 0),
+                               "candidates": shared_kept.get(gid, 0)}
         if gid not in wanted:
             entry["reason"] = "not planned: outside the storeys or rooms asked for"
         elif not grid.get(gid):
+            holders = on_boundary.get(gid, {})
             entry["reason"] = (
-                f"no grid point: its {shared[gid]} grid point(s) lie on the boundary of a "
-                "room listed before it, which holds them" if shared.get(gid) else
+                f"no grid point: its {sum(holders.values())} grid point(s) lie on the wall "
+                "line it shares with " + ", ".join(names[h] for h in holders)
+                + f", listed before it, which hold{'s' if len(holders) == 1 else ''} them"
+                if holders else
                 f"no grid point: no multiple of grid_spacing_m ({spec.grid_spacing_m:g} m) "
                 "falls inside its floor")
         elif not kept.get(gid):
@@ -219,10 +268,74 @@ def room_report(metadata: dict[str, Any], chosen: list[dict[str, Any]],
     return report
 
 
+def _room_name(space: dict[str, Any]) -> str:
+    """A room as a reason names it: long name, name and GlobalId."""
+    name = str(space["long_name"] or space["name"] or "")
+    if space["long_name"] and space["name"]:
+        name += f" {space['name']}"
+    return f"{name} ({space['global_id']})" if name else str(space["global_id"])
+
+
+# how a room's floor lies to the floor of an earlier room it overlaps
+OVERLAP_RELATIONS = {
+    "same": "the same floor",
+    "inside": "inside the earlier room's floor",
+    "contains": "holds the earlier room's floor",
+    "partial": "partly on the earlier room's floor",
+}
+
+
+def space_overlaps(spaces: list[dict[str, Any]]) -> dict[str, list[dict[str, object]]]:
+    """Per room (GlobalId), the rooms listed before it in ``spaces`` whose floor overlaps
+    its own, in list order: ``room``, ``room_name``, ``room_global_id`` of the earlier
+    room, ``shared_m2`` (the floor they share), ``share`` (of this room's floor) and
+    ``relation`` (``OVERLAP_RELATIONS``). Rooms without such a room are left out.
+
+    Two floors overlap where their floors lie within ``FLOOR_TOLERANCE_M`` in height and
+    their outlines share a part wider than ``OVERLAP_WIDTH_M``: neighbours touching along
+    a wall line, or overlapping by a sliver of a wall drawn twice, do not; rooms stacked on
+    storeys do not. A part of one outside the other no wider than that does not count
+    either: a room is ``inside`` (or the ``same`` as) an earlier one whose outline is
+    drawn a few centimetres further out.
+    """
+    polygons = [make_valid(Polygon(s["polygon"], s.get("holes") or None)) for s in spaces]
+    result: dict[str, list[dict[str, object]]] = {}
+    if len(polygons) < 2:
+        return result
+    later, earlier = STRtree(polygons).query(polygons, predicate="intersects")
+    pairs = sorted((int(i), int(j)) for i, j in zip(later, earlier, strict=True) if j < i)
+    for i, j in pairs:
+        mine, theirs = spaces[i], spaces[j]
+        if abs(float(mine["floor_z_m"]) - float(theirs["floor_z_m"])) > FLOOR_TOLERANCE_M:
+            continue
+        common = polygons[i].intersection(polygons[j])
+        if _thin(common):
+            continue
+        outside_mine = _thin(polygons[i].difference(polygons[j]))
+        outside_theirs = _thin(polygons[j].difference(polygons[i]))
+        relation = ("same" if outside_mine and outside_theirs else "inside" if outside_mine
+                    else "contains" if outside_theirs else "partial")
+        result.setdefault(str(mine["global_id"]), []).append({
+            "room": str(theirs["long_name"] or theirs["name"] or theirs["global_id"]),
+            "room_name": str(theirs["name"]), "room_global_id": str(theirs["global_id"]),
+            "shared_m2": round(float(common.area), 2),
+            "share": round(min(float(common.area) / max(polygons[i].area, 1e-12), 1.0), 3),
+            "relation": relation,
+        })
+    return result
+
+
+def _thin(region: Any) -> bool:
+    """``region`` (a shapely geometry) holds no part wider than ``OVERLAP_WIDTH_M``."""
+    return bool(region.is_empty or region.buffer(-OVERLAP_WIDTH_M / 2).is_empty)
+
+
 def rooms_lines(rooms: list[dict[str, object]] | None) -> list[str]:
     """``candidates.rooms`` as one line per storey (CLI, job message): its rooms,
-    candidates (and stations, in plan.json), and each room without candidates with the
-    first words of its reason."""
+    candidates (and, in plan.json, the stations and the rooms with a station: a room has
+    one when a station stands on its floor), the rooms that overlap rooms listed before
+    them (their shared candidates and stations are counted once), and each room without
+    candidates (:func:`line_name`) with the first words of its reason."""
     if not rooms:
         return []
     storeys: dict[str, list[dict[str, object]]] = {}
@@ -235,15 +348,42 @@ def rooms_lines(rooms: list[dict[str, object]] | None) -> list[str]:
         planned = [r for r in members if int(str(r["candidates"])) > 0]
         line = (f"{storey}{at}: {len(planned)} of {len(members)} room"
                 f"{'s' if len(members) != 1 else ''} with candidates, "
-                f"{sum(int(str(r['candidates'])) for r in planned)} candidates")
+                f"{sum(_own(r, 'candidates') for r in planned)} candidates")
         if all("stations" in r for r in members):  # plan.json: the stations chosen too
-            line += f", {sum(int(str(r['stations'])) for r in members)} stations"
+            stations = sum(_own(r, "stations") for r in members)
+            line += f", {stations} station{'s' if stations != 1 else ''}"
+            if stations:
+                with_one = sum(1 for r in members if int(str(r["stations"])) > 0)
+                line += f" in {with_one} room{'s' if with_one != 1 else ''}"
+        overlapping = [r for r in members if r.get("overlaps")]
+        if overlapping:
+            one = len(overlapping) == 1
+            line += (f"; {len(overlapping)} room{'' if one else 's'} overlap"
+                     f"{'s' if one else ''} rooms listed before {'it' if one else 'them'} "
+                     "(the candidates and stations they share counted once)")
         empty = [r for r in members if int(str(r["candidates"])) == 0]
         if empty:
             line += "; none in " + ", ".join(
-                f"{r['room']} ({str(r['reason']).split(':')[0]})" for r in empty)
+                f"{line_name(r, members)} ({str(r['reason']).split(':')[0]})" for r in empty)
         lines.append(line)
     return lines
+
+
+def line_name(room: dict[str, object], members: list[dict[str, object]]) -> str:
+    """A room as its storey's line names it: its long name, and its name (a number) too
+    where another room of the storey has the same long name."""
+    name, number = str(room["room"]), str(room["room_name"])
+    if number and number != name and sum(str(r["room"]) == name for r in members) > 1:
+        return f"{name} {number}"
+    return name
+
+
+def _own(room: dict[str, object], key: str) -> int:
+    """A room's ``candidates`` or ``stations`` less those it shares with an earlier room
+    it overlaps (which counts them)."""
+    shared = room.get("shared")
+    other = int(str(shared.get(key, 0))) if isinstance(shared, dict) else 0
+    return int(str(room[key])) - other
 
 
 def _rooms_without_slab(labels: list[dict[str, str]], alive: NDArray[np.bool_],

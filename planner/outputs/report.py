@@ -85,20 +85,32 @@ def _route_in_model(result: PlanResult) -> dict[str, Any]:
     return route
 
 
-def _with_stations(summary: dict[str, Any], stations: list[dict[str, Any]]
-                   ) -> dict[str, Any]:
+def _with_stations(summary: dict[str, Any], stations: list[dict[str, Any]],
+                   also_in: tuple[tuple[str, ...], ...] = ()) -> dict[str, Any]:
     """``candidates`` of plan.json: for an IFC plan, each room's entry also counts the
-    stations chosen in it (a room with candidates may need none: the stations in the
-    rooms around it cover it)."""
+    stations that stand on its floor (a room with candidates may need none: the stations
+    in the rooms around it cover it). A station in rooms that overlap (``also_in``, per
+    candidate) counts in each; a room's ``shared`` counts those of its stations that an
+    earlier room it overlaps holds."""
     if summary.get("rooms") is None:
         return summary
     chosen: dict[str, int] = {}
+    shared: dict[str, int] = {}
     for station in stations:
         room = station.get("label", {}).get("room_global_id")
         if room:
             chosen[room] = chosen.get(room, 0) + 1
-    rooms = [{**room, "stations": chosen.get(str(room["room_global_id"]), 0)}
-             for room in summary["rooms"]]
+        index = int(station["candidate_index"])
+        for later in also_in[index] if index < len(also_in) else ():
+            chosen[later] = chosen.get(later, 0) + 1
+            shared[later] = shared.get(later, 0) + 1
+    rooms = []
+    for room in summary["rooms"]:
+        gid = str(room["room_global_id"])
+        entry = {**room, "stations": chosen.get(gid, 0)}
+        if "shared" in room:
+            entry["shared"] = {**room["shared"], "stations": shared.get(gid, 0)}
+        rooms.append(entry)
     return {**summary, "rooms": rooms}
 
 
@@ -158,7 +170,8 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
         "curve": coverage_curve(result.selections, result.optimal_curve),
         "selection": result.selection_report,
         "parameters": result.spec.to_dict(),
-        "candidates": _with_stations(result.candidates.summary(), stations),
+        "candidates": _with_stations(result.candidates.summary(), stations,
+                                     result.candidates.also_in),
         "scene": {
             "format": result.scene.metadata.get("format", ""),
             "groups": list(result.scene.groups),
