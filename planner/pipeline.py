@@ -117,8 +117,6 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
                     threads=threads, fanout=fanout)
     chosen, station_overlap = choice.chosen, choice.station_overlap
     stations_xyz = candidates.positions[list(chosen.stations)]  # (S, 3)
-    # the stations' coverage rows: their overlap rows need no ray for those faces
-    seen = sight.seen_faces(table, candidates.positions, chosen.stations)
     release_freed_memory()
     if sight.scene.n_faces >= BOUNDED_HEAP_FACES:
         bound_heap()  # from here on freed arrays leave the process at once, not at a trim
@@ -126,7 +124,7 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
     if spec.placement_tolerance_m > 0:
         tolerance, station_overlap = plan_tolerance(
             sight, table, chosen, stations_xyz, station_overlap, stats, threads=threads,
-            fanout=fanout, seen=seen)
+            fanout=fanout)
         # its threads' freed scratch, still in their arenas (the office: 320 MB), before the
         # densities and the per-face results make the next peak
         release_freed_memory()
@@ -141,8 +139,7 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
                          sight.caster, stats.seconds, station_overlap=station_overlap,
                          threads=threads, fanout=fanout,
                          density_margins=None if margins is None else margins.tolist(),
-                         places=places_of(sight.scene, candidates, list(chosen.stations)),
-                         seen=seen)
+                         places=places_of(sight.scene, candidates, list(chosen.stations)))
     forget_bundles(sight.scene)
     new_stage(progress, "report")
     stats.cpu_seconds["plan"] = time.process_time() - cpu0

@@ -59,8 +59,7 @@ def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tup
         # computed when a method first needs them: the connected greedy asks for a few
         rows = OverlapRows(scene, positions, sight.limits, sight.occlusion,
                            spec.overlap_density_pts_m2, threads=threads,
-                           file_faces=sight.file_faces, fanout=fanout,
-                           seen=sight.seen_faces(table, positions, range(len(positions))))
+                           file_faces=sight.file_faces, fanout=fanout)
         if spec.method == "optimal" and not fixed:
             # optimal keeps the overlap graph connected: a flow MILP from connected greedy,
             # on the graph of every candidate's row

@@ -25,12 +25,7 @@ from planner.scanners import StationScan, missing_duration_reason, station_scans
 from planner.scene import Scene
 from planner.survey.registration import Registration, station_registration
 from planner.survey.route import Places, Route, door_checks, plan_route
-from planner.visibility.overlap import (
-    OverlapRows,
-    RowsFanout,
-    SeenFaces,
-    shared_faces_only,
-)
+from planner.visibility.overlap import OverlapRows, RowsFanout, shared_faces_only
 from planner.walkgraph import MeshDoors, build_walk_graph, door_faces, found_doors
 
 DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the scanner gives one
@@ -183,15 +178,13 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
            occlusion: Occlusion, caster: RayCaster, seconds: dict[str, float],
            station_overlap: sp.csr_matrix | None = None,
            threads: int | None = None, density_margins: list[float] | None = None,
-           fanout: RowsFanout | None = None, places: Places | None = None,
-           seen: SeenFaces | None = None) -> Survey:
+           fanout: RowsFanout | None = None, places: Places | None = None) -> Survey:
     """Registration, route and field time of the (S, 3) stations, in selection order.
 
     ``station_overlap``: the stations' (S, F) overlap rows when the selection already made
     them (else made here, by ``fanout`` when given); ``density_margins``: see
     :func:`scans_of`; ``seconds`` gains the stages "overlap" and "walk graph";
-    ``places``: what the reasons of unreachable stations name (:func:`places_of`);
-    ``seen``: the stations' rows of the coverage table, which spare the rows made here rays.
+    ``places``: what the reasons of unreachable stations name (:func:`places_of`).
     """
     t0 = time.perf_counter()
     # only what two stations share counts: the rows are cut to it before the registration's
@@ -200,8 +193,8 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     if station_overlap is None:
         shared = OverlapRows(scene, stations_xyz, limits, occlusion,
                              spec.overlap_density_pts_m2, threads=threads,
-                             file_faces=spec.occluders == "file", fanout=fanout,
-                             seen=seen).shared_matrix(range(len(stations_xyz)))
+                             file_faces=spec.occluders == "file", fanout=fanout
+                             ).shared_matrix(range(len(stations_xyz)))
     else:
         shared = shared_faces_only(station_overlap)
     del station_overlap

@@ -50,7 +50,6 @@ from planner.visibility.coverage import CoverageTable, QualifiedPairs
 from planner.visibility.overlap import (
     OverlapRows,
     RowsFanout,
-    SeenFaces,
     overlap_limits,
     shared_faces_only,
 )
@@ -382,13 +381,11 @@ def _strongest_forest(registration: Registration, n: int) -> list[tuple[int, int
 def plan_tolerance(sight: Sight, table: CoverageTable, chosen: Selection,
                    stations_xyz: NDArray[np.float64], station_overlap: sp.csr_matrix | None,
                    stats: Stats, *, threads: int | None = None,
-                   fanout: RowsFanout | None = None, seen: SeenFaces | None = None
-                   ) -> tuple[Tolerance, sp.csr_matrix]:
+                   fanout: RowsFanout | None = None) -> tuple[Tolerance, sp.csr_matrix]:
     """The tolerance report of the plan's ``chosen`` stations at (S, 3) ``stations_xyz``,
     and the stations' overlap rows it was judged with (``station_overlap`` when the
     selection made them; otherwise made here, cut to the faces two stations share as the
-    survey cuts them, so the survey reuses them; ``seen``: the stations' rows of the
-    coverage table, which spare those rows rays)."""
+    survey cuts them, so the survey reuses them)."""
     scene, spec = sight.scene, sight.spec
     if station_overlap is None:  # the survey's rows, made once for both (its "overlap"),
         # cut to the faces two stations share as the survey cuts them (no whole matrix)
@@ -396,7 +393,7 @@ def plan_tolerance(sight: Sight, table: CoverageTable, chosen: Selection,
         station_overlap = OverlapRows(
             scene, stations_xyz, sight.limits, sight.occlusion,
             spec.overlap_density_pts_m2, threads=threads,
-            file_faces=sight.file_faces, fanout=fanout, seen=seen
+            file_faces=sight.file_faces, fanout=fanout
         ).shared_matrix(range(len(chosen.stations)))
         stats.seconds["overlap"] = time.perf_counter() - t_rows
     forget_bundles(scene)  # only the overlap rows reach far enough to use them

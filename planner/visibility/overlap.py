@@ -18,7 +18,6 @@ import os
 import time
 from collections.abc import Iterable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
@@ -30,8 +29,6 @@ from planner.memory import released_every
 from planner.rays import Occlusion, make_occlusion
 from planner.scene import Scene
 from planner.visibility.bundles import BundleCuller, bundle_culler
-from planner.visibility.coincident import covered_pieces, twin_pairs
-from planner.visibility.coverage import CoverageTable
 from planner.visibility.pairs import PairFinder, search_reach_m
 from planner.walkgraph import door_faces
 
@@ -50,40 +47,6 @@ def overlap_limits(limits: FaceLimits, overlap_density_pts_m2: float) -> FaceLim
 _TRIM_EVERY_ROWS = 16
 
 
-@dataclass(frozen=True, eq=False)
-class SeenFaces:
-    """The coverage table as proof of visibility for the overlap rows.
-
-    A face in candidate c's row of the table passed c's occlusion ray with the doors
-    closed. The overlap rows cast the same ray (same position, same centroid, same float32
-    and float64 rays) against the same faces without the doors, so it reaches the face
-    again and needs no cast. :class:`OverlapRows` checks what this rests on and casts
-    every ray where it does not hold: the rows' positions are the table's candidates', the
-    scene is the table's, both tests are Embree's over one mesh and the rows' occluders are
-    some of the table's. Faces whose occluding changed (the doors) and faces another
-    occluder covers in the same plane (:mod:`planner.visibility.coincident`: which of the
-    two a cast meets first depends on the BVH) are always cast. The table must hold
-    centroid rays (``coverage_model`` "centroid"; a robust table's rows are a part of
-    them).
-
-    Attributes
-    ----------
-    scene : the scene the table's faces are of
-    table : the coverage table
-    positions : (C, 3) float64, the table's candidate positions
-    candidates : (N,) int64, the table's candidate at each of the rows' N positions
-    occlusion : the occlusion test the table was made with
-    occludes : (F,) bool, the faces that occluded for the table
-    """
-
-    scene: Scene
-    table: CoverageTable
-    positions: NDArray[np.float64]
-    candidates: NDArray[np.int64]
-    occlusion: Occlusion
-    occludes: NDArray[np.bool_]
-
-
 class OverlapRows:
     """Which faces each candidate qualifies for at the overlap density, computed on demand.
 
@@ -96,16 +59,13 @@ class OverlapRows:
     occlusion rays; one candidate per task on a thread pool) and cached, so the connected
     greedy pays only for the candidates it considers. With a ``fanout``
     (:class:`RowsFanout`, e.g. a Dask cluster: :mod:`planner.scaleout`) the rows are
-    computed there, as many at a time as it has threads (casting every ray).
-
-    ``seen`` (:class:`SeenFaces`): the rows computed here cast no ray for a face the
-    candidate's coverage-table row holds, where that proof holds; the rows are the same.
+    computed there, as many at a time as it has threads.
     """
 
     def __init__(self, scene: Scene, positions: NDArray[np.float64], limits: FaceLimits,
                  occlusion: Occlusion, overlap_density_pts_m2: float,
                  threads: int | None = None, *, file_faces: bool = False,
-                 fanout: RowsFanout | None = None, seen: SeenFaces | None = None) -> None:
+                 fanout: RowsFanout | None = None) -> None:
         doors = door_faces(scene)
         self._occludes = limits.occludes
         if (doors & limits.occludes).any():
@@ -126,11 +86,6 @@ class OverlapRows:
         self._rows: dict[int, NDArray[np.int32]] = {}  # candidate -> (k,) sorted face ids
         self.seconds = 0.0  # time spent computing rows
         self.rays_cast = 0
-        self.rays_saved = 0  # pairs the coverage table proved visible, not cast
-        self._seen = seen if seen is not None and _proof_holds(seen, scene, self._positions,
-                                                                occlusion) else None
-        # (F,) bool, the faces whose coverage verdict carries over, made with the first row
-        self._reusable: NDArray[np.bool_] | None = None
 
     def __len__(self) -> int:
         return len(self._positions)
@@ -150,22 +105,10 @@ class OverlapRows:
                                                   self._occlusion))
         return self._search
 
-    def _reusable_faces(self) -> NDArray[np.bool_] | None:
-        """(F,) bool: the faces whose coverage verdict carries over to the rows (made once;
-        None without :class:`SeenFaces`)."""
-        if self._seen is not None and self._reusable is None:
-            self._reusable = _reusable_faces(self._seen, self._occludes)
-        return self._reusable
-
-    def _row(self, candidate: int) -> tuple[NDArray[np.int32], int, int]:
+    def _row(self, candidate: int) -> tuple[NDArray[np.int32], int]:
         finder, culler = self._local_search()
-        seen, reusable = self._seen, self._reusable
-        known = None
-        if seen is not None and reusable is not None:
-            faces = seen.table.faces_of(int(seen.candidates[candidate]))
-            known = faces[reusable[faces]]
         return overlap_row(finder, culler, self._occlusion, self._positions,
-                           self._centroids, candidate, known=known)
+                           self._centroids, candidate)
 
     @property
     def scene(self) -> Scene:
@@ -211,16 +154,14 @@ class OverlapRows:
                 self.seconds += time.perf_counter() - started
                 return
         self._local_search()  # made here, before the threads that share it
-        self._reusable_faces()
         # no threads are started for one row or one worker (the pool starts them on demand)
         with ThreadPoolExecutor(max_workers=min(self.workers, len(todo))) as pool:
             parallel = len(todo) > 1 and self.workers > 1
             results = pool.map(self._row, todo) if parallel else map(self._row, todo)
-            for c, (faces, rays, saved) in zip(
-                    todo, released_every(results, _TRIM_EVERY_ROWS), strict=True):
+            for c, (faces, rays) in zip(todo, released_every(results, _TRIM_EVERY_ROWS),
+                                        strict=True):
                 self._rows[c] = faces
                 self.rays_cast += rays
-                self.rays_saved += saved
         self.seconds += time.perf_counter() - started
 
     def shared_matrix(self, candidates: Sequence[int] | NDArray[np.integer[Any]]
@@ -249,71 +190,16 @@ class OverlapRows:
 
 def overlap_row(finder: PairFinder, culler: BundleCuller | None, occlusion: Occlusion,
                 positions: NDArray[np.float64], centroids: NDArray[np.float64],
-                candidate: int, *, known: NDArray[np.int32] | None = None
-                ) -> tuple[NDArray[np.int32], int, int]:
+                candidate: int) -> tuple[NDArray[np.int32], int]:
     """The faces candidate ``candidate`` of the (C, 3) ``positions`` qualifies for under
-    ``finder``'s limits (ascending), the rays cast for them and the rays not cast: the
-    pairs of the (k,) ascending faces ``known`` to be visible from it (:class:`SeenFaces`),
-    which pass when they pass the limits."""
+    ``finder``'s limits (ascending) and the rays cast for them."""
     point = positions[candidate:candidate + 1]
     hidden, bundle_rays = (None, 0) if culler is None else culler.hidden(point)
     pairs, _ = finder.find(point, candidate, hidden, ordered=False)  # sorted below
-    if known is None or not len(known) or not len(pairs):
-        visible = occlusion.visible(
-            pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
-            exact_rays=pairs.exact_rays(positions, centroids))
-        return np.sort(pairs.face[visible]), len(pairs) + bundle_rays, 0
-    at = np.minimum(np.searchsorted(known, pairs.face), len(known) - 1)
-    visible = known[at] == pairs.face  # (P,) proven visible: no ray
-    cast = np.flatnonzero(~visible)
-    unknown = pairs.subset(cast)
-    visible[cast] = occlusion.visible(
-        unknown.origin, unknown.direction, unknown.distance_m, unknown.face,
-        exact_rays=unknown.exact_rays(positions, centroids))
-    return np.sort(pairs.face[visible]), len(cast) + bundle_rays, len(pairs) - len(cast)
-
-
-def _proof_holds(seen: SeenFaces, scene: Scene, positions: NDArray[np.float64],
-                 occlusion: Occlusion) -> bool:
-    """Whether ``seen``'s table proves the overlap rays of (N, 3) ``positions`` visible that
-    ``occlusion`` would cast over ``scene``: the same scene, the table's candidates at the
-    same positions (bit for bit), both tests Embree's over one mesh, and the rows'
-    occluders some of the table's."""
-    from planner.rays.embree import EmbreeOcclusion
-
-    if (seen.scene is not scene or seen.table.n_faces != scene.n_faces
-            or seen.candidates.shape != (len(positions),)
-            or not isinstance(occlusion, EmbreeOcclusion)
-            or not isinstance(seen.occlusion, EmbreeOcclusion)):
-        return False
-    if not np.array_equal(np.asarray(seen.positions, np.float64)[seen.candidates], positions):
-        return False
-    rows_bvh, table_bvh = occlusion.bvh_faces(), seen.occlusion.bvh_faces()
-    same_mesh = (rows_bvh.file_faces == table_bvh.file_faces
-                 and rows_bvh.scale_m == table_bvh.scale_m
-                 and (rows_bvh.faces is table_bvh.faces
-                      or np.array_equal(rows_bvh.faces, table_bvh.faces))
-                 and (rows_bvh.vertices is table_bvh.vertices
-                      or np.array_equal(rows_bvh.vertices, table_bvh.vertices)))
-    return same_mesh and bool(np.isin(rows_bvh.occluding, table_bvh.occluding,
-                                      assume_unique=True).all())
-
-
-def _reusable_faces(seen: SeenFaces, rows_occlude: NDArray[np.bool_]) -> NDArray[np.bool_]:
-    """(F,) bool: the faces whose coverage verdict is the overlap rows' (``rows_occlude``
-    (F,): the faces that occlude for the rows): their occluding did not change and their
-    centroid lies on no other occluder of their plane
-    (:mod:`planner.visibility.coincident`, over the table's occluders)."""
-    from planner.rays.embree import EmbreeOcclusion
-
-    assert isinstance(seen.occlusion, EmbreeOcclusion)
-    bvh = seen.occlusion.bvh_faces()
-    scene = seen.scene
-    source = scene.source_face if bvh.file_faces else np.arange(scene.n_faces)
-    covered = covered_pieces(scene.centroids, source, bvh.vertices, bvh.faces,
-                             twin_pairs(bvh.vertices, bvh.faces, bvh.occluding))
-    reusable: NDArray[np.bool_] = (seen.occludes == rows_occlude) & ~covered
-    return reusable
+    visible = occlusion.visible(
+        pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
+        exact_rays=pairs.exact_rays(positions, centroids))
+    return np.sort(pairs.face[visible]), len(pairs) + bundle_rays
 
 
 class RowsFanout(Protocol):

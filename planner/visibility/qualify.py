@@ -34,7 +34,6 @@ from planner.scene import Scene, remesh
 from planner.threads import in_block_order
 from planner.visibility.bundles import bundle_culler
 from planner.visibility.coverage import CoverageTable, QualifiedPairs
-from planner.visibility.overlap import SeenFaces
 from planner.visibility.pairs import TESTS_PER_BLOCK, PairFinder, lpd_of_faces, sorted_by_face
 from planner.visibility.robust import robust_blocks, within_table
 from planner.visibility.splitting import faces_to_split
@@ -108,17 +107,6 @@ class Sight:
                      make_occlusion(scene, limits.occludes, self.backend, file_faces=True,
                                     like=self.occlusion),
                      self.backend)
-
-    def seen_faces(self, table: CoverageTable, positions: np.ndarray,
-                   candidates: Iterable[int]) -> SeenFaces | None:
-        """``table`` (made of this sight for the (C, 3) candidate ``positions``) as proof of
-        visibility for the overlap rows of ``candidates`` (:class:`SeenFaces`), or None
-        where its pairs are not single centroid rays (the sampled coverage model)."""
-        if self.spec.coverage_model != "centroid":
-            return None
-        return SeenFaces(self.scene, table, np.asarray(positions, np.float64),
-                         np.fromiter(candidates, np.int64), self.occlusion,
-                         self.limits.occludes)
 
     def qualifier(self, most_tests: int = TESTS_PER_BLOCK
                   ) -> Callable[[np.ndarray, FaceLimits], Iterator[QualifiedPairs]]:

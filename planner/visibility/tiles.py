@@ -464,9 +464,8 @@ def _rows(tile: Tile, occlusion: EmbreeOcclusion) -> tuple[list[NDArray[np.int32
     culler = bundle_culler(tile.scene, finder.reach_m, occlusion)
     rows, rays = [], 0
     for index in range(len(tile.positions)):
-        # every ray cast: the cluster's rows take no verdict from the coverage table
-        faces, cast, _ = overlap_row(finder, culler, occlusion, tile.positions,
-                                     tile.scene.centroids, index)
+        faces, cast = overlap_row(finder, culler, occlusion, tile.positions,
+                                  tile.scene.centroids, index)
         rows.append(tile.faces[faces])
         rays += cast
     return rows, rays
