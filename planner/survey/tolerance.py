@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -244,21 +244,116 @@ def _worst_case_network(
         sampled = [np.unique(np.concatenate(t)) if t else np.zeros(0, np.int32)
                    for t in tested]
         kept = kept_rows(sampled)
+        tried = sampled  # per station, the faces tested so far
         unproven = [i for i, ((a, b), faces, sample) in enumerate(
             zip(forest, edge_faces, samples, strict=True))
             if not _holds(scene, faces, sample, kept[a], kept[b], min_overlap_m2)]
         if unproven:  # their other faces too, then each such edge is judged on all of them
-            rest: list[list[NDArray[np.int32]]] = [[] for _ in rows]
-            for i in unproven:
-                for n in forest[i]:
-                    rest[n].append(edge_faces[i])
-            more = kept_rows([np.setdiff1d(np.concatenate(t), sampled[n])
-                              if t else np.zeros(0, np.int32) for n, t in enumerate(rest)])
-            kept = [np.union1d(k, m) for k, m in zip(kept, more, strict=True)]
-        if all(_holds(scene, edge_faces[i], edge_faces[i], kept[forest[i][0]],
-                      kept[forest[i][1]], min_overlap_m2) for i in unproven):
+            kept, tried = _tested_more(
+                kept_rows, kept, tried, [forest[i] for i in unproven],
+                [edge_faces[i] for i in unproven])
+        holding = [pair for i, pair in enumerate(forest) if i not in set(unproven)
+                   or _holds(scene, edge_faces[i], edge_faces[i], kept[pair[0]],
+                             kept[pair[1]], min_overlap_m2)]
+        if len(holding) == len(forest):
             return nominal.components
+        return _grown_components(scene, nominal, rows, holding, kept, tried, kept_rows,
+                                 min_overlap_m2, overlap_density_pts_m2)
     return components(rows)
+
+
+def _tested_more(kept_rows: Callable[[list[NDArray[np.int32]]], list[NDArray[np.int32]]],
+                 kept: list[NDArray[np.int32]], tested: list[NDArray[np.int32]],
+                 edges: list[tuple[int, int]], edge_faces: list[NDArray[np.int32]]
+                 ) -> tuple[list[NDArray[np.int32]], list[NDArray[np.int32]]]:
+    """``kept`` and ``tested`` (per station, ascending: the faces it keeps from all its
+    setups, of those tested) once both stations of each of ``edges`` are tested on every
+    face of its ``edge_faces``."""
+    wanted: list[list[NDArray[np.int32]]] = [[] for _ in kept]
+    for pair, faces in zip(edges, edge_faces, strict=True):
+        for n in pair:
+            wanted[n].append(faces)
+    new = [np.setdiff1d(np.concatenate(w), tested[n]) if w else np.zeros(0, np.int32)
+           for n, w in enumerate(wanted)]
+    more = kept_rows(new)
+    return ([np.union1d(k, m) for k, m in zip(kept, more, strict=True)],
+            [np.union1d(t, w) for t, w in zip(tested, new, strict=True)])
+
+
+def _grown_components(
+    scene: Scene, nominal: Registration, rows: list[NDArray[np.int32]],
+    holding: list[tuple[int, int]], kept: list[NDArray[np.int32]],
+    tested: list[NDArray[np.int32]],
+    kept_rows: Callable[[list[NDArray[np.int32]]], list[NDArray[np.int32]]],
+    min_overlap_m2: float | None, overlap_density_pts_m2: float,
+) -> tuple[tuple[int, ...], ...]:
+    """The worst-case components when some edge of the strongest forest fails: those of
+    testing every shared face (:func:`_worst_case_network`), found by testing only the
+    edges that could still join two groups.
+
+    The groups start as the stations the forest's ``holding`` edges (0-based pairs) join.
+    An edge can join two groups only if the stations share faces in one nominal component
+    (between components none ever passes: :func:`_apart_for_good`). Round by round, for
+    each two groups still apart, their strongest untested such edge is tested on all its
+    shared faces (all of them, once one has failed: groups that stay apart need every
+    edge between them ruled out) and decided as the whole worst-case network decides it
+    (:func:`station_registration` of the two stations' kept faces: both are tested on
+    every face they share, so what they both keep is exact); one that holds merges its
+    groups. When no such edge is left, no edge of the worst-case network joins two groups,
+    and every group is joined by edges that hold: the groups are its components. A face is
+    tested for a station at most once (``tested``), so this never casts more than testing
+    every shared face, and far less when the groups left apart are a few small rooms."""
+    n = len(rows)
+    group = list(range(n))
+
+    def root(i: int) -> int:
+        while group[i] != i:
+            group[i] = group[group[i]]
+            i = group[i]
+        return i
+
+    for a, b in holding:
+        group[root(a)] = root(b)
+    component = {s - 1: k for k, members in enumerate(nominal.components) for s in members}
+    # every edge that may pass in the worst case, strongest first (ties: station order)
+    edges = sorted(((e.a - 1, e.b - 1, e.overlap_m2) for e in nominal.edges
+                    if component[e.a - 1] == component[e.b - 1]),
+                   key=lambda e: (-e[2], e[0], e[1]))
+    decided: set[tuple[int, int]] = set()
+    failed_between: set[tuple[int, int]] = set()  # groups whose strongest edge failed
+    while True:
+        batch: list[tuple[int, int]] = []
+        taken: set[tuple[int, int]] = set()
+        for a, b, _ in edges:
+            ga, gb = root(a), root(b)
+            between = (min(ga, gb), max(ga, gb))
+            if ga == gb or (a, b) in decided or (
+                    between in taken and between not in failed_between):
+                continue
+            taken.add(between)
+            batch.append((a, b))
+        if not batch:
+            break
+        kept, tested = _tested_more(kept_rows, kept, tested, batch,
+                                    [_common(rows[a], rows[b]) for a, b in batch])
+        for a, b in batch:
+            decided.add((a, b))
+            ga, gb = root(a), root(b)
+            pair = sp.csr_matrix(
+                (np.ones(len(kept[a]) + len(kept[b]), bool),
+                 np.concatenate([kept[a], kept[b]]),
+                 np.array([0, len(kept[a]), len(kept[a]) + len(kept[b])])),
+                shape=(2, scene.n_faces))
+            registration = station_registration(scene, pair, min_overlap_m2,
+                                                overlap_density_pts_m2)
+            if any(e.ok for e in registration.edges):
+                group[root(ga)] = root(gb)
+            else:
+                failed_between.add((min(ga, gb), max(ga, gb)))
+    members: dict[int, list[int]] = {}
+    for i in range(n):
+        members.setdefault(root(i), []).append(i + 1)
+    return tuple(sorted(tuple(m) for m in members.values()))
 
 
 # the share of an edge's normal scatter (its trace) a sample keeps in every direction: a
