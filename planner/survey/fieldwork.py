@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import NDArray
 
 from planner.candidates.grid import CandidateSet
 from planner.io.orientation import scene_rotation, to_plan
@@ -122,15 +123,15 @@ def scans_of(spec: PlanSpec, density_margins: list[float] | None, n_stations: in
                          spec.elevation_max_deg, margins)
 
 
-def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool
-                 ) -> tuple[RayCaster, MeshDoors | None]:
+def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool,
+                 area_xy: NDArray[np.float64] | None) -> tuple[RayCaster, MeshDoors | None]:
     """Rays for walking: every face blocks (glass too, which coverage may see through)
     except doors (IFC doors; in a plain mesh the thin fillers of wall openings that
-    :func:`~planner.walkgraph.found_doors` finds with the coverage ``caster``, returned
-    too; None for an IFC model); the coverage caster is reused when it blocks exactly those
-    faces. ``file_faces``: cast against the file's faces, as the plan's rays
-    (``occluders``)."""
-    doors = None if scene.elements else found_doors(scene, caster)
+    :func:`~planner.walkgraph.found_doors` finds with the coverage ``caster`` on the
+    walked ground ``area_xy``, returned too; None for an IFC model); the coverage caster
+    is reused when it blocks exactly those faces. ``file_faces``: cast against the file's
+    faces, as the plan's rays (``occluders``)."""
+    doors = None if scene.elements else found_doors(scene, caster, area_xy)
     blocks = ~door_faces(scene) if doors is None else doors.face_door < 0
     if np.array_equal(blocks, limits.occludes):
         return caster, doors
@@ -178,13 +179,16 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
            occlusion: Occlusion, caster: RayCaster, seconds: dict[str, float],
            station_overlap: sp.csr_matrix | None = None,
            threads: int | None = None, density_margins: list[float] | None = None,
-           fanout: RowsFanout | None = None, places: Places | None = None) -> Survey:
+           fanout: RowsFanout | None = None, places: Places | None = None,
+           walk_area_xy: NDArray[np.float64] | None = None) -> Survey:
     """Registration, route and field time of the (S, 3) stations, in selection order.
 
     ``station_overlap``: the stations' (S, F) overlap rows when the selection already made
     them (else made here, by ``fanout`` when given); ``density_margins``: see
     :func:`scans_of`; ``seconds`` gains the stages "overlap" and "walk graph";
-    ``places``: what the reasons of unreachable stations name (:func:`places_of`).
+    ``places``: what the reasons of unreachable stations name (:func:`places_of`);
+    ``walk_area_xy``: (2, 2), the ground the route walks (:func:`planner.walkgraph.walk_area`
+    of the plan's candidates; None: the model's whole footprint).
     """
     t0 = time.perf_counter()
     # only what two stations share counts: the rows are cut to it before the registration's
@@ -204,16 +208,20 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     del shared
     t1 = time.perf_counter()
     seconds["overlap"] = seconds.get("overlap", 0.0) + t1 - t0
-    walk_caster, doors = _walk_caster(scene, limits, caster, spec.occluders == "file")
-    if scene.metadata.get("spaces"):  # rooms are floors where the model has no slab
-        from planner.survey.space_floors import with_room_floors
-
-        walk_caster, _ = with_room_floors(scene, walk_caster)
-    graph = build_walk_graph(scene, walk_caster)
     start = spec.route_start
     if start is not None:  # given in model coordinates, like every position (up_axis)
         x, y, z = to_plan(scene_rotation(scene.metadata), np.asarray([start], np.float64))[0]
         start = (float(x), float(y), float(z))
+        if walk_area_xy is not None:  # the crew's start is walked ground too
+            walk_area_xy = np.stack([np.minimum(walk_area_xy[0], (x, y)),
+                                     np.maximum(walk_area_xy[1], (x, y))])
+    walk_caster, doors = _walk_caster(scene, limits, caster, spec.occluders == "file",
+                                      walk_area_xy)
+    if scene.metadata.get("spaces"):  # rooms are floors where the model has no slab
+        from planner.survey.space_floors import with_room_floors
+
+        walk_caster, _ = with_room_floors(scene, walk_caster)
+    graph = build_walk_graph(scene, walk_caster, area_xy=walk_area_xy)
     route = plan_route(graph, walk_caster, stations_xyz, start, places)
     if doors is not None:  # a plain mesh: the legs through doors that may be fixed windows
         route = dataclasses.replace(route, door_checks=door_checks(scene, route, doors))
