@@ -30,7 +30,7 @@ Array letters: N nodes, E links.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
@@ -604,12 +604,16 @@ class WalkGraph:
     floor_xyz : (N, 3) float64, floor points (metres); the model's own floor samples
         first, then the ground nodes (``n_ground`` of them)
     links : (N, N) CSR float64, symmetric, link length in metres
+    cut_nodes : (K,) int64, ascending: on a graph of part of the footprint (``area_xy``),
+        the nodes in its outermost columns where the area cuts the model's footprint;
+        only these can have links, on the whole footprint's graph, to nodes outside it
     """
 
     floor_xyz: NDArray[np.float64]
     links: sp.csr_matrix
     grid_m: float
     n_ground: int = 0
+    cut_nodes: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
 
     @property
     def n_nodes(self) -> int:
@@ -872,4 +876,12 @@ def build_walk_graph(scene: Scene, caster: RayCaster, *, ground: bool = True,
     links = sp.coo_matrix((np.concatenate([length, length]),
                            (np.concatenate([a, b]), np.concatenate([b, a]))),
                           shape=(n, n)).tocsr()
-    return WalkGraph(floor_xyz=floor_xyz, links=links, grid_m=grid_m, n_ground=n_ground)
+    cut = np.zeros(n, bool)  # a column on a side where the area cuts the footprint
+    for index, first, last, count in ((ix, samples.x0, samples.x1, samples.nx),
+                                      (iy, samples.y0, samples.y1, samples.ny)):
+        if first > 0:
+            cut |= index == first
+        if last < count:
+            cut |= index == last - 1
+    return WalkGraph(floor_xyz=floor_xyz, links=links, grid_m=grid_m, n_ground=n_ground,
+                     cut_nodes=np.flatnonzero(cut))

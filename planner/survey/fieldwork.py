@@ -25,9 +25,15 @@ from planner.rays import Occlusion, RayCaster, make_ray_caster
 from planner.scanners import StationScan, missing_duration_reason, station_scans, step_note
 from planner.scene import Scene
 from planner.survey.registration import Registration, station_registration
-from planner.survey.route import Places, Route, door_checks, plan_route
+from planner.survey.route import (
+    Places,
+    Route,
+    door_checks,
+    parts_may_join_outside,
+    plan_route,
+)
 from planner.visibility.overlap import OverlapRows, RowsFanout, shared_faces_only
-from planner.walkgraph import MeshDoors, build_walk_graph, door_faces, found_doors
+from planner.walkgraph import MeshDoors, WalkGraph, build_walk_graph, door_faces, found_doors
 
 DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the scanner gives one
 
@@ -138,6 +144,20 @@ def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces
     return make_ray_caster(scene, blocks, file_faces=file_faces), doors
 
 
+def _walk(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool,
+          area_xy: NDArray[np.float64] | None
+          ) -> tuple[RayCaster, MeshDoors | None, WalkGraph]:
+    """The walk's rays and doors (:func:`_walk_caster`), the rooms' floors where the model
+    has no slab, and the walk graph over the ground ``area_xy`` (None: the whole
+    footprint)."""
+    walk_caster, doors = _walk_caster(scene, limits, caster, file_faces, area_xy)
+    if scene.metadata.get("spaces"):  # rooms are floors where the model has no slab
+        from planner.survey.space_floors import with_room_floors
+
+        walk_caster, _ = with_room_floors(scene, walk_caster)
+    return walk_caster, doors, build_walk_graph(scene, walk_caster, area_xy=area_xy)
+
+
 def places_of(scene: Scene, candidates: CandidateSet | None, stations: list[int]
               ) -> Places:
     """What the route's reasons name (:class:`planner.survey.route.Places`): the storeys
@@ -215,13 +235,13 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
         if walk_area_xy is not None:  # the crew's start is walked ground too
             walk_area_xy = np.stack([np.minimum(walk_area_xy[0], (x, y)),
                                      np.maximum(walk_area_xy[1], (x, y))])
-    walk_caster, doors = _walk_caster(scene, limits, caster, spec.occluders == "file",
-                                      walk_area_xy)
-    if scene.metadata.get("spaces"):  # rooms are floors where the model has no slab
-        from planner.survey.space_floors import with_room_floors
-
-        walk_caster, _ = with_room_floors(scene, walk_caster)
-    graph = build_walk_graph(scene, walk_caster, area_xy=walk_area_xy)
+    file_faces = spec.occluders == "file"
+    walk_caster, doors, graph = _walk(scene, limits, caster, file_faces, walk_area_xy)
+    points = stations_xyz if start is None else np.vstack([stations_xyz, [start]])
+    if walk_area_xy is not None and parts_may_join_outside(graph, walk_caster, points):
+        # stations on two parts that both reach the edge of the area: the whole site's
+        # ground may join them (a lower lawn reached round the house's far end)
+        walk_caster, doors, graph = _walk(scene, limits, caster, file_faces, None)
     route = plan_route(graph, walk_caster, stations_xyz, start, places)
     if doors is not None:  # a plain mesh: the legs through doors that may be fixed windows
         route = dataclasses.replace(route, door_checks=door_checks(scene, route, doors))
