@@ -3,8 +3,8 @@
 Usage: python benchmarks/sampled_partial.py [--scene hall-full] [--threads N] [--erode]
 
 The ``sampled`` model promises whole faces (a face qualifies when its passing samples
-stand for ``min_sampled_fraction`` of its area). This benchmark evaluates the alternative
-of issue 12: every sample point stands for 1/N of its face (the n x n barycentric
+stand for ``min_sampled_fraction`` of its area). This benchmark evaluates an alternative
+considered for it: every sample point stands for 1/N of its face (the n x n barycentric
 triangles, N = n^2), a station covers the samples that pass every test from it, greedy
 chooses stations on those sample areas until ``goal`` of the achievable sample area, and
 the simulated scan judges each promised sample area by the returns in its own triangle

@@ -113,7 +113,7 @@ class PlanSpec:
     # after the outputs: a simulated scan of the stations checks the plan's promise and
     # writes verification.json (planner.truth; as `scanplan verify` does)
     verify: bool = False
-    # survey (issue 11): presets, registration overlap, walking route, field time
+    # survey: presets, registration overlap, walking route, field time
     # a preset id (planner/scanners.json) or an instrument profile; sets the defaults above
     scanner: str | ScannerProfile | None = None
     min_overlap_m2: float | None = None  # null: the paper's selection, no overlap constraint

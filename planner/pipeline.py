@@ -36,6 +36,7 @@ from planner.survey.tolerance import Tolerance, plan_tolerance
 from planner.visibility.bundles import forget_bundles
 from planner.visibility.coverage import CoverageTable
 from planner.visibility.qualify import Sight, coverage_table, station_densities
+from planner.walkgraph import walk_area
 
 __all__ = ["PlanResult", "ProgressCallback", "Stats", "plan"]
 
@@ -139,7 +140,8 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
                          sight.caster, stats.seconds, station_overlap=station_overlap,
                          threads=threads, fanout=fanout,
                          density_margins=None if margins is None else margins.tolist(),
-                         places=places_of(sight.scene, candidates, list(chosen.stations)))
+                         places=places_of(sight.scene, candidates, list(chosen.stations)),
+                         walk_area_xy=walk_area(candidates.positions))
     forget_bundles(sight.scene)
     new_stage(progress, "report")
     stats.cpu_seconds["plan"] = time.process_time() - cpu0

@@ -30,7 +30,7 @@ Array letters: N nodes, E links.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
@@ -42,6 +42,10 @@ from planner.scene import Scene
 WALK_GRID_M = 0.25  # floor sample spacing; finer than a stair tread (~0.26-0.30 m)
 OUTSIDE_MARGIN_M = 1.0  # ground walked around a model without terrain
 MAX_COLUMNS = 400_000  # the grid coarsens on very large models to stay within this
+# the walk covers the ground of the plan's candidates and this much around it (``area_xy``):
+# a crew walks between stations in and around the building, not across its site (a house's
+# terrain of 114 x 203 m made 606,000 floor samples, most of them out on the site)
+WALK_AREA_MARGIN_M = 5.0
 KNEE_HEIGHT_M = 0.5  # the link must be free at this height above the floor
 # largest floor height change between neighbouring samples: a stair riser is <= 0.19 m in
 # most building codes; two risers can fall between samples 0.25 m apart on steep stairs
@@ -197,7 +201,8 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
     return found_doors(scene, caster).face_door
 
 
-def found_doors(scene: Scene, caster: RayCaster) -> MeshDoors:
+def found_doors(scene: Scene, caster: RayCaster, area_xy: NDArray[np.float64] | None = None
+                ) -> MeshDoors:
     """The doors of a mesh without semantics, from geometry alone: which faces, where, and
     how thick their filler is at knee height.
 
@@ -264,11 +269,12 @@ def found_doors(scene: Scene, caster: RayCaster) -> MeshDoors:
 
     A door whose filler at knee height is thinner than ``DOOR_LEAF_MIN_M`` across its plane
     (:attr:`MeshDoors.glazed`) is glass there: a glazed door, or a French window that may
-    be fixed; the route warns where it passes one.
+    be fixed; the route warns where it passes one. ``area_xy``: the ground the walk covers
+    (:func:`build_walk_graph`); no door is looked for outside it.
     """
     vertices, faces = scene.file_mesh
     result = np.full(len(faces), -1, np.int64)
-    crossings = _thin_crossings(scene, caster)
+    crossings = _thin_crossings(scene, caster, area_xy)
     if len(crossings.thick) == 0:
         return _mesh_doors_of(scene, result, np.zeros(0))
     keep = _in_wall_opening(crossings, caster)
@@ -390,10 +396,12 @@ def _on_the_floor(scene: Scene, crossings: _Crossings, keep: NDArray[np.bool_],
     return renumbered, standing
 
 
-def _thin_crossings(scene: Scene, caster: RayCaster) -> _Crossings:
-    """The walk's links blocked at knee height by a thin filler (rule step 1)."""
-    grid_m = _walk_grid_m(scene)
-    samples = _floor_samples(scene, caster, grid_m)
+def _thin_crossings(scene: Scene, caster: RayCaster, area_xy: NDArray[np.float64] | None
+                    ) -> _Crossings:
+    """The walk's links blocked at knee height by a thin filler (rule step 1), on the
+    ground the walk covers (``area_xy``, as :func:`build_walk_graph`'s)."""
+    grid_m = _walk_grid_m(scene, area_xy)
+    samples = _floor_samples(scene, caster, grid_m, area_xy)
     # the ground around a model without terrain too: the outside of a front door
     ground_xyz, ground_ix, ground_iy = _ground_nodes(scene, samples, grid_m)
     floor_xyz = np.concatenate([samples.floor_xyz, ground_xyz])
@@ -596,12 +604,16 @@ class WalkGraph:
     floor_xyz : (N, 3) float64, floor points (metres); the model's own floor samples
         first, then the ground nodes (``n_ground`` of them)
     links : (N, N) CSR float64, symmetric, link length in metres
+    cut_nodes : (K,) int64, ascending: on a graph of part of the footprint (``area_xy``),
+        the nodes in its outermost columns where the area cuts the model's footprint;
+        only these can have links, on the whole footprint's graph, to nodes outside it
     """
 
     floor_xyz: NDArray[np.float64]
     links: sp.csr_matrix
     grid_m: float
     n_ground: int = 0
+    cut_nodes: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
 
     @property
     def n_nodes(self) -> int:
@@ -616,19 +628,43 @@ class _Samples:
     ix: NDArray[np.int64]  # (N,) grid column of each sample
     iy: NDArray[np.int64]
     covered: NDArray[np.bool_]  # (N,) something over the sample (not open sky)
-    lowest_z: NDArray[np.float64]  # (nx, ny) lowest surface of a column; -inf unknown
-    nx: int
+    # (x1 - x0, y1 - y0) lowest surface of a column of the walked columns; -inf unknown
+    lowest_z: NDArray[np.float64]
+    nx: int  # columns over the whole model
     ny: int
+    # the walked columns: ix in [x0, x1), iy in [y0, y1) (all nx x ny without an area)
+    x0: int = 0
+    x1: int = 0
+    y0: int = 0
+    y1: int = 0
 
 
-def _floor_samples(scene: Scene, caster: RayCaster, grid_m: float) -> _Samples:
-    """The floor samples of the grid over the model's footprint, ordered by column, then
-    height; the lowest surface of every column (+inf: none; -inf: more surfaces than
-    followed)."""
+def _columns(scene: Scene, grid_m: float, area_xy: NDArray[np.float64] | None
+             ) -> tuple[int, int, int, int, int, int]:
+    """nx, ny, the model's columns ``grid_m`` apart from its lower corner, and x0, x1, y0,
+    y1, the walked ones: those whose centre lies in the (2, 2) ``area_xy`` ([[x, y] least,
+    [x, y] most]; None: every column)."""
     lo, hi = scene.bounds
     nx = math.floor((hi[0] - lo[0]) / grid_m) + 1
     ny = math.floor((hi[1] - lo[1]) / grid_m) + 1
-    grid_x, grid_y = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    if area_xy is None:
+        return nx, ny, 0, nx, 0, ny
+    first = np.ceil((area_xy[0] - lo[:2]) / grid_m - 0.5).astype(np.int64)
+    last = np.floor((area_xy[1] - lo[:2]) / grid_m - 0.5).astype(np.int64) + 1
+    x0, y0 = (min(max(int(v), 0), n) for v, n in zip(first, (nx, ny), strict=True))
+    x1, y1 = (min(max(int(v), lo_), n) for v, lo_, n in zip(last, (x0, y0), (nx, ny),
+                                                           strict=True))
+    return nx, ny, x0, x1, y0, y1
+
+
+def _floor_samples(scene: Scene, caster: RayCaster, grid_m: float,
+                   area_xy: NDArray[np.float64] | None = None) -> _Samples:
+    """The floor samples of the grid over the model's footprint (within the (2, 2)
+    ``area_xy``, see :func:`_columns`), ordered by column, then height; the lowest surface
+    of every column (+inf: none; -inf: more surfaces than followed)."""
+    lo, hi = scene.bounds
+    nx, ny, x0, x1, y0, y1 = _columns(scene, grid_m, area_xy)
+    grid_x, grid_y = np.meshgrid(np.arange(x0, x1), np.arange(y0, y1), indexing="ij")
     ix, iy = grid_x.ravel(), grid_y.ravel()
     xy = np.stack([lo[0] + (ix + 0.5) * grid_m, lo[1] + (iy + 0.5) * grid_m], axis=1)
     z = np.full(len(xy), hi[2] + 1.0)
@@ -662,43 +698,46 @@ def _floor_samples(scene: Scene, caster: RayCaster, grid_m: float) -> _Samples:
         z[alive] = floor[:, 2] - _EPS_M  # continue below this surface
     else:
         lowest[alive] = -np.inf  # surfaces left below: the lowest one is not known
-    lowest_z = lowest.reshape(nx, ny)
+    lowest_z = lowest.reshape(x1 - x0, y1 - y0)
     if not points:
         return _Samples(np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64),
-                        np.zeros(0, bool), lowest_z, nx, ny)
+                        np.zeros(0, bool), lowest_z, nx, ny, x0, x1, y0, y1)
     floor_xyz = np.concatenate(points)
     column = np.concatenate(columns)
     order = np.lexsort((floor_xyz[:, 2], column))  # by column, then height: deterministic
     floor_xyz, column = floor_xyz[order], column[order]
     return _Samples(floor_xyz, ix[column], iy[column], np.concatenate(covered)[order],
-                    lowest_z, nx, ny)
+                    lowest_z, nx, ny, x0, x1, y0, y1)
 
 
 def _ground_nodes(scene: Scene, samples: _Samples, grid_m: float
                   ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
     """(G, 3) ground nodes and their (G,) grid columns (which may lie outside the model's
-    grid, by up to ``OUTSIDE_MARGIN_M``): see the module docstring."""
+    grid, by up to ``OUTSIDE_MARGIN_M``, on the sides where the walked columns reach its
+    edge): see the module docstring."""
     covered = samples.covered
     if not covered.any():
         return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64)
-    nx, ny = samples.nx, samples.ny
+    x0, x1, y0, y1 = samples.x0, samples.x1, samples.y0, samples.y1
     # the ground floor: the lowest indoor floor at the building's edge, next to a column
     # with nothing in it (a threshold); a basement is walled in. Else the lowest indoor floor
-    empty = np.ones((nx + 2, ny + 2), bool)  # a ring of empty columns around the grid
+    empty = np.ones((x1 - x0 + 2, y1 - y0 + 2), bool)  # a ring of empty columns around
     empty[1:-1, 1:-1] = np.isposinf(samples.lowest_z)
     at_edge = np.zeros(len(covered), bool)
     for dx in (-1, 0, 1):
         for dy in (-1, 0, 1):
-            at_edge |= empty[samples.ix + 1 + dx, samples.iy + 1 + dy]
+            at_edge |= empty[samples.ix - x0 + 1 + dx, samples.iy - y0 + 1 + dy]
     edge_floor = covered & at_edge
     ground_z = float(samples.floor_xyz[edge_floor if edge_floor.any() else covered, 2].min())
     margin = math.ceil(OUTSIDE_MARGIN_M / grid_m)
-    grid_x, grid_y = np.meshgrid(np.arange(-margin, nx + margin),
-                                 np.arange(-margin, ny + margin), indexing="ij")
+    grid_x, grid_y = np.meshgrid(
+        np.arange(x0 - margin if x0 == 0 else x0, x1 + margin if x1 == samples.nx else x1),
+        np.arange(y0 - margin if y0 == 0 else y0, y1 + margin if y1 == samples.ny else y1),
+        indexing="ij")
     ix, iy = grid_x.ravel(), grid_y.ravel()
-    inside = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+    inside = (ix >= x0) & (ix < x1) & (iy >= y0) & (iy < y1)
     lowest = np.full(len(ix), np.inf)
-    lowest[inside] = samples.lowest_z[ix[inside], iy[inside]]
+    lowest[inside] = samples.lowest_z[ix[inside] - x0, iy[inside] - y0]
     free = lowest > ground_z + HEADROOM_M
     ix, iy = ix[free], iy[free]
     lo = scene.bounds[0]
@@ -757,12 +796,26 @@ def cell_pairs(sorted_key: NDArray[np.int64], order: NDArray[np.int64],
               + np.repeat(start, counts)]
     return a, b
 
-def _walk_grid_m(scene: Scene) -> float:
-    """The walk grid's spacing: ``WALK_GRID_M``, coarser on models of more than
+def _walk_grid_m(scene: Scene, area_xy: NDArray[np.float64] | None = None) -> float:
+    """The walk grid's spacing: ``WALK_GRID_M``, coarser where the walked ground (the
+    model's footprint, within the (2, 2) ``area_xy`` when given) spans more than
     ``MAX_COLUMNS`` columns."""
     lo, hi = scene.bounds
+    lo, hi = lo[:2], hi[:2]
+    if area_xy is not None:
+        lo, hi = np.maximum(lo, area_xy[0]), np.maximum(np.minimum(hi, area_xy[1]), lo)
     columns = ((hi[0] - lo[0]) / WALK_GRID_M + 1) * ((hi[1] - lo[1]) / WALK_GRID_M + 1)
     return WALK_GRID_M * max(1.0, math.sqrt(columns / MAX_COLUMNS))
+
+
+def walk_area(positions: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """(2, 2) [[x, y] least, [x, y] most]: the ground the walk covers for candidates at the
+    (C, 3) ``positions``, their footprint and ``WALK_AREA_MARGIN_M`` around it (None: no
+    candidates, the whole model)."""
+    if len(positions) == 0:
+        return None
+    xy = np.asarray(positions, np.float64)[:, :2]
+    return np.stack([xy.min(axis=0) - WALK_AREA_MARGIN_M, xy.max(axis=0) + WALK_AREA_MARGIN_M])
 
 
 def _neighbour_pairs(floor_xyz: NDArray[np.float64], ix: NDArray[np.int64],
@@ -794,11 +847,13 @@ def _neighbour_pairs(floor_xyz: NDArray[np.float64], ix: NDArray[np.int64],
     return a, b
 
 
-def build_walk_graph(scene: Scene, caster: RayCaster, *, ground: bool = True) -> WalkGraph:
+def build_walk_graph(scene: Scene, caster: RayCaster, *, ground: bool = True,
+                     area_xy: NDArray[np.float64] | None = None) -> WalkGraph:
     """The walk graph of ``scene`` (see the module docstring); ``ground``: add the ground
-    nodes of a model without terrain."""
-    grid_m = _walk_grid_m(scene)
-    samples = _floor_samples(scene, caster, grid_m)
+    nodes of a model without terrain; ``area_xy``: (2, 2), [[x, y] least, [x, y] most], the
+    ground walked (:func:`walk_area`; None: the model's whole footprint)."""
+    grid_m = _walk_grid_m(scene, area_xy)
+    samples = _floor_samples(scene, caster, grid_m, area_xy)
     floor_xyz, ix, iy = samples.floor_xyz, samples.ix, samples.iy
     n_ground = 0
     if ground:
@@ -821,4 +876,12 @@ def build_walk_graph(scene: Scene, caster: RayCaster, *, ground: bool = True) ->
     links = sp.coo_matrix((np.concatenate([length, length]),
                            (np.concatenate([a, b]), np.concatenate([b, a]))),
                           shape=(n, n)).tocsr()
-    return WalkGraph(floor_xyz=floor_xyz, links=links, grid_m=grid_m, n_ground=n_ground)
+    cut = np.zeros(n, bool)  # a column on a side where the area cuts the footprint
+    for index, first, last, count in ((ix, samples.x0, samples.x1, samples.nx),
+                                      (iy, samples.y0, samples.y1, samples.ny)):
+        if first > 0:
+            cut |= index == first
+        if last < count:
+            cut |= index == last - 1
+    return WalkGraph(floor_xyz=floor_xyz, links=links, grid_m=grid_m, n_ground=n_ground,
+                     cut_nodes=np.flatnonzero(cut))

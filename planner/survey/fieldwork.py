@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import NDArray
 
 from planner.candidates.grid import CandidateSet
 from planner.io.orientation import scene_rotation, to_plan
@@ -24,9 +25,15 @@ from planner.rays import Occlusion, RayCaster, make_ray_caster
 from planner.scanners import StationScan, missing_duration_reason, station_scans, step_note
 from planner.scene import Scene
 from planner.survey.registration import Registration, station_registration
-from planner.survey.route import Places, Route, door_checks, plan_route
+from planner.survey.route import (
+    Places,
+    Route,
+    door_checks,
+    parts_may_join_outside,
+    plan_route,
+)
 from planner.visibility.overlap import OverlapRows, RowsFanout, shared_faces_only
-from planner.walkgraph import MeshDoors, build_walk_graph, door_faces, found_doors
+from planner.walkgraph import MeshDoors, WalkGraph, build_walk_graph, door_faces, found_doors
 
 DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the scanner gives one
 
@@ -122,19 +129,33 @@ def scans_of(spec: PlanSpec, density_margins: list[float] | None, n_stations: in
                          spec.elevation_max_deg, margins)
 
 
-def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool
-                 ) -> tuple[RayCaster, MeshDoors | None]:
+def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool,
+                 area_xy: NDArray[np.float64] | None) -> tuple[RayCaster, MeshDoors | None]:
     """Rays for walking: every face blocks (glass too, which coverage may see through)
     except doors (IFC doors; in a plain mesh the thin fillers of wall openings that
-    :func:`~planner.walkgraph.found_doors` finds with the coverage ``caster``, returned
-    too; None for an IFC model); the coverage caster is reused when it blocks exactly those
-    faces. ``file_faces``: cast against the file's faces, as the plan's rays
-    (``occluders``)."""
-    doors = None if scene.elements else found_doors(scene, caster)
+    :func:`~planner.walkgraph.found_doors` finds with the coverage ``caster`` on the
+    walked ground ``area_xy``, returned too; None for an IFC model); the coverage caster
+    is reused when it blocks exactly those faces. ``file_faces``: cast against the file's
+    faces, as the plan's rays (``occluders``)."""
+    doors = None if scene.elements else found_doors(scene, caster, area_xy)
     blocks = ~door_faces(scene) if doors is None else doors.face_door < 0
     if np.array_equal(blocks, limits.occludes):
         return caster, doors
     return make_ray_caster(scene, blocks, file_faces=file_faces), doors
+
+
+def _walk(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool,
+          area_xy: NDArray[np.float64] | None
+          ) -> tuple[RayCaster, MeshDoors | None, WalkGraph]:
+    """The walk's rays and doors (:func:`_walk_caster`), the rooms' floors where the model
+    has no slab, and the walk graph over the ground ``area_xy`` (None: the whole
+    footprint)."""
+    walk_caster, doors = _walk_caster(scene, limits, caster, file_faces, area_xy)
+    if scene.metadata.get("spaces"):  # rooms are floors where the model has no slab
+        from planner.survey.space_floors import with_room_floors
+
+        walk_caster, _ = with_room_floors(scene, walk_caster)
+    return walk_caster, doors, build_walk_graph(scene, walk_caster, area_xy=area_xy)
 
 
 def places_of(scene: Scene, candidates: CandidateSet | None, stations: list[int]
@@ -178,13 +199,16 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
            occlusion: Occlusion, caster: RayCaster, seconds: dict[str, float],
            station_overlap: sp.csr_matrix | None = None,
            threads: int | None = None, density_margins: list[float] | None = None,
-           fanout: RowsFanout | None = None, places: Places | None = None) -> Survey:
+           fanout: RowsFanout | None = None, places: Places | None = None,
+           walk_area_xy: NDArray[np.float64] | None = None) -> Survey:
     """Registration, route and field time of the (S, 3) stations, in selection order.
 
     ``station_overlap``: the stations' (S, F) overlap rows when the selection already made
     them (else made here, by ``fanout`` when given); ``density_margins``: see
     :func:`scans_of`; ``seconds`` gains the stages "overlap" and "walk graph";
-    ``places``: what the reasons of unreachable stations name (:func:`places_of`).
+    ``places``: what the reasons of unreachable stations name (:func:`places_of`);
+    ``walk_area_xy``: (2, 2), the ground the route walks (:func:`planner.walkgraph.walk_area`
+    of the plan's candidates; None: the model's whole footprint).
     """
     t0 = time.perf_counter()
     # only what two stations share counts: the rows are cut to it before the registration's
@@ -204,16 +228,20 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     del shared
     t1 = time.perf_counter()
     seconds["overlap"] = seconds.get("overlap", 0.0) + t1 - t0
-    walk_caster, doors = _walk_caster(scene, limits, caster, spec.occluders == "file")
-    if scene.metadata.get("spaces"):  # rooms are floors where the model has no slab
-        from planner.survey.space_floors import with_room_floors
-
-        walk_caster, _ = with_room_floors(scene, walk_caster)
-    graph = build_walk_graph(scene, walk_caster)
     start = spec.route_start
     if start is not None:  # given in model coordinates, like every position (up_axis)
         x, y, z = to_plan(scene_rotation(scene.metadata), np.asarray([start], np.float64))[0]
         start = (float(x), float(y), float(z))
+        if walk_area_xy is not None:  # the crew's start is walked ground too
+            walk_area_xy = np.stack([np.minimum(walk_area_xy[0], (x, y)),
+                                     np.maximum(walk_area_xy[1], (x, y))])
+    file_faces = spec.occluders == "file"
+    walk_caster, doors, graph = _walk(scene, limits, caster, file_faces, walk_area_xy)
+    points = stations_xyz if start is None else np.vstack([stations_xyz, [start]])
+    if walk_area_xy is not None and parts_may_join_outside(graph, walk_caster, points):
+        # stations on two parts that both reach the edge of the area: the whole site's
+        # ground may join them (a lower lawn reached round the house's far end)
+        walk_caster, doors, graph = _walk(scene, limits, caster, file_faces, None)
     route = plan_route(graph, walk_caster, stations_xyz, start, places)
     if doors is not None:  # a plain mesh: the legs through doors that may be fixed windows
         route = dataclasses.replace(route, door_checks=door_checks(scene, route, doors))

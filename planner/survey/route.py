@@ -375,6 +375,21 @@ def open_tour(cost_m: NDArray[np.float64], start: int | None) -> list[int]:
     return order
 
 
+def parts_may_join_outside(graph: WalkGraph, caster: RayCaster,
+                           points: NDArray[np.float64]) -> bool:
+    """Whether two parts of ``graph``, a graph of part of the model's footprint, that each
+    hold some of the (K, 3) ``points`` (the stations, the start) both reach its cut
+    nodes (:attr:`WalkGraph.cut_nodes`): on the whole footprint's graph they may be one
+    part, joined outside the area. A part that reaches no cut node is a part of the
+    whole footprint's graph too: its nodes' links are all in the area."""
+    if not len(graph.cut_nodes):
+        return False
+    nodes, _ = attach(graph, caster, np.asarray(points, np.float64))
+    _, component = connected_components(graph.links, directed=False)
+    held = np.unique(component[nodes[nodes >= 0]])
+    return len(np.intersect1d(held, component[graph.cut_nodes])) >= 2
+
+
 def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.float64],
                route_start: tuple[float, float, float] | None,
                places: Places | None = None) -> Route:

@@ -1,4 +1,4 @@
-"""Issue 11: scanner presets, registration overlap, walking route and field time."""
+"""Scanner presets, registration overlap, walking route and field time."""
 
 from __future__ import annotations
 
@@ -8,21 +8,31 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 
 from planner.__main__ import main
 from planner.candidates.grid import read_candidates_csv
 from planner.errors import ParameterError
 from planner.io.readers import read_scene
+from planner.limits import FaceLimits
 from planner.outputs.report import plan_document, stations_csv
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
 from planner.rays import make_occlusion, make_ray_caster
+from planner.scene import Scene, build_scene
 from planner.selection import connectivity
 from planner.selection.connected import MIN_CONSTRAINT
+from planner.survey.fieldwork import survey
 from planner.survey.registration import station_registration
-from planner.survey.route import exact_open_tour, open_tour, plan_route
+from planner.survey.route import exact_open_tour, open_tour, parts_may_join_outside, plan_route
 from planner.visibility.overlap import overlap_matrix, shared_faces_only
-from planner.walkgraph import KNEE_HEIGHT_M, build_walk_graph, segment_free
+from planner.walkgraph import (
+    KNEE_HEIGHT_M,
+    WALK_AREA_MARGIN_M,
+    build_walk_graph,
+    segment_free,
+    walk_area,
+)
 from tests.planner.survey_scenes import (
     MEZZANINE_Z_M,
     boxes_scene,
@@ -380,3 +390,76 @@ def test_station_pair_sums_equal_the_dense_masked_products() -> None:
         np.testing.assert_array_equal(sums[a], dense)
         assert not np.signbit(sums[a][dense == 0.0]).any()
     assert (sums[0, 5] == 0.0).all() and (sums[1] == 0.0).all()
+
+
+def test_route_walks_the_building_not_its_site() -> None:
+    """A house on a 110 x 100 m site: the walk covers the candidates' ground and
+    ``WALK_AREA_MARGIN_M`` around it, not the whole terrain, and the route is the one the
+    whole site's walk gives."""
+    house = two_rooms()
+    terrain = trimesh.creation.box(bounds=np.array([[-50.0, -50.0, -0.5], [60.0, 50.0, -0.2]]))
+    scene = build_scene(np.concatenate([house.vertices, terrain.vertices]),
+                        np.concatenate([house.faces, terrain.faces + len(house.vertices)]))
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    candidates = np.array(two_room_candidates())
+    stations = candidates[[0, 7, 16]]
+    area = walk_area(candidates)
+    assert area is not None
+    assert area.tolist() == [[1.0 - WALK_AREA_MARGIN_M, 1.0 - WALK_AREA_MARGIN_M],
+                             [7.2 + WALK_AREA_MARGIN_M, 3.0 + WALK_AREA_MARGIN_M]]
+    whole = build_walk_graph(scene, caster)
+    walked = build_walk_graph(scene, caster, area_xy=area)
+    assert walked.n_nodes < whole.n_nodes / 20
+    xy = walked.floor_xyz[:, :2]
+    assert ((xy >= area[0] - walked.grid_m) & (xy <= area[1] + walked.grid_m)).all()
+    # the house's own floor samples are the same points on either walk
+    inside = ((whole.floor_xyz[:, :2] > [-0.2, -0.2]) & (whole.floor_xyz[:, :2] < [8.4, 4.2])
+              ).all(axis=1)
+    indoors = whole.floor_xyz[inside & (whole.floor_xyz[:, 2] > -0.1)].tolist()
+    assert len(indoors) > 400
+    assert {tuple(p) for p in indoors} <= {tuple(p) for p in walked.floor_xyz.tolist()}
+    route = plan_route(walked, caster, stations, None).to_dict()
+    reference = plan_route(whole, caster, stations, None).to_dict()
+    assert route["visits"] == reference["visits"] and route["unreachable"] == []
+    assert route["length_m"] == pytest.approx(reference["length_m"], abs=1e-6)
+    for leg in route["legs"]:
+        _assert_free_at_knee_height(caster, leg["path"])
+
+
+def _site_with_a_fence() -> Scene:
+    """110 x 100 m of flat terrain (top at z = -0.2) and a 3 m fence along x = 20 m from
+    the site's edge at y = -50 to y = 40 m: walked round its far end only."""
+    boxes = [((-50.0, -50.0, -0.5), (60.0, 50.0, -0.2)), ((20.0, -50.0, -0.2), (20.2, 40.0, 3.0))]
+    meshes = [trimesh.creation.box(bounds=np.array(box)) for box in boxes]
+    return build_scene(np.concatenate([m.vertices for m in meshes]),
+                       np.concatenate([meshes[0].faces, meshes[1].faces + len(meshes[0].vertices)]))
+
+
+def test_route_looks_beyond_the_area_when_two_parts_reach_its_edge() -> None:
+    """Two stations either side of a long fence: on the walked area alone (the candidates'
+    ground and 5 m round it) they are apart, but both parts reach the area's edge, so the
+    survey walks the whole site and goes round the fence's far end; a sealed closet's
+    station stays unreachable without that (its part reaches no edge)."""
+    scene = _site_with_a_fence()
+    spec = PlanSpec(max_edge_m=None)
+    limits = FaceLimits.from_spec(spec, scene)
+    caster = make_ray_caster(scene, limits.occludes)
+    stations = np.array([[15.0, 0.0, 1.3], [25.0, 0.0, 1.3]])
+    area = walk_area(stations)
+    walked = build_walk_graph(scene, caster, area_xy=area)
+    assert plan_route(walked, caster, stations, None).unreachable == (2,)
+    assert parts_may_join_outside(walked, caster, stations)
+    found = survey(scene, spec, stations, limits, make_occlusion(scene, limits.occludes,
+                                                                 "embree"),
+                   caster, {}, walk_area_xy=area).route.to_dict()
+    assert found["unreachable"] == []
+    (leg,) = found["legs"]
+    assert max(p[1] for p in leg["path"]) > 40.0  # round the fence's end
+    assert leg["length_m"] > 2 * 40.0
+    closet = two_rooms(closet=True)
+    closet_caster = make_ray_caster(closet, np.ones(closet.n_faces, bool))
+    inside = np.array([[3.6, 2.0, 1.5], [11.0, 1.0, 1.5]])
+    # an area that cuts room A and holds the closet whole
+    graph = build_walk_graph(closet, closet_caster, area_xy=np.array([[3.0, -1.0], [13.0, 5.0]]))
+    assert plan_route(graph, closet_caster, inside, None).unreachable == (2,)
+    assert len(graph.cut_nodes) and not parts_may_join_outside(graph, closet_caster, inside)
