@@ -201,8 +201,7 @@ def mesh_doors(scene: Scene, caster: RayCaster) -> NDArray[np.int64]:
     return found_doors(scene, caster).face_door
 
 
-def found_doors(scene: Scene, caster: RayCaster, area_xy: NDArray[np.float64] | None = None
-                ) -> MeshDoors:
+def found_doors(scene: Scene, caster: RayCaster) -> MeshDoors:
     """The doors of a mesh without semantics, from geometry alone: which faces, where, and
     how thick their filler is at knee height.
 
@@ -269,12 +268,11 @@ def found_doors(scene: Scene, caster: RayCaster, area_xy: NDArray[np.float64] | 
 
     A door whose filler at knee height is thinner than ``DOOR_LEAF_MIN_M`` across its plane
     (:attr:`MeshDoors.glazed`) is glass there: a glazed door, or a French window that may
-    be fixed; the route warns where it passes one. ``area_xy``: the ground the walk covers
-    (:func:`build_walk_graph`); no door is looked for outside it.
+    be fixed; the route warns where it passes one.
     """
     vertices, faces = scene.file_mesh
     result = np.full(len(faces), -1, np.int64)
-    crossings = _thin_crossings(scene, caster, area_xy)
+    crossings = _thin_crossings(scene, caster)
     if len(crossings.thick) == 0:
         return _mesh_doors_of(scene, result, np.zeros(0))
     keep = _in_wall_opening(crossings, caster)
@@ -396,12 +394,10 @@ def _on_the_floor(scene: Scene, crossings: _Crossings, keep: NDArray[np.bool_],
     return renumbered, standing
 
 
-def _thin_crossings(scene: Scene, caster: RayCaster, area_xy: NDArray[np.float64] | None
-                    ) -> _Crossings:
-    """The walk's links blocked at knee height by a thin filler (rule step 1), on the
-    ground the walk covers (``area_xy``, as :func:`build_walk_graph`'s)."""
-    grid_m = _walk_grid_m(scene, area_xy)
-    samples = _floor_samples(scene, caster, grid_m, area_xy)
+def _thin_crossings(scene: Scene, caster: RayCaster) -> _Crossings:
+    """The walk's links blocked at knee height by a thin filler (rule step 1)."""
+    grid_m = _walk_grid_m(scene)
+    samples = _floor_samples(scene, caster, grid_m)
     # the ground around a model without terrain too: the outside of a front door
     ground_xyz, ground_ix, ground_iy = _ground_nodes(scene, samples, grid_m)
     floor_xyz = np.concatenate([samples.floor_xyz, ground_xyz])

@@ -33,7 +33,7 @@ from planner.survey.route import (
     plan_route,
 )
 from planner.visibility.overlap import OverlapRows, RowsFanout, shared_faces_only
-from planner.walkgraph import MeshDoors, WalkGraph, build_walk_graph, door_faces, found_doors
+from planner.walkgraph import MeshDoors, build_walk_graph, door_faces, found_doors
 
 DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the scanner gives one
 
@@ -129,33 +129,19 @@ def scans_of(spec: PlanSpec, density_margins: list[float] | None, n_stations: in
                          spec.elevation_max_deg, margins)
 
 
-def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool,
-                 area_xy: NDArray[np.float64] | None) -> tuple[RayCaster, MeshDoors | None]:
+def _walk_caster(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool
+                 ) -> tuple[RayCaster, MeshDoors | None]:
     """Rays for walking: every face blocks (glass too, which coverage may see through)
     except doors (IFC doors; in a plain mesh the thin fillers of wall openings that
-    :func:`~planner.walkgraph.found_doors` finds with the coverage ``caster`` on the
-    walked ground ``area_xy``, returned too; None for an IFC model); the coverage caster
-    is reused when it blocks exactly those faces. ``file_faces``: cast against the file's
-    faces, as the plan's rays (``occluders``)."""
-    doors = None if scene.elements else found_doors(scene, caster, area_xy)
+    :func:`~planner.walkgraph.found_doors` finds with the coverage ``caster`` over the
+    whole footprint, returned too; None for an IFC model); the coverage caster is reused
+    when it blocks exactly those faces. ``file_faces``: cast against the file's faces, as
+    the plan's rays (``occluders``)."""
+    doors = None if scene.elements else found_doors(scene, caster)
     blocks = ~door_faces(scene) if doors is None else doors.face_door < 0
     if np.array_equal(blocks, limits.occludes):
         return caster, doors
     return make_ray_caster(scene, blocks, file_faces=file_faces), doors
-
-
-def _walk(scene: Scene, limits: FaceLimits, caster: RayCaster, file_faces: bool,
-          area_xy: NDArray[np.float64] | None
-          ) -> tuple[RayCaster, MeshDoors | None, WalkGraph]:
-    """The walk's rays and doors (:func:`_walk_caster`), the rooms' floors where the model
-    has no slab, and the walk graph over the ground ``area_xy`` (None: the whole
-    footprint)."""
-    walk_caster, doors = _walk_caster(scene, limits, caster, file_faces, area_xy)
-    if scene.metadata.get("spaces"):  # rooms are floors where the model has no slab
-        from planner.survey.space_floors import with_room_floors
-
-        walk_caster, _ = with_room_floors(scene, walk_caster)
-    return walk_caster, doors, build_walk_graph(scene, walk_caster, area_xy=area_xy)
 
 
 def places_of(scene: Scene, candidates: CandidateSet | None, stations: list[int]
@@ -235,13 +221,17 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
         if walk_area_xy is not None:  # the crew's start is walked ground too
             walk_area_xy = np.stack([np.minimum(walk_area_xy[0], (x, y)),
                                      np.maximum(walk_area_xy[1], (x, y))])
-    file_faces = spec.occluders == "file"
-    walk_caster, doors, graph = _walk(scene, limits, caster, file_faces, walk_area_xy)
+    walk_caster, doors = _walk_caster(scene, limits, caster, spec.occluders == "file")
+    if scene.metadata.get("spaces"):  # rooms are floors where the model has no slab
+        from planner.survey.space_floors import with_room_floors
+
+        walk_caster, _ = with_room_floors(scene, walk_caster)
+    graph = build_walk_graph(scene, walk_caster, area_xy=walk_area_xy)
     points = stations_xyz if start is None else np.vstack([stations_xyz, [start]])
     if walk_area_xy is not None and parts_may_join_outside(graph, walk_caster, points):
         # stations on two parts that both reach the edge of the area: the whole site's
         # ground may join them (a lower lawn reached round the house's far end)
-        walk_caster, doors, graph = _walk(scene, limits, caster, file_faces, None)
+        graph = build_walk_graph(scene, walk_caster)
     route = plan_route(graph, walk_caster, stations_xyz, start, places)
     if doors is not None:  # a plain mesh: the legs through doors that may be fixed windows
         route = dataclasses.replace(route, door_checks=door_checks(scene, route, doors))
