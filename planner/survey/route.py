@@ -455,9 +455,10 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
 
 # sources whose shortest-path trees are grown at a time: the (k, N) float64 distances and
 # int32 predecessors of a chunk are cut at once to the sources' columns and to the paths
-# between the sources, so no (S, N) array stays (Lantern Hollow's 42 stations: see
-# docs/performance.md)
-_SOURCES_PER_CHUNK = 16
+# between the sources, so no (S, N) array stays. Four trees at a time: 48 bytes a node
+# (16 made the peak of Lantern Hollow's plain mesh); the time is in the trees, not the
+# calls (48 trees over a 2 M-node grid: 27.6 CPU s four at a time, 30.4 sixteen)
+_SOURCES_PER_CHUNK = 4
 
 
 @dataclass(frozen=True)
