@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
@@ -26,7 +27,10 @@ _Value = TypeVar("_Value", bound=np.generic)
 
 # Per-face arrays are derived, and faces remeshed, a block at a time: the temporaries are
 # (B, 3, 3) floats, not (F, 3, 3), so a 10 M-face model needs no 720 MB scratch arrays.
-_DERIVE_BLOCK_FACES = 1 << 20
+# A block's scratch is some 250 bytes a face on each of the threads: at 131,072 faces a
+# block some 30 MB, where blocks of 1,048,576 faces made the split's peak (Amersfoort,
+# 3.87 M faces: two threads' 250 MB over the old and the new scene)
+_DERIVE_BLOCK_FACES = 1 << 17
 # remesh: at most about this many pieces per call of trimesh (its scratch is some 450
 # bytes a piece, two blocks at a time). The blocks decide which vertices are stored twice,
 # and the plan's identities hash the vertices (planner.outputs.stations.namespace), so the
@@ -375,6 +379,93 @@ def remesh(scene: Scene, max_edge_m: float, split: NDArray[np.bool_] | None = No
         file_vertices=file_vertices,
         file_faces=file_faces,
     )
+
+
+# kept_pieces: at most about this many pieces per call of trimesh, each call's pieces
+# sifted on its thread before the next (some 30 MB of scratch a thread)
+_SIFTED_BLOCK_PIECES = 1 << 16
+
+
+def kept_pieces(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
+                keep: Callable[[FloatArray, IndexArray], NDArray[np.bool_]]
+                ) -> tuple[FloatArray, IndexArray]:
+    """The pieces :func:`subdivide` splits the (F, 3) ``faces`` into that ``keep`` keeps:
+    (V', 3) vertices and (F', 3) int32 faces of them, in no particular order, a vertex
+    stored once per block. ``keep(piece_vertices, piece_faces)`` gets a block's (v, 3)
+    vertices and (f, 3) faces and returns (f,) bool.
+
+    The same pieces, corner for corner, as :func:`subdivide` gives, without its scratch
+    or its output for the pieces dropped: the faces are split about
+    ``_SIFTED_BLOCK_PIECES`` pieces at a time on the thread pool, and a face that alone
+    would make more (a site's ground: 589,824 pieces) is first split once as trimesh's
+    first step splits it (its three edges longer than ``max_edge_m``: four faces on their
+    midpoints), whose pieces are the face's own (an edge's midpoint is the mean of its
+    corners, a face's split depends on its own edges only)."""
+    vertices, faces = _quartered(vertices, faces, max_edge_m, _SIFTED_BLOCK_PIECES)
+    halvings = np.ceil(np.log2(np.maximum(longest_edges_m(vertices, faces) / max_edge_m,
+                                          1.0)))  # (F,)
+    bound = np.cumsum(np.minimum(4.0 ** halvings, _SIFTED_BLOCK_PIECES))
+    cuts = np.searchsorted(bound, np.arange(_SIFTED_BLOCK_PIECES, bound[-1],
+                                            _SIFTED_BLOCK_PIECES), side="right")
+    starts = np.unique(np.concatenate([[0], cuts]))
+    stops = np.append(starts[1:], len(faces))
+    del halvings, bound, cuts
+
+    def sifted(block: tuple[int, int]) -> tuple[FloatArray, IndexArray]:
+        """(v, 3) vertices and (k, 3) faces of the kept pieces of faces ``start:stop``."""
+        start, stop = block
+        pieces = subdivide(vertices, faces[start:stop], max_edge_m)
+        if pieces is None:  # no face of the block longer than max_edge_m: each its own piece
+            used, local = compact_indices(faces[start:stop], len(vertices))
+            piece_vertices, piece_faces = vertices[used], local
+        else:
+            piece_vertices, piece_faces, _ = pieces
+        kept = piece_faces[keep(piece_vertices, piece_faces)]
+        used, local = compact_indices(kept, len(piece_vertices))
+        return piece_vertices[used], local
+
+    out_vertices = GrowingArray(np.float64)  # (3 V',) flat
+    out_faces = GrowingArray(np.int32)  # (3 F',) flat
+    n_vertices = 0
+    blocks = list(zip(starts.tolist(), stops.tolist(), strict=True))
+    for block_vertices, block_faces in in_block_order(sifted, blocks):
+        out_vertices.append(block_vertices.reshape(-1))
+        out_faces.append((block_faces + n_vertices).astype(np.int32).reshape(-1))
+        n_vertices += len(block_vertices)
+    return out_vertices.done().reshape(-1, 3), out_faces.done().reshape(-1, 3)
+
+
+def _quartered(vertices: FloatArray, faces: IndexArray, max_edge_m: float, most_pieces: int
+               ) -> tuple[FloatArray, IndexArray]:
+    """(V', 3) vertices and (F', 3) faces: the (F, 3) ``faces`` with every face that
+    :func:`subdivide` could split into more than ``most_pieces`` pieces and whose three
+    edges are longer than ``max_edge_m`` replaced, again until none is left, by the four
+    faces trimesh's first step makes of it (:func:`trimesh.remesh.subdivide_to_size`, the
+    regular 1 -> 4 split, its corners in its order), new midpoints after the vertices."""
+    for _ in range(64):
+        halvings = np.ceil(np.log2(np.maximum(longest_edges_m(vertices, faces) / max_edge_m,
+                                              1.0)))
+        big = np.flatnonzero(4.0 ** halvings > most_pieces)
+        if len(big) == 0:
+            break
+        corners = vertices[faces[big]]  # (b, 3, 3)
+        # the edges v0v1, v1v2, v2v0 and their lengths as trimesh measures them
+        length_m = ((corners - np.roll(corners, -1, axis=1)) ** 2).sum(axis=2) ** 0.5
+        big = big[(length_m > max_edge_m).all(axis=1)]
+        if len(big) == 0:
+            break
+        v0, v1, v2 = faces[big].T.astype(np.int64)
+        # midpoints as trimesh makes them: the mean of the edge's two corners
+        middles = np.stack([vertices[np.stack([a, b], axis=1)].mean(axis=1)
+                            for a, b in ((v0, v1), (v1, v2), (v2, v0))])  # (3, b, 3)
+        m0, m1, m2 = len(vertices) + np.arange(3 * len(big)).reshape(3, -1)
+        children = np.column_stack((v0, m0, m2, m0, v1, m1, m2, m1, v2, m0, m1, m2)
+                                   ).reshape(-1, 3)
+        vertices = np.concatenate([vertices, middles.reshape(-1, 3)])
+        whole = np.ones(len(faces), bool)
+        whole[big] = False
+        faces = np.concatenate([faces[whole], children.astype(np.int32)])
+    return vertices, faces
 
 
 def longest_edges_m(vertices: FloatArray, faces: IndexArray) -> FloatArray:

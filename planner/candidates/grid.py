@@ -50,7 +50,13 @@ from planner.limits import FaceLimits
 from planner.memory import release_freed_memory
 from planner.parameters import PlanSpec
 from planner.rays import RayCaster
-from planner.scene import Scene, column_bounds, corner_extremes, longest_edges_m, subdivide
+from planner.scene import (
+    Scene,
+    column_bounds,
+    corner_extremes,
+    kept_pieces,
+    longest_edges_m,
+)
 from planner.threads import in_block_order
 from planner.walkgraph import HEADROOM_M, KNEE_HEIGHT_M, build_walk_graph, cell_pairs
 
@@ -1070,23 +1076,32 @@ def closer_than(
         # (the split leaves it whole): only the longer ones go through the split, not the
         # million small faces of a furnished interior beside them
         long = longest_edges_m(vertices, faces[useful]) > scene.split_max_edge_m  # (U,)
-        pieces = subdivide(vertices, faces[useful[long]], scene.split_max_edge_m) \
-            if long.any() else None
-        if pieces is not None:
-            piece_vertices, piece_faces, _ = pieces
-            corner_z = piece_vertices[piece_faces, 2]  # (pieces, 3)
-            low, high = corner_extremes(corner_z)
-            keep = np.flatnonzero(_in_spans(low, high, span_low_m, span_high_m))
+        if long.any():
+            def reaching(piece_vertices: NDArray[np.float64], piece_faces: NDArray[np.int32]
+                         ) -> NDArray[np.bool_]:
+                """(f,) bool: the pieces that reach into a span and whose footprint's box,
+                widened by radius_m, holds some point (no other is an obstacle)."""
+                low, high = corner_extremes(piece_vertices[piece_faces, 2])
+                kept = _in_spans(low, high, span_low_m, span_high_m)
+                kept[kept] = near.any_in(*corner_extremes(
+                    piece_vertices[piece_faces[kept], :2]))
+                return kept
+
+            # split a block at a time, each block's pieces sifted as they are made (a
+            # site's ground of 1,479 faces is 2.9 M pieces, a few thousand of them near a
+            # tripod)
+            piece_vertices, piece_faces = kept_pieces(vertices, faces[useful[long]],
+                                                      scene.split_max_edge_m, reaching)
+            low, high = corner_extremes(piece_vertices[piece_faces, 2])
             whole = ~long
-            # the whole faces, then the pieces that reach into a span (their corners
-            # after the scene's own)
+            # the whole faces, then the pieces (their corners after the scene's own)
             faces = np.concatenate([faces[useful[whole]],
-                                    piece_faces[keep] + np.int32(len(vertices))])
+                                    piece_faces + np.int32(len(vertices))])
             vertices = np.concatenate([vertices, piece_vertices])
-            z_low = np.concatenate([z_low[whole], low[keep]])
-            z_high = np.concatenate([z_high[whole], high[keep]])
+            z_low = np.concatenate([z_low[whole], low])
+            z_high = np.concatenate([z_high[whole], high])
             useful = np.arange(len(faces), dtype=np.int32)
-            del corner_z, low, high, piece_vertices, piece_faces
+            del low, high, piece_vertices, piece_faces
             release_freed_memory()  # the split's scratch, freed into its threads' heaps
 
     def footprints(index: NDArray[np.int64]) -> NDArray[np.float64]:

@@ -21,6 +21,7 @@ import trimesh
 
 from planner.errors import ParameterError, SceneError, UnsupportedFormatError
 from planner.io.orientation import axis_rotation, default_up_axis, find_up
+from planner.memory import release_freed_memory
 from planner.parameters import UP_AXES
 from planner.scene import Element, Scene, build_scene, remesh
 
@@ -128,6 +129,9 @@ def read_scene(
         scene = ifc.read_ifc(path)
     else:
         scene = _read_mesh(path, fmt)
+    # the parser's freed memory, before the plan's peaks: IfcOpenShell's geometry of
+    # Amersfoort's 165,364 faces left 269 MiB of freed heap resident, 487 MiB after reading
+    release_freed_memory()
     if unit_scale != 1.0:
         scene = _scaled(scene, unit_scale)
     scene.metadata.setdefault("format", fmt)

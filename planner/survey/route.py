@@ -45,6 +45,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components, dijkstra
@@ -429,7 +430,7 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
     sources = [int(nodes[i]) for i in reachable]
     if route_start is not None:
         sources.append(int(nodes[s]))
-    between_m, predecessor = _shortest_paths(graph, sources)
+    between_m, trees = _shortest_paths(graph, sources)
     # foot -> node -> ... -> node -> foot; the attaching segments count too
     attach_m = np.linalg.norm(graph.floor_xyz[sources] - (feet[reachable + ([s] if route_start
                               is not None else [])] - [0, 0, KNEE_HEIGHT_M]), axis=1)
@@ -442,10 +443,7 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
     feet_used = feet[reachable + ([s] if route_start is not None else [])]
     legs: list[Leg] = []
     for a, b in itertools.pairwise(order):
-        path_nodes = [sources[b]]
-        while path_nodes[-1] != sources[a]:
-            path_nodes.append(int(predecessor[a, path_nodes[-1]]))
-        path_nodes.reverse()
+        path_nodes = trees.path(a, sources, b)
         path = [feet_used[a]] + [graph.floor_xyz[p] + knee for p in path_nodes] + [feet_used[b]]
         end = point_ids[b]
         assert end is not None  # only the start is None, and it is never visited later
@@ -455,26 +453,70 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
     return Route(visits, tuple(legs), unreachable, reasons)
 
 
-# sources whose shortest-path trees are grown at a time: the (k, N) float64 distances of a
-# chunk are cut to the sources' columns at once, so only the (S, N) int32 predecessors
-# stay (the 9.7 M-face office's 218 stations over its walk graph: some 150 MB less)
-_SOURCES_PER_CHUNK = 16
+# sources whose shortest-path trees are grown at a time: the (k, N) float64 distances and
+# int32 predecessors of a chunk are cut at once to the sources' columns and to the paths
+# between the sources, so no (S, N) array stays. Four trees at a time: 48 bytes a node
+# (16 made the peak of Lantern Hollow's plain mesh); the time is in the trees, not the
+# calls (48 trees over a 2 M-node grid: 27.6 CPU s four at a time, 30.4 sixteen)
+_SOURCES_PER_CHUNK = 4
+
+
+@dataclass(frozen=True)
+class _PathTrees:
+    """Each source's shortest-path tree cut to its paths to the other sources: per source
+    the (n,) ascending nodes on those paths (the source itself not among them) and the
+    (n,) predecessor of each, as ``dijkstra``'s predecessors give them."""
+
+    nodes: tuple[NDArray[np.int32], ...]
+    predecessors: tuple[NDArray[np.int32], ...]
+
+    def path(self, a: int, sources: list[int], b: int) -> list[int]:
+        """The nodes from ``sources[a]`` to ``sources[b]`` on the tree of ``a``."""
+        nodes, predecessors = self.nodes[a], self.predecessors[a]
+        path = [sources[b]]
+        while path[-1] != sources[a]:
+            path.append(int(predecessors[np.searchsorted(nodes, path[-1])]))
+        path.reverse()
+        return path
+
+
+@numba.njit(nogil=True, cache=True)
+def _on_paths(predecessor: NDArray[np.int32], source: int, targets: NDArray[np.int64]
+              ) -> NDArray[np.bool_]:
+    """(N,) bool: the nodes on the paths of the (N,) ``predecessor`` tree from ``source``
+    to the ``targets`` (the source not marked; a path is followed until it meets one
+    marked before)."""
+    on = np.zeros(len(predecessor), np.bool_)
+    for target in targets:
+        node = target
+        while node != source and node >= 0 and not on[node]:
+            on[node] = True
+            node = predecessor[node]
+    return on
 
 
 def _shortest_paths(graph: WalkGraph, sources: list[int]
-                    ) -> tuple[NDArray[np.float64], NDArray[np.int32]]:
-    """(S, S) walking distances between the ``sources`` (walk-graph nodes) and the (S, N)
-    predecessors of each source's shortest-path tree (-9999 where there is none), as one
-    ``dijkstra`` call over all sources would give them (each tree is grown on its own)."""
+                    ) -> tuple[NDArray[np.float64], _PathTrees]:
+    """(S, S) walking distances between the ``sources`` (walk-graph nodes) and each
+    source's shortest-path tree cut to its paths to the others, as one ``dijkstra`` call
+    over all sources would give them (each tree is grown on its own)."""
     between_m = np.empty((len(sources), len(sources)))
-    predecessor = np.empty((len(sources), graph.n_nodes), np.int32)
+    targets = np.asarray(sources, np.int64)
+    nodes: list[NDArray[np.int32]] = []
+    predecessors: list[NDArray[np.int32]] = []
     for first in range(0, len(sources), _SOURCES_PER_CHUNK):
         chunk = slice(first, first + _SOURCES_PER_CHUNK)
-        distance, predecessor[chunk] = dijkstra(graph.links, directed=False,
-                                                indices=sources[chunk], return_predecessors=True)
+        distance, predecessor = dijkstra(graph.links, directed=False, indices=sources[chunk],
+                                         return_predecessors=True)
         between_m[chunk] = distance[:, sources]
         del distance
-    return between_m, predecessor
+        for row, source in zip(predecessor, sources[chunk], strict=True):
+            tree = np.asarray(row, np.int32)
+            on = np.flatnonzero(_on_paths(tree, source, targets)).astype(np.int32)
+            nodes.append(on)
+            predecessors.append(tree[on])
+        del predecessor
+    return between_m, _PathTrees(tuple(nodes), tuple(predecessors))
 
 
 _NO_FLOOR = "no floor a person can walk on under it"

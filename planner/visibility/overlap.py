@@ -45,6 +45,8 @@ def overlap_limits(limits: FaceLimits, overlap_density_pts_m2: float) -> FaceLim
 # rows' peak went from 1,963 to 1,894 MiB with the trims, and the memory the tolerance
 # starts with from 1,783 to 1,640 MiB)
 _TRIM_EVERY_ROWS = 16
+# an overlap row's rays cast at a time (overlap_row)
+_ROW_RAYS_PER_CAST = 1 << 17
 
 
 class OverlapRows:
@@ -196,9 +198,21 @@ def overlap_row(finder: PairFinder, culler: BundleCuller | None, occlusion: Occl
     point = positions[candidate:candidate + 1]
     hidden, bundle_rays = (None, 0) if culler is None else culler.hidden(point)
     pairs, _ = finder.find(point, candidate, hidden, ordered=False)  # sorted below
-    visible = occlusion.visible(
-        pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
-        exact_rays=pairs.exact_rays(positions, centroids))
+    exact_rays = pairs.exact_rays(positions, centroids)
+    # cast a part of the row at a time: a hall's row is a million rays, and the cast's
+    # scratch (some 60 bytes a ray) on both threads at once made the overlap rows' peak;
+    # each ray's verdict is its own, whatever else is cast with it
+    visible = np.empty(len(pairs), bool)  # (P,)
+    for first in range(0, len(pairs), _ROW_RAYS_PER_CAST):
+        part = slice(first, first + _ROW_RAYS_PER_CAST)
+
+        def part_rays(index: NDArray[np.int64], first: int = first
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+            return exact_rays(index + first)
+
+        visible[part] = occlusion.visible(
+            pairs.origin[part], pairs.direction[part], pairs.distance_m[part],
+            pairs.face[part], exact_rays=part_rays)
     return np.sort(pairs.face[visible]), len(pairs) + bundle_rays
 
 

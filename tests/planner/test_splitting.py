@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 import trimesh
 
 from planner.parameters import PlanSpec
@@ -52,3 +53,43 @@ def test_faces_no_candidate_can_qualify_stay_whole_and_the_plan_is_the_same() ->
     split_needed = ~kept_whole[needed.scene.source_face]
     for name, values in every.faces.items():
         assert np.array_equal(values[split_every], needed.faces[name][split_needed]), name
+
+
+def _piece_rows(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F,) the pieces' corners in their order, as sortable byte rows."""
+    corners = np.ascontiguousarray(vertices[faces].reshape(len(faces), 9))
+    return np.sort(corners.view(np.dtype((np.void, 72))).ravel())
+
+
+def test_kept_pieces_are_the_split_s_pieces_big_faces_quartered_first(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """kept_pieces gives the pieces subdivide gives, corner for corner, also where a face
+    too big for one block is first quartered as trimesh's first step does, and a sliver
+    (one or two long edges) that cannot be is split whole; ``keep`` drops the rest."""
+    import planner.scene as scene_module
+    from planner.scene import kept_pieces, subdivide
+
+    monkeypatch.setattr(scene_module, "_SIFTED_BLOCK_PIECES", 64)
+    vertices = np.array([[0.0, 0.0, 0.0], [7.3, 0.4, 0.0], [2.1, 5.9, 1.3],  # big
+                         [0.0, 0.0, 2.0], [6.0, 0.0, 2.0], [6.0, 0.1, 2.0],  # one long edge
+                         [0.0, 0.0, 3.0], [4.0, 0.0, 3.0], [2.0, 0.15, 3.0],  # two long edges
+                         [1.0, 1.0, 0.0], [1.1, 1.0, 0.0], [1.0, 1.1, 0.0]])  # small
+    faces = np.arange(12, dtype=np.int32).reshape(4, 3)
+    split = subdivide(vertices, faces, MAX_EDGE_M)
+    assert split is not None
+    every = _piece_rows(*split[:2])
+    assert len(every) > 4 * 64  # the big face alone is more than one block
+
+    def everything(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+        return np.ones(len(f), bool)
+
+    kept_vertices, kept_faces = kept_pieces(vertices, faces, MAX_EDGE_M, everything)
+    assert np.array_equal(_piece_rows(kept_vertices, kept_faces), every)
+
+    def low(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+        return v[f, 2].max(axis=1) < 0.5
+
+    kept_vertices, kept_faces = kept_pieces(vertices, faces, MAX_EDGE_M, low)
+    on_ground = split[1][split[0][split[1], 2].max(axis=1) < 0.5]
+    assert np.array_equal(_piece_rows(kept_vertices, kept_faces),
+                          _piece_rows(split[0], on_ground))
