@@ -32,7 +32,7 @@ from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
 from planner.scene import Element, Scene, build_scene, remesh
 from tests.planner.ifc_models import read_ifc_once
-from tests.planner.ifc_parts import placed
+from tests.planner.ifc_parts import placed, room_shell
 
 ifcopenshell = pytest.importorskip("ifcopenshell")
 
@@ -322,7 +322,7 @@ def test_a_plan_per_storey_uses_only_its_rooms_and_names_stations_by_room(
 def _one_room_building(schema: str, path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A 6 x 4 m room in millimetres on a storey at 3 m: floor, ceiling, four walls, a space."""
     import ifcopenshell.api.owner.settings
-    from ifcopenshell.api import aggregate, context, geometry, owner, project, root, spatial, unit
+    from ifcopenshell.api import aggregate, context, geometry, owner, project, root, unit
 
     model = project.create_file(version=schema)  # type: ignore[arg-type]
     if schema == "IFC2X3":  # every rooted entity needs an owner history there
@@ -346,18 +346,7 @@ def _one_room_building(schema: str, path: Path, monkeypatch: pytest.MonkeyPatch)
     aggregate.assign_object(model, relating_object=site, products=[building])
     aggregate.assign_object(model, relating_object=building, products=[storey])
 
-    outline = [(0.0, 0.0), (6.0, 0.0), (6.0, 4.0), (0.0, 4.0)]
-    parts = [
-        placed(model, "IfcSlab", "Floor", geometry.add_slab_representation(
-            model, body, depth=0.2, polyline=outline), (0, 0, 2.8)),
-        placed(model, "IfcSlab", "Ceiling", geometry.add_slab_representation(
-            model, body, depth=0.2, polyline=outline), (0, 0, 5.7)),
-    ]
-    for name, length, x, y, turn in [("South", 6.0, 0, 0, 0.0), ("East", 4.0, 6, 0, 0.5),
-                                     ("North", 6.0, 6, 4, 1.0), ("West", 4.0, 0, 4, 1.5)]:
-        parts.append(placed(model, "IfcWall", name, geometry.add_wall_representation(
-            model, body, length=length, height=2.7, thickness=0.2), (x, y, 3.0), turn * np.pi))
-    spatial.assign_container(model, relating_structure=storey, products=parts)
+    room_shell(model, body, storey, 6.0, 4.0, 3.0, 2.7)
     space = placed(model, "IfcSpace", "101", geometry.add_slab_representation(
         model, body, depth=2.7, polyline=[(0.2, 0.2), (5.8, 0.2), (5.8, 3.8), (0.2, 3.8)]),
         (0, 0, 3.0))

@@ -26,7 +26,7 @@ from planner.io.readers import read_scene
 from planner.outputs.report import plan_document
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from tests.planner.ifc_parts import placed
+from tests.planner.ifc_parts import placed, room_shell
 
 ifcopenshell = pytest.importorskip("ifcopenshell")
 
@@ -37,7 +37,7 @@ SPACES = [("1", "Hall", 0.2, 8.0), ("2", "Stage", 6.0, 10.0), ("3", "Hall", 0.2,
 
 def _overlapping_hall(path: Path) -> None:
     """The hall of the module docstring: floor, ceiling, four walls and five IfcSpaces."""
-    from ifcopenshell.api import aggregate, context, geometry, project, root, spatial, unit
+    from ifcopenshell.api import aggregate, context, geometry, project, root, unit
 
     model = project.create_file(version="IFC4")
     ifc_project = root.create_entity(model, ifc_class="IfcProject", name="overlapping")
@@ -51,18 +51,7 @@ def _overlapping_hall(path: Path) -> None:
     aggregate.assign_object(model, relating_object=ifc_project, products=[site])
     aggregate.assign_object(model, relating_object=site, products=[building])
     aggregate.assign_object(model, relating_object=building, products=[storey])
-    outline = [(0.0, 0.0), (12.0, 0.0), (12.0, 6.0), (0.0, 6.0)]
-    parts = [
-        placed(model, "IfcSlab", "Floor", geometry.add_slab_representation(
-            model, body, depth=0.2, polyline=outline), (0, 0, -0.2)),
-        placed(model, "IfcSlab", "Ceiling", geometry.add_slab_representation(
-            model, body, depth=0.2, polyline=outline), (0, 0, 3.0)),
-    ]
-    for name, length, x, y, turn in [("South", 12.0, 0, 0, 0.0), ("East", 6.0, 12, 0, 0.5),
-                                     ("North", 12.0, 12, 6, 1.0), ("West", 6.0, 0, 6, 1.5)]:
-        parts.append(placed(model, "IfcWall", name, geometry.add_wall_representation(
-            model, body, length=length, height=3.0, thickness=0.2), (x, y, 0.0), turn * np.pi))
-    spatial.assign_container(model, relating_structure=storey, products=parts)
+    room_shell(model, body, storey, 12.0, 6.0, 0.0, 3.0)
     for name, long_name, x0, x1 in SPACES:
         space = placed(model, "IfcSpace", name, geometry.add_slab_representation(
             model, body, depth=3.0, polyline=[(x0, Y0), (x1, Y0), (x1, Y1), (x0, Y1)]),
