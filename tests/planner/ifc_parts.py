@@ -7,6 +7,20 @@ from typing import Any
 import numpy as np
 
 
+def body_and_building(model: Any, ifc_project: Any) -> tuple[Any, Any]:
+    """The body context of ``model`` and its building, in a site under ``ifc_project``."""
+    from ifcopenshell.api import aggregate, context, root
+
+    body = context.add_context(
+        model, context_type="Model", context_identifier="Body", target_view="MODEL_VIEW",
+        parent=context.add_context(model, context_type="Model"))
+    site = root.create_entity(model, ifc_class="IfcSite", name="Site")
+    building = root.create_entity(model, ifc_class="IfcBuilding", name="Building")
+    aggregate.assign_object(model, relating_object=ifc_project, products=[site])
+    aggregate.assign_object(model, relating_object=site, products=[building])
+    return body, building
+
+
 def placed(model: Any, ifc_class: str, name: str, representation: Any,
            xyz: tuple[float, float, float], turn: float = 0.0) -> Any:
     """A new ``ifc_class`` product of ``model`` at ``xyz`` (metres), turned by ``turn``

@@ -30,7 +30,7 @@ from planner.outputs.ifc_plan import COVERAGE_PSET, OBJECT_TYPE, STATION_PSET, p
 from planner.outputs.report import absent_outputs, write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
-from tests.planner.ifc_parts import placed
+from tests.planner.ifc_parts import body_and_building, placed
 
 ifcopenshell = pytest.importorskip("ifcopenshell")
 xmlschema = pytest.importorskip("xmlschema")
@@ -43,7 +43,7 @@ MM = 0.001  # the plan.json positions are rounded to the micrometre; 1 mm is the
 def _two_storeys(schema: str, path: Path, rooms: bool) -> None:
     """Two storeys of a 6 x 4 m room in millimetres (elevations 0 and 3 m): floor slabs,
     four walls each, a roof; with ``rooms`` an IfcSpace per storey."""
-    from ifcopenshell.api import aggregate, context, geometry, owner, project, root, spatial, unit
+    from ifcopenshell.api import aggregate, geometry, owner, project, root, spatial, unit
 
     model = project.create_file(version=schema)  # IFC4X3: IFC4X3_ADD2
     if schema == "IFC2X3":  # every rooted entity needs an owner history there
@@ -54,13 +54,7 @@ def _two_storeys(schema: str, path: Path, rooms: bool) -> None:
     unit.assign_unit(model, units=[
         unit.add_si_unit(model, unit_type="LENGTHUNIT", prefix="MILLI"),
         unit.add_si_unit(model, unit_type="AREAUNIT")])
-    body = context.add_context(
-        model, context_type="Model", context_identifier="Body", target_view="MODEL_VIEW",
-        parent=context.add_context(model, context_type="Model"))
-    site = root.create_entity(model, ifc_class="IfcSite", name="Site")
-    building = root.create_entity(model, ifc_class="IfcBuilding", name="Building")
-    aggregate.assign_object(model, relating_object=ifc_project, products=[site])
-    aggregate.assign_object(model, relating_object=site, products=[building])
+    body, building = body_and_building(model, ifc_project)
 
     outline = [(0.0, 0.0), (6.0, 0.0), (6.0, 4.0), (0.0, 4.0)]
     for level, (name, z) in enumerate([("Ground", 0.0), ("Upper", 3.0)]):

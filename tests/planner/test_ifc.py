@@ -32,7 +32,7 @@ from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
 from planner.scene import Element, Scene, build_scene, remesh
 from tests.planner.ifc_models import read_ifc_once
-from tests.planner.ifc_parts import placed, room_shell
+from tests.planner.ifc_parts import body_and_building, placed, room_shell
 
 ifcopenshell = pytest.importorskip("ifcopenshell")
 
@@ -322,7 +322,7 @@ def test_a_plan_per_storey_uses_only_its_rooms_and_names_stations_by_room(
 def _one_room_building(schema: str, path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A 6 x 4 m room in millimetres on a storey at 3 m: floor, ceiling, four walls, a space."""
     import ifcopenshell.api.owner.settings
-    from ifcopenshell.api import aggregate, context, geometry, owner, project, root, unit
+    from ifcopenshell.api import aggregate, geometry, owner, project, root, unit
 
     model = project.create_file(version=schema)  # type: ignore[arg-type]
     if schema == "IFC2X3":  # every rooted entity needs an owner history there
@@ -335,15 +335,9 @@ def _one_room_building(schema: str, path: Path, monkeypatch: pytest.MonkeyPatch)
     ifc_project = root.create_entity(model, ifc_class="IfcProject", name="synthetic")
     unit.assign_unit(model, units=[
         unit.add_si_unit(model, unit_type="LENGTHUNIT", prefix="MILLI")])
-    body = context.add_context(
-        model, context_type="Model", context_identifier="Body", target_view="MODEL_VIEW",
-        parent=context.add_context(model, context_type="Model"))
-    site = root.create_entity(model, ifc_class="IfcSite", name="Site")
-    building = root.create_entity(model, ifc_class="IfcBuilding", name="Building")
+    body, building = body_and_building(model, ifc_project)
     storey = root.create_entity(model, ifc_class="IfcBuildingStorey", name="Level 1")
     storey.Elevation = 3000.0
-    aggregate.assign_object(model, relating_object=ifc_project, products=[site])
-    aggregate.assign_object(model, relating_object=site, products=[building])
     aggregate.assign_object(model, relating_object=building, products=[storey])
 
     room_shell(model, body, storey, 6.0, 4.0, 3.0, 2.7)

@@ -26,7 +26,7 @@ from planner.io.readers import read_scene
 from planner.outputs.report import plan_document
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
-from tests.planner.ifc_parts import placed, room_shell
+from tests.planner.ifc_parts import body_and_building, placed, room_shell
 
 ifcopenshell = pytest.importorskip("ifcopenshell")
 
@@ -37,19 +37,13 @@ SPACES = [("1", "Hall", 0.2, 8.0), ("2", "Stage", 6.0, 10.0), ("3", "Hall", 0.2,
 
 def _overlapping_hall(path: Path) -> None:
     """The hall of the module docstring: floor, ceiling, four walls and five IfcSpaces."""
-    from ifcopenshell.api import aggregate, context, geometry, project, root, unit
+    from ifcopenshell.api import aggregate, geometry, project, root, unit
 
     model = project.create_file(version="IFC4")
     ifc_project = root.create_entity(model, ifc_class="IfcProject", name="overlapping")
     unit.assign_unit(model, units=[unit.add_si_unit(model, unit_type="LENGTHUNIT")])
-    body = context.add_context(
-        model, context_type="Model", context_identifier="Body", target_view="MODEL_VIEW",
-        parent=context.add_context(model, context_type="Model"))
-    site = root.create_entity(model, ifc_class="IfcSite", name="Site")
-    building = root.create_entity(model, ifc_class="IfcBuilding", name="Building")
+    body, building = body_and_building(model, ifc_project)
     storey = root.create_entity(model, ifc_class="IfcBuildingStorey", name="Level 1")
-    aggregate.assign_object(model, relating_object=ifc_project, products=[site])
-    aggregate.assign_object(model, relating_object=site, products=[building])
     aggregate.assign_object(model, relating_object=building, products=[storey])
     room_shell(model, body, storey, 12.0, 6.0, 0.0, 3.0)
     for name, long_name, x0, x1 in SPACES:
