@@ -1243,7 +1243,7 @@ def inside_closed_groups(scene: Scene, points: NDArray[np.float64]) -> NDArray[n
     """
     result = np.zeros(len(points), bool)
     triangles: NDArray[np.float64] | None = None  # made when a group is not kept
-    vertex_rank: NDArray[np.int64] | None = None  # made when a group's cells are built
+    vertex_rank: NDArray[np.integer] | None = None  # made when a group's cells are built
     face_group = scene.file_face_group
     for g in range(len(scene.groups)):
         kept = kept_or_none(scene, ("winding cells", g))

@@ -78,13 +78,17 @@ def winding_cells(triangles: NDArray[np.float64],
     return _Cells.build(triangles, corner_rank)
 
 
-def coordinate_ranks(points: NDArray[np.float64]) -> NDArray[np.int64]:
+def coordinate_ranks(points: NDArray[np.float64], dtype: type[np.integer[Any]] = np.int64
+                     ) -> NDArray[np.integer[Any]]:
     """(N,) the rank of each of the (N, 3) points' coordinates among the distinct ones,
-    ordered by x, then y, then z: equal points get the same rank."""
+    ordered by x, then y, then z: equal points get the same rank (``dtype``: int32 where
+    the ranks fit, half the memory)."""
     by_position = np.lexsort(points.T[::-1])
     ordered = points[by_position]
-    rank = np.empty(len(points), np.int64)
-    rank[by_position] = np.r_[False, (ordered[1:] != ordered[:-1]).any(axis=1)].cumsum()
+    new_rank = np.r_[False, (ordered[1:] != ordered[:-1]).any(axis=1)].cumsum(dtype=dtype)
+    del ordered
+    rank = np.empty(len(points), dtype)
+    rank[by_position] = new_rank
     return rank
 
 
@@ -141,14 +145,7 @@ class _Cells:
         # equal), so the ranks of the mesh's vertices serve as well as the corners' own
         flat_id: NDArray[np.integer[Any]]
         if corner_rank is None:
-            by_position = np.lexsort(corners.T[::-1])
-            ordered = corners[by_position]
-            new_id = np.r_[False, (ordered[1:] != ordered[:-1]).any(axis=1)].cumsum(
-                dtype=id_type)
-            del ordered
-            flat_id = np.empty(len(corners), id_type)
-            flat_id[by_position] = new_id
-            del by_position, new_id
+            flat_id = coordinate_ranks(corners, id_type)
             n_ids = len(corners)
         else:
             flat_id = np.asarray(corner_rank).reshape(-1)
