@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
+from scipy.cluster.hierarchy import DisjointSet
 from scipy.sparse.csgraph import minimum_spanning_tree
 
 from planner.candidates.placement import Displaced, displaced_positions
@@ -252,7 +253,8 @@ def _worst_case_network(
             kept, tried = _tested_more(
                 kept_rows, kept, tried, [forest[i] for i in unproven],
                 [edge_faces[i] for i in unproven])
-        holding = [pair for i, pair in enumerate(forest) if i not in set(unproven)
+        unproven_set = set(unproven)
+        holding = [pair for i, pair in enumerate(forest) if i not in unproven_set
                    or _holds(scene, edge_faces[i], edge_faces[i], kept[pair[0]],
                              kept[pair[1]], min_overlap_m2)]
         if len(holding) == len(forest):
@@ -303,17 +305,9 @@ def _grown_components(
     and every group is joined by edges that hold: the groups are its components. A face is
     tested for a station at most once (``tested``), so this never casts more than testing
     every shared face, and far less when the groups left apart are a few small rooms."""
-    n = len(rows)
-    group = list(range(n))
-
-    def root(i: int) -> int:
-        while group[i] != i:
-            group[i] = group[group[i]]
-            i = group[i]
-        return i
-
+    groups = DisjointSet(range(len(rows)))
     for a, b in holding:
-        group[root(a)] = root(b)
+        groups.merge(a, b)
     component = {s - 1: k for k, members in enumerate(nominal.components) for s in members}
     # every edge that may pass in the worst case, strongest first (ties: station order)
     edges = sorted(((e.a - 1, e.b - 1, e.overlap_m2) for e in nominal.edges
@@ -325,7 +319,7 @@ def _grown_components(
         batch: list[tuple[int, int]] = []
         taken: set[tuple[int, int]] = set()
         for a, b, _ in edges:
-            ga, gb = root(a), root(b)
+            ga, gb = groups[a], groups[b]
             between = (min(ga, gb), max(ga, gb))
             if ga == gb or (a, b) in decided or (
                     between in taken and between not in failed_between):
@@ -338,7 +332,6 @@ def _grown_components(
                                     [_common(rows[a], rows[b]) for a, b in batch])
         for a, b in batch:
             decided.add((a, b))
-            ga, gb = root(a), root(b)
             pair = sp.csr_matrix(
                 (np.ones(len(kept[a]) + len(kept[b]), bool),
                  np.concatenate([kept[a], kept[b]]),
@@ -347,13 +340,11 @@ def _grown_components(
             registration = station_registration(scene, pair, min_overlap_m2,
                                                 overlap_density_pts_m2)
             if any(e.ok for e in registration.edges):
-                group[root(ga)] = root(gb)
+                groups.merge(a, b)
             else:
+                ga, gb = groups[a], groups[b]
                 failed_between.add((min(ga, gb), max(ga, gb)))
-    members: dict[int, list[int]] = {}
-    for i in range(n):
-        members.setdefault(root(i), []).append(i + 1)
-    return tuple(sorted(tuple(m) for m in members.values()))
+    return tuple(sorted(tuple(sorted(s + 1 for s in subset)) for subset in groups.subsets()))
 
 
 # the share of an edge's normal scatter (its trace) a sample keeps in every direction: a
