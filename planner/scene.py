@@ -402,14 +402,8 @@ def kept_pieces(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
     midpoints), whose pieces are the face's own (an edge's midpoint is the mean of its
     corners, a face's split depends on its own edges only)."""
     vertices, faces = _quartered(vertices, faces, max_edge_m, _SIFTED_BLOCK_PIECES)
-    halvings = np.ceil(np.log2(np.maximum(longest_edges_m(vertices, faces) / max_edge_m,
-                                          1.0)))  # (F,)
-    bound = np.cumsum(np.minimum(4.0 ** halvings, _SIFTED_BLOCK_PIECES))
-    cuts = np.searchsorted(bound, np.arange(_SIFTED_BLOCK_PIECES, bound[-1],
-                                            _SIFTED_BLOCK_PIECES), side="right")
-    starts = np.unique(np.concatenate([[0], cuts]))
-    stops = np.append(starts[1:], len(faces))
-    del halvings, bound, cuts
+    blocks = _piece_blocks(longest_edges_m(vertices, faces), max_edge_m,
+                           _SIFTED_BLOCK_PIECES)
 
     def sifted(block: tuple[int, int]) -> tuple[FloatArray, IndexArray]:
         """(v, 3) vertices and (k, 3) faces of the kept pieces of faces ``start:stop``."""
@@ -427,7 +421,6 @@ def kept_pieces(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
     out_vertices = GrowingArray(np.float64)  # (3 V',) flat
     out_faces = GrowingArray(np.int32)  # (3 F',) flat
     n_vertices = 0
-    blocks = list(zip(starts.tolist(), stops.tolist(), strict=True))
     for block_vertices, block_faces in in_block_order(sifted, blocks):
         out_vertices.append(block_vertices.reshape(-1))
         out_faces.append((block_faces + n_vertices).astype(np.int32).reshape(-1))
@@ -466,6 +459,21 @@ def _quartered(vertices: FloatArray, faces: IndexArray, max_edge_m: float, most_
         whole[big] = False
         faces = np.concatenate([faces[whole], children.astype(np.int32)])
     return vertices, faces
+
+
+def _piece_blocks(edge_m: FloatArray, max_edge_m: float, most_pieces: int
+                  ) -> list[tuple[int, int]]:
+    """(start, stop) blocks of consecutive faces, whose (F,) longest edges are ``edge_m``
+    (0: a face kept whole), of about ``most_pieces`` pieces at most when split to
+    ``max_edge_m``: at most 4 pieces per halving of a face's longest edge, an upper bound
+    (a face alone may exceed it)."""
+    halvings = np.ceil(np.log2(np.maximum(edge_m / max_edge_m, 1.0)))  # (F,)
+    bound = np.cumsum(np.minimum(4.0 ** halvings, most_pieces))
+    cuts = np.searchsorted(bound, np.arange(most_pieces, bound[-1], most_pieces),
+                           side="right")
+    starts = np.unique(np.concatenate([[0], cuts]))
+    stops = np.append(starts[1:], len(edge_m))
+    return list(zip(starts.tolist(), stops.tolist(), strict=True))
 
 
 def longest_edges_m(vertices: FloatArray, faces: IndexArray) -> FloatArray:
@@ -525,13 +533,7 @@ def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
     if longest <= max_edge_m:
         return None
     iterations = math.ceil(math.log2(longest / max_edge_m)) + 2
-    # at most 4 pieces per halving of the longest edge: an upper bound to size the blocks
-    halvings = np.ceil(np.log2(np.maximum(edge_m / max_edge_m, 1.0)))
-    bound = np.cumsum(np.minimum(4.0 ** halvings, _REMESH_BLOCK_PIECES))
-    cuts = np.searchsorted(bound, np.arange(_REMESH_BLOCK_PIECES, bound[-1],
-                                            _REMESH_BLOCK_PIECES), side="right")
-    starts = np.unique(np.concatenate([[0], cuts]))
-    stops = np.append(starts[1:], len(faces))
+    blocks = _piece_blocks(edge_m, max_edge_m, _REMESH_BLOCK_PIECES)
 
     def pieces_of(block: tuple[int, int]) -> tuple[FloatArray, NDArray[np.int64],
                                                    NDArray[np.int64]]:
@@ -567,9 +569,8 @@ def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
     n_vertices = 0
     # split on a few threads (trimesh's numpy work mostly releases the GIL) and joined
     # in block order, so the pieces do not depend on the threads
-    blocks = list(zip(starts.tolist(), stops.tolist(), strict=True))
-    for start, (block_vertices, block_faces, index) in zip(
-            starts.tolist(), in_block_order(pieces_of, blocks), strict=True):
+    for (start, _), (block_vertices, block_faces, index) in zip(
+            blocks, in_block_order(pieces_of, blocks), strict=True):
         out_vertices.append(block_vertices.reshape(-1))
         out_faces.append((block_faces + n_vertices).astype(np.int32).reshape(-1))
         out_source.append(index + start)
