@@ -37,7 +37,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from planner.rays import RayCaster, make_ray_caster
-from planner.scene import Scene
+from planner.scene import Scene, corner_extremes
 
 WALK_GRID_M = 0.25  # floor sample spacing; finer than a stair tread (~0.26-0.30 m)
 OUTSIDE_MARGIN_M = 1.0  # ground walked around a model without terrain
@@ -358,8 +358,9 @@ def _mesh_doors_of(scene: Scene, result: NDArray[np.int64], filler_m: NDArray[np
     if n:
         corners = scene.vertices[scene.faces[face_door >= 0]]  # (n', 3, 3)
         which = face_door[face_door >= 0]
-        np.minimum.at(lo, which, corners.min(axis=1))
-        np.maximum.at(hi, which, corners.max(axis=1))
+        least, most = corner_extremes(corners)
+        np.minimum.at(lo, which, least)
+        np.maximum.at(hi, which, most)
     return MeshDoors(face_door, lo, hi, filler_m)
 
 
