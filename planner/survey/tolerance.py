@@ -251,7 +251,7 @@ def _worst_case_network(
             if not _holds(scene, faces, sample, kept[a], kept[b], min_overlap_m2)]
         if unproven:  # their other faces too, then each such edge is judged on all of them
             kept, tried = _tested_more(
-                kept_rows, kept, tried, [forest[i] for i in unproven],
+                scene.n_faces, kept_rows, kept, tried, [forest[i] for i in unproven],
                 [edge_faces[i] for i in unproven])
         unproven_set = set(unproven)
         holding = [pair for i, pair in enumerate(forest) if i not in unproven_set
@@ -264,7 +264,8 @@ def _worst_case_network(
     return components(rows)
 
 
-def _tested_more(kept_rows: Callable[[list[NDArray[np.int32]]], list[NDArray[np.int32]]],
+def _tested_more(n_faces: int,
+                 kept_rows: Callable[[list[NDArray[np.int32]]], list[NDArray[np.int32]]],
                  kept: list[NDArray[np.int32]], tested: list[NDArray[np.int32]],
                  edges: list[tuple[int, int]], edge_faces: list[NDArray[np.int32]]
                  ) -> tuple[list[NDArray[np.int32]], list[NDArray[np.int32]]]:
@@ -275,11 +276,27 @@ def _tested_more(kept_rows: Callable[[list[NDArray[np.int32]]], list[NDArray[np.
     for pair, faces in zip(edges, edge_faces, strict=True):
         for n in pair:
             wanted[n].append(faces)
-    new = [np.setdiff1d(np.concatenate(w), tested[n]) if w else np.zeros(0, np.int32)
+    new = [_ascending_union(n_faces, w, without=tested[n]) if w else np.zeros(0, np.int32)
            for n, w in enumerate(wanted)]
     more = kept_rows(new)
-    return ([np.union1d(k, m) for k, m in zip(kept, more, strict=True)],
-            [np.union1d(t, w) for t, w in zip(tested, new, strict=True)])
+    return ([_ascending_union(n_faces, [k, m]) if len(m) else k
+             for k, m in zip(kept, more, strict=True)],
+            [_ascending_union(n_faces, [t, w]) if len(w) else t
+             for t, w in zip(tested, new, strict=True)])
+
+
+def _ascending_union(n_faces: int, arrays: list[NDArray[np.int32]],
+                     without: NDArray[np.int32] | None = None) -> NDArray[np.int32]:
+    """(k,) int32 ascending: the faces in any of ``arrays`` (face indices below
+    ``n_faces``) and not in ``without``; ``np.union1d`` and ``np.setdiff1d`` give the
+    same, through a sort of every face given (an edge's shared faces, once per edge of the
+    station: millions on a sports hall), where an (F,) mark costs one pass."""
+    mark = np.zeros(n_faces, bool)
+    for faces in arrays:
+        mark[faces] = True
+    if without is not None:
+        mark[without] = False
+    return np.flatnonzero(mark).astype(np.int32)
 
 
 def _grown_components(
@@ -328,7 +345,7 @@ def _grown_components(
             batch.append((a, b))
         if not batch:
             break
-        kept, tested = _tested_more(kept_rows, kept, tested, batch,
+        kept, tested = _tested_more(scene.n_faces, kept_rows, kept, tested, batch,
                                     [_common(rows[a], rows[b]) for a, b in batch])
         for a, b in batch:
             decided.add((a, b))
