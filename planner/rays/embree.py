@@ -144,6 +144,12 @@ class BvhPart:
     quads: bool
 
 
+def clear_margin_m(scale_m: float) -> float:
+    """The clear-hit margin of a BVH whose largest coordinate is ``scale_m``:
+    ``_CLEAR_HIT_ULPS`` float32 steps there, a distance Embree's rounding cannot cross."""
+    return _CLEAR_HIT_ULPS * float(np.spacing(np.float32(scale_m)))
+
+
 @dataclass(frozen=True, eq=False)
 class BvhFaces:
     """The faces an :class:`EmbreeOcclusion` casts against, for cutting a part of them.
@@ -203,7 +209,7 @@ class EmbreeBvh:
             self.corners32 = (vertices32, faces32)
             self.scale_m = (float(np.abs(vertices32).max(initial=1.0)) if scale_m is None
                             else scale_m)
-            self.clear_margin_m = _CLEAR_HIT_ULPS * float(np.spacing(np.float32(self.scale_m)))
+            self.clear_margin_m = clear_margin_m(self.scale_m)
         self.quads_allowed = len(self.faces) <= _QUAD_MAX_TRIANGLES if quads is None else quads
         # (V + 1,) and (3 b,): the occluders (indices into self.faces) at each vertex, built
         # the first time a ray needs deciding in float64

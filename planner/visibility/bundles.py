@@ -50,6 +50,7 @@ from numpy.typing import NDArray
 from planner.scene import Scene
 from planner.threads import in_block_order
 from planner.visibility.cells import PointGrid, pairs_in_reach
+from planner.visibility.solids import ClosedShells, closed_shells
 
 # sides of the bundles' squares in their face's plane, coarse to fine: a 2 m square of a
 # wall two rooms away usually fits behind one triangle of the wall between; where it does
@@ -276,10 +277,19 @@ class BundleCuller:
     ``reach_m``: the coarsest bundles within reach first, then the quarters of those not
     ruled out, down to the finest level (a bundle inside a hidden one is hidden)."""
 
-    def __init__(self, bundles: Bundles, reach_m: float, rays: BundleRays) -> None:
+    def __init__(self, bundles: Bundles, reach_m: float, rays: BundleRays,
+                 shells: ClosedShells | None = None, normals: NDArray[np.float64] | None = None
+                 ) -> None:
+        """``shells`` and the scene's (F, 3) ``normals``: a bundle whose pieces all lie on
+        one closed shell, far from its other faces (``shells.side``), is hidden from a point
+        outside every shell and behind the bundle's plane, without rays (the rule of
+        :mod:`planner.visibility.solids`, which holds for each of its pieces)."""
         self.bundles = bundles
         self.reach_m = reach_m
         self._rays = rays
+        self._shells = shells
+        self._sides = None if shells is None or normals is None else \
+            _level_sides(bundles, shells.side, normals)
         self._searches = [_LevelSearch.of(level, side, reach_m)
                           for level, side in zip(bundles.levels, BUNDLE_SIDES_M, strict=True)]
 
@@ -289,13 +299,24 @@ class BundleCuller:
         points = np.asarray(points, np.float64)
         hidden = np.zeros((len(points), 0), bool)
         rays = 0
-        for level, search in zip(self.bundles.levels, self._searches, strict=True):
+        shells, sides = self._shells, self._sides
+        outside = None if shells is None else shells.outside(points)  # (B,)
+        for index, (level, search) in enumerate(zip(self.bundles.levels, self._searches,
+                                                    strict=True)):
             # (B, K) hidden inside a hidden bundle of the level above
             hidden = (hidden[:, level.parent] if hidden.shape[1]
                       else np.zeros((len(points), len(level)), bool))
             point, bundle = search.pairs(points, len(level))
             todo = ~hidden[point, bundle]
             point, bundle = point[todo], bundle[todo]
+            if shells is not None and sides is not None and outside is not None:
+                side, normal = sides[index]
+                # how far each point lies behind its bundle's plane, out of the shell
+                behind_m = side[bundle] * np.einsum(
+                    "ij,ij->i", level.corners[bundle, 0] - points[point], normal[bundle])
+                inside = outside[point] & (side[bundle] != 0) & (behind_m > shells.margin_m)
+                hidden[point[inside], bundle[inside]] = True
+                point, bundle = point[~inside], bundle[~inside]
             if len(point):
                 ruled_out = self._rays.bundles_hidden(points[point], level.corners[bundle])
                 hidden[point[ruled_out], bundle[ruled_out]] = True
@@ -378,7 +399,37 @@ def bundle_culler(scene: Scene, reach_m: float, occlusion: object, *,
     if not isinstance(occlusion, BundleRays) or (reach_m < BUNDLE_MIN_REACH_M and not always):
         return None  # decided before the bundles are made: a short search never needs them
     bundles = bundles_of(scene)
-    return None if bundles is None else BundleCuller(bundles, reach_m, occlusion)
+    return None if bundles is None else BundleCuller(
+        bundles, reach_m, occlusion, closed_shells(scene, occlusion), scene.normals)
+
+
+def _level_sides(bundles: Bundles, face_side: NDArray[np.int8], normals: NDArray[np.float64]
+                 ) -> list[tuple[NDArray[np.int8], NDArray[np.float64]]]:
+    """Per level, (K,) the side every piece of each bundle shares (``face_side`` of its
+    faces, 0 where they differ) and (K, 3) its pieces' normal (a bundle is of one file face,
+    one plane)."""
+    finest = bundles.bundle_of
+    faces = np.flatnonzero(finest >= 0)
+    n = len(bundles.levels[-1])
+    low, high = np.full(n, 2, np.int8), np.full(n, -2, np.int8)
+    np.minimum.at(low, finest[faces], face_side[faces])
+    np.maximum.at(high, finest[faces], face_side[faces])
+    normal = np.zeros((n, 3))
+    normal[finest[faces]] = normals[faces]
+    sides = []
+    for index in range(len(bundles.levels) - 1, -1, -1):
+        sides.append((np.where(low == high, low, 0).astype(np.int8), normal))
+        if index == 0:
+            break
+        parent = bundles.levels[index].parent
+        k = len(bundles.levels[index - 1])
+        up_low, up_high = np.full(k, 2, np.int8), np.full(k, -2, np.int8)
+        np.minimum.at(up_low, parent, low)
+        np.maximum.at(up_high, parent, high)
+        up_normal = np.zeros((k, 3))
+        up_normal[parent] = normal
+        low, high, normal = up_low, up_high, up_normal
+    return sides[::-1]
 
 
 @numba.njit(nogil=True, cache=True)

@@ -30,6 +30,7 @@ from planner.rays import Occlusion, make_occlusion
 from planner.scene import Scene
 from planner.visibility.bundles import BundleCuller, bundle_culler
 from planner.visibility.pairs import PairFinder, search_reach_m
+from planner.visibility.solids import closed_shells
 from planner.walkgraph import door_faces
 
 
@@ -100,7 +101,8 @@ class OverlapRows:
     def _local_search(self) -> tuple[PairFinder, BundleCuller | None]:
         """The pair search and the bundle culler of the rows computed here (made once)."""
         if self._search is None:
-            finder = PairFinder(self._scene, self._limits)
+            finder = PairFinder(self._scene, self._limits,
+                                shells=closed_shells(self._scene, self._occlusion))
             # a row reaches far (25 m at the default overlap density), mostly into other
             # rooms: bundles hidden behind a wall are ruled out with four rays, not one a piece
             self._search = (finder, bundle_culler(self._scene, finder.reach_m,

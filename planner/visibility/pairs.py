@@ -30,6 +30,7 @@ from planner.rays import ExactRays
 from planner.scene import Scene
 from planner.visibility.bundles import HiddenBundles
 from planner.visibility.cells import PointGrid
+from planner.visibility.solids import ClosedShells
 
 
 @dataclass(frozen=True, eq=False)
@@ -162,6 +163,7 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     reach_m: float, angular_step_rad: float,
     cell_start: NDArray[np.int64], cell_members: NDArray[np.int32],
     bundle_of: NDArray[np.int32], hidden: NDArray[np.bool_],
+    face_side: NDArray[np.int8], outside: NDArray[np.bool_], margin_m: float,
     out_candidate: NDArray[np.int32], out_face: NDArray[np.int32],
     out_origin: NDArray[np.float32], out_direction: NDArray[np.float32],
     out_distance: NDArray[np.float32], out_lpd: NDArray[np.float32],
@@ -176,7 +178,9 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     Each point tests the faces of the cells its ``keys`` name (:func:`_cell_keys`). A
     face of a bundle hidden from the point (``bundle_of`` (F,), empty for none, and
     ``hidden`` (B, K): :mod:`planner.visibility.bundles`) is left out untested: its ray would
-    end in the occluder that hides the bundle.
+    end in the occluder that hides the bundle. So is a face seen from inside its closed
+    shell (``face_side`` (F,), empty for none: :mod:`planner.visibility.solids`) by a point
+    ``outside`` (B,) every shell, more than ``margin_m`` behind the face's plane.
 
     The search runs cell by cell: each cell's faces are read once and tested against
     every point of the block that searches the cell (the block's points stand close
@@ -187,6 +191,7 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     n_points = points.shape[0]
     n = 0
     bundled = bundle_of.shape[0] > 0
+    sided = face_side.shape[0] > 0
     reach2 = reach_m * reach_m * (1.0 + 1e-9)
     every_face = cell_start.shape[0] - 1
     n_keys = keys.shape[0]
@@ -220,8 +225,10 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
                 if uz < min_sin_elevation or uz > max_sin_elevation:
                     continue
                 ux, uy = ox / d, oy / d
-                s = abs(ux * face_normal[f, 0] + uy * face_normal[f, 1]
-                        + uz * face_normal[f, 2])
+                toward = ux * face_normal[f, 0] + uy * face_normal[f, 1] + uz * face_normal[f, 2]
+                if sided and outside[b] and face_side[f] * toward * d > margin_m:
+                    continue  # seen from inside its closed shell: the ray ends in the shell
+                s = abs(toward)
                 if s < min_sin_incidence[k]:
                     continue
                 spacing = angular_step_rad * d
@@ -304,6 +311,7 @@ def _cells_within(px: float, py: float, pz: float, grid_origin: NDArray[np.float
 
 
 _NO_BUNDLES = np.zeros(0, np.int32)
+_NO_SIDES = np.zeros(0, np.int8)
 # candidates whose cells are looked up together when blocks are planned
 _KEY_BLOCK_POINTS = 256
 # pair tests a block of candidates makes at most (a block of one candidate may make
@@ -325,8 +333,12 @@ class PairFinder:
     """
 
     def __init__(self, scene: Scene, limits: FaceLimits, *,
-                 reach_m: float | None = None) -> None:
+                 reach_m: float | None = None, shells: ClosedShells | None = None) -> None:
+        """``shells``: the closed shells of the occlusion the pairs' rays will be cast
+        with (:func:`planner.visibility.solids.closed_shells`): faces seen from inside
+        their shell are left out, as their rays would end in it."""
         self.limits = limits
+        self._shells = shells
         # a tile of a model (planner.visibility.tiles) searches as far as the whole model
         # does, whatever the densities of its own targets
         self.reach_m = search_reach_m(limits) if reach_m is None else reach_m
@@ -361,6 +373,10 @@ class PairFinder:
         points = np.ascontiguousarray(candidates_xyz, np.float64)
         bundle_of, hidden_mask = ((_NO_BUNDLES, np.zeros((len(points), 0), bool))
                                   if hidden is None else hidden)
+        shells = self._shells
+        face_side, outside, margin_m = ((_NO_SIDES, np.zeros(len(points), bool), 0.0)
+                                        if shells is None else
+                                        (shells.side, shells.outside(points), shells.margin_m))
         keys, tests = self._cell_keys(points)
         tested = int(tests.sum())  # no more pairs than tests: untouched pages cost nothing
         pairs = Pairs(np.empty(tested, np.int32), np.empty(tested, np.int32),
@@ -371,8 +387,8 @@ class PairFinder:
             self._face_class, self._min_sin_incidence, self._min_density, lim.dof_min_m,
             lim.dof_max_m, self._min_sin_elevation, self._max_sin_elevation, self.reach_m,
             lim.angular_step_rad, grid.start, grid.members, bundle_of, hidden_mask,
-            pairs.candidate, pairs.face, pairs.origin, pairs.direction, pairs.distance_m,
-            pairs.lpd_pts_m2,
+            face_side, outside, margin_m, pairs.candidate, pairs.face, pairs.origin,
+            pairs.direction, pairs.distance_m, pairs.lpd_pts_m2,
         )
         # views of the first n rows: the block's arrays are short-lived
         pairs = pairs.subset(slice(0, n))

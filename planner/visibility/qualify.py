@@ -36,6 +36,7 @@ from planner.visibility.bundles import bundle_culler
 from planner.visibility.coverage import CoverageTable, QualifiedPairs
 from planner.visibility.pairs import TESTS_PER_BLOCK, PairFinder, lpd_of_faces, sorted_by_face
 from planner.visibility.robust import robust_blocks, within_table
+from planner.visibility.solids import closed_shells
 from planner.visibility.splitting import faces_to_split
 
 # blocks of qualified pairs read between two trims of the heap in the visibility stage.
@@ -283,7 +284,8 @@ def qualify_pairs(
     Blocks of candidates run on a thread pool (the compiled limits loop and Embree both
     release the GIL); they come out in block order, so they do not depend on timing.
     """
-    finder = PairFinder(scene, limits, reach_m=reach_m)
+    finder = PairFinder(scene, limits, reach_m=reach_m,
+                        shells=closed_shells(scene, occlusion))
     culler = None if bundles is False else bundle_culler(scene, finder.reach_m, occlusion,
                                                          always=bool(bundles))
     # neighbouring candidates in a block share the pair search of their cells

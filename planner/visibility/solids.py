@@ -1,0 +1,347 @@
+"""Closed shells: a face seen from inside its shell is hidden, without a ray.
+
+Most faces a candidate's pair search reaches face away from it: the far side of a wall, the
+underside of the slab it stands on, the back of a column. A *closed shell* is a set of
+occluding faces of one element (an IFC element, or the whole mesh of a file without
+elements), connected edge to edge, in which every edge joins exactly two faces that run
+along it in opposite directions: a watertight, consistently wound surface, which bounds a
+region R. Its signed volume tells whether its normals point out of R or into it; ``side``
+makes them point out.
+
+**The rule.** Let c be a candidate outside R and p a point of a shell face f, with c behind
+f's plane (on R's side of it, by more than the margin). The segment from c to p arrives at
+p from R's side, so its last stretch lies inside R; it starts outside R, so it crosses the
+shell at a point q before p. The ray to p meets an occluding face at q or earlier: the pair
+(c, p) is hidden, and it is left out of the pair search, as a hidden bundle's pieces are.
+
+**Why Embree agrees.** The BVH holds the shell's faces with the file's coordinates in
+float32; the faces of a shell share their corners exactly (equal float32 coordinates), so
+Embree's robust (watertight) cast cannot pass between two of them and hits the shell at q
+or earlier. q lies before p by at least the distance from p to the shell's other faces
+(points of the segment nearer p than that are inside R), and a piece is only ruled out when
+that distance exceeds the clear-hit margin (:data:`planner.rays.embree.clear_margin_m`, 1,024
+float32 steps at the model's largest coordinate), so float32 cannot order q after p. Where
+the fast cast slips through an edge at q and reaches p, the two casts disagree and float64
+decides, as for any ray: hidden. Nothing else changes, so the qualified pairs are the same
+(``tests/planner/test_closed_shells.py`` compares them, and every output of the benchmark
+models is byte-identical).
+
+What is not ruled out, left to its ray: faces of shells that are not closed (an open
+mesh, a T-junction, an edge of three faces, a face of zero area), shells of more than
+:data:`MAX_SHELL_FACES` faces (the distance test is per face of the shell), pieces within
+the margin of another face of their shell (along its edges, and in a shell thinner than the
+margin), candidates inside or within the margin of any closed shell (all of their pairs),
+and faces that do not occlude (glass; doors, for the overlap rows).
+
+Array letters: F scene faces, B faces of the BVH's mesh, K closed shells, N points.
+"""
+
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+from scipy.sparse.csgraph import connected_components
+
+from planner.candidates.winding import coordinate_ranks
+from planner.scene import Scene
+from planner.threads import in_block_order
+
+if TYPE_CHECKING:  # Embree is imported where a BVH is made
+    from planner.rays.embree import BvhFaces
+
+# a closed shell of more faces keeps its faces' rays: each of its pieces is tested against
+# every other face of the shell (a wall with its openings: tens of faces)
+MAX_SHELL_FACES = 512
+# pieces tested per task of the thread pool
+_PIECES_PER_TASK = 1 << 16
+
+
+@runtime_checkable
+class BvhMesh(Protocol):
+    """The occlusion's side: the mesh its BVH holds (:class:`planner.rays.embree.
+    EmbreeOcclusion`)."""
+
+    def bvh_faces(self) -> BvhFaces:
+        ...
+
+
+@dataclass(frozen=True, eq=False)
+class ClosedShells:
+    """The closed shells of an occlusion's BVH and the scene faces they rule out from behind.
+
+    Attributes
+    ----------
+    side : (F,) int8, per scene face: +1 its normal points out of its closed shell, -1 into
+        it, 0 not ruled out from behind (see the module docstring)
+    margin_m : the clear-hit margin of the occlusion's BVH
+    lows, highs : (K, 3) float64, each shell's box widened by the margin
+    starts : (K + 1,) int64, shell k's triangles are ``triangles[starts[k]:starts[k + 1]]``
+    triangles : (T, 3, 3) float64, the shells' faces, wound as in the mesh
+    """
+
+    side: NDArray[np.int8]
+    margin_m: float
+    lows: NDArray[np.float64]
+    highs: NDArray[np.float64]
+    starts: NDArray[np.int64]
+    triangles: NDArray[np.float64]
+
+    def outside(self, points: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """(N,) bool: each of the (N, 3) points, rounded to float32 as the rays start, lies
+        outside every closed shell by more than the margin (winding number under one half,
+        distance over the margin); only such points may skip the faces behind them."""
+        start = np.ascontiguousarray(np.asarray(points, np.float32), np.float64).reshape(-1, 3)
+        ok = np.ones(len(start), bool)
+        _outside_kernel(start, self.lows, self.highs, self.starts, self.triangles,
+                        self.margin_m, ok)
+        return ok
+
+
+_BY_OCCLUSION: weakref.WeakKeyDictionary[Any, ClosedShells | None] = \
+    weakref.WeakKeyDictionary()
+
+
+def closed_shells(scene: Scene, occlusion: object) -> ClosedShells | None:
+    """The closed shells of ``occlusion``'s BVH over ``scene`` (made once per occlusion);
+    None when the occlusion holds no BVH (the brute-force reference casts every ray) or the
+    scene has no face to rule out."""
+    if not isinstance(occlusion, BvhMesh):
+        return None
+    try:
+        return _BY_OCCLUSION[occlusion]
+    except KeyError:
+        pass
+    shells = _closed_shells(scene, occlusion.bvh_faces())
+    _BY_OCCLUSION[occlusion] = shells
+    return shells
+
+
+def _closed_shells(scene: Scene, bvh: BvhFaces) -> ClosedShells | None:
+    from planner.rays.embree import clear_margin_m
+
+    vertices, faces = bvh.vertices, bvh.faces
+    occluding = bvh.occluding  # (b,) ascending
+    # each BVH face's element (a file face's, or a piece's on a BVH of pieces); a mesh
+    # without elements is one element
+    element = (scene.file_face_element if bvh.file_faces else scene.face_element)[occluding]
+    shell_of, side_of = _shells(vertices, faces[occluding], element)  # (b,), (K,)
+    if not (side_of != 0).any():
+        return None
+    margin_m = clear_margin_m(bvh.scale_m)
+    # per scene face: its BVH face's shell, through the face's place among the occluding
+    bvh_face = scene.source_face if bvh.file_faces else np.arange(scene.n_faces)
+    at = np.minimum(np.searchsorted(occluding, bvh_face), len(occluding) - 1)  # (F,)
+    piece_shell = np.where(occluding[at] == bvh_face, shell_of[at], -1)  # (F,)
+    on_closed = piece_shell >= 0
+    on_closed[on_closed] = side_of[piece_shell[on_closed]] != 0
+    kept = np.flatnonzero(side_of != 0)  # the closed shells
+    renumber = np.full(len(side_of), -1, np.int64)
+    renumber[kept] = np.arange(len(kept))
+    members = np.flatnonzero(shell_of >= 0)
+    members = members[side_of[shell_of[members]] != 0]
+    members = members[np.argsort(renumber[shell_of[members]], kind="stable")]  # by shell
+    counts = np.bincount(renumber[shell_of[members]], minlength=len(kept))
+    starts = np.zeros(len(kept) + 1, np.int64)
+    np.cumsum(counts, out=starts[1:])
+    triangles = vertices[faces[occluding[members]]]  # (T, 3, 3)
+    member_index = np.full(len(occluding), -1, np.int64)  # BVH face -> its row in triangles
+    member_index[members] = np.arange(len(members))
+    lows = np.minimum.reduceat(triangles.min(axis=1), starts[:-1]) - margin_m \
+        if len(kept) else np.zeros((0, 3))
+    highs = np.maximum.reduceat(triangles.max(axis=1), starts[:-1]) + margin_m \
+        if len(kept) else np.zeros((0, 3))
+    side = np.zeros(scene.n_faces, np.int8)
+    candidates = np.flatnonzero(on_closed)
+    own_row = member_index[at[candidates]]
+    shell = renumber[piece_shell[candidates]]
+    flip = side_of[kept][shell]
+
+    def decide(first: int) -> int:
+        block = slice(first, first + _PIECES_PER_TASK)
+        _far_from_shell(scene.centroids, candidates[block], own_row[block], shell[block],
+                        flip[block], starts, triangles, margin_m, side)
+        return first
+
+    list(in_block_order(decide, range(0, len(candidates), _PIECES_PER_TASK)))
+    if not side.any():
+        return None
+    return ClosedShells(side, margin_m, np.ascontiguousarray(lows),
+                        np.ascontiguousarray(highs), starts, np.ascontiguousarray(triangles))
+
+
+def _shells(vertices: NDArray[np.float64], faces: NDArray[np.int32],
+            element: NDArray[np.int32]) -> tuple[NDArray[np.int64], NDArray[np.int8]]:
+    """(b,) each face's shell (faces of one element joined edge to edge; -1 for a face of
+    no area) and (K,) each shell's side: +1 its faces' normals point out of the region it
+    bounds, -1 into it, 0 not a closed shell of at most ``MAX_SHELL_FACES`` faces.
+
+    Corners are the same where their float32 coordinates are (as Embree sees them)."""
+    n = len(faces)
+    shell_of = np.full(n, -1, np.int64)
+    if n == 0:
+        return shell_of, np.zeros(0, np.int8)
+    corners = vertices[faces]  # (b, 3, 3)
+    doubled = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0],
+                                      corners[:, 2] - corners[:, 0]), axis=1)
+    used, local = np.unique(faces, return_inverse=True)
+    rank = coordinate_ranks(vertices[used].astype(np.float32).astype(np.float64))
+    corner = rank[local.reshape(-1, 3)].astype(np.int64)  # (b, 3)
+    a, b = corner, np.roll(corner, -1, axis=1)  # the directed edges a -> b of each face
+    low, high = np.minimum(a, b).ravel(), np.maximum(a, b).ravel()  # (3 b,)
+    group = np.repeat(element.astype(np.int64), 3)
+    forward = (a < b).ravel()
+    face = np.repeat(np.arange(n), 3)
+    order = np.lexsort((high, low, group))
+    low, high, group = low[order], high[order], group[order]
+    forward, face = forward[order], face[order]
+    new = np.r_[True, (low[1:] != low[:-1]) | (high[1:] != high[:-1])
+                | (group[1:] != group[:-1])]
+    run = np.cumsum(new) - 1  # (3 b,) the undirected edge of each directed one
+    run_length = np.bincount(run)
+    forwards = np.bincount(run, weights=forward.astype(np.float64))
+    # an edge of two faces, one along each direction: a closed, consistently wound surface
+    good_run = (run_length == 2) & (forwards == 1)
+    bad_face = np.zeros(n, bool)
+    bad_face[face[~good_run[run]]] = True
+    bad_face |= ~(doubled > 0)
+    first = np.flatnonzero(new & good_run[run])  # the two faces of a good edge: first, next
+    graph = sp.coo_matrix((np.ones(len(first)), (face[first], face[first + 1])), shape=(n, n))
+    n_shells, label = connected_components(graph, directed=False)
+    closed = np.bincount(label, weights=bad_face.astype(np.float64), minlength=n_shells) == 0
+    size = np.bincount(label, minlength=n_shells)
+    # signed volume about each shell's first corner (its sign tells the winding)
+    anchor = np.zeros((n_shells, 3))
+    anchor[label[::-1]] = corners[::-1, 0]
+    rel = corners - anchor[label][:, None, :]
+    six_volume = np.einsum("ij,ij->i", rel[:, 0], np.cross(rel[:, 1], rel[:, 2]))
+    volume = np.bincount(label, weights=six_volume, minlength=n_shells)
+    side = np.where(closed & (size <= MAX_SHELL_FACES) & (volume != 0),
+                    np.sign(volume), 0).astype(np.int8)
+    shell_of[:] = label
+    shell_of[~(doubled > 0)] = -1
+    return shell_of, side
+
+
+@numba.njit(nogil=True, cache=True)
+def _point_triangle_distance(px: float, py: float, pz: float,
+                             tri: NDArray[np.float64]) -> float:
+    """The distance from a point to a (3, 3) triangle (Ericson, Real-Time Collision
+    Detection, 5.1.5: the closest point by the point's Voronoi region)."""
+    ax, ay, az = tri[0, 0], tri[0, 1], tri[0, 2]
+    abx, aby, abz = tri[1, 0] - ax, tri[1, 1] - ay, tri[1, 2] - az
+    acx, acy, acz = tri[2, 0] - ax, tri[2, 1] - ay, tri[2, 2] - az
+    apx, apy, apz = px - ax, py - ay, pz - az
+    d1 = abx * apx + aby * apy + abz * apz
+    d2 = acx * apx + acy * apy + acz * apz
+    if d1 <= 0.0 and d2 <= 0.0:
+        qx, qy, qz = ax, ay, az
+    else:
+        bpx, bpy, bpz = px - tri[1, 0], py - tri[1, 1], pz - tri[1, 2]
+        d3 = abx * bpx + aby * bpy + abz * bpz
+        d4 = acx * bpx + acy * bpy + acz * bpz
+        cpx, cpy, cpz = px - tri[2, 0], py - tri[2, 1], pz - tri[2, 2]
+        d5 = abx * cpx + aby * cpy + abz * cpz
+        d6 = acx * cpx + acy * cpy + acz * cpz
+        vc = d1 * d4 - d3 * d2
+        vb = d5 * d2 - d1 * d6
+        va = d3 * d6 - d5 * d4
+        if d3 >= 0.0 and d4 <= d3:
+            qx, qy, qz = tri[1, 0], tri[1, 1], tri[1, 2]
+        elif d6 >= 0.0 and d5 <= d6:
+            qx, qy, qz = tri[2, 0], tri[2, 1], tri[2, 2]
+        elif vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+            t = d1 / (d1 - d3)
+            qx, qy, qz = ax + t * abx, ay + t * aby, az + t * abz
+        elif vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+            t = d2 / (d2 - d6)
+            qx, qy, qz = ax + t * acx, ay + t * acy, az + t * acz
+        elif va <= 0.0 and (d4 - d3) >= 0.0 and (d5 - d6) >= 0.0:
+            t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+            qx = tri[1, 0] + t * (tri[2, 0] - tri[1, 0])
+            qy = tri[1, 1] + t * (tri[2, 1] - tri[1, 1])
+            qz = tri[1, 2] + t * (tri[2, 2] - tri[1, 2])
+        else:
+            denom = 1.0 / (va + vb + vc)
+            v, w = vb * denom, vc * denom
+            qx = ax + abx * v + acx * w
+            qy = ay + aby * v + acy * w
+            qz = az + abz * v + acz * w
+    dx, dy, dz = px - qx, py - qy, pz - qz
+    return float(np.sqrt(dx * dx + dy * dy + dz * dz))
+
+
+@numba.njit(nogil=True, cache=True)
+def _far_from_shell(centroids: NDArray[np.float64], pieces: NDArray[np.int64],
+                    own_row: NDArray[np.int64], shell: NDArray[np.int64],
+                    flip: NDArray[np.int8], starts: NDArray[np.int64],
+                    triangles: NDArray[np.float64], margin_m: float,
+                    side: NDArray[np.int8]) -> None:
+    """``side[pieces[i]] = flip[i]`` where the piece's centroid lies farther than
+    ``margin_m`` from every face of its shell but its own (row ``own_row[i]`` of
+    ``triangles``); compiled: a shell's every face, for each of its pieces."""
+    for i in range(len(pieces)):
+        f = pieces[i]
+        px, py, pz = centroids[f, 0], centroids[f, 1], centroids[f, 2]
+        far = True
+        for row in range(starts[shell[i]], starts[shell[i] + 1]):
+            if row == own_row[i]:
+                continue
+            tri = triangles[row]
+            if (px < min(tri[0, 0], tri[1, 0], tri[2, 0]) - margin_m
+                    or px > max(tri[0, 0], tri[1, 0], tri[2, 0]) + margin_m
+                    or py < min(tri[0, 1], tri[1, 1], tri[2, 1]) - margin_m
+                    or py > max(tri[0, 1], tri[1, 1], tri[2, 1]) + margin_m
+                    or pz < min(tri[0, 2], tri[1, 2], tri[2, 2]) - margin_m
+                    or pz > max(tri[0, 2], tri[1, 2], tri[2, 2]) + margin_m):
+                continue
+            if _point_triangle_distance(px, py, pz, tri) <= margin_m:
+                far = False
+                break
+        if far:
+            side[f] = flip[i]
+
+
+@numba.njit(nogil=True, cache=True)
+def _outside_kernel(points: NDArray[np.float64], lows: NDArray[np.float64],
+                    highs: NDArray[np.float64], starts: NDArray[np.int64],
+                    triangles: NDArray[np.float64], margin_m: float,
+                    ok: NDArray[np.bool_]) -> None:
+    """``ok[i] = False`` for each point inside some shell's widened box that lies inside
+    the shell (its winding number, the solid angles of the shell's triangles over 4 pi,
+    is one half or more in size) or within ``margin_m`` of it; compiled."""
+    for i in range(len(points)):
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        for k in range(len(lows)):
+            if (px < lows[k, 0] or px > highs[k, 0] or py < lows[k, 1] or py > highs[k, 1]
+                    or pz < lows[k, 2] or pz > highs[k, 2]):
+                continue
+            solid_angle = 0.0
+            for row in range(starts[k], starts[k + 1]):
+                tri = triangles[row]
+                if _point_triangle_distance(px, py, pz, tri) <= margin_m:
+                    ok[i] = False
+                    break
+                # Van Oosterom and Strackee: tan(omega / 2) of the triangle seen from p
+                ax, ay, az = tri[0, 0] - px, tri[0, 1] - py, tri[0, 2] - pz
+                bx, by, bz = tri[1, 0] - px, tri[1, 1] - py, tri[1, 2] - pz
+                cx, cy, cz = tri[2, 0] - px, tri[2, 1] - py, tri[2, 2] - pz
+                la = np.sqrt(ax * ax + ay * ay + az * az)
+                lb = np.sqrt(bx * bx + by * by + bz * bz)
+                lc = np.sqrt(cx * cx + cy * cy + cz * cz)
+                det = (ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx)
+                       + az * (bx * cy - by * cx))
+                div = (la * lb * lc + (ax * bx + ay * by + az * bz) * lc
+                       + (ax * cx + ay * cy + az * cz) * lb
+                       + (bx * cx + by * cy + bz * cz) * la)
+                solid_angle += 2.0 * np.arctan2(det, div)
+            if not ok[i]:
+                break
+            if abs(solid_angle) >= 2.0 * np.pi:  # winding number of one half or more
+                ok[i] = False
+                break
