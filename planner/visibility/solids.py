@@ -2,11 +2,11 @@
 
 Most faces a candidate's pair search reaches face away from it: the far side of a wall, the
 underside of the slab it stands on, the back of a column. A *closed shell* is a set of
-occluding faces of one element (an IFC element, or the whole mesh of a file without
-elements), connected edge to edge, in which every edge joins exactly two faces that run
-along it in opposite directions: a watertight, consistently wound surface, which bounds a
-region R. Its signed volume tells whether its normals point out of R or into it; ``side``
-makes them point out.
+occluding faces of one object (an IFC element; in a plain mesh, the faces joined by the
+vertices the file writes for them, an object's own list), connected edge to edge, in which
+every edge joins exactly two faces that run along it in opposite directions: a watertight,
+consistently wound surface, which bounds a region R. Its signed volume tells whether its
+normals point out of R or into it; ``side`` makes them point out.
 
 **The rule.** Let c be a candidate outside R and p a point of a shell face f, with c behind
 f's plane (on R's side of it, by more than the margin). The segment from c to p arrives at
@@ -127,57 +127,96 @@ def _closed_shells(scene: Scene, bvh: BvhFaces) -> ClosedShells | None:
 
     vertices, faces = bvh.vertices, bvh.faces
     occluding = bvh.occluding  # (b,) ascending
-    # each BVH face's element (a file face's, or a piece's on a BVH of pieces); a mesh
-    # without elements is one element
+    # each BVH face's element (a file face's, or a piece's on a BVH of pieces)
     element = (scene.file_face_element if bvh.file_faces else scene.face_element)[occluding]
-    shell_of, side_of = _shells(vertices, faces[occluding], element)  # (b,), (K,)
-    if not (side_of != 0).any():
+    members, starts, flips = _closed_members(vertices, faces[occluding], element)
+    if len(flips) == 0:
         return None
     margin_m = clear_margin_m(bvh.scale_m)
-    # per scene face: its BVH face's shell, through the face's place among the occluding
+    # per BVH face, the first closed shell it is on and its row there
+    first_row = np.full(len(occluding), -1, np.int64)
+    first_row[members[::-1]] = np.arange(len(members))[::-1]
+    shell_of_row = np.repeat(np.arange(len(flips)), np.diff(starts))  # (T,)
+    triangles = vertices[faces[occluding[members]]]  # (T, 3, 3)
+    lows = np.minimum.reduceat(triangles.min(axis=1), starts[:-1]) - margin_m
+    highs = np.maximum.reduceat(triangles.max(axis=1), starts[:-1]) + margin_m
+    # per scene face: its BVH face, through the face's place among the occluding
     bvh_face = scene.source_face if bvh.file_faces else np.arange(scene.n_faces)
     at = np.minimum(np.searchsorted(occluding, bvh_face), len(occluding) - 1)  # (F,)
-    piece_shell = np.where(occluding[at] == bvh_face, shell_of[at], -1)  # (F,)
-    on_closed = piece_shell >= 0
-    on_closed[on_closed] = side_of[piece_shell[on_closed]] != 0
-    kept = np.flatnonzero(side_of != 0)  # the closed shells
-    renumber = np.full(len(side_of), -1, np.int64)
-    renumber[kept] = np.arange(len(kept))
-    members = np.flatnonzero(shell_of >= 0)
-    members = members[side_of[shell_of[members]] != 0]
-    members = members[np.argsort(renumber[shell_of[members]], kind="stable")]  # by shell
-    counts = np.bincount(renumber[shell_of[members]], minlength=len(kept))
-    starts = np.zeros(len(kept) + 1, np.int64)
-    np.cumsum(counts, out=starts[1:])
-    triangles = vertices[faces[occluding[members]]]  # (T, 3, 3)
-    member_index = np.full(len(occluding), -1, np.int64)  # BVH face -> its row in triangles
-    member_index[members] = np.arange(len(members))
-    lows = np.minimum.reduceat(triangles.min(axis=1), starts[:-1]) - margin_m \
-        if len(kept) else np.zeros((0, 3))
-    highs = np.maximum.reduceat(triangles.max(axis=1), starts[:-1]) + margin_m \
-        if len(kept) else np.zeros((0, 3))
+    row = np.where(occluding[at] == bvh_face, first_row[at], -1)  # (F,)
+    pieces = np.flatnonzero(row >= 0)
+    own_row = row[pieces]
+    shell = shell_of_row[own_row]
+    flip = flips[shell]
     side = np.zeros(scene.n_faces, np.int8)
-    candidates = np.flatnonzero(on_closed)
-    own_row = member_index[at[candidates]]
-    shell = renumber[piece_shell[candidates]]
-    flip = side_of[kept][shell]
 
     def decide(first: int) -> int:
         block = slice(first, first + _PIECES_PER_TASK)
-        _far_from_shell(scene.centroids, candidates[block], own_row[block], shell[block],
+        _far_from_shell(scene.centroids, pieces[block], own_row[block], shell[block],
                         flip[block], starts, triangles, margin_m, side)
         return first
 
-    list(in_block_order(decide, range(0, len(candidates), _PIECES_PER_TASK)))
+    list(in_block_order(decide, range(0, len(pieces), _PIECES_PER_TASK)))
     if not side.any():
         return None
     return ClosedShells(side, margin_m, np.ascontiguousarray(lows),
                         np.ascontiguousarray(highs), starts, np.ascontiguousarray(triangles))
 
 
+def _closed_members(vertices: NDArray[np.float64], faces: NDArray[np.int32],
+                    element: NDArray[np.int32]
+                    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int8]]:
+    """The closed shells of the (b, 3) ``faces``: (T,) their faces (rows of ``faces``),
+    shell by shell, (K + 1,) where each shell's start in them, and (K,) each shell's side.
+
+    Faces of an element are joined within it. Faces of none (a plain mesh) are joined two
+    ways, and the closed shells of both are taken (a face may be on two): across the whole
+    mesh, which closes a box whose sides the file writes with vertices of their own but
+    not two boxes that share an edge; and within each object (:func:`_objects`), which
+    closes the boxes of a file that writes each object's vertices apart."""
+    groupings = [element.astype(np.int64)]
+    if (element < 0).any():
+        groupings.append(_objects(faces, element))
+    members, counts, flips = [], [], []
+    for grouping in groupings:
+        shell_of, side = _shells(vertices, faces, grouping)
+        on_closed = np.flatnonzero(shell_of >= 0)
+        on_closed = on_closed[side[shell_of[on_closed]] != 0]
+        closed = np.flatnonzero(side != 0)
+        renumber = np.full(len(side), -1, np.int64)
+        renumber[closed] = np.arange(len(closed))
+        shell = renumber[shell_of[on_closed]]
+        members.append(on_closed[np.argsort(shell, kind="stable")])
+        counts.append(np.bincount(shell, minlength=len(closed)))
+        flips.append(side[closed])
+    count = np.concatenate(counts)
+    starts = np.zeros(len(count) + 1, np.int64)
+    np.cumsum(count, out=starts[1:])
+    return np.concatenate(members), starts, np.concatenate(flips).astype(np.int8)
+
+
+def _objects(faces: NDArray[np.int32], element: NDArray[np.int32]) -> NDArray[np.int64]:
+    """(b,) the object of each of the (b, 3) faces: its element, or for a face of none,
+    the faces joined to it through shared vertices (the vertex list a plain mesh's
+    exporter writes per object: a wall's box shares no vertex with the slab it stands
+    on, though their corners may coincide)."""
+    n_elements = int(element.max(initial=-1)) + 1
+    loose = np.flatnonzero(element < 0)
+    objects = element.astype(np.int64)
+    if len(loose):
+        used, local = np.unique(faces[loose], return_inverse=True)
+        n = len(loose) + len(used)  # faces, then vertices: one graph
+        face_node = np.repeat(np.arange(len(loose)), 3)
+        graph = sp.coo_matrix((np.ones(len(face_node)), (face_node,
+                               len(loose) + local.ravel())), shape=(n, n))
+        _, label = connected_components(graph, directed=False)
+        objects[loose] = n_elements + label[:len(loose)]
+    return objects
+
+
 def _shells(vertices: NDArray[np.float64], faces: NDArray[np.int32],
-            element: NDArray[np.int32]) -> tuple[NDArray[np.int64], NDArray[np.int8]]:
-    """(b,) each face's shell (faces of one element joined edge to edge; -1 for a face of
+            element: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int8]]:
+    """(b,) each face's shell (faces of one object joined edge to edge; -1 for a face of
     no area) and (K,) each shell's side: +1 its faces' normals point out of the region it
     bounds, -1 into it, 0 not a closed shell of at most ``MAX_SHELL_FACES`` faces.
 
