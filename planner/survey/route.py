@@ -23,12 +23,18 @@ model has them):
 - *its part of the building is cut off* (checked where the part and the route's part come
   within ``_MEET_M`` of each other): at the same height, by a barrier at knee height at a
   named place (the door there, when the model names one, that the model closes; a door
-  there whose sill the model sets higher than a step above the floor, its height given;
-  else a wall without a doorway or a door drawn as a wall); at another height, by a step higher
-  than ``STEP_M`` with no stair modelled (the drop measured, where the higher floor's
-  knee-high line over to the lower is free: the drop alone parts them); both where both
-  are found;
-  and where the two parts never meet, the two storeys that no stair, ramp or steps join.
+  there whose sill the model sets higher than a step above the floors on both sides, its
+  height over each given: the floors meet, no step is missing, the door stands at another
+  level's height; in a plain mesh, an opening of door height over the wall set so
+  (:func:`planner.walkgraph.raised_openings`); else a wall without a doorway or a door
+  drawn as a wall); at another height, by a step higher than ``STEP_M`` with no stair
+  modelled (the drop measured, where the higher floor's knee-high line over to the lower
+  is free: the drop alone parts them); both where both are found; and where the two
+  parts never meet, the two storeys that no stair, ramp or steps join;
+- *it stands on the site outside the building*, cut off from the route: a part whose
+  samples are mostly open ground (:func:`planner.walkgraph.open_ground`: under the sky,
+  the lowest in their column, outside the building's footprint), parted from the route's
+  ground by a wall or a fence at a named place, by a step, or by no modelled ground at all.
 
 In a plain mesh the walk passes the doors :func:`planner.walkgraph.found_doors` finds, and
 geometry alone cannot tell a glazed door from a French window, which may be fixed. Where a
@@ -61,6 +67,8 @@ from planner.walkgraph import (
     MeshDoors,
     WalkGraph,
     free_both_ways,
+    open_ground,
+    raised_openings,
     upright_free,
 )
 
@@ -79,6 +87,10 @@ _MEET_M = 1.0
 _MAX_PART_SAMPLES = 20_000
 _DOOR_NEAR_M = 0.6  # a door this close (horizontally) to a barrier is the one named
 _MAX_STEPS_TRIED = 256  # pairs across a height difference tried for an open step, lowest first
+# a cut-off part is on the site outside the building when more than this share of its floor
+# samples is open ground (planner.walkgraph.open_ground): a lawn with a tree or an eave
+# over its edge is still a lawn
+_OPEN_GROUND_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -536,24 +548,58 @@ class _Why:
                  places: Places) -> None:
         self.graph, self.caster, self.labels, self.feet = graph, caster, labels, feet
         self.component, self.main, self.places = component, main, places
-        self._parts: dict[int, str] = {}
+        # per cut-off part its reason and whether it is open ground outside the building
+        self._parts: dict[int, tuple[str, bool]] = {}
         self._main_tree: cKDTree | None = None
         self._main_nodes: NDArray[np.int64] = np.zeros(0, np.int64)
+        self._open_ground: NDArray[np.bool_] | None = None
 
     def station(self, i: int) -> str:
         """The reason of station index ``i``."""
         floor = self.feet[i] - np.array([0.0, 0.0, KNEE_HEIGHT_M])
         room = self.places.station_rooms[i] if i < len(self.places.station_rooms) else ""
         where = f"in room {room!r}, " if room else ""
-        if self.places.storeys and np.isfinite(floor[2]):
-            where += self.places.storey_at(float(floor[2]))
-        where = where.removesuffix(", ")
+        storey = self.places.storey_at(float(floor[2])) if (
+            self.places.storeys and np.isfinite(floor[2])) else ""
         if self.labels[i] < 0:
+            where = (where + storey).removesuffix(", ")
             return f"{_NO_FLOOR}{f' ({where})' if where else ''}: {self._no_floor(floor)}"
         label = int(self.labels[i])
         if label not in self._parts:
             self._parts[label] = self._cut_off(label)
-        return f"{where}: {self._parts[label]}" if where else self._parts[label]
+        reason, outdoors = self._parts[label]
+        # open ground belongs to no storey: its reason gives the ground's height
+        where = (where + ("" if outdoors else storey)).removesuffix(", ")
+        return f"{where}: {reason}" if where else reason
+
+    def _raised_opening(self, a: NDArray[np.int64], b: NDArray[np.int64],
+                        level: NDArray[np.bool_]) -> str | None:
+        """Where a wall parts a cut-off part from the route's floor beside it at the same
+        height (the (P,) node pairs ``a``, ``b`` across, ``level`` of them so): the clause
+        naming an opening of door height over that wall, set higher than a step above
+        both floors (:func:`planner.walkgraph.raised_openings`; a plain mesh names no
+        door), at the nearest pair that has one; None when none does."""
+        graph = self.graph
+        gap = np.linalg.norm(graph.floor_xyz[b, :2] - graph.floor_xyz[a, :2], axis=1)
+        ranked = np.flatnonzero(level)[np.lexsort((b[level], a[level], gap[level]))][
+            :_MAX_STEPS_TRIED]
+        sill = raised_openings(self.caster, graph.floor_xyz[a[ranked]],
+                               graph.floor_xyz[b[ranked]])
+        found = np.flatnonzero(np.isfinite(sill))
+        if len(found) == 0:
+            return None
+        k = int(ranked[found[0]])
+        here, there = float(graph.floor_xyz[a[k], 2]), float(graph.floor_xyz[b[k], 2])
+        at = (graph.floor_xyz[a[k]] + graph.floor_xyz[b[k]]) / 2
+        sill_z = max(here, there) + float(sill[found[0]])
+        return (f"the route's floor lies beside it at the same height, but at ({at[0]:.2f}, "
+                f"{at[1]:.2f}) at {_m(at[2])} a wall stands between them, and the opening of "
+                f"door height in it (a door or a window, open or closed by a leaf or a pane) "
+                f"has its sill at {_m(sill_z)}, {sill_z - here:.2f} m above this floor "
+                f"({_m(here)}) and {sill_z - there:.2f} m above the route's floor on its "
+                f"other side ({_m(there)}), with wall under it: the floors meet at the same "
+                "height, so no step is missing; the model places the opening at another "
+                f"level's height, more than the {STEP_M:g} m a person steps above both floors")
 
     def _no_floor(self, floor: NDArray[np.float64]) -> str:
         graph = self.graph
@@ -576,15 +622,32 @@ class _Why:
         return ("the surface under it is not walked: steeper than a stair or a ramp, or "
                 "narrower than the walk grid (a stringer, a sill, a sloped roof)")
 
-    def _cut_off(self, label: int) -> str:
+    def _cut_off(self, label: int) -> tuple[str, bool]:
+        """The reason of the stations on the cut-off part ``label`` of the graph, and
+        whether that part is open ground outside the building."""
         graph = self.graph
         part = np.flatnonzero(self.component == label)
         part_xyz = graph.floor_xyz[part]
         area = len(part) * graph.grid_m ** 2
         low, high = float(part_xyz[:, 2].min()), float(part_xyz[:, 2].max())
         span = _m(low) if high - low < 0.01 else f"{_m(low)[:-2]} to {_m(high)}"
-        what = f"it stands in a part of the building cut off from the route ({area:.1f} m² " \
-               f"of floor at {span})"
+        if self._open_ground is None:
+            self._open_ground = open_ground(graph)
+        outdoors = bool(self._open_ground[part].mean() > _OPEN_GROUND_SHARE)
+        if outdoors:
+            what = (f"it stands on the site outside the building, cut off from the route "
+                    f"({area:.1f} m² of open ground at {span}: no roof or ceiling over it, "
+                    "outside the building's footprint)")
+        else:
+            what = (f"it stands in a part of the building cut off from the route ({area:.1f} "
+                    f"m² of floor at {span})")
+        return self._cut_off_because(part, low, what, outdoors), outdoors
+
+    def _cut_off_because(self, part: NDArray[np.int64], low: float, what: str,
+                         outdoors: bool) -> str:
+        """``what`` the cut-off ``part`` (its (P,) nodes, lowest at ``low`` metres) is,
+        and what parts it from the route's part."""
+        graph = self.graph
         if self.main < 0:
             return what
         if self._main_tree is None:
@@ -616,12 +679,27 @@ class _Why:
                         "model closes that door's opening (a wall drawn through it, a leaf "
                         "outside the door, a sill higher than a step)")
                 elif (raised := self.places.raised_door_near(at)) is not None:
+                    # both floors beside the door lie within a step of each other (a level
+                    # pair): no step is missing between them, the door stands too high
+                    here, there = float(graph.floor_xyz[a[k], 2]), float(graph.floor_xyz[b[k], 2])
+                    sill = float(at[2]) + raised[1]
                     clauses.append(
                         f"its way to the route's floor beside it is through door "
-                        f"{raised[0]!r} at {place}, but the model sets that door's sill "
-                        f"{raised[1]:.2f} m above this floor, more than the {STEP_M:g} m a "
-                        "person steps, with no step modelled (a door placed at another "
-                        "level, or a step the model lacks)")
+                        f"{raised[0]!r} at {place}, but the model sets that door's sill at "
+                        f"{_m(sill)}, {sill - here:.2f} m above this floor ({_m(here)}) and "
+                        f"{sill - there:.2f} m above the route's floor on its other side "
+                        f"({_m(there)}), with wall under it: the floors meet at the same "
+                        "height, so no step is missing; the model places the door and its "
+                        "opening at another level's height, more than the "
+                        f"{STEP_M:g} m a person steps above both floors")
+                elif not outdoors and (opening := self._raised_opening(a, b, level)):
+                    clauses.append(opening)
+                elif outdoors:
+                    clauses.append(
+                        f"the route's ground lies beside it at the same height, but at {place} "
+                        "and all along it something stands between them at "
+                        f"{KNEE_HEIGHT_M:g} m above the ground (a wall, a fence, a railing), "
+                        "with no gate or opening in the model")
                 else:
                     clauses.append(
                         f"the route's floor lies beside it at the same height, but at {place} "
@@ -651,6 +729,10 @@ class _Why:
         nearest = route_z[np.argmin(np.abs(route_z - low))]
         theirs = self.places.storey_at(low)
         ours = self.places.storey_at(float(nearest))
+        if outdoors:
+            return (f"{what}: no modelled ground joins it to the route (whose nearest floor "
+                    f"is at {_m(float(nearest))}): the site's ground between them is not "
+                    "modelled, or the model's site ends first")
         if abs(float(nearest) - low) <= STEP_M:
             return (f"{what}: the route's floor at the same height ({_m(float(nearest))}) "
                     "lies elsewhere and no floor, door or way around the outside leads "
