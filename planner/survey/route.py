@@ -85,7 +85,14 @@ EXACT_MAX_POINTS = 11
 _MEET_M = 1.0
 # at most this many samples of a part are compared with the route's (a stride over them)
 _MAX_PART_SAMPLES = 20_000
-_DOOR_NEAR_M = 0.6  # a door this close (horizontally) to a barrier is the one named
+# a barrier is at a door when the segment between the pair of floor samples it parts
+# crosses the door's plane within its width (its box along its plane, frame and lining
+# included) less this much at either end: a segment by the jamb crosses the wall beside
+# the door, not its opening (Lantern Hollow: a wall at right angles to a door's end)
+_DOOR_JAMB_M = 0.1
+# and what blocks the way there lies within this much of the door's box across its plane
+# (the wall through it, or under it: the face of the wall on the leaf's side)
+_DOOR_ACROSS_M = 0.1
 _MAX_STEPS_TRIED = 256  # pairs across a height difference tried for an open step, lowest first
 # a cut-off part is on the site outside the building when more than this share of its floor
 # samples is open ground (planner.walkgraph.open_ground): a lawn with a tree or an eave
@@ -100,12 +107,29 @@ class Places:
     ``storeys``: (name, floor height in metres), lowest first (IFC storeys, or a plain
     mesh's storeys from its candidates); ``station_rooms``: per station (ids 1..S in
     order) the room it stands in, "" where unknown; ``doors``: per door its name and
-    bounding box (lowest and highest corner, metres, plan frame).
+    bounding box (lowest and highest corner, metres, plan frame); ``door_frames``: per door
+    its box along its own plane (centre x, y; the unit direction of its width x, y; half
+    its width and half its depth, metres, plan frame), as a door turned to the axes needs
+    (empty: the bounding boxes, axis-aligned).
     """
 
     storeys: tuple[tuple[str, float], ...] = ()
     station_rooms: tuple[str, ...] = ()
     doors: tuple[tuple[str, tuple[float, float, float], tuple[float, float, float]], ...] = ()
+    door_frames: tuple[tuple[float, float, float, float, float, float], ...] = ()
+
+    def frames(self) -> NDArray[np.float64]:
+        """(D, 6) each door's box along its plane (see ``door_frames``)."""
+        if self.door_frames:
+            return np.asarray(self.door_frames, np.float64)
+        result = np.zeros((len(self.doors), 6))
+        for i, (_, lo, hi) in enumerate(self.doors):
+            half_x, half_y = (hi[0] - lo[0]) / 2, (hi[1] - lo[1]) / 2
+            # the width along the box's longer side
+            axis = (1.0, 0.0, half_x, half_y) if half_x >= half_y else (0.0, 1.0, half_y,
+                                                                         half_x)
+            result[i] = ((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, *axis)
+        return result
 
     def storey_at(self, floor_z_m: float) -> str:
         """The storey a floor at ``floor_z_m`` belongs to, named with its height."""
@@ -115,32 +139,66 @@ class Places:
         name, _ = below[-1]
         return f"storey {name!r} (floor at {_m(floor_z_m)})"
 
-    def door_near(self, point: NDArray[np.float64]) -> str | None:
-        """The name of the door whose box comes within ``_DOOR_NEAR_M`` of the (3,) point
-        horizontally and spans its height, the nearest; None when none does."""
-        found = self._nearest_door(point, lambda lo, hi: lo - STEP_M <= point[2] <= hi)
+    def crossed(self, a_xyz: NDArray[np.float64], b_xyz: NDArray[np.float64]
+                ) -> NDArray[np.bool_]:
+        """(P, D) bool: the horizontal segment from each (P, 3) point a to b crosses each
+        door's plane (a and b on either side of it, or on it) within its width less
+        ``_DOOR_JAMB_M`` at either end: the way from a to b is through that door's opening,
+        not past its jamb through another wall."""
+        frames = self.frames()  # (D, 6)
+        u, half_width = frames[:, 2:4], frames[:, 4]
+
+        def local(points: NDArray[np.float64]) -> tuple[NDArray[np.float64],
+                                                        NDArray[np.float64]]:
+            x = points[:, 0, None] - frames[None, :, 0]  # (P, D)
+            y = points[:, 1, None] - frames[None, :, 1]
+            return x * u[:, 0] + y * u[:, 1], y * u[:, 0] - x * u[:, 1]
+
+        along_a, across_a = local(a_xyz)
+        along_b, across_b = local(b_xyz)
+        sides = across_a * across_b <= 0.0
+        share = np.where(sides, across_a / np.where(sides, across_a - across_b, 1.0), 0.0)
+        share = np.nan_to_num(share, nan=0.5)  # both on the plane
+        along = along_a + (along_b - along_a) * share
+        result: NDArray[np.bool_] = sides & (np.abs(along) <= half_width - _DOOR_JAMB_M)
+        return result
+
+    def door_near(self, a_xyz: NDArray[np.float64], b_xyz: NDArray[np.float64]
+                  ) -> str | None:
+        """The name of the door whose opening the way between the (3,) floor points a and
+        b crosses (:meth:`crossed`) and whose box spans the floor's height, the nearest;
+        None when none does."""
+        z = (a_xyz[2] + b_xyz[2]) / 2
+        found = self._nearest_door(a_xyz, b_xyz, lambda lo, hi: lo - STEP_M <= z <= hi)
         return None if found is None else found[0]
 
-    def raised_door_near(self, point: NDArray[np.float64]) -> tuple[str, float] | None:
-        """The door within ``_DOOR_NEAR_M`` of the (3,) floor point horizontally whose
-        sill stands higher than a step but lower than head room above that floor (a door
-        the model sets at another level), the nearest: its name and the sill's height
-        over the floor, metres; None when none does."""
-        found = self._nearest_door(
-            point, lambda lo, hi: STEP_M < lo - point[2] < HEADROOM_M)
-        return None if found is None else (found[0], found[1] - float(point[2]))
+    def raised_door_near(self, a_xyz: NDArray[np.float64], b_xyz: NDArray[np.float64]
+                         ) -> tuple[str, float] | None:
+        """The door whose opening the way between the (3,) floor points a and b crosses
+        whose sill stands higher than a step but lower than head room above their floor (a
+        door the model sets at another level), the nearest: its name and the sill's height
+        over the floor midway, metres; None when none does."""
+        z = (a_xyz[2] + b_xyz[2]) / 2
+        found = self._nearest_door(a_xyz, b_xyz,
+                                   lambda lo, hi: STEP_M < lo - z < HEADROOM_M)
+        return None if found is None else (found[0], found[1] - float(z))
 
-    def _nearest_door(self, point: NDArray[np.float64],
+    def _nearest_door(self, a_xyz: NDArray[np.float64], b_xyz: NDArray[np.float64],
                       fits: Callable[[float, float], bool]) -> tuple[str, float] | None:
-        """The nearest door within ``_DOOR_NEAR_M`` of the (3,) point horizontally whose
-        bottom and top heights ``fits``: its name and bottom height; None when none."""
+        """The door whose opening the way between the (3,) points a and b crosses and
+        whose bottom and top heights ``fits``, the nearest to their middle: its name and
+        bottom height; None when none."""
         best: tuple[float, str, float] | None = None
-        for name, lo, hi in self.doors:
-            gap = np.maximum(np.maximum(np.asarray(lo[:2]) - point[:2],
-                                        point[:2] - np.asarray(hi[:2])), 0.0)
-            distance = float(np.hypot(*gap))
-            if distance <= _DOOR_NEAR_M and fits(lo[2], hi[2]) and (
-                    best is None or distance < best[0]):
+        if not self.doors:
+            return None
+        middle = (a_xyz + b_xyz) / 2
+        inside = self.crossed(a_xyz[None], b_xyz[None])[0]  # (D,)
+        for (name, lo, hi), frame, there in zip(self.doors, self.frames(), inside,
+                                                 strict=True):
+            if not (there and fits(lo[2], hi[2])):
+                continue
+            distance = float(np.hypot(middle[0] - frame[0], middle[1] - frame[1]))
+            if best is None or distance < best[0]:
                 best = (distance, name, lo[2])
         return None if best is None else (best[1], best[2])
 
@@ -572,6 +630,31 @@ class _Why:
         where = (where + ("" if outdoors else storey)).removesuffix(", ")
         return f"{where}: {reason}" if where else reason
 
+    def _blocked_in_door(self, a_xyz: NDArray[np.float64], b_xyz: NDArray[np.float64]
+                         ) -> bool:
+        """Whether the knee-high way between the (3,) floor points a and b is blocked, from
+        either end, within the opening of a door it crosses (:meth:`Places.crossed`): the
+        first face met lies within the door's width less ``_DOOR_JAMB_M`` and within
+        ``_DOOR_ACROSS_M`` of its box across its plane."""
+        knee = np.array([0.0, 0.0, KNEE_HEIGHT_M])
+        frames = self.places.frames()[self.places.crossed(a_xyz[None], b_xyz[None])[0]]
+        length = float(np.linalg.norm(b_xyz[:2] - a_xyz[:2]))
+        if len(frames) == 0 or length == 0.0:
+            return False
+        for start, end in ((a_xyz, b_xyz), (b_xyz, a_xyz)):
+            direction = (end - start) / float(np.linalg.norm(end - start))
+            _, distance = self.caster.first_hit((start + knee)[None], direction[None])
+            if not distance[0] < float(np.linalg.norm(end - start)):
+                continue
+            hit = start + direction * distance[0]
+            x, y = hit[0] - frames[:, 0], hit[1] - frames[:, 1]
+            along = np.abs(x * frames[:, 2] + y * frames[:, 3])
+            across = np.abs(y * frames[:, 2] - x * frames[:, 3])
+            if ((along <= frames[:, 4] - _DOOR_JAMB_M)
+                    & (across <= frames[:, 5] + _DOOR_ACROSS_M)).any():
+                return True
+        return False
+
     def _raised_opening(self, a: NDArray[np.int64], b: NDArray[np.int64],
                         level: NDArray[np.bool_]) -> str | None:
         """Where a wall parts a cut-off part from the route's floor beside it at the same
@@ -668,9 +751,31 @@ class _Why:
             step = ~level & (np.abs(rise) < HEADROOM_M)  # over or under: a storey, no step
             clauses: list[str] = []
             if level.any():
-                k = np.flatnonzero(level)[np.lexsort((b[level], a[level], gap[level]))[0]]
+                # the nearest pair in a door's opening, where the model names doors; else
+                # the nearest pair
+                ranked = np.flatnonzero(level)[np.lexsort((b[level], a[level], gap[level]))]
+                middle = (graph.floor_xyz[a[ranked]] + graph.floor_xyz[b[ranked]]) / 2
+                # a door at that height: spanning it, or standing on it less than head
+                # room higher (a door set at another level)
+                z_lo = np.array([lo[2] for _, lo, _ in self.places.doors], np.float64)
+                z_hi = np.array([hi[2] for _, _, hi in self.places.doors], np.float64)
+                at_height = ((middle[:, 2, None] > z_lo - HEADROOM_M)
+                             & (middle[:, 2, None] <= z_hi))
+                at_door = (self.places.crossed(graph.floor_xyz[a[ranked]],
+                                               graph.floor_xyz[b[ranked]])
+                           & at_height).any(axis=1)
+                # and what blocks the way there lies in that door's opening: a wall drawn
+                # through it, the wall under a raised door; not a wall beside it
+                for j in np.flatnonzero(at_door)[:_MAX_STEPS_TRIED].tolist():
+                    if self._blocked_in_door(graph.floor_xyz[a[ranked[j]]],
+                                             graph.floor_xyz[b[ranked[j]]]):
+                        break
+                    at_door[j] = False
+                else:
+                    at_door[:] = False
+                k = int(ranked[int(np.argmax(at_door))] if at_door.any() else ranked[0])
                 at = (graph.floor_xyz[a[k]] + graph.floor_xyz[b[k]]) / 2
-                door = self.places.door_near(at)
+                door = self.places.door_near(graph.floor_xyz[a[k]], graph.floor_xyz[b[k]])
                 place = f"({at[0]:.2f}, {at[1]:.2f}) at {_m(at[2])}"
                 if door is not None:
                     clauses.append(
@@ -678,7 +783,8 @@ class _Why:
                         f"{place}, is blocked at {KNEE_HEIGHT_M:g} m above the floor: the "
                         "model closes that door's opening (a wall drawn through it, a leaf "
                         "outside the door, a sill higher than a step)")
-                elif (raised := self.places.raised_door_near(at)) is not None:
+                elif (raised := self.places.raised_door_near(graph.floor_xyz[a[k]],
+                                                             graph.floor_xyz[b[k]])) is not None:
                     # both floors beside the door lie within a step of each other (a level
                     # pair): no step is missing between them, the door stands too high
                     here, there = float(graph.floor_xyz[a[k], 2]), float(graph.floor_xyz[b[k], 2])
@@ -730,9 +836,9 @@ class _Why:
         theirs = self.places.storey_at(low)
         ours = self.places.storey_at(float(nearest))
         if outdoors:
-            return (f"{what}: no modelled ground joins it to the route (whose nearest floor "
-                    f"is at {_m(float(nearest))}): the site's ground between them is not "
-                    "modelled, or the model's site ends first")
+            return (f"{what}: no modelled ground joins it to the route (the route's floor "
+                    f"nearest its height, at {_m(float(nearest))}, lies elsewhere): the site's "
+                    "ground between them is not modelled, or the model's site ends first")
         if abs(float(nearest) - low) <= STEP_M:
             return (f"{what}: the route's floor at the same height ({_m(float(nearest))}) "
                     "lies elsewhere and no floor, door or way around the outside leads "

@@ -298,6 +298,25 @@ def test_a_room_behind_an_opening_set_above_both_floors_gives_its_sill() -> None
     assert "a wall stands between them" in reasons[0] and "no doorway" in reasons[0], reasons
 
 
+def test_a_door_beside_the_wall_that_closes_a_room_is_not_named() -> None:
+    """A shallow closet whose doorway opens to the west room, and behind its back wall,
+    0.3 m from the door, a room with no way in (Lantern Hollow: a closet's sliding door
+    beside the partition that closes the room behind). The wall is named, not the door,
+    whose opening is free."""
+    boxes = _shell(8.0, 4.0, 2.6)
+    boxes += [((0.0, 0.0, -0.2), (8.0, 4.0, 0.0)),
+              # the closet's front wall, with a doorway at y in [0.2, 1.1]
+              ((3.9, 0.0, 0.0), (4.1, 0.2, 2.6)), ((3.9, 1.1, 0.0), (4.1, 4.0, 2.6)),
+              ((3.9, 0.2, 2.1), (4.1, 1.1, 2.6)),
+              # its back wall, solid
+              ((4.4, 0.0, 0.0), (4.6, 4.0, 2.6))]
+    door = Places(doors=(("Closet door (IfcDoor)", (4.11, 0.33, 0.0), (4.15, 1.23, 2.1)),))
+    unreachable, reasons = _route(boxes, [(2.0, 2.0, 1.5), (6.0, 2.0, 1.5)], door)
+    assert unreachable == (2,)
+    assert "Closet door" not in reasons[0], reasons
+    assert "a wall stands between them" in reasons[0] and "no doorway" in reasons[0], reasons
+
+
 def test_a_floor_a_step_too_high_above_the_rest_gives_the_step() -> None:
     """A 6 x 4 m room whose east half is a 0.6 m podium with no step up to it."""
     boxes = _shell(6.0, 4.0, 3.0)

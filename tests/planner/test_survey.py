@@ -473,8 +473,8 @@ def test_a_cut_off_piece_of_the_site_is_told_from_a_closed_room() -> None:
     assert "something stands between them at 0.5 m above the ground (a wall, a fence" in pen
     assert pit.startswith("it stands on the site outside the building, cut off from the "
                           "route (36.0 m² of open ground at -2.50 m"), pit
-    assert "no modelled ground joins it to the route (whose nearest floor is at -0.20 m)" \
-        in pit, pit
+    assert "no modelled ground joins it to the route (the route's floor nearest its " \
+        "height, at -0.20 m, lies elsewhere)" in pit, pit
     assert closet.startswith("it stands in a part of the building cut off from the route "
                              "(4.0 m² of floor at +0.00 m)"), closet
     assert "a wall stands between them" in closet and "no doorway" in closet, closet
