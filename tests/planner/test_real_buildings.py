@@ -399,6 +399,33 @@ def test_the_renga_house_as_a_plain_mesh_has_two_storeys_with_split_levels(
     assert -0.45 in split[0] and 2.85 in split[1], storeys
 
 
+def test_the_renga_house_as_a_plain_mesh_gives_the_raised_doors_sill(
+        scenes_dir: Path, tmp_path: Path) -> None:
+    """The plain mesh names no door, but the reason of a station in the lower wing's upper
+    rooms (+2.85 m) finds the opening over the wall to the stair's landing (+2.85 m too)
+    and its sill, 0.60 m above both floors: no step is missing, the door is set too high."""
+    from planner.limits import FaceLimits
+    from planner.rays import make_ray_caster
+    from planner.survey.fieldwork import _walk_caster
+    from planner.survey.route import plan_route
+    from planner.walkgraph import build_walk_graph
+    from tests.planner.buildings import export_plain_mesh
+    from tests.planner.ifc_models import read_ifc_once
+
+    ifc = buildings_dir(scenes_dir) / "Renga-House.ifc"
+    scene = read_scene(export_plain_mesh(ifc, tmp_path / "renga.obj", read_ifc_once(ifc)))
+    limits = FaceLimits.from_spec(SPEC, scene)
+    walk, _ = _walk_caster(scene, limits, make_ray_caster(scene, limits.occludes), False)
+    # in the +3.45 m room over the entrance, and in the lower wing's room at +2.85 m
+    stations = np.array([[3.0, -4.5, 4.95], [8.0, -1.0, 4.35]])
+    route = plan_route(build_walk_graph(scene, walk), walk, stations, None)
+    assert route.unreachable == (2,)
+    (reason,) = route.unreachable_reasons
+    assert "the opening of door height in it" in reason, reason
+    assert "has its sill at +3.45 m, 0.60 m above this floor (+2.85 m) and 0.60 m above the " \
+        "route's floor on its other side (+2.85 m), with wall under it" in reason, reason
+
+
 # Jasmin: in the garden, outside the west French window of its ground floor (model metres)
 JASMIN_GARDEN = (1.58, 8.6, 1.0)
 
