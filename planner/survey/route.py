@@ -22,7 +22,8 @@ model has them):
   than a walk, or a stair's stringer);
 - *its part of the building is cut off* (checked where the part and the route's part come
   within ``_MEET_M`` of each other): at the same height, by a barrier at knee height at a
-  named place (the door there, when the model names one, that the model closes; a door
+  named place (the door there, when the model names one whose opening the way across
+  crosses with the barrier in it (:meth:`Places.crossed`), that the model closes; a door
   there whose sill the model sets higher than a step above the floors on both sides, its
   height over each given: the floors meet, no step is missing, the door stands at another
   level's height; in a plain mesh, an opening of door height over the wall set so
