@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
+from scipy import ndimage
 
 from planner.rays import RayCaster, make_ray_caster
 from planner.scene import Scene, corner_extremes
@@ -462,6 +463,55 @@ def _through(caster: RayCaster, pa: NDArray[np.float64], pb: NDArray[np.float64]
     return thick, along, face_ab, face_ba, d_ab
 
 
+# a sill looked for over the floor, in these steps, from a step up to head room: a door the
+# model sets at another level's height, with wall under it (raised_openings)
+_SILL_STEP_M = 0.05
+
+
+def raised_openings(caster: RayCaster, a_xyz: NDArray[np.float64],
+                    b_xyz: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(K,) the sill of an opening of door height in the wall that parts each pair of
+    floor points (K, 3) a and b (floors within ``STEP_M`` of each other): metres over the
+    higher floor; NaN where there is none. Over the pair, the segment from a to b, lifted
+    in steps of ``_SILL_STEP_M``, is blocked by more than ``DOOR_FILLER_MAX_M`` of material
+    (a wall, not a leaf) at every height from ``STEP_M`` up to the sill, and from there up
+    to ``HEADROOM_M`` above the sill it is free or blocked only by a filler no thicker
+    (a leaf, a pane), under the ceilings over both points (inside a slab a segment meets
+    nothing): a door, or a window as tall, set higher than a step with wall under it. The
+    sill is the first surface under the opening's lowest free height."""
+    k = len(a_xyz)
+    result = np.full(k, np.nan)
+    if k == 0:
+        return result
+    floor_z = np.maximum(a_xyz[:, 2], b_xyz[:, 2])
+    up = np.tile([0.0, 0.0, 1.0], (k, 1))
+    knee = np.array([0.0, 0.0, KNEE_HEIGHT_M])
+    ceiling_m = np.minimum(caster.first_hit(a_xyz + knee, up)[1],
+                           caster.first_hit(b_xyz + knee, up)[1]) + KNEE_HEIGHT_M
+    heights = np.arange(STEP_M, HEADROOM_M + HEADROOM_M + _EPS_M, _SILL_STEP_M)  # (H,)
+    walled = np.zeros((k, len(heights)), bool)  # (K, H) more than a leaf at that height
+    open_at = np.zeros((k, len(heights)), bool)  # (K, H) a leaf, a pane or nothing
+    for j, height in enumerate(heights):
+        pa, pb = a_xyz.copy(), b_xyz.copy()
+        pa[:, 2] = pb[:, 2] = floor_z + height
+        thick = _through(caster, pa, pb)[0]
+        walled[:, j] = np.isfinite(thick) & (thick > DOOR_FILLER_MAX_M)
+        open_at[:, j] = (thick <= DOOR_FILLER_MAX_M) & (height < ceiling_m)  # inf: free
+    per_person = round(HEADROOM_M / _SILL_STEP_M)  # the heights a person fills over a sill
+    for i in range(k):
+        for j in range(1, len(heights) - per_person + 1):
+            if not walled[i, j - 1]:
+                break  # no wall under this height: a sill higher up stands on none
+            if open_at[i, j:j + per_person].all():
+                # the sill: the first surface under the opening's lowest probed height
+                middle = (a_xyz[i] + b_xyz[i]) / 2
+                middle[2] = floor_z[i] + heights[j]
+                _, drop = caster.first_hit(middle[None], np.array([[0.0, 0.0, -1.0]]))
+                result[i] = heights[j] - min(float(drop[0]), _SILL_STEP_M)
+                break
+    return result
+
+
 def _in_wall_opening(crossings: _Crossings, caster: RayCaster) -> NDArray[np.bool_]:
     """(K,) bool: the thin crossings that lie in a wall opening (rule step 2)."""
     n = len(crossings.thick)
@@ -604,6 +654,8 @@ class WalkGraph:
     cut_nodes : (K,) int64, ascending: on a graph of part of the footprint (``area_xy``),
         the nodes in its outermost columns where the area cuts the model's footprint;
         only these can have links, on the whole footprint's graph, to nodes outside it
+    covered : (N,) bool, something over the node (a ceiling, a roof, a slab, a canopy),
+        not the open sky; the ground nodes are under the sky (empty: not known)
     """
 
     floor_xyz: NDArray[np.float64]
@@ -611,10 +663,52 @@ class WalkGraph:
     grid_m: float
     n_ground: int = 0
     cut_nodes: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    covered: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
 
     @property
     def n_nodes(self) -> int:
         return len(self.floor_xyz)
+
+
+# a building's footprint is made of roofed patches at least this many walk columns across
+# (0.75 m at the 0.25 m grid: narrower than a corridor, wider than a wall or a fence)
+_ROOFED_MIN_COLUMNS = 3
+
+
+def open_ground(graph: WalkGraph) -> NDArray[np.bool_]:
+    """(N,) bool: the nodes of ``graph`` on open ground outside the building, from geometry
+    alone (IFC model or plain mesh, with terrain or with the ground nodes round a model
+    without it). A node is when it is
+
+    - under the open sky: nothing over it (:attr:`WalkGraph.covered`), no roof or ceiling;
+    - the lowest node of its column: the ground, not a balcony or a roof terrace over a
+      floor;
+    - outside the building's footprint: the columns with a node under a roof or ceiling,
+      in patches at least ``_ROOFED_MIN_COLUMNS`` columns across, and whatever they
+      enclose (a courtyard, an atrium, the walls' own columns). A narrower strip is the
+      inside of a wall or a fence: a column's rays find the bottom of a solid that stands
+      on the ground, under its own top (a fence round a pen would enclose the pen).
+
+    All false where no node is covered (a model without a roof or a ceiling anywhere: its
+    rooms cannot be told from its site) or the coverage is not known."""
+    n = graph.n_nodes
+    covered = graph.covered
+    if len(covered) != n or not covered.any():
+        return np.zeros(n, bool)
+    xy = graph.floor_xyz[:, :2]
+    # the nodes stand at column centres, whole grid steps apart
+    cell = np.rint((xy - xy.min(axis=0)) / graph.grid_m).astype(np.int64)  # (N, 2)
+    shape = cell.max(axis=0) + 1
+    roofed = np.zeros((int(shape[0]), int(shape[1])), bool)
+    roofed[cell[covered, 0], cell[covered, 1]] = True
+    across = np.ones((_ROOFED_MIN_COLUMNS, _ROOFED_MIN_COLUMNS), bool)
+    footprint = ndimage.binary_fill_holes(ndimage.binary_opening(roofed, across))
+    key = cell[:, 0] * int(shape[1]) + cell[:, 1]
+    lowest_z = np.full(int(shape[0]) * int(shape[1]), np.inf)
+    np.minimum.at(lowest_z, key, graph.floor_xyz[:, 2])
+    result: NDArray[np.bool_] = (~covered & (graph.floor_xyz[:, 2] <= lowest_z[key] + _EPS_M)
+                                 & ~footprint[cell[:, 0], cell[:, 1]])
+    return result
 
 
 @dataclass(frozen=True, eq=False)
@@ -880,5 +974,6 @@ def build_walk_graph(scene: Scene, caster: RayCaster, *, ground: bool = True,
             cut |= index == first
         if last < count:
             cut |= index == last - 1
+    covered = np.concatenate([samples.covered, np.zeros(n_ground, bool)])
     return WalkGraph(floor_xyz=floor_xyz, links=links, grid_m=grid_m, n_ground=n_ground,
-                     cut_nodes=np.flatnonzero(cut))
+                     cut_nodes=np.flatnonzero(cut), covered=covered)

@@ -166,6 +166,7 @@ def places_of(scene: Scene, candidates: CandidateSet | None, stations: list[int]
         if candidates.labels:
             rooms = tuple(candidates.labels[i].get("room", "") for i in stations)
     doors: list[tuple[str, tuple[float, float, float], tuple[float, float, float]]] = []
+    frames: list[tuple[float, float, float, float, float, float]] = []
     if scene.elements:
         door = door_faces(scene)
         element = scene.face_element[door]
@@ -178,7 +179,24 @@ def places_of(scene: Scene, candidates: CandidateSet | None, stations: list[int]
             doors.append((f"{name} ({item.ifc_class})", (float(lo[0]), float(lo[1]),
                                                          float(lo[2])),
                           (float(hi[0]), float(hi[1]), float(hi[2]))))
-    return Places(tuple(sorted(storeys, key=lambda s: s[1])), rooms, tuple(doors))
+            frames.append(_door_frame(points[:, :2]))
+    return Places(tuple(sorted(storeys, key=lambda s: s[1])), rooms, tuple(doors),
+                  tuple(frames))
+
+
+def _door_frame(xy: NDArray[np.float64]) -> tuple[float, float, float, float, float, float]:
+    """A door's box along its own plane from its (n, 2) corners (plan frame): centre x, y,
+    the unit direction of its width (the corners' principal axis) x, y, half its width
+    and half its depth, metres (:attr:`planner.survey.route.Places.door_frames`)."""
+    mean = xy.mean(axis=0)
+    _, axes = np.linalg.eigh(np.cov((xy - mean).T))  # ascending: the width's axis last
+    width = axes[:, 1]
+    depth = np.array([-width[1], width[0]])
+    along, across = (xy - mean) @ width, (xy - mean) @ depth
+    centre = mean + width * (along.max() + along.min()) / 2 + depth * (
+        across.max() + across.min()) / 2
+    return (float(centre[0]), float(centre[1]), float(width[0]), float(width[1]),
+            float(np.ptp(along)) / 2, float(np.ptp(across)) / 2)
 
 
 def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceLimits,

@@ -22,13 +22,20 @@ model has them):
   than a walk, or a stair's stringer);
 - *its part of the building is cut off* (checked where the part and the route's part come
   within ``_MEET_M`` of each other): at the same height, by a barrier at knee height at a
-  named place (the door there, when the model names one, that the model closes; a door
-  there whose sill the model sets higher than a step above the floor, its height given;
-  else a wall without a doorway or a door drawn as a wall); at another height, by a step higher
-  than ``STEP_M`` with no stair modelled (the drop measured, where the higher floor's
-  knee-high line over to the lower is free: the drop alone parts them); both where both
-  are found;
-  and where the two parts never meet, the two storeys that no stair, ramp or steps join.
+  named place (the door there, when the model names one whose opening the way across
+  crosses with the barrier in it (:meth:`Places.crossed`), that the model closes; a door
+  there whose sill the model sets higher than a step above the floors on both sides, its
+  height over each given: the floors meet, no step is missing, the door stands at another
+  level's height; in a plain mesh, an opening of door height over the wall set so
+  (:func:`planner.walkgraph.raised_openings`); else a wall without a doorway or a door
+  drawn as a wall); at another height, by a step higher than ``STEP_M`` with no stair
+  modelled (the drop measured, where the higher floor's knee-high line over to the lower
+  is free: the drop alone parts them); both where both are found; and where the two
+  parts never meet, the two storeys that no stair, ramp or steps join;
+- *it stands on the site outside the building*, cut off from the route: a part whose
+  samples are mostly open ground (:func:`planner.walkgraph.open_ground`: under the sky,
+  the lowest in their column, outside the building's footprint), parted from the route's
+  ground by a wall or a fence at a named place, by a step, or by no modelled ground at all.
 
 In a plain mesh the walk passes the doors :func:`planner.walkgraph.found_doors` finds, and
 geometry alone cannot tell a glazed door from a French window, which may be fixed. Where a
@@ -61,6 +68,8 @@ from planner.walkgraph import (
     MeshDoors,
     WalkGraph,
     free_both_ways,
+    open_ground,
+    raised_openings,
     upright_free,
 )
 
@@ -77,8 +86,19 @@ EXACT_MAX_POINTS = 11
 _MEET_M = 1.0
 # at most this many samples of a part are compared with the route's (a stride over them)
 _MAX_PART_SAMPLES = 20_000
-_DOOR_NEAR_M = 0.6  # a door this close (horizontally) to a barrier is the one named
+# a barrier is at a door when the segment between the pair of floor samples it parts
+# crosses the door's plane within its width (its box along its plane, frame and lining
+# included) less this much at either end: a segment by the jamb crosses the wall beside
+# the door, not its opening (Lantern Hollow: a wall at right angles to a door's end)
+_DOOR_JAMB_M = 0.1
+# and what blocks the way there lies within this much of the door's box across its plane
+# (the wall through it, or under it: the face of the wall on the leaf's side)
+_DOOR_ACROSS_M = 0.1
 _MAX_STEPS_TRIED = 256  # pairs across a height difference tried for an open step, lowest first
+# a cut-off part is on the site outside the building when more than this share of its floor
+# samples is open ground (planner.walkgraph.open_ground): a lawn with a tree or an eave
+# over its edge is still a lawn
+_OPEN_GROUND_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -88,12 +108,29 @@ class Places:
     ``storeys``: (name, floor height in metres), lowest first (IFC storeys, or a plain
     mesh's storeys from its candidates); ``station_rooms``: per station (ids 1..S in
     order) the room it stands in, "" where unknown; ``doors``: per door its name and
-    bounding box (lowest and highest corner, metres, plan frame).
+    bounding box (lowest and highest corner, metres, plan frame); ``door_frames``: per door
+    its box along its own plane (centre x, y; the unit direction of its width x, y; half
+    its width and half its depth, metres, plan frame), as a door turned to the axes needs
+    (empty: the bounding boxes, axis-aligned).
     """
 
     storeys: tuple[tuple[str, float], ...] = ()
     station_rooms: tuple[str, ...] = ()
     doors: tuple[tuple[str, tuple[float, float, float], tuple[float, float, float]], ...] = ()
+    door_frames: tuple[tuple[float, float, float, float, float, float], ...] = ()
+
+    def frames(self) -> NDArray[np.float64]:
+        """(D, 6) each door's box along its plane (see ``door_frames``)."""
+        if self.door_frames:
+            return np.asarray(self.door_frames, np.float64)
+        result = np.zeros((len(self.doors), 6))
+        for i, (_, lo, hi) in enumerate(self.doors):
+            half_x, half_y = (hi[0] - lo[0]) / 2, (hi[1] - lo[1]) / 2
+            # the width along the box's longer side
+            axis = (1.0, 0.0, half_x, half_y) if half_x >= half_y else (0.0, 1.0, half_y,
+                                                                         half_x)
+            result[i] = ((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, *axis)
+        return result
 
     def storey_at(self, floor_z_m: float) -> str:
         """The storey a floor at ``floor_z_m`` belongs to, named with its height."""
@@ -103,32 +140,66 @@ class Places:
         name, _ = below[-1]
         return f"storey {name!r} (floor at {_m(floor_z_m)})"
 
-    def door_near(self, point: NDArray[np.float64]) -> str | None:
-        """The name of the door whose box comes within ``_DOOR_NEAR_M`` of the (3,) point
-        horizontally and spans its height, the nearest; None when none does."""
-        found = self._nearest_door(point, lambda lo, hi: lo - STEP_M <= point[2] <= hi)
+    def crossed(self, a_xyz: NDArray[np.float64], b_xyz: NDArray[np.float64]
+                ) -> NDArray[np.bool_]:
+        """(P, D) bool: the horizontal segment from each (P, 3) point a to b crosses each
+        door's plane (a and b on either side of it, or on it) within its width less
+        ``_DOOR_JAMB_M`` at either end: the way from a to b is through that door's opening,
+        not past its jamb through another wall."""
+        frames = self.frames()  # (D, 6)
+        u, half_width = frames[:, 2:4], frames[:, 4]
+
+        def local(points: NDArray[np.float64]) -> tuple[NDArray[np.float64],
+                                                        NDArray[np.float64]]:
+            x = points[:, 0, None] - frames[None, :, 0]  # (P, D)
+            y = points[:, 1, None] - frames[None, :, 1]
+            return x * u[:, 0] + y * u[:, 1], y * u[:, 0] - x * u[:, 1]
+
+        along_a, across_a = local(a_xyz)
+        along_b, across_b = local(b_xyz)
+        sides = across_a * across_b <= 0.0
+        share = np.where(sides, across_a / np.where(sides, across_a - across_b, 1.0), 0.0)
+        share = np.nan_to_num(share, nan=0.5)  # both on the plane
+        along = along_a + (along_b - along_a) * share
+        result: NDArray[np.bool_] = sides & (np.abs(along) <= half_width - _DOOR_JAMB_M)
+        return result
+
+    def door_near(self, a_xyz: NDArray[np.float64], b_xyz: NDArray[np.float64]
+                  ) -> str | None:
+        """The name of the door whose opening the way between the (3,) floor points a and
+        b crosses (:meth:`crossed`) and whose box spans the floor's height, the nearest;
+        None when none does."""
+        z = (a_xyz[2] + b_xyz[2]) / 2
+        found = self._nearest_door(a_xyz, b_xyz, lambda lo, hi: lo - STEP_M <= z <= hi)
         return None if found is None else found[0]
 
-    def raised_door_near(self, point: NDArray[np.float64]) -> tuple[str, float] | None:
-        """The door within ``_DOOR_NEAR_M`` of the (3,) floor point horizontally whose
-        sill stands higher than a step but lower than head room above that floor (a door
-        the model sets at another level), the nearest: its name and the sill's height
-        over the floor, metres; None when none does."""
-        found = self._nearest_door(
-            point, lambda lo, hi: STEP_M < lo - point[2] < HEADROOM_M)
-        return None if found is None else (found[0], found[1] - float(point[2]))
+    def raised_door_near(self, a_xyz: NDArray[np.float64], b_xyz: NDArray[np.float64]
+                         ) -> tuple[str, float] | None:
+        """The door whose opening the way between the (3,) floor points a and b crosses
+        whose sill stands higher than a step but lower than head room above their floor (a
+        door the model sets at another level), the nearest: its name and the sill's height
+        over the floor midway, metres; None when none does."""
+        z = (a_xyz[2] + b_xyz[2]) / 2
+        found = self._nearest_door(a_xyz, b_xyz,
+                                   lambda lo, hi: STEP_M < lo - z < HEADROOM_M)
+        return None if found is None else (found[0], found[1] - float(z))
 
-    def _nearest_door(self, point: NDArray[np.float64],
+    def _nearest_door(self, a_xyz: NDArray[np.float64], b_xyz: NDArray[np.float64],
                       fits: Callable[[float, float], bool]) -> tuple[str, float] | None:
-        """The nearest door within ``_DOOR_NEAR_M`` of the (3,) point horizontally whose
-        bottom and top heights ``fits``: its name and bottom height; None when none."""
+        """The door whose opening the way between the (3,) points a and b crosses and
+        whose bottom and top heights ``fits``, the nearest to their middle: its name and
+        bottom height; None when none."""
         best: tuple[float, str, float] | None = None
-        for name, lo, hi in self.doors:
-            gap = np.maximum(np.maximum(np.asarray(lo[:2]) - point[:2],
-                                        point[:2] - np.asarray(hi[:2])), 0.0)
-            distance = float(np.hypot(*gap))
-            if distance <= _DOOR_NEAR_M and fits(lo[2], hi[2]) and (
-                    best is None or distance < best[0]):
+        if not self.doors:
+            return None
+        middle = (a_xyz + b_xyz) / 2
+        inside = self.crossed(a_xyz[None], b_xyz[None])[0]  # (D,)
+        for (name, lo, hi), frame, there in zip(self.doors, self.frames(), inside,
+                                                 strict=True):
+            if not (there and fits(lo[2], hi[2])):
+                continue
+            distance = float(np.hypot(middle[0] - frame[0], middle[1] - frame[1]))
+            if best is None or distance < best[0]:
                 best = (distance, name, lo[2])
         return None if best is None else (best[1], best[2])
 
@@ -536,24 +607,83 @@ class _Why:
                  places: Places) -> None:
         self.graph, self.caster, self.labels, self.feet = graph, caster, labels, feet
         self.component, self.main, self.places = component, main, places
-        self._parts: dict[int, str] = {}
+        # per cut-off part its reason and whether it is open ground outside the building
+        self._parts: dict[int, tuple[str, bool]] = {}
         self._main_tree: cKDTree | None = None
         self._main_nodes: NDArray[np.int64] = np.zeros(0, np.int64)
+        self._open_ground: NDArray[np.bool_] | None = None
 
     def station(self, i: int) -> str:
         """The reason of station index ``i``."""
         floor = self.feet[i] - np.array([0.0, 0.0, KNEE_HEIGHT_M])
         room = self.places.station_rooms[i] if i < len(self.places.station_rooms) else ""
         where = f"in room {room!r}, " if room else ""
-        if self.places.storeys and np.isfinite(floor[2]):
-            where += self.places.storey_at(float(floor[2]))
-        where = where.removesuffix(", ")
+        storey = self.places.storey_at(float(floor[2])) if (
+            self.places.storeys and np.isfinite(floor[2])) else ""
         if self.labels[i] < 0:
+            where = (where + storey).removesuffix(", ")
             return f"{_NO_FLOOR}{f' ({where})' if where else ''}: {self._no_floor(floor)}"
         label = int(self.labels[i])
         if label not in self._parts:
             self._parts[label] = self._cut_off(label)
-        return f"{where}: {self._parts[label]}" if where else self._parts[label]
+        reason, outdoors = self._parts[label]
+        # open ground belongs to no storey: its reason gives the ground's height
+        where = (where + ("" if outdoors else storey)).removesuffix(", ")
+        return f"{where}: {reason}" if where else reason
+
+    def _blocked_in_door(self, a_xyz: NDArray[np.float64], b_xyz: NDArray[np.float64]
+                         ) -> bool:
+        """Whether the knee-high way between the (3,) floor points a and b is blocked, from
+        either end, within the opening of a door it crosses (:meth:`Places.crossed`): the
+        first face met lies within the door's width less ``_DOOR_JAMB_M`` and within
+        ``_DOOR_ACROSS_M`` of its box across its plane."""
+        knee = np.array([0.0, 0.0, KNEE_HEIGHT_M])
+        frames = self.places.frames()[self.places.crossed(a_xyz[None], b_xyz[None])[0]]
+        length = float(np.linalg.norm(b_xyz[:2] - a_xyz[:2]))
+        if len(frames) == 0 or length == 0.0:
+            return False
+        for start, end in ((a_xyz, b_xyz), (b_xyz, a_xyz)):
+            direction = (end - start) / float(np.linalg.norm(end - start))
+            _, distance = self.caster.first_hit((start + knee)[None], direction[None])
+            if not distance[0] < float(np.linalg.norm(end - start)):
+                continue
+            hit = start + direction * distance[0]
+            x, y = hit[0] - frames[:, 0], hit[1] - frames[:, 1]
+            along = np.abs(x * frames[:, 2] + y * frames[:, 3])
+            across = np.abs(y * frames[:, 2] - x * frames[:, 3])
+            if ((along <= frames[:, 4] - _DOOR_JAMB_M)
+                    & (across <= frames[:, 5] + _DOOR_ACROSS_M)).any():
+                return True
+        return False
+
+    def _raised_opening(self, a: NDArray[np.int64], b: NDArray[np.int64],
+                        level: NDArray[np.bool_]) -> str | None:
+        """Where a wall parts a cut-off part from the route's floor beside it at the same
+        height (the (P,) node pairs ``a``, ``b`` across, ``level`` of them so): the clause
+        naming an opening of door height over that wall, set higher than a step above
+        both floors (:func:`planner.walkgraph.raised_openings`; a plain mesh names no
+        door), at the nearest pair that has one; None when none does."""
+        graph = self.graph
+        gap = np.linalg.norm(graph.floor_xyz[b, :2] - graph.floor_xyz[a, :2], axis=1)
+        ranked = np.flatnonzero(level)[np.lexsort((b[level], a[level], gap[level]))][
+            :_MAX_STEPS_TRIED]
+        sill = raised_openings(self.caster, graph.floor_xyz[a[ranked]],
+                               graph.floor_xyz[b[ranked]])
+        found = np.flatnonzero(np.isfinite(sill))
+        if len(found) == 0:
+            return None
+        k = int(ranked[found[0]])
+        here, there = float(graph.floor_xyz[a[k], 2]), float(graph.floor_xyz[b[k], 2])
+        at = (graph.floor_xyz[a[k]] + graph.floor_xyz[b[k]]) / 2
+        sill_z = max(here, there) + float(sill[found[0]])
+        return (f"the route's floor lies beside it at the same height, but at ({at[0]:.2f}, "
+                f"{at[1]:.2f}) at {_m(at[2])} a wall stands between them, and the opening of "
+                f"door height in it (a door or a window, open or closed by a leaf or a pane) "
+                f"has its sill at {_m(sill_z)}, {sill_z - here:.2f} m above this floor "
+                f"({_m(here)}) and {sill_z - there:.2f} m above the route's floor on its "
+                f"other side ({_m(there)}), with wall under it: the floors meet at the same "
+                "height, so no step is missing; the model places the opening at another "
+                f"level's height, more than the {STEP_M:g} m a person steps above both floors")
 
     def _no_floor(self, floor: NDArray[np.float64]) -> str:
         graph = self.graph
@@ -576,15 +706,32 @@ class _Why:
         return ("the surface under it is not walked: steeper than a stair or a ramp, or "
                 "narrower than the walk grid (a stringer, a sill, a sloped roof)")
 
-    def _cut_off(self, label: int) -> str:
+    def _cut_off(self, label: int) -> tuple[str, bool]:
+        """The reason of the stations on the cut-off part ``label`` of the graph, and
+        whether that part is open ground outside the building."""
         graph = self.graph
         part = np.flatnonzero(self.component == label)
         part_xyz = graph.floor_xyz[part]
         area = len(part) * graph.grid_m ** 2
         low, high = float(part_xyz[:, 2].min()), float(part_xyz[:, 2].max())
         span = _m(low) if high - low < 0.01 else f"{_m(low)[:-2]} to {_m(high)}"
-        what = f"it stands in a part of the building cut off from the route ({area:.1f} m² " \
-               f"of floor at {span})"
+        if self._open_ground is None:
+            self._open_ground = open_ground(graph)
+        outdoors = bool(self._open_ground[part].mean() > _OPEN_GROUND_SHARE)
+        if outdoors:
+            what = (f"it stands on the site outside the building, cut off from the route "
+                    f"({area:.1f} m² of open ground at {span}: no roof or ceiling over it, "
+                    "outside the building's footprint)")
+        else:
+            what = (f"it stands in a part of the building cut off from the route ({area:.1f} "
+                    f"m² of floor at {span})")
+        return self._cut_off_because(part, low, what, outdoors), outdoors
+
+    def _cut_off_because(self, part: NDArray[np.int64], low: float, what: str,
+                         outdoors: bool) -> str:
+        """``what`` the cut-off ``part`` (its (P,) nodes, lowest at ``low`` metres) is,
+        and what parts it from the route's part."""
+        graph = self.graph
         if self.main < 0:
             return what
         if self._main_tree is None:
@@ -605,9 +752,31 @@ class _Why:
             step = ~level & (np.abs(rise) < HEADROOM_M)  # over or under: a storey, no step
             clauses: list[str] = []
             if level.any():
-                k = np.flatnonzero(level)[np.lexsort((b[level], a[level], gap[level]))[0]]
+                # the nearest pair in a door's opening, where the model names doors; else
+                # the nearest pair
+                ranked = np.flatnonzero(level)[np.lexsort((b[level], a[level], gap[level]))]
+                middle = (graph.floor_xyz[a[ranked]] + graph.floor_xyz[b[ranked]]) / 2
+                # a door at that height: spanning it, or standing on it less than head
+                # room higher (a door set at another level)
+                z_lo = np.array([lo[2] for _, lo, _ in self.places.doors], np.float64)
+                z_hi = np.array([hi[2] for _, _, hi in self.places.doors], np.float64)
+                at_height = ((middle[:, 2, None] > z_lo - HEADROOM_M)
+                             & (middle[:, 2, None] <= z_hi))
+                at_door = (self.places.crossed(graph.floor_xyz[a[ranked]],
+                                               graph.floor_xyz[b[ranked]])
+                           & at_height).any(axis=1)
+                # and what blocks the way there lies in that door's opening: a wall drawn
+                # through it, the wall under a raised door; not a wall beside it
+                for j in np.flatnonzero(at_door)[:_MAX_STEPS_TRIED].tolist():
+                    if self._blocked_in_door(graph.floor_xyz[a[ranked[j]]],
+                                             graph.floor_xyz[b[ranked[j]]]):
+                        break
+                    at_door[j] = False
+                else:
+                    at_door[:] = False
+                k = int(ranked[int(np.argmax(at_door))] if at_door.any() else ranked[0])
                 at = (graph.floor_xyz[a[k]] + graph.floor_xyz[b[k]]) / 2
-                door = self.places.door_near(at)
+                door = self.places.door_near(graph.floor_xyz[a[k]], graph.floor_xyz[b[k]])
                 place = f"({at[0]:.2f}, {at[1]:.2f}) at {_m(at[2])}"
                 if door is not None:
                     clauses.append(
@@ -615,13 +784,29 @@ class _Why:
                         f"{place}, is blocked at {KNEE_HEIGHT_M:g} m above the floor: the "
                         "model closes that door's opening (a wall drawn through it, a leaf "
                         "outside the door, a sill higher than a step)")
-                elif (raised := self.places.raised_door_near(at)) is not None:
+                elif (raised := self.places.raised_door_near(graph.floor_xyz[a[k]],
+                                                             graph.floor_xyz[b[k]])) is not None:
+                    # both floors beside the door lie within a step of each other (a level
+                    # pair): no step is missing between them, the door stands too high
+                    here, there = float(graph.floor_xyz[a[k], 2]), float(graph.floor_xyz[b[k], 2])
+                    sill = float(at[2]) + raised[1]
                     clauses.append(
                         f"its way to the route's floor beside it is through door "
-                        f"{raised[0]!r} at {place}, but the model sets that door's sill "
-                        f"{raised[1]:.2f} m above this floor, more than the {STEP_M:g} m a "
-                        "person steps, with no step modelled (a door placed at another "
-                        "level, or a step the model lacks)")
+                        f"{raised[0]!r} at {place}, but the model sets that door's sill at "
+                        f"{_m(sill)}, {sill - here:.2f} m above this floor ({_m(here)}) and "
+                        f"{sill - there:.2f} m above the route's floor on its other side "
+                        f"({_m(there)}), with wall under it: the floors meet at the same "
+                        "height, so no step is missing; the model places the door and its "
+                        "opening at another level's height, more than the "
+                        f"{STEP_M:g} m a person steps above both floors")
+                elif not outdoors and (opening := self._raised_opening(a, b, level)):
+                    clauses.append(opening)
+                elif outdoors:
+                    clauses.append(
+                        f"the route's ground lies beside it at the same height, but at {place} "
+                        "and all along it something stands between them at "
+                        f"{KNEE_HEIGHT_M:g} m above the ground (a wall, a fence, a railing), "
+                        "with no gate or opening in the model")
                 else:
                     clauses.append(
                         f"the route's floor lies beside it at the same height, but at {place} "
@@ -651,6 +836,10 @@ class _Why:
         nearest = route_z[np.argmin(np.abs(route_z - low))]
         theirs = self.places.storey_at(low)
         ours = self.places.storey_at(float(nearest))
+        if outdoors:
+            return (f"{what}: no modelled ground joins it to the route (the route's floor "
+                    f"nearest its height, at {_m(float(nearest))}, lies elsewhere): the site's "
+                    "ground between them is not modelled, or the model's site ends first")
         if abs(float(nearest) - low) <= STEP_M:
             return (f"{what}: the route's floor at the same height ({_m(float(nearest))}) "
                     "lies elsewhere and no floor, door or way around the outside leads "

@@ -264,12 +264,57 @@ def test_a_room_behind_a_door_drawn_as_a_wall_says_so_and_names_the_door() -> No
     door = Places(doors=(("Door 7 (IfcDoor)", (4.11, 1.63, 0.0), (4.15, 2.53, 2.1)),))
     _, reasons = _route(boxes, stations, door)
     assert "through door 'Door 7 (IfcDoor)'" in reasons[0], reasons
-    # the model sets the door's leaf 0.6 m up, at another level's height (Renga's upper
-    # hall): the door is named with its sill's height over this floor
+    # the model sets the door 0.6 m up, at another level's height (Renga's door from its
+    # stair landing): the door is named with its sill's height over the floors on both
+    # sides, which meet at the same height
     raised = Places(doors=(("Door 7 (IfcDoor)", (4.11, 1.63, 0.6), (4.15, 2.53, 2.7)),))
     _, reasons = _route(boxes, stations, raised)
     assert "through door 'Door 7 (IfcDoor)'" in reasons[0], reasons
-    assert "sets that door's sill 0.60 m above this floor" in reasons[0], reasons
+    assert "sets that door's sill at +0.60 m, 0.60 m above this floor (+0.00 m) and 0.60 m " \
+        "above the route's floor on its other side (+0.00 m)" in reasons[0], reasons
+    assert "no step is missing" in reasons[0], reasons
+
+
+def test_a_room_behind_an_opening_set_above_both_floors_gives_its_sill() -> None:
+    """Two rooms at the same height; the only opening in the wall between them, 0.9 m
+    wide and 2.1 m high with its leaf, starts 0.6 m above both floors, wall under it (a
+    door set at another level's height). A plain mesh names no door: the opening is
+    found in the wall, with its sill."""
+    boxes = _shell(8.0, 4.0, 3.0)
+    boxes += [((0.0, 0.0, -0.2), (8.0, 4.0, 0.0)),
+              ((3.9, 0.0, 0.0), (4.1, 1.5, 3.0)), ((3.9, 2.4, 0.0), (4.1, 4.0, 3.0)),
+              ((3.9, 1.5, 0.0), (4.1, 2.4, 0.6)), ((3.9, 1.5, 2.7), (4.1, 2.4, 3.0)),
+              ((3.98, 1.5, 0.6), (4.02, 2.4, 2.7))]
+    unreachable, reasons = _route(boxes, [(2.0, 2.0, 1.5), (6.0, 2.0, 1.5)])
+    assert unreachable == (2,) or unreachable == (1,)
+    assert "the opening of door height in it" in reasons[0], reasons
+    assert "has its sill at +0.60 m, 0.60 m above this floor (+0.00 m) and 0.60 m above " \
+        "the route's floor on its other side (+0.00 m), with wall under it" in reasons[0]
+    assert "no step is missing" in reasons[0], reasons
+    # the same wall with a window 1 m up and 1.2 m high: not of door height, a wall
+    boxes[-3:] = [((3.9, 1.5, 0.0), (4.1, 2.4, 1.0)), ((3.9, 1.5, 2.2), (4.1, 2.4, 3.0)),
+                  ((3.98, 1.5, 1.0), (4.02, 2.4, 2.2))]
+    _, reasons = _route(boxes, [(2.0, 2.0, 1.5), (6.0, 2.0, 1.5)])
+    assert "a wall stands between them" in reasons[0] and "no doorway" in reasons[0], reasons
+
+
+def test_a_door_beside_the_wall_that_closes_a_room_is_not_named() -> None:
+    """A shallow closet whose doorway opens to the west room, and behind its back wall,
+    0.3 m from the door, a room with no way in (Lantern Hollow: a closet's sliding door
+    beside the partition that closes the room behind). The wall is named, not the door,
+    whose opening is free."""
+    boxes = _shell(8.0, 4.0, 2.6)
+    boxes += [((0.0, 0.0, -0.2), (8.0, 4.0, 0.0)),
+              # the closet's front wall, with a doorway at y in [0.2, 1.1]
+              ((3.9, 0.0, 0.0), (4.1, 0.2, 2.6)), ((3.9, 1.1, 0.0), (4.1, 4.0, 2.6)),
+              ((3.9, 0.2, 2.1), (4.1, 1.1, 2.6)),
+              # its back wall, solid
+              ((4.4, 0.0, 0.0), (4.6, 4.0, 2.6))]
+    door = Places(doors=(("Closet door (IfcDoor)", (4.11, 0.33, 0.0), (4.15, 1.23, 2.1)),))
+    unreachable, reasons = _route(boxes, [(2.0, 2.0, 1.5), (6.0, 2.0, 1.5)], door)
+    assert unreachable == (2,)
+    assert "Closet door" not in reasons[0], reasons
+    assert "a wall stands between them" in reasons[0] and "no doorway" in reasons[0], reasons
 
 
 def test_a_floor_a_step_too_high_above_the_rest_gives_the_step() -> None:

@@ -36,6 +36,7 @@ from planner.walkgraph import (
 from tests.planner.survey_scenes import (
     MEZZANINE_Z_M,
     boxes_scene,
+    room_shell,
     staircase,
     two_room_candidates,
     two_rooms,
@@ -433,6 +434,50 @@ def _site_with_a_fence() -> Scene:
     meshes = [trimesh.creation.box(bounds=np.array(box)) for box in boxes]
     return build_scene(np.concatenate([m.vertices for m in meshes]),
                        np.concatenate([meshes[0].faces, meshes[1].faces + len(meshes[0].vertices)]))
+
+
+def test_a_cut_off_piece_of_the_site_is_told_from_a_closed_room() -> None:
+    """A one-room house with a doorway to its 40 x 25 m site, a sealed closet on the site,
+    a pen of open ground fenced in all round (2.2 m fence, no gate) and a 2.3 m deep pit
+    with sheer sides: the stations in the pen and the pit are on the site outside the
+    building, the closet's in a room without a doorway."""
+    house = boxes_scene([((-0.2, -0.2, -0.2), (4.2, 4.2, 0.0)),
+                         ((-0.2, -0.2, 2.5), (4.2, 4.2, 2.7)),
+                         ((4.0, -0.2, 0.0), (4.2, 4.2, 2.5)), ((0.0, -0.2, 0.0), (4.0, 0.0, 2.5)),
+                         ((0.0, 4.0, 0.0), (4.0, 4.2, 2.5)),
+                         # the west wall, with a doorway at y in [1.0, 1.9]
+                         ((-0.2, -0.2, 0.0), (0.0, 1.0, 2.5)), ((-0.2, 1.9, 0.0), (0.0, 4.2, 2.5)),
+                         ((-0.2, 1.0, 2.1), (0.0, 1.9, 2.5)),
+                         *room_shell(10.0, 12.0, 0.0, 2.0)])
+    site = [((-10.0, -10.0, -0.5), (22.0, 15.0, -0.2)), ((28.0, -10.0, -0.5), (30.0, 15.0, -0.2)),
+            ((22.0, -10.0, -0.5), (28.0, -3.0, -0.2)), ((22.0, 3.0, -0.5), (28.0, 15.0, -0.2)),
+            ((22.0, -3.0, -2.8), (28.0, 3.0, -2.5)),  # the pit's bottom
+            # the pen's fence
+            ((12.0, 6.0, -0.2), (12.2, 12.2, 2.0)), ((18.0, 6.0, -0.2), (18.2, 12.2, 2.0)),
+            ((12.2, 6.0, -0.2), (18.0, 6.2, 2.0)), ((12.2, 12.0, -0.2), (18.0, 12.2, 2.0))]
+    meshes = [trimesh.creation.box(bounds=np.array(box)) for box in site]
+    offsets = np.cumsum([len(house.vertices)] + [len(m.vertices) for m in meshes])
+    scene = build_scene(np.concatenate([house.vertices] + [m.vertices for m in meshes]),
+                        np.concatenate([house.faces] + [m.faces + offset for m, offset
+                                                        in zip(meshes, offsets, strict=False)]))
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    # in the room, on the site, in the pen, in the pit, in the closet
+    stations = np.array([[2.0, 2.0, 1.5], [-5.0, 2.0, 1.3], [15.0, 9.0, 1.3],
+                         [25.0, 0.0, -1.0], [11.0, 1.0, 1.5]])
+    route = plan_route(build_walk_graph(scene, caster), caster, stations, None)
+    assert route.unreachable == (3, 4, 5)
+    pen, pit, closet = route.unreachable_reasons
+    assert pen.startswith("it stands on the site outside the building, cut off from the "
+                          "route (33.1 m² of open ground at -0.20 m: no roof or ceiling over "
+                          "it, outside the building's footprint)"), pen
+    assert "something stands between them at 0.5 m above the ground (a wall, a fence" in pen
+    assert pit.startswith("it stands on the site outside the building, cut off from the "
+                          "route (36.0 m² of open ground at -2.50 m"), pit
+    assert "no modelled ground joins it to the route (the route's floor nearest its " \
+        "height, at -0.20 m, lies elsewhere)" in pit, pit
+    assert closet.startswith("it stands in a part of the building cut off from the route "
+                             "(4.0 m² of floor at +0.00 m)"), closet
+    assert "a wall stands between them" in closet and "no doorway" in closet, closet
 
 
 def test_route_looks_beyond_the_area_when_two_parts_reach_its_edge() -> None:
