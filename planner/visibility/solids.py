@@ -26,12 +26,13 @@ decides, as for any ray: hidden. Nothing else changes, so the qualified pairs ar
 (``tests/planner/test_closed_shells.py`` compares them, and every output of the benchmark
 models is byte-identical).
 
-What is not ruled out, left to its ray: faces of shells that are not closed (an open
-mesh, a T-junction, an edge of three faces, a face of zero area), shells of more than
-:data:`MAX_SHELL_FACES` faces (the distance test is per face of the shell), pieces within
-the margin of another face of their shell (along its edges, and in a shell thinner than the
-margin), candidates inside or within the margin of any closed shell (all of their pairs),
-and faces that do not occlude (glass; doors, for the overlap rows).
+What is not ruled out, left to its ray: faces of shells that are not closed (an open mesh,
+a T-junction, an edge of three faces, a face of zero area), shells of more than
+:data:`MAX_SHELL_FACES` faces (the distance test is per face of the shell) or with no face
+longer than :data:`MIN_SHELL_EDGE_M`, pieces within the margin of another face of their
+shell (along its edges, and in a shell thinner than the margin), candidates inside or
+within the margin of any closed shell (all of their pairs), and faces that do not occlude
+(glass; doors, for the overlap rows).
 
 Array letters: F scene faces, B faces of the BVH's mesh, K closed shells, N points.
 """
@@ -49,7 +50,7 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
 from planner.candidates.winding import coordinate_ranks
-from planner.scene import Scene
+from planner.scene import Scene, longest_edges_m
 from planner.threads import in_block_order
 
 if TYPE_CHECKING:  # Embree is imported where a BVH is made
@@ -58,6 +59,10 @@ if TYPE_CHECKING:  # Embree is imported where a BVH is made
 # a closed shell of more faces keeps its faces' rays: each of its pieces is tested against
 # every other face of the shell (a wall with its openings: tens of faces)
 MAX_SHELL_FACES = 512
+# a closed shell all of whose faces are shorter keeps their rays: a prop's millimetre
+# facets (the cluttered interior: a million of them) save a ray each at most, and each
+# costs a test against the shell's other faces
+MIN_SHELL_EDGE_M = 0.1
 # pieces tested per task of the thread pool
 _PIECES_PER_TASK = 1 << 16
 
@@ -178,8 +183,14 @@ def _closed_members(vertices: NDArray[np.float64], faces: NDArray[np.int32],
     if (element < 0).any():
         groupings.append(_objects(faces, element))
     members, counts, flips = [], [], []
+    edge_m = longest_edges_m(vertices, faces)  # (b,)
     for grouping in groupings:
         shell_of, side = _shells(vertices, faces, grouping)
+        # a shell of small faces only: each face is a ray or two, not worth its tests
+        longest = np.zeros(len(side))
+        on_any = shell_of >= 0
+        np.maximum.at(longest, shell_of[on_any], edge_m[on_any])
+        side[longest < MIN_SHELL_EDGE_M] = 0
         on_closed = np.flatnonzero(shell_of >= 0)
         on_closed = on_closed[side[shell_of[on_closed]] != 0]
         closed = np.flatnonzero(side != 0)
