@@ -12,7 +12,6 @@ from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import numpy as np
-import trimesh
 from numpy.typing import NDArray
 
 from planner.errors import SceneError
@@ -518,6 +517,105 @@ def compact_indices(indices: NDArray[np.integer[Any]], size: int
     return np.flatnonzero(used), renumber[indices]
 
 
+def split_to_size(vertices: FloatArray, faces: NDArray[np.integer[Any]], max_edge_m: float,
+                  max_iter: int) -> tuple[FloatArray, IndexArray, IndexArray]:
+    """The pieces of :func:`trimesh.remesh.subdivide_to_size` (``return_index=True``), value
+    for value and in its order: (V', 3) float64 vertices (the (V, 3) ``vertices`` first,
+    then each round's midpoints), (F', 3) int32 faces and (F',) int32 the index of each
+    piece's face in the (F, 3) ``faces``. Raises ValueError when ``max_iter`` rounds leave
+    an edge longer than ``max_edge_m``, as trimesh does.
+
+    Each round halves every edge longer than ``max_edge_m`` at one midpoint shared by the
+    faces on it, and replaces a face by trimesh's template for its one, two or three
+    halved edges. trimesh finds the unique edges of every face and hashes them each round
+    (some 450 bytes of scratch a piece, a split's peak with two blocks of a million pieces
+    at a time); here only the long edges are made unique, int32 indices throughout, and
+    the round that finds no long edge measures the edges a block at a time (about 100
+    bytes a piece). The midpoints are numbered as trimesh numbers them, in the order of
+    their edges' (larger, smaller) corner index, which is the order of trimesh's edge
+    hashes; lengths, midpoints and the two-edge template's diagonal are the same
+    expressions on the same values.
+    """
+    vertices = np.asarray(vertices, np.float64)
+    current: IndexArray = np.asarray(faces, np.int32)
+    index = np.arange(len(current), dtype=np.int32)
+    for round_ in range(max_iter + 1):
+        long = _long_edges(vertices, current, max_edge_m)  # (F, 3): v0v1, v1v2, v2v0
+        if not long.any():
+            break
+        if round_ >= max_iter:
+            raise ValueError("max_iter exceeded!")
+        # each long edge once, numbered by its (larger, smaller) corner pair
+        first, second = current[long], np.roll(current, -1, axis=1)[long]  # (m,) each
+        keys = np.maximum(first, second).astype(np.int64) << 32
+        keys |= np.minimum(first, second)
+        del first, second
+        unique_keys, inverse = np.unique(keys, return_inverse=True)
+        del keys
+        middle = np.full(current.shape, -1, np.int32)  # (F, 3) each edge's midpoint, or -1
+        middle[long] = inverse.astype(np.int32) + len(vertices)
+        del inverse
+        ends = np.stack((unique_keys & 0xFFFFFFFF, unique_keys >> 32), axis=1)  # (u, 2)
+        del unique_keys
+        vertices = np.concatenate([vertices, vertices[ends].mean(axis=1)])
+        del ends
+        count = np.count_nonzero(long, axis=1)  # (F,) halved edges of each face
+        pieces = [current[count == 0]]
+        indices = [index[count == 0]]
+        # one halved edge: rotated to (a, b), the midpoint fanned to the opposite corner
+        one = count == 1
+        j = np.argmax(long[one], axis=1)
+        r = np.arange(len(j))
+        corners, middles = current[one], middle[one]
+        a, b, c = corners[r, j], corners[r, (j + 1) % 3], corners[r, (j + 2) % 3]
+        p = middles[r, j]
+        pieces.append(np.column_stack((a, p, c, p, b, c)).reshape((-1, 3)))
+        indices.append(np.repeat(index[one], 2))
+        # two: rotated so that (c, a) is whole; a corner triangle and the quad (a, p, q, c)
+        # cut along its shorter diagonal
+        two = count == 2
+        j = (np.argmin(long[two], axis=1) + 1) % 3
+        r = np.arange(len(j))
+        corners, middles = current[two], middle[two]
+        a, b, c = corners[r, j], corners[r, (j + 1) % 3], corners[r, (j + 2) % 3]
+        p, q = middles[r, j], middles[r, (j + 1) % 3]
+        use_aq = (((vertices[a, :3] - vertices[q, :3]) ** 2).sum(axis=1)
+                  <= ((vertices[p, :3] - vertices[c, :3]) ** 2).sum(axis=1))[:, None]
+        pieces.append(np.column_stack((p, b, q)))
+        pieces.append(np.where(use_aq, np.column_stack((a, p, q)), np.column_stack((a, p, c))))
+        pieces.append(np.where(use_aq, np.column_stack((a, q, c)), np.column_stack((p, q, c))))
+        indices.append(np.tile(index[two], 3))
+        # three: the regular 1 -> 4 split
+        three = count == 3
+        v0, v1, v2 = current[three].T
+        m0, m1, m2 = middle[three].T
+        pieces.append(np.column_stack((v0, m0, m2, m0, v1, m1, m2, m1, v2, m0, m1, m2)
+                                      ).reshape((-1, 3)))
+        indices.append(np.repeat(index[three], 4))
+        del long, middle, count, one, two, three, corners, middles, a, b, c, p, q, use_aq
+        del v0, v1, v2, m0, m1, m2
+        current = np.concatenate(pieces).astype(np.int32, copy=False)
+        index = np.concatenate(indices)
+        del pieces, indices
+    return vertices, current, index
+
+
+def _long_edges(vertices: FloatArray, faces: IndexArray, max_edge_m: float
+                ) -> NDArray[np.bool_]:
+    """(F, 3) bool: the edges v0v1, v1v2, v2v0 of the (F, 3) ``faces`` longer than
+    ``max_edge_m``, measured as trimesh measures them (from the smaller corner index to
+    the larger), a block of faces at a time."""
+    long = np.empty(faces.shape, bool)
+    for start in range(0, len(faces), _DERIVE_BLOCK_FACES):
+        block = faces[start:start + _DERIVE_BLOCK_FACES]
+        for k in range(3):
+            first, second = block[:, k], block[:, (k + 1) % 3]
+            low, high = np.minimum(first, second), np.maximum(first, second)
+            length_m = ((vertices[low, :3] - vertices[high, :3]) ** 2).sum(axis=1) ** 0.5
+            long[start:start + len(block), k] = length_m > max_edge_m
+    return long
+
+
 def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
               split: NDArray[np.bool_] | None = None
               ) -> tuple[FloatArray, IndexArray, IndexArray] | None:
@@ -535,8 +633,7 @@ def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
     iterations = math.ceil(math.log2(longest / max_edge_m)) + 2
     blocks = _piece_blocks(edge_m, max_edge_m, _REMESH_BLOCK_PIECES)
 
-    def pieces_of(block: tuple[int, int]) -> tuple[FloatArray, NDArray[np.int64],
-                                                   NDArray[np.int64]]:
+    def pieces_of(block: tuple[int, int]) -> tuple[FloatArray, IndexArray, IndexArray]:
         """(v, 3) vertices, (f, 3) faces (local indices) and (f,) file-order source face
         (within the block) of the pieces of faces ``start:stop``, in file order."""
         start, stop = block
@@ -545,22 +642,19 @@ def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
         cut: slice | NDArray[np.intp] = (
             slice(None) if split is None else np.flatnonzero(split[start:stop]))
         if isinstance(cut, slice) or len(cut):
-            block_vertices, block_faces, index = trimesh.remesh.subdivide_to_size(  # type: ignore[no-untyped-call]
-                vertices[used], local[cut], max_edge=max_edge_m,
-                max_iter=iterations, return_index=True,
-            )
+            block_vertices, block_faces, index = split_to_size(
+                vertices[used], local[cut], max_edge_m, iterations)
         else:
             block_vertices, block_faces, index = (
-                vertices[used], np.zeros((0, 3), np.int64), np.zeros(0, np.int64))
+                vertices[used], np.zeros((0, 3), np.int32), np.zeros(0, np.int32))
         if split is not None:
-            # subdivide_to_size keeps the given vertices first: whole faces index them as is
+            # split_to_size keeps the given vertices first: whole faces index them as is
             whole = np.flatnonzero(~split[start:stop])
-            index = np.concatenate([np.asarray(cut)[index], whole])
+            index = np.concatenate([np.asarray(cut, np.int32)[index], whole.astype(np.int32)])
             block_faces = np.concatenate([block_faces, local[whole]])
-        # subdivide_to_size groups the unsplit faces first; restore file order (stable)
+        # split_to_size groups the unsplit faces first; restore file order (stable)
         order = np.argsort(index, kind="stable")
-        return (np.asarray(block_vertices, np.float64),
-                np.asarray(block_faces, np.int64)[order], np.asarray(index, np.int64)[order])
+        return block_vertices, block_faces[order], index[order]
 
     # grown in place block by block: no list of blocks and concatenated copy side by side
     out_vertices = GrowingArray(np.float64)  # (3 V',) flat
@@ -572,7 +666,10 @@ def subdivide(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
     for (start, _), (block_vertices, block_faces, index) in zip(
             blocks, in_block_order(pieces_of, blocks), strict=True):
         out_vertices.append(block_vertices.reshape(-1))
-        out_faces.append((block_faces + n_vertices).astype(np.int32).reshape(-1))
+        if n_vertices + len(block_vertices) >= 2**31 - 1:
+            raise SceneError("the model has more than 2**31 vertices or faces; split it")
+        block_faces += n_vertices  # a block's own array, int32 (checked to fit)
+        out_faces.append(block_faces.reshape(-1))
         out_source.append(index + start)
         n_vertices += len(block_vertices)
     return (out_vertices.done().reshape(-1, 3), out_faces.done().reshape(-1, 3),

@@ -213,6 +213,17 @@ def test_fzk_pdf_has_a_page_per_storey(fzk: PlanResult) -> None:
     assert len(reader.pages) == len(sheets)
 
 
+
+def test_pdf_rasters_deflated_until_written_give_the_same_bytes(
+        fzk: PlanResult, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The sheets' raster images, deflated while matplotlib's PDF file waits to write them
+    (and held under their object numbers, not their arrays' ids), make the same file as
+    the arrays kept as they are."""
+    deflated = printset.plan_pdf(fzk)
+    monkeypatch.setattr(printset, "_deflate_images", lambda pdf_file: None)
+    assert printset.plan_pdf(fzk) == deflated
+
+
 def test_storey_scale_keeps_markers_apart_and_prefers_one_sheet() -> None:
     house = (0.0, 0.0, 12.0, 10.0)
     hall = (0.0, 0.0, 50.0, 40.0)
