@@ -498,8 +498,10 @@ def _deflate_images(pdf_file: Any) -> None:
     matplotlib whose PDF file holds its images otherwise is left as it is."""
     images = getattr(pdf_file, "_images", None)
     unpack = getattr(pdf_file, "_unpack", None)
-    if not isinstance(images, dict) or not callable(unpack):
-        return
+    if not isinstance(images, dict) or not callable(unpack) or not all(
+            isinstance(entry, tuple) and len(entry) == 3 and hasattr(entry[2], "id")
+            for entry in images.values()):
+        return  # another matplotlib's layout: its images stay as they are
     if not getattr(pdf_file, "_scanplan_inflates", False):
         def inflating_unpack(image: Any) -> Any:
             return unpack(image.inflated() if isinstance(image, _DeflatedImage) else image)
