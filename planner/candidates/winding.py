@@ -259,27 +259,36 @@ def _winding_kernel(points: NDArray[np.float64], triangles: NDArray[np.float64],
             else:
                 source, s0, s1 = triangles, face_start[k], face_start[k + 1]
             for t in range(s0, s1):
-                ax = source[t, 0, 0] - px
-                ay = source[t, 0, 1] - py
-                az = source[t, 0, 2] - pz
-                bx = source[t, 1, 0] - px
-                by = source[t, 1, 1] - py
-                bz = source[t, 1, 2] - pz
-                cx = source[t, 2, 0] - px
-                cy = source[t, 2, 1] - py
-                cz = source[t, 2, 2] - pz
-                la = math.sqrt(ax * ax + ay * ay + az * az)
-                lb = math.sqrt(bx * bx + by * by + bz * bz)
-                lc = math.sqrt(cx * cx + cy * cy + cz * cz)
-                det = (ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx)
-                       + az * (bx * cy - by * cx))
-                denom = (la * lb * lc + (ax * bx + ay * by + az * bz) * lc
-                         + (cx * ax + cy * ay + cz * az) * lb
-                         + (bx * cx + by * cy + bz * cz) * la)
-                total += 2.0 * math.atan2(det, denom)
+                total += triangle_solid_angle(source, t, px, py, pz)
         out[i] = total / (4.0 * math.pi)
     return out
 
 
+@numba.njit(nogil=True, cache=True)
+def triangle_solid_angle(source: NDArray[np.float64], t: int, px: float, py: float,
+                         pz: float) -> float:
+    """The signed solid angle of triangle ``t`` of the (T, 3, 3) ``source`` seen from the
+    point (Van Oosterom and Strackee: twice the angle whose tangent they give); positive
+    where the triangle's corners run counter-clockwise seen from the point."""
+    ax = source[t, 0, 0] - px
+    ay = source[t, 0, 1] - py
+    az = source[t, 0, 2] - pz
+    bx = source[t, 1, 0] - px
+    by = source[t, 1, 1] - py
+    bz = source[t, 1, 2] - pz
+    cx = source[t, 2, 0] - px
+    cy = source[t, 2, 1] - py
+    cz = source[t, 2, 2] - pz
+    la = math.sqrt(ax * ax + ay * ay + az * az)
+    lb = math.sqrt(bx * bx + by * by + bz * bz)
+    lc = math.sqrt(cx * cx + cy * cy + cz * cz)
+    det = (ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx)
+           + az * (bx * cy - by * cx))
+    denom = (la * lb * lc + (ax * bx + ay * by + az * bz) * lc
+             + (cx * ax + cy * ay + cz * az) * lb
+             + (bx * cx + by * cy + bz * cz) * la)
+    return 2.0 * math.atan2(det, denom)
+
+
 __all__ = ["WindingCells", "cells_winding_numbers", "coordinate_ranks", "needs_cells",
-           "winding_cells", "winding_numbers"]
+           "triangle_solid_angle", "winding_cells", "winding_numbers"]

@@ -49,7 +49,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
-from planner.candidates.winding import coordinate_ranks
+from planner.candidates.winding import coordinate_ranks, triangle_solid_angle
 from planner.scene import Scene, longest_edges_m
 from planner.threads import in_block_order
 
@@ -371,23 +371,10 @@ def _outside_kernel(points: NDArray[np.float64], lows: NDArray[np.float64],
                 continue
             solid_angle = 0.0
             for row in range(starts[k], starts[k + 1]):
-                tri = triangles[row]
-                if _point_triangle_distance(px, py, pz, tri) <= margin_m:
+                if _point_triangle_distance(px, py, pz, triangles[row]) <= margin_m:
                     ok[i] = False
                     break
-                # Van Oosterom and Strackee: tan(omega / 2) of the triangle seen from p
-                ax, ay, az = tri[0, 0] - px, tri[0, 1] - py, tri[0, 2] - pz
-                bx, by, bz = tri[1, 0] - px, tri[1, 1] - py, tri[1, 2] - pz
-                cx, cy, cz = tri[2, 0] - px, tri[2, 1] - py, tri[2, 2] - pz
-                la = np.sqrt(ax * ax + ay * ay + az * az)
-                lb = np.sqrt(bx * bx + by * by + bz * bz)
-                lc = np.sqrt(cx * cx + cy * cy + cz * cz)
-                det = (ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx)
-                       + az * (bx * cy - by * cx))
-                div = (la * lb * lc + (ax * bx + ay * by + az * bz) * lc
-                       + (ax * cx + ay * cy + az * cz) * lb
-                       + (bx * cx + by * cy + bz * cz) * la)
-                solid_angle += 2.0 * np.arctan2(det, div)
+                solid_angle += triangle_solid_angle(triangles, row, px, py, pz)
             if not ok[i]:
                 break
             if abs(solid_angle) >= 2.0 * np.pi:  # winding number of one half or more
