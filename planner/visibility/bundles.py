@@ -289,7 +289,7 @@ class BundleCuller:
         self._rays = rays
         self._shells = shells
         self._sides = None if shells is None or normals is None else \
-            _level_sides(bundles, shells.side, normals)
+            _level_sides(bundles, shells, normals)
         self._searches = [_LevelSearch.of(level, side, reach_m)
                           for level, side in zip(bundles.levels, BUNDLE_SIDES_M, strict=True)]
 
@@ -403,33 +403,49 @@ def bundle_culler(scene: Scene, reach_m: float, occlusion: object, *,
         bundles, reach_m, occlusion, closed_shells(scene, occlusion), scene.normals)
 
 
-def _level_sides(bundles: Bundles, face_side: NDArray[np.int8], normals: NDArray[np.float64]
+_SIDES: weakref.WeakKeyDictionary[
+    Bundles, tuple[ClosedShells, list[tuple[NDArray[np.int8], NDArray[np.float64]]]]] = \
+    weakref.WeakKeyDictionary()
+
+
+def _level_sides(bundles: Bundles, shells: ClosedShells, normals: NDArray[np.float64]
                  ) -> list[tuple[NDArray[np.int8], NDArray[np.float64]]]:
-    """Per level, (K,) the side every piece of each bundle shares (``face_side`` of its
+    """Per level, (K,) the side every piece of each bundle shares (``shells.side`` of its
     faces, 0 where they differ) and (K, 3) its pieces' normal (a bundle is of one file face,
-    one plane)."""
+    one plane); made once per bundles and shells (a plan's tolerance makes a culler per
+    station)."""
+    with _CACHE_LOCK:
+        kept = _SIDES.get(bundles)
+        if kept is not None and kept[0] is shells:
+            return kept[1]
     finest = bundles.bundle_of
     faces = np.flatnonzero(finest >= 0)
     n = len(bundles.levels[-1])
-    low, high = np.full(n, 2, np.int8), np.full(n, -2, np.int8)
-    np.minimum.at(low, finest[faces], face_side[faces])
-    np.maximum.at(high, finest[faces], face_side[faces])
+    side = shells.side[faces]
+    # per bundle, its pieces and those facing out (+1) and in (-1) of their shell
+    total = np.bincount(finest[faces], minlength=n)
+    out = np.bincount(finest[faces], weights=side == 1, minlength=n)
+    into = np.bincount(finest[faces], weights=side == -1, minlength=n)
     normal = np.zeros((n, 3))
     normal[finest[faces]] = normals[faces]
     sides = []
     for index in range(len(bundles.levels) - 1, -1, -1):
-        sides.append((np.where(low == high, low, 0).astype(np.int8), normal))
+        shared = np.where(total == 0, 0, np.where(out == total, 1, np.where(
+            into == total, -1, 0))).astype(np.int8)
+        sides.append((shared, normal))
         if index == 0:
             break
         parent = bundles.levels[index].parent
         k = len(bundles.levels[index - 1])
-        up_low, up_high = np.full(k, 2, np.int8), np.full(k, -2, np.int8)
-        np.minimum.at(up_low, parent, low)
-        np.maximum.at(up_high, parent, high)
+        total, out, into = (np.bincount(parent, weights=x, minlength=k)
+                            for x in (total, out, into))
         up_normal = np.zeros((k, 3))
         up_normal[parent] = normal
-        low, high, normal = up_low, up_high, up_normal
-    return sides[::-1]
+        normal = up_normal
+    sides = sides[::-1]
+    with _CACHE_LOCK:
+        _SIDES[bundles] = (shells, sides)
+    return sides
 
 
 @numba.njit(nogil=True, cache=True)
