@@ -287,9 +287,9 @@ class BundleCuller:
         self.bundles = bundles
         self.reach_m = reach_m
         self._rays = rays
-        self._shells = shells
-        self._sides = None if shells is None or normals is None else \
-            _level_sides(bundles, shells, normals)
+        # the shells and, per level, each bundle's shared side and normal
+        self._shelled = None if shells is None or normals is None else (
+            shells, _level_sides(bundles, shells, normals))
         self._searches = [_LevelSearch.of(level, side, reach_m)
                           for level, side in zip(bundles.levels, BUNDLE_SIDES_M, strict=True)]
 
@@ -299,8 +299,8 @@ class BundleCuller:
         points = np.asarray(points, np.float64)
         hidden = np.zeros((len(points), 0), bool)
         rays = 0
-        shells, sides = self._shells, self._sides
-        outside = None if shells is None else shells.outside(points)  # (B,)
+        shelled = self._shelled
+        outside = None if shelled is None else shelled[0].outside(points)  # (B,)
         for index, (level, search) in enumerate(zip(self.bundles.levels, self._searches,
                                                     strict=True)):
             # (B, K) hidden inside a hidden bundle of the level above
@@ -309,8 +309,8 @@ class BundleCuller:
             point, bundle = search.pairs(points, len(level))
             todo = ~hidden[point, bundle]
             point, bundle = point[todo], bundle[todo]
-            if shells is not None and sides is not None and outside is not None:
-                side, normal = sides[index]
+            if shelled is not None and outside is not None:
+                shells, (side, normal) = shelled[0], shelled[1][index]
                 # how far each point lies behind its bundle's plane, out of the shell
                 behind_m = side[bundle] * np.einsum(
                     "ij,ij->i", level.corners[bundle, 0] - points[point], normal[bundle])
