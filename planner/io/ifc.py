@@ -90,9 +90,9 @@ _GEOMETRY_PARTS = ("cgal-simple", "opencascade")
 _GEOMETRY_LIBRARY = "hybrid-" + "-".join(_GEOMETRY_PARTS)
 # One thread: on FZK-Haus two threads were slower (4.9 s vs 6.4 s), the boolean
 # operations of a few walls dominate and the order is sorted afterwards anyway. On the
-# Amersfoort sports hall (165,364 faces, OpenCASCADE alone) two threads gave the same scene
-# in 18.9 instead of 22.7 s, for 36.0 instead of 22.6 CPU s (idle 2-core machine): a site server runs two
-# workers, so the CPU counts more than that wall time.
+# Amersfoort sports hall (165,364 faces, OpenCASCADE alone) two threads gave the same
+# scene in 18.9 instead of 22.7 s, for 36.0 instead of 22.6 CPU s (idle 2-core machine):
+# a site server runs two workers, so the CPU counts more than that wall time.
 _GEOMETRY_THREADS = 1
 _DECIMALS = 6
 _UNREAD_NAMED = 8  # elements named in a warning about unreadable geometry
