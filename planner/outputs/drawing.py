@@ -443,7 +443,7 @@ def draw_surfaces(ax: Axes, result: PlanResult, below: NDArray[np.int64],
         ax.add_collection(lines, autolim=False)
         core = LineCollection([], colors="black", linewidths=0.7, zorder=4)
         if rasterized:
-            core.set_segments(joined_lines(segments))
+            Collection.set_paths(core, one_path(joined_lines(segments)))
         else:
             Collection.set_paths(core, _Paths(segments, closed=False))
         ax.add_collection(core, autolim=False)
@@ -566,6 +566,19 @@ def joined_lines(segments: NDArray[np.float64], decimals: int = 6) -> list[NDArr
     merged = shapely.line_merge(shapely.multilinestrings(list(ends)))
     return [np.asarray(shapely.get_coordinates(shapely.simplify(line, 0.0)))
             for line in shapely.get_parts(merged)]
+
+
+def one_path(lines: list[NDArray[np.float64]]) -> list[Path]:
+    """The polylines ``lines``, (N, 2) each, as one compound path (each starts with a move),
+    or none. A vector backend writes a collection of many paths one at a time, each with
+    its own graphics state: a sports hall's section, whose window bars the plane cuts into
+    thousands of small loops, took seconds of ``plan.pdf``; as one path it is one stroke."""
+    if not lines:
+        return []
+    vertices = np.concatenate(lines)
+    codes = np.full(len(vertices), Path.LINETO, dtype=Path.code_type)
+    codes[np.cumsum([0] + [len(line) for line in lines[:-1]])] = Path.MOVETO
+    return [Path(vertices, codes)]
 
 
 def _draw_level(ax: Axes, result: PlanResult, level: Level) -> None:

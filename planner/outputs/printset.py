@@ -44,7 +44,7 @@ from matplotlib.artist import Artist
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.backends.backend_pdf import PdfPages
-from matplotlib.collections import LineCollection, PatchCollection
+from matplotlib.collections import Collection, LineCollection, PatchCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Circle, Rectangle
@@ -210,8 +210,17 @@ class _Storey:
             self.below_lo[block], self.below_hi[block] = corners.min(axis=1), corners.max(axis=1)
         self.segments, self.cut_faces = drawing.section_at(scene.vertices, scene.faces,
                                                            level.section_z)
+        self._outline: list[NDArray[np.float64]] | None = None
         self.members = set(level.candidates.tolist())
         self.orders = storey_orders(result, level)
+
+    @property
+    def outline(self) -> list[NDArray[np.float64]]:
+        """The section joined into polylines, (N, 2) each, made once for the key plans of
+        all the storey's sheets (the segments are one a cut face)."""
+        if self._outline is None:
+            self._outline = drawing.joined_lines(self.segments)
+        return self._outline
 
 
 def storey_orders(result: PlanResult, level: Level) -> list[int]:
@@ -392,8 +401,9 @@ def _key_plan(fig: Figure, result: PlanResult, sheet: Sheet, storey: _Storey,
     ax.set_yticks([])
     ax.set_title(f"key plan: {len(sheet.tiles)} sheets", fontsize=7, loc="left")
     if len(storey.segments):
-        ax.add_collection(LineCollection(list(storey.segments), colors="0.45",
-                                         linewidths=0.3))
+        outline = LineCollection([], colors="0.45", linewidths=0.3)
+        Collection.set_paths(outline, drawing.one_path(storey.outline))
+        ax.add_collection(outline)
     xy = result.candidates.positions[[result.chosen.stations[o] for o in storey.orders], :2]
     ax.scatter(xy[:, 0], xy[:, 1], s=2.0, c=[tuple(c / 255 for c in drawing.STATION_RGB)],
                linewidths=0)
