@@ -118,6 +118,12 @@ DOOR_LEAF_MIN_M = 0.03
 # a leaf drawn ajar): narrower than a person's shoulders (bideltoid breadth, ISO 7250-1's
 # measure, about 0.4 m and more in adults), so no one is sent through it alone
 DOOR_CHECK_WIDTH_MIN_M = 0.4
+# a filler is a panel, not a post: the walk's crossing moved this far along the filler's
+# plane, to one side or the other, meets material parallel to it again, as thin. A leaf is at least
+# DOOR_CHECK_WIDTH_MIN_M wide, so one of the two lands on it wherever the crossing met it;
+# a post narrower than twice this (a round steel column, whose facets a crossing may meet
+# as two parallel sides) is missed on both
+DOOR_PANEL_PROBE_M = 0.15
 # passes over the crossings with the doors found so far open: a leaf of panels and glass is
 # met layer by layer (front, glass, back)
 DOOR_PASSES = 3
@@ -219,7 +225,10 @@ def found_doors(scene: Scene, caster: RayCaster) -> MeshDoors:
        one end to the first hit from the other), the faces met from both ends parallel
        within ``DOOR_PARALLEL_DEG``: the two sides of a panel. A sample inside a wall
        (on its bottom face) meets one face from both sides, and a segment cutting a wall's
-       corner meets two sides at right angles: neither is a filler.
+       corner meets two sides at right angles: neither is a filler. Nor is a post: moved
+       ``DOOR_PANEL_PROBE_M`` along the filler's plane to either side, the crossing
+       meets no filler parallel to it (a leaf is wider than twice that; a round column's
+       facets can meet a crossing as two parallel sides).
     2. *In a wall opening*: wall material above a gap of door height, the filler under
        it. Either (a) the head over one of the two samples (a ray up) lies within
        ``DOOR_HEIGHT_M`` of the floor, the filler's own top (a ray up from inside it) is no
@@ -422,6 +431,7 @@ def _thin_crossings(scene: Scene, caster: RayCaster) -> _Crossings:
         thin[thin] = (np.abs(np.einsum("kc,kc->k", scene.normals[face_ab[thin]],
                                        scene.normals[face_ba[thin]]))
                       >= _PARALLEL_COS)
+        thin[thin] = _panel(scene, caster, scene.normals[face_ab[thin]], pa[thin], pb[thin])
         x = pa[thin] + along[thin] * (d_ab[thin] + thick[thin] / 2)[:, None]
         kept.append((face_ab[thin], face_ba[thin]))
         parts.append((pa[thin], pb[thin], x, np.minimum(floor_xyz[ia[thin], 2],
@@ -434,6 +444,28 @@ def _thin_crossings(scene: Scene, caster: RayCaster) -> _Crossings:
                     np.concatenate([k[1] for k in kept])], axis=1)
     pa, pb, x, floor_z, thick = (np.concatenate([p[i] for p in parts]) for i in range(5))
     return _Crossings(pa, pb, x, floor_z, thick, _file_faces_hit(scene, hit))
+
+
+def _panel(scene: Scene, caster: RayCaster, normal: NDArray[np.float64],
+           pa: NDArray[np.float64], pb: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """(K,) bool: the thin crossings ``pa`` -> ``pb`` (K, 3) of a filler with the (K, 3)
+    unit ``normal`` that meet it again ``DOOR_PANEL_PROBE_M`` to one side along its plane:
+    a panel, not a post (rule step 1). A filler whose plane is not upright is kept."""
+    side = np.stack([-normal[:, 1], normal[:, 0], np.zeros(len(normal))], axis=1)
+    length = np.linalg.norm(side, axis=1)
+    upright = length > 0.5
+    side[upright] /= length[upright, None]
+    panel: NDArray[np.bool_] = ~upright
+    for sign in (1.0, -1.0):
+        shift = sign * DOOR_PANEL_PROBE_M * side
+        thick, _, face_ab, face_ba, _ = _through(caster, pa + shift, pb + shift)
+        # the leaf, its glass or a panel in it (a pane drawn as one face is 0 m thick)
+        met = (thick <= DOOR_FILLER_MAX_M) & (face_ab >= 0)
+        for face in (face_ab, np.where(face_ba >= 0, face_ba, face_ab)):
+            met &= np.abs(np.einsum("kc,kc->k", scene.normals[np.maximum(face, 0)], normal)
+                          ) >= _PARALLEL_COS
+        panel |= met
+    return panel
 
 
 def _file_faces_hit(scene: Scene, hit: NDArray[np.int64]) -> NDArray[np.int64]:
