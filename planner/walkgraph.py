@@ -119,10 +119,10 @@ DOOR_LEAF_MIN_M = 0.03
 # measure, about 0.4 m and more in adults), so no one is sent through it alone
 DOOR_CHECK_WIDTH_MIN_M = 0.4
 # a filler is a panel, not a post: the walk's crossing moved this far along the filler's
-# plane, to one side or the other, meets material parallel to it again, as thin. A leaf is at least
-# DOOR_CHECK_WIDTH_MIN_M wide, so one of the two lands on it wherever the crossing met it;
-# a post narrower than twice this (a round steel column, whose facets a crossing may meet
-# as two parallel sides) is missed on both
+# plane, to one side or the other, meets material parallel to it again, as thin. A leaf is
+# at least DOOR_CHECK_WIDTH_MIN_M wide, so one of the two lands on it wherever the crossing
+# met it; a post narrower than twice this (a round steel column, whose facets a crossing
+# may meet as two parallel sides) is missed on both
 DOOR_PANEL_PROBE_M = 0.15
 # passes over the crossings with the doors found so far open: a leaf of panels and glass is
 # met layer by layer (front, glass, back)
@@ -226,9 +226,10 @@ def found_doors(scene: Scene, caster: RayCaster) -> MeshDoors:
        within ``DOOR_PARALLEL_DEG``: the two sides of a panel. A sample inside a wall
        (on its bottom face) meets one face from both sides, and a segment cutting a wall's
        corner meets two sides at right angles: neither is a filler. Nor is a post: moved
-       ``DOOR_PANEL_PROBE_M`` along the filler's plane to either side, the crossing
-       meets no filler parallel to it (a leaf is wider than twice that; a round column's
-       facets can meet a crossing as two parallel sides).
+       ``DOOR_PANEL_PROBE_M`` along the filler's plane to either side, the crossing meets
+       nothing as thin and parallel to it (a pane drawn as one face counts; a leaf is wider
+       than twice that; a round column's facets can meet a crossing as two parallel
+       sides).
     2. *In a wall opening*: wall material above a gap of door height, the filler under
        it. Either (a) the head over one of the two samples (a ray up) lies within
        ``DOOR_HEIGHT_M`` of the floor, the filler's own top (a ray up from inside it) is no

@@ -37,6 +37,7 @@ import string
 import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -210,17 +211,14 @@ class _Storey:
             self.below_lo[block], self.below_hi[block] = corners.min(axis=1), corners.max(axis=1)
         self.segments, self.cut_faces = drawing.section_at(scene.vertices, scene.faces,
                                                            level.section_z)
-        self._outline: list[NDArray[np.float64]] | None = None
         self.members = set(level.candidates.tolist())
         self.orders = storey_orders(result, level)
 
-    @property
+    @cached_property
     def outline(self) -> list[NDArray[np.float64]]:
         """The section joined into polylines, (N, 2) each, made once for the key plans of
         all the storey's sheets (the segments are one a cut face)."""
-        if self._outline is None:
-            self._outline = drawing.joined_lines(self.segments)
-        return self._outline
+        return drawing.joined_lines(self.segments)
 
 
 def storey_orders(result: PlanResult, level: Level) -> list[int]:
