@@ -89,7 +89,9 @@ DOOR_LINTEL_REACH = 2  # grid steps beyond a link's ends searched for the rooms 
 # heights over the floor probed for the wall over the doorway: one lies between a leaf's
 # top and a room's ceiling in any storey up to 2.8 m high
 DOOR_WALL_PROBES_M = (2.0, 2.2, 2.4, 2.6)
-DOOR_WALL_THICKER_M = 0.02  # the wall over the doorway is thicker than the filler by this
+# the wall over the doorway (the lintel) is thicker than the filler by this, and a leaf a
+# step along its plane is no thicker than where it was met by more than this
+DOOR_WALL_THICKER_M = 0.02
 DOOR_JOIN_M = 0.6  # crossings closer than this are one door (the two leaves of a double door)
 # fittings (handles, hinges, locks, kick plates) stand at most this far proud of the leaf,
 # and are no larger than this (box diagonal)
@@ -229,13 +231,19 @@ def found_doors(scene: Scene, caster: RayCaster) -> MeshDoors:
        ``DOOR_PANEL_PROBE_M`` along the filler's plane to either side, the crossing meets
        nothing as thin and parallel to it (a pane drawn as one face counts; a leaf is wider
        than twice that; a round column's facets can meet a crossing as two parallel
-       sides).
+       sides). Nor is a wall's end cut across (a partition met where it joins another
+       wall, through part of its thickness): there the moved crossing meets the wall's
+       whole thickness, more than ``DOOR_WALL_THICKER_M`` thicker; a leaf is as thick a
+       step along (its panels and glass no thicker than its rails).
     2. *In a wall opening*: wall material above a gap of door height, the filler under
        it. Either (a) the head over one of the two samples (a ray up) lies within
        ``DOOR_HEIGHT_M`` of the floor, the filler's own top (a ray up from inside it) is no
-       higher, and within ``DOOR_LINTEL_REACH`` grid steps beyond each end the head rises
-       at least ``DOOR_LINTEL_STEP_M`` higher: a lintel, as deep as a wall, between two
-       rooms; or (b) at one of ``DOOR_WALL_PROBES_M`` above the floor, over the filler's
+       higher, within ``DOOR_LINTEL_REACH`` grid steps beyond each end the head rises
+       at least ``DOOR_LINTEL_STEP_M`` higher, and across, from those higher rooms just
+       over the head, the lintel is ``DOOR_WALL_THICKER_M`` thicker than the filler: a
+       lintel, as deep as a wall, between two rooms (a partition as thick as a leaf under
+       a steel beam, whose flange is a head and whose web is millimetres thick, is none);
+       or (b) at one of ``DOOR_WALL_PROBES_M`` above the floor, over the filler's
        top and below the ceilings of both ends, the segment is blocked by material
        ``DOOR_WALL_THICKER_M`` thicker than the filler (the wall over a leaf in a thin
        wall). A thin partition fails both (it is as thick at every height, its top is
@@ -432,7 +440,8 @@ def _thin_crossings(scene: Scene, caster: RayCaster) -> _Crossings:
         thin[thin] = (np.abs(np.einsum("kc,kc->k", scene.normals[face_ab[thin]],
                                        scene.normals[face_ba[thin]]))
                       >= _PARALLEL_COS)
-        thin[thin] = _panel(scene, caster, scene.normals[face_ab[thin]], pa[thin], pb[thin])
+        thin[thin] = _panel(scene, caster, scene.normals[face_ab[thin]], pa[thin], pb[thin],
+                            thick[thin])
         x = pa[thin] + along[thin] * (d_ab[thin] + thick[thin] / 2)[:, None]
         kept.append((face_ab[thin], face_ba[thin]))
         parts.append((pa[thin], pb[thin], x, np.minimum(floor_xyz[ia[thin], 2],
@@ -448,10 +457,13 @@ def _thin_crossings(scene: Scene, caster: RayCaster) -> _Crossings:
 
 
 def _panel(scene: Scene, caster: RayCaster, normal: NDArray[np.float64],
-           pa: NDArray[np.float64], pb: NDArray[np.float64]) -> NDArray[np.bool_]:
+           pa: NDArray[np.float64], pb: NDArray[np.float64], thick_m: NDArray[np.float64]
+           ) -> NDArray[np.bool_]:
     """(K,) bool: the thin crossings ``pa`` -> ``pb`` (K, 3) of a filler with the (K, 3)
-    unit ``normal`` that meet it again ``DOOR_PANEL_PROBE_M`` to one side along its plane:
-    a panel, not a post (rule step 1). A filler whose plane is not upright is kept."""
+    unit ``normal``, ``thick_m`` (K,) through it, that meet it again
+    ``DOOR_PANEL_PROBE_M`` to one side along its plane, no thicker (within
+    ``DOOR_WALL_THICKER_M``): a panel, not a post, nor a wall cut at its end (rule step 1).
+    A filler whose plane is not upright is kept."""
     side = np.stack([-normal[:, 1], normal[:, 0], np.zeros(len(normal))], axis=1)
     length = np.linalg.norm(side, axis=1)
     upright = length > 0.5
@@ -461,7 +473,8 @@ def _panel(scene: Scene, caster: RayCaster, normal: NDArray[np.float64],
         shift = sign * DOOR_PANEL_PROBE_M * side
         thick, _, face_ab, face_ba, _ = _through(caster, pa + shift, pb + shift)
         # the leaf, its glass or a panel in it (a pane drawn as one face is 0 m thick)
-        met = (thick <= DOOR_FILLER_MAX_M) & (face_ab >= 0)
+        met = ((thick <= np.minimum(thick_m + DOOR_WALL_THICKER_M, DOOR_FILLER_MAX_M))
+               & (face_ab >= 0))
         for face in (face_ab, np.where(face_ba >= 0, face_ba, face_ab)):
             met &= np.abs(np.einsum("kc,kc->k", scene.normals[np.maximum(face, 0)], normal)
                           ) >= _PARALLEL_COS
@@ -568,9 +581,24 @@ def _in_wall_opening(crossings: _Crossings, caster: RayCaster) -> NDArray[np.boo
     room_a = np.stack([heads[k] for k in range(-DOOR_LINTEL_REACH, 1)], axis=1)
     room_b = np.stack([heads[k] for k in range(1, DOOR_LINTEL_REACH + 2)], axis=1)
     rise = lintel + DOOR_LINTEL_STEP_M
+    higher_a, higher_b = room_a >= rise[:, None], room_b >= rise[:, None]  # (K, R + 1)
     opening = (low.any(axis=1) & (filler_top <= lintel + _DOOR_TOL_M)
-               & (room_a >= rise[:, None]).any(axis=1)
-               & (room_b >= rise[:, None]).any(axis=1))
+               & higher_a.any(axis=1) & higher_b.any(axis=1))
+    if opening.any():
+        # the lintel is a wall's depth, thicker than the filler: across, from the nearest
+        # higher room on each side, just over the head. A wall as thick as the filler,
+        # drawn in two pieces (a partition under a beam), has its joint there, not a head
+        near_a = DOOR_LINTEL_REACH - np.argmax(higher_a[opening, ::-1], axis=1)
+        near_b = np.argmax(higher_b[opening], axis=1)
+        k_a = near_a - DOOR_LINTEL_REACH  # (k,) steps from a, <= 0
+        k_b = near_b + 1  # >= 1
+        over = crossings.floor_z[opening] + lintel[opening] + DOOR_LINTEL_STEP_M / 2
+        pa = crossings.a[opening] + k_a[:, None] * step[opening]
+        pb = crossings.a[opening] + k_b[:, None] * step[opening]
+        pa[:, 2] = pb[:, 2] = over
+        deep = _through(caster, pa, pb)[0]
+        opening[np.flatnonzero(opening)] = np.isfinite(deep) & (
+            deep >= crossings.thick[opening] + DOOR_WALL_THICKER_M)
     ceiling = np.minimum(heads[0], heads[1])
     for height in DOOR_WALL_PROBES_M:
         probe = ~opening & (height < ceiling - _DOOR_TOL_M) & (filler_top <= height)
