@@ -588,10 +588,8 @@ def _in_wall_opening(crossings: _Crossings, caster: RayCaster) -> NDArray[np.boo
         # the lintel is a wall's depth, thicker than the filler: across, from the nearest
         # higher room on each side, just over the head. A wall as thick as the filler,
         # drawn in two pieces (a partition under a beam), has its joint there, not a head
-        near_a = DOOR_LINTEL_REACH - np.argmax(higher_a[opening, ::-1], axis=1)
-        near_b = np.argmax(higher_b[opening], axis=1)
-        k_a = near_a - DOOR_LINTEL_REACH  # (k,) steps from a, <= 0
-        k_b = near_b + 1  # >= 1
+        k_a = -np.argmax(higher_a[opening, ::-1], axis=1)  # (k,) steps from a, <= 0
+        k_b = np.argmax(higher_b[opening], axis=1) + 1  # >= 1
         over = crossings.floor_z[opening] + lintel[opening] + DOOR_LINTEL_STEP_M / 2
         pa = crossings.a[opening] + k_a[:, None] * step[opening]
         pb = crossings.a[opening] + k_b[:, None] * step[opening]

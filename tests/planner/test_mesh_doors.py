@@ -181,14 +181,10 @@ def test_a_partition_under_a_steel_beam_is_no_door() -> None:
     Lantern Hollow's basement). The beam's flange is a head of door height over the walk's
     samples beside the partition, but no wall's depth stands over it (the beam's web is 8 mm
     thick), so it is no door, and the walk does not pass it."""
-    from scipy.sparse.csgraph import connected_components
+    from tests.planner.survey_scenes import boxes_scene, room_shell
 
-    from tests.planner.survey_scenes import boxes_scene
-
-    h, under = 2.6, 1.95
-    boxes = [((-0.2, -0.2, -0.2), (8.4, 4.2, 0.0)), ((-0.2, -0.2, h), (8.4, 4.2, h + 0.2)),
-             ((-0.2, -0.2, 0.0), (0.0, 4.2, h)), ((8.2, -0.2, 0.0), (8.4, 4.2, h)),
-             ((0.0, -0.2, 0.0), (8.2, 0.0, h)), ((0.0, 4.0, 0.0), (8.2, 4.2, h)),
+    under = 1.95
+    boxes = [*room_shell(0.0, 8.2, 0.0, 4.0, height_m=2.6),
              # the partition, drawn in two lengths (each fits in a door's width)
              ((4.04, 0.0, 0.0), (4.16, 2.0, under)), ((4.04, 2.0, 0.0), (4.16, 4.0, under)),
              ((3.95, 0.0, under), (4.25, 4.0, under + 0.015)),  # the beam's flanges and web
