@@ -383,6 +383,9 @@ def remesh(scene: Scene, max_edge_m: float, split: NDArray[np.bool_] | None = No
 # kept_pieces: at most about this many pieces per call of trimesh, each call's pieces
 # sifted on its thread before the next (some 30 MB of scratch a thread)
 _SIFTED_BLOCK_PIECES = 1 << 16
+# kept_pieces: a face that would make more pieces than this is quartered first, and its
+# quarters sifted as faces (a quarter of 4,096 pieces spans 64 of them along an edge)
+_QUARTER_PIECES = 1 << 12
 
 
 def kept_pieces(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
@@ -391,16 +394,20 @@ def kept_pieces(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
     """The pieces :func:`subdivide` splits the (F, 3) ``faces`` into that ``keep`` keeps:
     (V', 3) vertices and (F', 3) int32 faces of them, in no particular order, a vertex
     stored once per block. ``keep(piece_vertices, piece_faces)`` gets a block's (v, 3)
-    vertices and (f, 3) faces and returns (f,) bool.
+    vertices and (f, 3) faces and returns (f,) bool. It must be a test of a face's
+    bounding box that a larger box passes whenever a smaller one inside it does: a face
+    it drops then holds no piece it keeps.
 
     The same pieces, corner for corner, as :func:`subdivide` gives, without its scratch
     or its output for the pieces dropped: the faces are split about
     ``_SIFTED_BLOCK_PIECES`` pieces at a time on the thread pool, and a face that alone
-    would make more (a site's ground: 589,824 pieces) is first split once as trimesh's
-    first step splits it (its three edges longer than ``max_edge_m``: four faces on their
-    midpoints), whose pieces are the face's own (an edge's midpoint is the mean of its
-    corners, a face's split depends on its own edges only)."""
-    vertices, faces = _quartered(vertices, faces, max_edge_m, _SIFTED_BLOCK_PIECES)
+    would make more than ``_QUARTER_PIECES`` (a site's ground: 589,824 pieces) is first
+    split as trimesh's first step splits it (its three edges longer than ``max_edge_m``:
+    four faces on their midpoints), again while its quarters are that big, and the
+    quarters ``keep`` drops are let go unsplit (a site's ground far from every tripod).
+    A quarter's pieces are the face's own (an edge's midpoint is the mean of its corners,
+    a face's split depends on its own edges only)."""
+    vertices, faces = _quartered(vertices, faces, max_edge_m, _QUARTER_PIECES, keep)
     blocks = _piece_blocks(longest_edges_m(vertices, faces), max_edge_m,
                            _SIFTED_BLOCK_PIECES)
 
@@ -427,13 +434,15 @@ def kept_pieces(vertices: FloatArray, faces: IndexArray, max_edge_m: float,
     return out_vertices.done().reshape(-1, 3), out_faces.done().reshape(-1, 3)
 
 
-def _quartered(vertices: FloatArray, faces: IndexArray, max_edge_m: float, most_pieces: int
+def _quartered(vertices: FloatArray, faces: IndexArray, max_edge_m: float, most_pieces: int,
+               keep: Callable[[FloatArray, IndexArray], NDArray[np.bool_]]
                ) -> tuple[FloatArray, IndexArray]:
     """(V', 3) vertices and (F', 3) faces: the (F, 3) ``faces`` with every face that
     :func:`subdivide` could split into more than ``most_pieces`` pieces and whose three
-    edges are longer than ``max_edge_m`` replaced, again until none is left, by the four
-    faces trimesh's first step makes of it (:func:`trimesh.remesh.subdivide_to_size`, the
-    regular 1 -> 4 split, its corners in its order), new midpoints after the vertices."""
+    edges are longer than ``max_edge_m`` replaced, again until none is left, by those of
+    the four faces trimesh's first step makes of it (:func:`trimesh.remesh.subdivide_to_size`,
+    the regular 1 -> 4 split, its corners in its order) that ``keep`` keeps, new midpoints
+    after the vertices."""
     for _ in range(64):
         halvings = np.ceil(np.log2(np.maximum(longest_edges_m(vertices, faces) / max_edge_m,
                                               1.0)))
@@ -456,7 +465,8 @@ def _quartered(vertices: FloatArray, faces: IndexArray, max_edge_m: float, most_
         vertices = np.concatenate([vertices, middles.reshape(-1, 3)])
         whole = np.ones(len(faces), bool)
         whole[big] = False
-        faces = np.concatenate([faces[whole], children.astype(np.int32)])
+        children = children.astype(np.int32)
+        faces = np.concatenate([faces[whole], children[keep(vertices, children)]])
     return vertices, faces
 
 

@@ -254,22 +254,22 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
         # a point may stand on several levels: count what was looked at, level by level
         considered = len(positions) + sum(dropped.values())
         floors = positions[:, 2] - spec.scanner_height_m
-        keep = unclear_mask(scene, positions, spec.clearance_m, dropped, floors)
-        if polygon is None:  # the building, not the site
+        if polygon is None:  # the building, not the site (first: no clearance test on it)
             on = on_the_building(scene, spec, positions, floors, caster)
-            dropped["outside_area_of_interest"] += int((keep & ~on).sum())
-            keep &= on
+            dropped["outside_area_of_interest"] += int((~on).sum())
+            positions, level_of, floors = positions[on], level_of[on], floors[on]
+        keep = unclear_mask(scene, positions, spec.clearance_m, dropped, floors)
         positions, level_of = positions[keep], level_of[keep]
         levels, labels = _level_labels(positions[:, 2] - spec.scanner_height_m, level_of)
     else:
         positions = place_on_floor(scene, xy, spec, caster, dropped)
-        floors = positions[:, 2] - spec.scanner_height_m
-        positions = drop_unclear(scene, positions, spec.clearance_m, dropped, floors)
-        if polygon is None:  # the building, not the site
+        if polygon is None:  # the building, not the site (first: no clearance test on it)
             floors = positions[:, 2] - spec.scanner_height_m
             on = on_the_building(scene, spec, positions, floors, caster)
             dropped["outside_area_of_interest"] += int((~on).sum())
             positions = positions[on]
+        floors = positions[:, 2] - spec.scanner_height_m
+        positions = drop_unclear(scene, positions, spec.clearance_m, dropped, floors)
         if spec.floor_levels == "storeys":
             placed, placed_level, report, storey_dropped = storey_levels(
                 scene, xy, spec, caster, ground_candidates=len(positions))

@@ -65,11 +65,13 @@ def test_kept_pieces_are_the_split_s_pieces_big_faces_quartered_first(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """kept_pieces gives the pieces subdivide gives, corner for corner, also where a face
     too big for one block is first quartered as trimesh's first step does, and a sliver
-    (one or two long edges) that cannot be is split whole; ``keep`` drops the rest."""
+    (one or two long edges) that cannot be is split whole; ``keep`` drops the rest,
+    quarters it drops included."""
     import planner.scene as scene_module
     from planner.scene import kept_pieces, subdivide
 
     monkeypatch.setattr(scene_module, "_SIFTED_BLOCK_PIECES", 64)
+    monkeypatch.setattr(scene_module, "_QUARTER_PIECES", 16)
     vertices = np.array([[0.0, 0.0, 0.0], [7.3, 0.4, 0.0], [2.1, 5.9, 1.3],  # big
                          [0.0, 0.0, 2.0], [6.0, 0.0, 2.0], [6.0, 0.1, 2.0],  # one long edge
                          [0.0, 0.0, 3.0], [4.0, 0.0, 3.0], [2.0, 0.15, 3.0],  # two long edges
@@ -87,12 +89,14 @@ def test_kept_pieces_are_the_split_s_pieces_big_faces_quartered_first(
     assert np.array_equal(_piece_rows(kept_vertices, kept_faces), every)
 
     def low(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-        return v[f, 2].max(axis=1) < 0.5
+        """A box test, as kept_pieces needs: reaches below 0.5 m near x = 1 m."""
+        return (v[f, 2].min(axis=1) < 0.5) & (v[f, 0].min(axis=1) < 1.0)
 
     kept_vertices, kept_faces = kept_pieces(vertices, faces, MAX_EDGE_M, low)
-    on_ground = split[1][split[0][split[1], 2].max(axis=1) < 0.5]
+    near_ground = split[1][low(split[0], split[1])]
+    assert 0 < len(near_ground) < len(split[1]) // 4  # most quarters of the big face dropped
     assert np.array_equal(_piece_rows(kept_vertices, kept_faces),
-                          _piece_rows(split[0], on_ground))
+                          _piece_rows(split[0], near_ground))
 
 
 def test_split_to_size_gives_trimesh_s_pieces_value_for_value() -> None:
