@@ -31,6 +31,8 @@ from __future__ import annotations
 import gc
 import io
 import math
+import threading
+import weakref
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, overload
@@ -54,7 +56,9 @@ from planner.candidates.grid import levels_line
 from planner.density import density_range_m
 from planner.io.orientation import scene_rotation, to_model
 from planner.memory import release_freed_memory
+from planner.outputs.outline import group_triangles
 from planner.pipeline import PlanResult
+from planner.scene import Scene
 from planner.selection.curve import coverage_curve
 
 # --- face classes and their colours (sRGB 0-255) -------------------------------------------
@@ -413,10 +417,104 @@ def floor_faces(result: PlanResult, level: Level) -> NDArray[np.int64]:
     return below[np.argsort(cz[below], kind="stable")]
 
 
-def draw_surfaces(ax: Axes, result: PlanResult, below: NDArray[np.int64],
+@dataclass(frozen=True)
+class Floor:
+    """A level's floor as drawn: T triangles in their colours, lowest first (the order
+    they are painted in).
+
+    Attributes
+    ----------
+    vertices : (V, 2 or more) float64, plan corners (x, y first)
+    corners : (T, 3) int, each triangle's corners in ``vertices``
+    rgb : (T, 3) uint8, each triangle's colour (:func:`face_rgb`)
+    height_m : (T,) float64, each triangle's height in the paint order
+    """
+
+    vertices: NDArray[np.float64]
+    corners: NDArray[np.integer[Any]]
+    rgb: NDArray[np.uint8]
+    height_m: NDArray[np.float64]
+
+    def part(self, keep: NDArray[np.bool_]) -> Floor:
+        """The triangles of (T,) bool ``keep``, in the same order."""
+        return Floor(self.vertices, self.corners[keep], self.rgb[keep], self.height_m[keep])
+
+    def boxes(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(T, 2) each: every triangle's least and most plan corner, a chunk at a time."""
+        lo, hi = np.empty((len(self.corners), 2)), np.empty((len(self.corners), 2))
+        for start in range(0, len(self.corners), CHUNK_FACES):
+            block = slice(start, start + CHUNK_FACES)
+            xy = self.vertices[self.corners[block], :2]  # (b, 3, 2)
+            lo[block], hi[block] = xy.min(axis=1), xy.max(axis=1)
+        return lo, hi
+
+
+# the grouped floors of a split plan, made once for the preview and once for the print set
+# (one thread draws both, one after the other; Lantern Hollow's plain mesh: 5 s a time)
+_FLOORS: weakref.WeakKeyDictionary[PlanResult, dict[tuple[float, float], Floor]] = (
+    weakref.WeakKeyDictionary())
+_FLOORS_LOCK = threading.Lock()
+
+
+def floor_of(result: PlanResult, level: Level) -> Floor:
+    """The floor of ``level`` (:func:`floor_faces`) in its colours (:func:`face_rgb`).
+
+    A split scene's floor faces are drawn by group: the pieces of one file face with one
+    colour as few triangles as their outline needs (:mod:`planner.outputs.outline`), at
+    the height of the group's lowest piece (Lantern Hollow's plain mesh: 2.08 M floor
+    pieces, 17,400 groups). Every piece still shows its own colour; only pixels on a
+    group's edge, partly covered by two colours, may take the other one."""
+    scene, limits = result.scene, result.limits
+    key = (level.floor_z, level.section_z)
+    with _FLOORS_LOCK:
+        made = _FLOORS.get(result, {}).get(key)
+    if made is not None:
+        return made
+    below = floor_faces(result, level)
+    rgb = face_rgb(result.faces, limits.target, limits.min_density_pts_m2, below)
+    height_m = scene.centroids[below, 2]
+    if scene.file_faces is None or len(below) == 0:
+        return Floor(scene.vertices, scene.faces[below], rgb, height_m)
+    floor = _grouped_floor(scene, below, rgb, height_m)
+    with _FLOORS_LOCK:
+        _FLOORS.setdefault(result, {})[key] = floor
+    return floor
+
+
+def _grouped_floor(scene: Scene, below: NDArray[np.int64], rgb: NDArray[np.uint8],
+                   height_m: NDArray[np.float64]) -> Floor:
+    """The (n,) floor faces ``below`` of a split ``scene`` (their (n, 3) colours and (n,)
+    heights) drawn by group (:func:`floor_of`)."""
+    colour = ((rgb[:, 0].astype(np.int64) << 16) | (rgb[:, 1].astype(np.int64) << 8)
+              | rgb[:, 2])
+    group = (scene.source_face[below].astype(np.int64) << 24) | colour  # file face, colour
+    order = np.lexsort((below, group))  # each group's faces ascending, as group_triangles wants
+    rows = below[order].astype(np.int32)
+    offsets = np.append(np.flatnonzero(np.diff(group[order], prepend=-1)), len(rows))
+    corners, made = group_triangles(scene, rows, offsets.astype(np.int64))
+    group_rgb = rgb[order[offsets[:-1]]]  # (G, 3)
+    group_height_m = np.minimum.reduceat(height_m[order], offsets[:-1])  # (G,)
+    rank = np.empty(len(made), np.int64)  # each group's place in the paint order
+    rank[np.lexsort((np.arange(len(made)), group_height_m))] = np.arange(len(made))
+    triangle_group = np.repeat(np.arange(len(made)), made)  # (T,)
+    paint = np.argsort(rank[triangle_group], kind="stable")
+    corners, triangle_group = corners[paint], triangle_group[paint]
+    # the corners used, from the scene's vertices and the file's (a whole file face)
+    used, local = np.unique(corners, return_inverse=True)
+    n = len(scene.vertices)
+    xy = np.empty((len(used), 2))
+    in_scene = used < n
+    xy[in_scene] = scene.vertices[used[in_scene], :2]
+    file_vertices, _ = scene.file_mesh
+    xy[~in_scene] = file_vertices[used[~in_scene] - n, :2]
+    return Floor(xy, local.reshape(-1, 3), group_rgb[triangle_group],
+                 group_height_m[triangle_group])
+
+
+def draw_surfaces(ax: Axes, result: PlanResult, floor: Floor,
                   segments: NDArray[np.float64], cut_faces: NDArray[np.int64], *,
                   rasterized: bool = False) -> None:
-    """Floor faces ``below`` painted in their colours (:func:`face_rgb`), and the section
+    """The ``floor`` (:func:`floor_of`) painted in its colours, and the section
     ``segments`` (:func:`section_at`) as thick lines in the colours of the faces they cut
     over a thin black core.
 
@@ -426,16 +524,15 @@ def draw_surfaces(ax: Axes, result: PlanResult, below: NDArray[np.int64],
 
     The axes' limits are set before: the collections take no part in them (working out a
     million triangles' extent took seconds)."""
-    scene, limits = result.scene, result.limits
+    limits = result.limits
 
     def rgb(index: NDArray[np.int64]) -> NDArray[np.uint8]:
         return face_rgb(result.faces, limits.target, limits.min_density_pts_m2, index)
 
-    if len(below):
-        ax.add_collection(_FloorFaces(scene.vertices, scene.faces[below], rgb(below),
-                                      scene.centroids[below, 2],
-                                      linewidths=0.0, antialiased=False, zorder=1,
-                                      rasterized=rasterized), autolim=False)
+    if len(floor.corners):
+        ax.add_collection(_FloorFaces(floor.vertices, floor.corners, floor.rgb,
+                                      floor.height_m, linewidths=0.0, antialiased=False,
+                                      zorder=1, rasterized=rasterized), autolim=False)
     if len(segments):
         lines = LineCollection([], colors=rgb(cut_faces) / 255.0, linewidths=3.2,
                                capstyle="round", zorder=3, rasterized=rasterized)
@@ -583,7 +680,7 @@ def one_path(lines: list[NDArray[np.float64]]) -> list[Path]:
 
 def _draw_level(ax: Axes, result: PlanResult, level: Level) -> None:
     scene = result.scene
-    draw_surfaces(ax, result, floor_faces(result, level),
+    draw_surfaces(ax, result, floor_of(result, level),
                   *section_at(scene.vertices, scene.faces, level.section_z))
     candidates = result.candidates.positions[level.candidates]
     ax.scatter(candidates[:, 0], candidates[:, 1], s=2.5, c=[(0.35, 0.35, 0.35)],

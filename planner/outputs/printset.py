@@ -201,14 +201,8 @@ class _Storey:
     def __init__(self, result: PlanResult, level: Level) -> None:
         scene = result.scene
         self.level = level
-        self.below = drawing.floor_faces(result, level)
-        # (T, 2) each: the floor faces' plan boxes, their corners gathered a chunk at a time
-        self.below_lo = np.empty((len(self.below), 2))
-        self.below_hi = np.empty((len(self.below), 2))
-        for start in range(0, len(self.below), drawing.CHUNK_FACES):
-            block = slice(start, start + drawing.CHUNK_FACES)
-            corners = scene.vertices[scene.faces[self.below[block]], :2]
-            self.below_lo[block], self.below_hi[block] = corners.min(axis=1), corners.max(axis=1)
+        self.floor = drawing.floor_of(result, level)
+        self.floor_lo, self.floor_hi = self.floor.boxes()  # (T, 2) each: the plan boxes
         self.segments, self.cut_faces = drawing.section_at(scene.vertices, scene.faces,
                                                            level.section_z)
         self.members = set(level.candidates.tolist())
@@ -259,11 +253,11 @@ def draw_sheet(result: PlanResult, sheet: Sheet, storey: _Storey, number: int, t
     for spine in ax.spines.values():
         spine.set_linewidth(0.6)
         spine.set_color("0.4")
-    floor = _in_view(storey.below_lo, storey.below_hi, view)
+    floor = storey.floor.part(_in_view(storey.floor_lo, storey.floor_hi, view))
     segments = storey.segments
     cut = _in_view(segments.min(axis=1), segments.max(axis=1), view) if len(segments) else \
         np.zeros(0, bool)
-    drawing.draw_surfaces(ax, result, storey.below[floor], segments[cut],
+    drawing.draw_surfaces(ax, result, floor, segments[cut],
                           storey.cut_faces[cut], rasterized=True)
     candidates = result.candidates.positions[level.candidates]
     shown = _in_view(candidates[:, :2], candidates[:, :2], view)

@@ -15,6 +15,7 @@ import itertools
 import json
 import math
 import struct
+import weakref
 from pathlib import Path
 from typing import Any
 
@@ -24,12 +25,12 @@ import pytest
 import trimesh
 
 from planner.errors import ParameterError
-from planner.outputs import drawing, glb
+from planner.outputs import drawing, glb, outline
 from planner.outputs.report import faces_npz
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
 from planner.scene import build_scene
-from tests.planner.test_drawing import plan_hall_small
+from tests.planner.test_drawing import decode, pixel_of, plan_hall_small
 
 
 @pytest.fixture(scope="module")
@@ -326,6 +327,54 @@ def test_split_model_is_drawn_by_file_face_and_state(split_result: PlanResult) -
     assert triangles < result.scene.n_faces / 5
 
 
+def test_split_floor_is_drawn_by_group_in_each_piece_s_colour(
+        split_result: PlanResult, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The pictures draw a split model's floor by group (the pieces of one file face with
+    one colour): a fraction of the pieces' triangles, covering exactly each colour's
+    pieces, and a preview that shows each piece's colour where the piece by piece drawing
+    does, but for pixels on the edges between colours."""
+    result = split_result
+    (level,) = drawing.levels(result)
+    below = drawing.floor_faces(result, level)
+    floor = drawing.floor_of(result, level)
+    assert 0 < len(floor.corners) < len(below) / 3  # 1,251 for 4,096 pieces
+    rgb = drawing.face_rgb(result.faces, result.limits.target,
+                           result.limits.min_density_pts_m2, below)
+    assert len(np.unique(rgb, axis=0)) >= 10  # the shading is kept
+
+    def colour_m2(corners_xy: np.ndarray, colours: np.ndarray) -> dict[bytes, float]:
+        """The plan area of (t, 3, 2) triangles per colour."""
+        a, b = corners_xy[:, 1] - corners_xy[:, 0], corners_xy[:, 2] - corners_xy[:, 0]
+        area = 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+        out: dict[bytes, float] = {}
+        for colour, m2 in zip(colours, area, strict=True):
+            out[colour.tobytes()] = out.get(colour.tobytes(), 0.0) + float(m2)
+        return out
+
+    drawn = colour_m2(floor.vertices[floor.corners][:, :, :2], floor.rgb)
+    pieces = colour_m2(result.scene.vertices[result.scene.faces[below]][:, :, :2], rgb)
+    assert drawn.keys() == pieces.keys()
+    for colour, m2 in pieces.items():
+        assert drawn[colour] == pytest.approx(m2, rel=1e-9)
+
+    grouped = decode(drawing.preview_png(result))
+
+    def piece_by_piece(scene: Any, below: np.ndarray, rgb: np.ndarray,
+                       height_m: np.ndarray) -> drawing.Floor:
+        return drawing.Floor(scene.vertices, scene.faces[below], rgb, height_m)
+
+    monkeypatch.setattr(drawing, "_FLOORS", weakref.WeakKeyDictionary())
+    monkeypatch.setattr(drawing, "_grouped_floor", piece_by_piece)
+    pieces_image = decode(drawing.preview_png(result))
+    assert np.any(grouped != pieces_image, axis=2).mean() < 0.02
+    (ax,) = drawing.draw_preview(result).axes
+    at = np.rint(pixel_of(ax, result.scene.centroids[below, :2],
+                          grouped.shape[1::-1])).astype(int)
+    shown = np.all(grouped[at[:, 1], at[:, 0]] == rgb, axis=1)
+    shown_before = np.all(pieces_image[at[:, 1], at[:, 0]] == rgb, axis=1)
+    assert shown.mean() >= shown_before.mean() - 0.01
+
+
 def test_split_model_same_bytes_twice(split_result: PlanResult) -> None:
     assert glb.coverage_glb(split_result) == glb.coverage_glb(split_result)
 
@@ -344,7 +393,7 @@ def _outline_check(scene: Any, labels: np.ndarray) -> tuple[int, list[int]]:
     counts = np.diff(offsets)
     whole = counts == np.bincount(scene.source_face)[scene.source_face[first]]
     chosen = np.flatnonzero(~whole & (counts > 1))
-    features, triangles, to_merge = glb._outlined(scene, rows, offsets, first, chosen)
+    features, triangles, to_merge = outline._outlined(scene, rows, offsets, first, chosen)
     assert (np.diff(features) >= 0).all() and set(features) <= set(chosen)
     axes = [0, 1]  # the test scenes lie in z = 0
     for feature in sorted(set(chosen) - set(to_merge)):
@@ -353,7 +402,7 @@ def _outline_check(scene: Any, labels: np.ndarray) -> tuple[int, list[int]]:
         assert np.isin(mine, scene.faces[members]).all()
         corners = scene.vertices[mine]
         normal = scene.normals[members[0]]
-        assert (glb._cross(corners) @ normal > 0).all()
+        assert (outline._cross(corners) @ normal > 0).all()
         flat = corners[:, :, axes]
         drawn = shapely.polygons(np.concatenate([flat, flat[:, :1]], axis=1))
         pieces = scene.vertices[scene.faces[members]][:, :, axes]
@@ -378,8 +427,9 @@ def _loops(scene: Any, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     offsets = np.append(np.flatnonzero(np.diff(labels[rows], prepend=-1)), len(labels))
     chosen = np.flatnonzero(np.diff(offsets) > 1)
     axes = np.tile(np.array([0, 1], np.int64), (len(chosen), 1))
-    _, _, feature, shell, status, _ = glb._outlines(scene.faces, rows, offsets, chosen,
-                                                    scene.vertices, axes, glb._COLLINEAR_M)
+    _, _, feature, shell, status, _ = outline._outlines(scene.faces, rows, offsets, chosen,
+                                                        scene.vertices, axes,
+                                                        outline._COLLINEAR_M)
     assert (status == 0).all()
     hole = shell != np.arange(len(shell))
     return (np.bincount(feature[~hole], minlength=len(chosen)),
