@@ -396,17 +396,19 @@ def storey_levels(
     """
     dropped = dict.fromkeys(DROP_REASONS, 0)
     point, floor_z, normal_z = walkable_surfaces(scene, xy, spec, caster, dropped)
-    # a grid point inside a wall stands on the wall's foot with the wall's height over it:
-    # such surfaces would join a floor to the ground outside the wall, so they go first
-    inside = inside_closed_groups(
-        scene, np.column_stack([xy[point], floor_z + spec.scanner_height_m]))
-    dropped["inside_geometry"] += int(inside.sum())
-    point, floor_z, normal_z = point[~inside], floor_z[~inside], normal_z[~inside]
-    if spec.area_of_interest is None and len(point):  # the building, not the site
+    if spec.area_of_interest is None and len(point):  # the building, not the site (first:
+        # no winding numbers over a site's terrain)
         on = on_the_building(scene, spec, np.column_stack(
             [xy[point], floor_z + spec.scanner_height_m]), floor_z, caster)
         dropped["outside_area_of_interest"] += int((~on).sum())
         point, floor_z, normal_z = point[on], floor_z[on], normal_z[on]
+    # a grid point inside a wall stands on the wall's foot with the wall's height over it:
+    # such surfaces would join a floor to the ground outside the wall, so they go before
+    # the levels are found
+    inside = inside_closed_groups(
+        scene, np.column_stack([xy[point], floor_z + spec.scanner_height_m]))
+    dropped["inside_geometry"] += int(inside.sum())
+    point, floor_z, normal_z = point[~inside], floor_z[~inside], normal_z[~inside]
     if len(point) == 0:
         return None, None, [], dropped
     cell = spec.grid_spacing_m

@@ -449,6 +449,8 @@ class Floor:
         return lo, hi
 
 
+# a floor group of fewer pieces is drawn piece by piece (:func:`floor_of`)
+_GROUPED_LEAST_PIECES = 32
 # the grouped floors of a split plan, made once for the preview and once for the print set
 # (one thread draws both, one after the other; Lantern Hollow's plain mesh: 5 s a time)
 _FLOORS: weakref.WeakKeyDictionary[PlanResult, dict[tuple[float, float], Floor]] = (
@@ -461,9 +463,10 @@ def floor_of(result: PlanResult, level: Level) -> Floor:
 
     A split scene's floor faces are drawn by group: the pieces of one file face with one
     colour as few triangles as their outline needs (:mod:`planner.outputs.outline`), at
-    the height of the group's lowest piece (Lantern Hollow's plain mesh: 2.08 M floor
-    pieces, 17,400 groups). Every piece still shows its own colour; only pixels on a
-    group's edge, partly covered by two colours, may take the other one."""
+    the height of the group's lowest piece, where the group holds at least
+    ``_GROUPED_LEAST_PIECES`` pieces (Lantern Hollow's plain mesh: 2.08 M floor pieces,
+    185,757 triangles). Every piece still shows its own colour; only pixels on a group's
+    edge, partly covered by two colours, may take the other one."""
     scene, limits = result.scene, result.limits
     key = (level.floor_z, level.section_z)
     with _FLOORS_LOCK:
@@ -490,7 +493,13 @@ def _grouped_floor(scene: Scene, below: NDArray[np.int64], rgb: NDArray[np.uint8
     group = (scene.source_face[below].astype(np.int64) << 24) | colour  # file face, colour
     order = np.lexsort((below, group))  # each group's faces ascending, as group_triangles wants
     rows = below[order].astype(np.int32)
-    offsets = np.append(np.flatnonzero(np.diff(group[order], prepend=-1)), len(rows))
+    starts = np.flatnonzero(np.diff(group[order], prepend=-1))  # (G,) each group's first
+    # a group of few pieces is drawn piece by piece: its outline would cost more than the
+    # triangles it saves
+    sizes = np.diff(np.append(starts, len(rows)))
+    alone = np.repeat(sizes < _GROUPED_LEAST_PIECES, sizes)  # (n,) faces drawn as themselves
+    alone[starts] = True  # (n,) the first face of each group drawn, its own or not
+    offsets = np.append(np.flatnonzero(alone), len(rows))
     corners, made = group_triangles(scene, rows, offsets.astype(np.int64))
     group_rgb = rgb[order[offsets[:-1]]]  # (G, 3)
     group_height_m = np.minimum.reduceat(height_m[order], offsets[:-1])  # (G,)
@@ -499,15 +508,19 @@ def _grouped_floor(scene: Scene, below: NDArray[np.int64], rgb: NDArray[np.uint8
     triangle_group = np.repeat(np.arange(len(made)), made)  # (T,)
     paint = np.argsort(rank[triangle_group], kind="stable")
     corners, triangle_group = corners[paint], triangle_group[paint]
-    # the corners used, from the scene's vertices and the file's (a whole file face)
-    used, local = np.unique(corners, return_inverse=True)
+    # the corners used, from the scene's vertices and the file's (a whole file face),
+    # numbered in that order
+    file_vertices, _ = scene.file_mesh
     n = len(scene.vertices)
+    marked = np.zeros(n + len(file_vertices), bool)
+    marked[corners.ravel()] = True
+    used = np.flatnonzero(marked)
+    number = np.cumsum(marked) - 1  # (V + V0,) each used vertex's number
     xy = np.empty((len(used), 2))
     in_scene = used < n
     xy[in_scene] = scene.vertices[used[in_scene], :2]
-    file_vertices, _ = scene.file_mesh
     xy[~in_scene] = file_vertices[used[~in_scene] - n, :2]
-    return Floor(xy, local.reshape(-1, 3), group_rgb[triangle_group],
+    return Floor(xy, number[corners].astype(np.int32), group_rgb[triangle_group],
                  group_height_m[triangle_group])
 
 
