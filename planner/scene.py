@@ -6,6 +6,7 @@ Array shapes use fixed letters: V vertices, F faces, G groups.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -294,10 +295,14 @@ class Scene:
             previous = int(block[-1])
         return True
 
-    @property
+    @functools.cached_property
     def bounds(self) -> FloatArray:
-        """(2, 3) float64: lowest and highest corner of the axis-aligned box."""
-        return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+        """(2, 3) float64, read-only: lowest and highest corner of the axis-aligned box
+        (found once: the walk graph, the levels and the outputs each ask, 0.1 s a time over
+        a 5 M-face scene's vertices)."""
+        box = np.stack(column_bounds(self.vertices))
+        box.setflags(write=False)
+        return box
 
     def summary(self) -> dict[str, Any]:
         """Counts and bounds a user checks after an upload."""
