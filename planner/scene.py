@@ -300,9 +300,7 @@ class Scene:
         """(2, 3) float64, read-only: lowest and highest corner of the axis-aligned box
         (found once: the walk graph, the levels and the outputs each ask, 0.1 s a time over
         a 5 M-face scene's vertices)."""
-        box = np.stack(column_bounds(self.vertices))
-        box.setflags(write=False)
-        return box
+        return _frozen(np.stack(column_bounds(self.vertices)))
 
     def summary(self) -> dict[str, Any]:
         """Counts and bounds a user checks after an upload."""

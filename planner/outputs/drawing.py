@@ -58,7 +58,7 @@ from planner.io.orientation import scene_rotation, to_model
 from planner.memory import release_freed_memory
 from planner.outputs.outline import group_triangles
 from planner.pipeline import PlanResult
-from planner.scene import Scene
+from planner.scene import Scene, corner_extremes
 from planner.selection.curve import coverage_curve
 
 # --- face classes and their colours (sRGB 0-255) -------------------------------------------
@@ -147,6 +147,12 @@ def face_rgb(faces: Mapping[str, NDArray[Any]], target: NDArray[np.bool_],
         t = np.clip(np.log(np.maximum(ratio, 1.0)) / math.log(COVERED_SATURATION), 0.0, 1.0)
         rgb[covered] = np.rint(low + t[:, None] * (high - low)).astype(np.uint8)
     return rgb
+
+
+def _packed(rgb: NDArray[np.uint8]) -> NDArray[np.int64]:
+    """(n,) int64 ``0xRRGGBB`` of (n, 3) uint8 colours: one sortable key a colour."""
+    return ((rgb[:, 0].astype(np.int64) << 16) | (rgb[:, 1].astype(np.int64) << 8)
+            | rgb[:, 2])
 
 
 def _rgb(colour: Sequence[float]) -> tuple[float, float, float]:
@@ -444,8 +450,7 @@ class Floor:
         lo, hi = np.empty((len(self.corners), 2)), np.empty((len(self.corners), 2))
         for start in range(0, len(self.corners), CHUNK_FACES):
             block = slice(start, start + CHUNK_FACES)
-            xy = self.vertices[self.corners[block], :2]  # (b, 3, 2)
-            lo[block], hi[block] = xy.min(axis=1), xy.max(axis=1)
+            lo[block], hi[block] = corner_extremes(self.vertices[self.corners[block], :2])
         return lo, hi
 
 
@@ -488,9 +493,7 @@ def _grouped_floor(scene: Scene, below: NDArray[np.int64], rgb: NDArray[np.uint8
                    height_m: NDArray[np.float64]) -> Floor:
     """The (n,) floor faces ``below`` of a split ``scene`` (their (n, 3) colours and (n,)
     heights) drawn by group (:func:`floor_of`)."""
-    colour = ((rgb[:, 0].astype(np.int64) << 16) | (rgb[:, 1].astype(np.int64) << 8)
-              | rgb[:, 2])
-    group = (scene.source_face[below].astype(np.int64) << 24) | colour  # file face, colour
+    group = (scene.source_face[below].astype(np.int64) << 24) | _packed(rgb)  # face, colour
     order = np.lexsort((below, group))  # each group's faces ascending, as group_triangles wants
     rows = below[order].astype(np.int32)
     starts = np.flatnonzero(np.diff(group[order], prepend=-1))  # (G,) each group's first
@@ -640,9 +643,7 @@ class _FloorFaces(PolyCollection):
         height = self._height_m[run]
         # (t,) which group each triangle paints in: heights in paint order, then colours
         level = np.concatenate([[0], np.cumsum(height[1:] != height[:-1])])
-        colour = ((rgb[:, 0].astype(np.int64) << 16) | (rgb[:, 1].astype(np.int64) << 8)
-                  | rgb[:, 2])
-        group = (level << 24) | colour
+        group = (level << 24) | _packed(rgb)
         order = np.argsort(group, kind="stable")
         key = group[order]
         starts = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]])).tolist()
