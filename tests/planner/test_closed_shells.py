@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 import trimesh
 
 from planner.io.readers import read_scene
@@ -159,3 +160,35 @@ def test_bundles_behind_a_shell_are_ruled_out_without_rays() -> None:
     distance = np.linalg.norm(offset, axis=1)
     visible = occlusion.visible(origin, offset / distance[:, None], distance, target)
     assert not visible.any()
+
+
+def test_the_bundles_shared_sides_are_the_same_counted_in_blocks_of_any_size(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each bundle's side (+1 out of its shell, -1 into it, 0 when its pieces differ) and
+    normal, counted a block of pieces at a time, are those of its pieces: the same for
+    blocks of any size, and as the pieces themselves give them."""
+    from planner.visibility import bundles as module
+
+    mesh = office_building(1, 2)
+    scene = remesh(build_scene(np.asarray(mesh.vertices), np.asarray(mesh.faces)), 0.2)
+    limits = FaceLimits.from_spec(PlanSpec(), scene)
+    occlusion = make_occlusion(scene, limits.occludes, "embree", file_faces=True)
+    bundles = bundles_of(scene)
+    shells = closed_shells(scene, occlusion)
+    assert bundles is not None and shells is not None
+    assert scene.n_faces > 10 * 1_000
+    made = {}
+    for size in (1_000, 1 << 30):
+        monkeypatch.setattr(module, "_KEY_BLOCK_FACES", size)
+        module._SIDES.pop(bundles, None)  # kept per bundles: count again
+        made[size] = module._level_sides(bundles, shells, scene.normals)
+    for (side, normal), (side_once, normal_once) in zip(made[1_000], made[1 << 30],
+                                                       strict=True):
+        assert np.array_equal(side, side_once) and np.array_equal(normal, normal_once)
+    finest_side, finest_normal = made[1_000][-1]
+    assert {0, 1} <= set(np.unique(finest_side).tolist())  # shared sides and mixed ones
+    for bundle in range(0, len(finest_side), 7):
+        pieces = np.flatnonzero(bundles.bundle_of == bundle)
+        sides = set(shells.side[pieces].tolist())
+        assert finest_side[bundle] == (sides.pop() if len(sides) == 1 else 0)
+        assert any(np.array_equal(finest_normal[bundle], scene.normals[p]) for p in pieces)
