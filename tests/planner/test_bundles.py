@@ -191,6 +191,36 @@ def test_the_grid_finds_every_pair_a_scan_of_all_faces_finds(office: Scene,
     assert len(pairs) > 500
 
 
+@pytest.mark.parametrize("density_pts_m2", [1600.0, 45_000.0])
+def test_a_candidates_pairs_found_in_parts_are_those_found_at_once(office: Scene,
+                                                                    density_pts_m2: float
+                                                                    ) -> None:
+    """An overlap row's pairs are found a part at a time (at 1,600 pts/m2 a candidate
+    tests every face of this office, at 45,000 the grid cells in its reach): parts of
+    any size give the pairs of one search, in its order, with the bundles hidden from
+    the candidate left out of both."""
+    limits = overlap_limits(FaceLimits.from_spec(PlanSpec(), office), density_pts_m2)
+    finder = PairFinder(office, limits)
+    occlusion = make_occlusion(office, limits.occludes, "embree", file_faces=True)
+    bundles = bundles_of(office)
+    assert bundles is not None
+    culler = BundleCuller(bundles, finder.reach_m, occlusion)
+    points = _stations(office)[::9]
+    for c, point in enumerate(points):
+        hidden, _ = culler.hidden(point[None])
+        whole, _ = finder.find(point[None], c, hidden, ordered=False)
+        assert len(whole) > 50
+        for most_tests in (997, 20_011, 1 << 30):
+            parts = list(finder.parts(point[None], c, hidden, most_tests=most_tests))
+            assert len(parts) >= (1 if most_tests > 1 << 20 else 2)
+            if density_pts_m2 == 1600.0:  # every face tested: parts of most_tests faces
+                assert max(len(p) for p in parts) <= most_tests
+            for name in ("candidate", "face", "origin", "direction", "distance_m",
+                         "lpd_pts_m2"):
+                assert np.array_equal(np.concatenate([getattr(p, name) for p in parts]),
+                                      getattr(whole, name)), (c, most_tests, name)
+
+
 def test_bundles_made_a_block_of_file_faces_at_a_time_are_those_made_at_once(
         office: Scene, monkeypatch: pytest.MonkeyPatch) -> None:
     """The bundles are numbered a block of whole file faces at a time; blocks of any size,
