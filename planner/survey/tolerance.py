@@ -61,8 +61,10 @@ from planner.walkgraph import door_faces
 
 # pair tests of a station's displaced setups made at a time by the worst-case network:
 # a station shares up to some 10^5 faces with its neighbours, and almost all of them pass
-# from every setup, at some 70 bytes a pair until its ray is cast (two threads run)
-NETWORK_TESTS_PER_BLOCK = 1_000_000
+# from every setup, at some 70 bytes a pair until its ray is cast (two threads run); a
+# million a block made a 3.8 M-face sports hall's peak (1,082 MiB, against 1,043 for the
+# rest of its plan), in the same time as this
+NETWORK_TESTS_PER_BLOCK = 250_000
 # and of the stations' own faces from their setups: a station of a cluttered interior
 # qualifies for some 10^5 - 10^6 faces, so a block of the default 2 M tests holds a few of
 # its setups, two such blocks (two threads) the largest scratch of the stage
