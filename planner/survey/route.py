@@ -60,7 +60,7 @@ from scipy.spatial import cKDTree
 
 from planner.errors import ParameterError
 from planner.rays import RayCaster, make_ray_caster
-from planner.scene import Scene
+from planner.scene import Scene, build_scene
 from planner.walkgraph import (
     HEADROOM_M,
     KNEE_HEIGHT_M,
@@ -287,8 +287,15 @@ def door_checks(scene: Scene, route: Route, doors: MeshDoors) -> tuple[DoorCheck
     glazed = doors.glazed
     if not glazed.any() or not route.legs:
         return ()
-    faces = (doors.face_door >= 0) & glazed[np.maximum(doors.face_door, 0)]
-    caster = make_ray_caster(scene, faces)
+    pane = np.flatnonzero((doors.face_door >= 0) & glazed[np.maximum(doors.face_door, 0)])
+    if len(pane) == 0:
+        return ()
+    # the panes' own triangles as a mesh of their own (the same float32 corners in the same
+    # order, so the same hits): a caster over the whole split mesh copied every vertex of a
+    # 5 M-piece site's mesh three times for a few doors, at the survey's peak
+    used, corner = np.unique(scene.faces[pane], return_inverse=True)
+    panes = build_scene(scene.vertices[used], corner.reshape(-1, 3))
+    caster = make_ray_caster(panes, np.ones(len(pane), bool))
     checks: list[DoorCheck] = []
     for number, leg in enumerate(route.legs, start=1):
         path = np.asarray(leg.path, np.float64)  # (P, 3)
@@ -299,7 +306,8 @@ def door_checks(scene: Scene, route: Route, doors: MeshDoors) -> tuple[DoorCheck
         moving = np.flatnonzero(length > 1e-6)
         if len(moving) == 0:
             continue
-        face, distance = caster.first_hit(path[moving], delta[moving] / length[moving, None])
+        hit, distance = caster.first_hit(path[moving], delta[moving] / length[moving, None])
+        face = np.where(hit >= 0, pane[np.maximum(hit, 0)], -1)
         crossed = np.flatnonzero((face >= 0) & (distance <= length[moving]))
         seen: set[int] = set()
         for k in crossed.tolist():
