@@ -448,9 +448,11 @@ def _features(result: PlanResult, classes: NDArray[np.uint8]) -> _Features:
         classes.astype(np.int64) * LPD_BANDS + lpd_bands(ratio, classes))
     rows = np.argsort(key, kind="stable").astype(np.int32)
     sorted_key = key[rows]
-    offsets = np.append(np.flatnonzero(np.diff(sorted_key, prepend=-1)), n).astype(np.int64)
+    del key  # before the features' starts are found: (F,) int64 each, beside the pictures'
+    # a feature starts where the key changes (no (F,) int64 differences)
+    changes = np.flatnonzero(sorted_key[1:] != sorted_key[:-1]) + 1
     del sorted_key
-    del key
+    offsets = np.concatenate([[0] if n else [], changes, [n]]).astype(np.int64)
     worst = _first_least(ratio, rows, offsets)
     del ratio
     corners, made = group_triangles(scene, rows, offsets)
