@@ -54,7 +54,7 @@ from planner.visibility.overlap import (
     overlap_limits,
     shared_faces_only,
 )
-from planner.visibility.pairs import PairFinder
+from planner.visibility.pairs import PairFinder, visible_pairs
 from planner.visibility.qualify import Sight
 from planner.visibility.robust import Qualify, kept_faces
 from planner.walkgraph import door_faces
@@ -208,9 +208,7 @@ def _worst_case_network(
         finder = PairFinder(scene, cut)
         for start, stop in finder.blocks(positions, most_tests=NETWORK_TESTS_PER_BLOCK):
             pairs, _ = finder.find(positions[start:stop], start, ordered=False)
-            visible = occlusion.visible(
-                pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
-                exact_rays=pairs.exact_rays(positions, scene.centroids))
+            visible = visible_pairs(occlusion, pairs, positions, scene.centroids)
             yield QualifiedPairs(pairs.candidate[visible], pairs.face[visible],
                                  pairs.lpd_pts_m2[visible])
 

@@ -29,7 +29,12 @@ from planner.memory import released_every
 from planner.rays import Occlusion, make_occlusion
 from planner.scene import Scene
 from planner.visibility.bundles import BundleCuller, bundle_culler
-from planner.visibility.pairs import PairFinder, Pairs, search_reach_m
+from planner.visibility.pairs import (
+    RAYS_PER_CAST,
+    PairFinder,
+    search_reach_m,
+    visible_pairs,
+)
 from planner.visibility.solids import closed_shells
 from planner.walkgraph import door_faces
 
@@ -46,8 +51,6 @@ def overlap_limits(limits: FaceLimits, overlap_density_pts_m2: float) -> FaceLim
 # rows' peak went from 1,963 to 1,894 MiB with the trims, and the memory the tolerance
 # starts with from 1,783 to 1,640 MiB)
 _TRIM_EVERY_ROWS = 16
-# an overlap row's pair tests made, and rays cast, at a time (overlap_row)
-_ROW_RAYS_PER_CAST = 1 << 17
 
 
 class OverlapRows:
@@ -204,30 +207,11 @@ def overlap_row(finder: PairFinder, culler: BundleCuller | None, occlusion: Occl
     # threads at once made the overlap rows' peak; each ray's verdict is its own, whatever
     # else is cast with it
     seen: list[NDArray[np.int32]] = []
-    for pairs in finder.parts(point, candidate, hidden, most_tests=_ROW_RAYS_PER_CAST):
-        seen.append(pairs.face[_visible(occlusion, pairs, positions, centroids)])
+    for pairs in finder.parts(point, candidate, hidden, most_tests=RAYS_PER_CAST):
+        seen.append(pairs.face[visible_pairs(occlusion, pairs, positions, centroids)])
         rays += len(pairs)
     row = np.concatenate(seen) if seen else np.zeros(0, np.int32)
     return np.sort(row), rays
-
-
-def _visible(occlusion: Occlusion, pairs: Pairs, positions: NDArray[np.float64],
-             centroids: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """(P,) whether each of ``pairs`` is visible, cast ``_ROW_RAYS_PER_CAST`` at a time
-    (a part of a row is no more, unless one grid cell holds more faces)."""
-    exact_rays = pairs.exact_rays(positions, centroids)
-    visible = np.empty(len(pairs), bool)
-    for first in range(0, len(pairs), _ROW_RAYS_PER_CAST):
-        part = slice(first, first + _ROW_RAYS_PER_CAST)
-
-        def part_rays(index: NDArray[np.int64], first: int = first
-                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-            return exact_rays(index + first)
-
-        visible[part] = occlusion.visible(
-            pairs.origin[part], pairs.direction[part], pairs.distance_m[part],
-            pairs.face[part], exact_rays=part_rays)
-    return visible
 
 
 class RowsFanout(Protocol):

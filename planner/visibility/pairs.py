@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.limits import FaceLimits
-from planner.rays import ExactRays
+from planner.rays import ExactRays, Occlusion
 from planner.scene import Scene
 from planner.visibility.bundles import HiddenBundles
 from planner.visibility.cells import PointGrid
@@ -76,6 +76,30 @@ class Pairs:
 
 
 _PAIR_COLUMNS = ("candidate", "face", "origin", "direction", "distance_m", "lpd_pts_m2")
+# rays cast at a time by :func:`visible_pairs`: Embree's output and the cast's scratch are
+# some 60 bytes a ray, on each thread
+RAYS_PER_CAST = 1 << 17
+
+
+def visible_pairs(occlusion: Occlusion, pairs: Pairs, positions_xyz: NDArray[np.float64],
+                  face_xyz: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """(P,) whether each of ``pairs`` (found for the (C, 3) ``positions_xyz``) reaches its
+    face, cast :data:`RAYS_PER_CAST` at a time: each ray's verdict is its own, whatever
+    else is cast with it (the float64 rays of :meth:`Pairs.exact_rays`, to the (F, 3)
+    ``face_xyz``, decide where the casts disagree)."""
+    exact_rays = pairs.exact_rays(positions_xyz, face_xyz)
+    visible = np.empty(len(pairs), bool)
+    for first in range(0, len(pairs), RAYS_PER_CAST):
+        part = slice(first, first + RAYS_PER_CAST)
+
+        def part_rays(index: NDArray[np.int64], first: int = first
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+            return exact_rays(index + first)
+
+        visible[part] = occlusion.visible(
+            pairs.origin[part], pairs.direction[part], pairs.distance_m[part],
+            pairs.face[part], exact_rays=part_rays)
+    return visible
 
 
 def search_reach_m(limits: FaceLimits) -> float:

@@ -34,7 +34,13 @@ from planner.scene import Scene, remesh
 from planner.threads import in_block_order
 from planner.visibility.bundles import bundle_culler
 from planner.visibility.coverage import CoverageTable, QualifiedPairs
-from planner.visibility.pairs import TESTS_PER_BLOCK, PairFinder, lpd_of_faces, sorted_by_face
+from planner.visibility.pairs import (
+    TESTS_PER_BLOCK,
+    PairFinder,
+    lpd_of_faces,
+    sorted_by_face,
+    visible_pairs,
+)
 from planner.visibility.robust import robust_blocks, within_table
 from planner.visibility.solids import closed_shells
 from planner.visibility.splitting import faces_to_split
@@ -296,10 +302,7 @@ def qualify_pairs(
         hidden, bundle_rays = (None, 0) if culler is None else culler.hidden(points)
         # unordered: sorting the visible pairs afterwards costs a fraction of sorting all
         pairs, tested = finder.find(points, start, hidden, ordered=False)
-        visible = np.flatnonzero(occlusion.visible(
-            pairs.origin, pairs.direction, pairs.distance_m, pairs.face,
-            exact_rays=pairs.exact_rays(positions, scene.centroids),
-        ))
+        visible = np.flatnonzero(visible_pairs(occlusion, pairs, positions, scene.centroids))
         candidate, face = pairs.candidate[visible], pairs.face[visible]
         order = sorted_by_face(candidate, face)
         qualified = QualifiedPairs(candidate[order], face[order],
