@@ -420,11 +420,10 @@ def _level_sides(bundles: Bundles, shells: ClosedShells, normals: NDArray[np.flo
             return kept[1]
     finest = bundles.bundle_of
     n = len(bundles.levels[-1])
-    # per bundle, its pieces and those facing out (+1) and in (-1) of their shell, and the
-    # normal of its last piece; counted a block of pieces at a time, in order, so that no
-    # (F, 3) copy of the normals is made (92 MB on a 3.8 M-face sports hall, the peak of
-    # its visibility stage)
-    # whole counts, in float64 as np.bincount's weighted sums give them
+    # per bundle, its pieces and those facing out (+1) and in (-1) of their shell (whole
+    # counts in float64, as np.bincount's weighted sums give them), and the normal of its
+    # last piece; counted a block of pieces at a time, in order, so that no (F, 3) copy of
+    # the normals is made (92 MB on a 3.8 M-face sports hall, the peak of its visibility)
     total: NDArray[Any] = np.zeros(n)
     out: NDArray[Any] = np.zeros(n)
     into: NDArray[Any] = np.zeros(n)
