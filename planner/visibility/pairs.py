@@ -422,16 +422,10 @@ class PairFinder:
                                  slice(low, high))
             return
         # one point: its keys are its cells, in order; consecutive cells make a part
-        counts = (start[keys + 1] - start[keys]).tolist()
-        first, total = 0, 0
-        for k, count in enumerate(counts):
-            if k > first and total + count > most_tests:
-                yield self._pass(points, index, hidden, sides, keys[first:k], total,
-                                 slice(None))
-                first, total = k, 0
-            total += count
-        if counts:
-            yield self._pass(points, index, hidden, sides, keys[first:], total, slice(None))
+        counts = start[keys + 1] - start[keys]
+        for first, stop in _consecutive_blocks(counts, len(counts), most_tests):
+            yield self._pass(points, index, hidden, sides, keys[first:stop],
+                             int(counts[first:stop].sum()), slice(None))
 
     def _sides(self, points: NDArray[np.float64]
                ) -> tuple[NDArray[np.int8], NDArray[np.bool_], float]:
