@@ -45,6 +45,37 @@ def _frozen(array: NDArray[Any]) -> NDArray[Any]:
     return array
 
 
+def face_values(vertices: FloatArray, faces: IndexArray, *, normals: bool = True
+                ) -> tuple[FloatArray, FloatArray | None, FloatArray]:
+    """(F, 3) centroids, (F, 3) unit normals (zero for a face of no area; None without
+    ``normals``) and (F,) areas of the (F, 3) ``faces`` over ``vertices``, float64, a
+    block at a time on a few threads (numpy releases the GIL), each into its own rows."""
+    n = len(faces)
+    centroids, areas = np.empty((n, 3)), np.empty(n)
+    unit = np.zeros((n, 3)) if normals else None
+
+    def derive(start: int) -> None:
+        block = slice(start, start + _DERIVE_BLOCK_FACES)
+        triangles = vertices[faces[block]]  # (B, 3, 3)
+        cross = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+        doubled = np.linalg.norm(cross, axis=1)
+        if unit is not None:
+            np.divide(cross, doubled[:, None], out=unit[block], where=doubled[:, None] > 0)
+        centroids[block] = triangles.mean(axis=1)
+        areas[block] = doubled / 2.0
+
+    list(in_block_order(derive, range(0, n, _DERIVE_BLOCK_FACES)))
+    return centroids, unit, areas
+
+
+def unit_normals(vertices: FloatArray, faces: IndexArray) -> FloatArray:
+    """(F, 3) float64: the unit normals of the (F, 3) ``faces`` (zero for a face of no
+    area)."""
+    normals = face_values(vertices, faces)[1]
+    assert normals is not None
+    return normals
+
+
 @dataclass(frozen=True)
 class Element:
     """A BIM element (IFC product) that owns some faces."""
@@ -83,7 +114,12 @@ class Scene:
     Groups and elements are kept per file face, so the pieces of a remeshed scene carry no
     (F,) copies of them (on a 9.7 M-face office two such arrays were 74 MB of every stage's
     memory): :attr:`face_group` and :attr:`face_element` look them up through
-    ``source_face`` when asked.
+    ``source_face`` when asked. So are the unit normals (``file_normals``; a piece lies in
+    its file face's plane): :meth:`normals_of` looks them up, 24 bytes a piece less.
+
+    Derived: ``centroids`` (F, 3) and ``areas`` (F,) float64 of every face, and
+    ``file_normals`` (F0, 3) float64, each file face's unit normal (zero for a face of no
+    area; a scene never remeshed: each face's, (F, 3)).
     """
 
     vertices: FloatArray
@@ -99,39 +135,32 @@ class Scene:
     split_max_edge_m: float | None = None
     # derived, filled in __post_init__
     centroids: FloatArray = field(init=False, repr=False)
-    normals: FloatArray = field(init=False, repr=False)
+    file_normals: FloatArray = field(init=False, repr=False)
     areas: FloatArray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self._check()
-        n = len(self.faces)
-        centroids, normals, areas = np.empty((n, 3)), np.zeros((n, 3)), np.empty(n)
-
-        def derive(start: int) -> None:
-            block = slice(start, start + _DERIVE_BLOCK_FACES)
-            triangles = self.vertices[self.faces[block]]  # (B, 3, 3)
-            cross = np.cross(triangles[:, 1] - triangles[:, 0],
-                             triangles[:, 2] - triangles[:, 0])
-            doubled = np.linalg.norm(cross, axis=1)
-            np.divide(cross, doubled[:, None], out=normals[block], where=doubled[:, None] > 0)
-            centroids[block] = triangles.mean(axis=1)
-            areas[block] = doubled / 2.0
-
-        # blocks on a few threads (numpy releases the GIL), each into its own rows
-        list(in_block_order(derive, range(0, n, _DERIVE_BLOCK_FACES)))
+        # a remeshed scene's normals are its file faces': a piece lies in its face's plane,
+        # and its own cross product would only repeat that plane, less well conditioned
+        remeshed = self.file_faces is not None
+        centroids, normals, areas = face_values(self.vertices, self.faces,
+                                                normals=not remeshed)
+        if normals is None:
+            normals = unit_normals(*self.file_mesh)
         object.__setattr__(self, "centroids", _frozen(centroids))
-        object.__setattr__(self, "normals", _frozen(normals))
+        object.__setattr__(self, "file_normals", _frozen(normals))
         object.__setattr__(self, "areas", _frozen(areas))
 
     @classmethod
-    def with_face_values(cls, centroids: FloatArray | None, normals: FloatArray | None,
+    def with_face_values(cls, centroids: FloatArray | None, file_normals: FloatArray | None,
                          areas: FloatArray | None, **fields: Any) -> Scene:
-        """The scene of ``fields`` (the constructor's) whose (F, 3) ``centroids``, (F, 3)
-        ``normals`` and (F,) ``areas`` are given rather than derived from its vertices: a
-        part of a scene keeps the scene's own float64 values, and the arithmetic that would
-        only be thrown away is skipped (a tile of a few million faces: seconds). None
-        leaves them out: only for a part on its way to where they are derived again (a
-        tile in a task, :meth:`planner.visibility.tiles.Tile.detached`)."""
+        """The scene of ``fields`` (the constructor's) whose (F, 3) ``centroids``, (F0, 3)
+        ``file_normals`` (one a file face, (F, 3) when the scene has no file mesh) and (F,)
+        ``areas`` are given rather than derived from its vertices: a part of a scene keeps
+        the scene's own float64 values, and the arithmetic that would only be thrown away
+        is skipped (a tile of a few million faces: seconds). None leaves them out: only for
+        a part on its way to where they are derived again (a tile in a task,
+        :meth:`planner.visibility.tiles.Tile.detached`)."""
         scene = cls.__new__(cls)
         for spec in dataclasses.fields(cls):
             if not spec.init:
@@ -149,8 +178,10 @@ class Scene:
             raise TypeError(f"Scene has no field {', '.join(sorted(fields))}")
         scene._check()
         n = len(scene.faces)
+        n_file = len(scene.file_mesh[1])
         for name, values, shape in (("centroids", centroids, (n, 3)),
-                                    ("normals", normals, (n, 3)), ("areas", areas, (n,))):
+                                    ("file_normals", file_normals, (n_file, 3)),
+                                    ("areas", areas, (n,))):
             if values is None:
                 object.__setattr__(scene, name, None)
                 continue
@@ -168,7 +199,7 @@ class Scene:
             raise ValueError("replaced keeps the vertices and faces; build a new Scene")
         fields = {spec.name: getattr(self, spec.name) for spec in dataclasses.fields(self)
                   if spec.init}
-        return Scene.with_face_values(self.centroids, self.normals, self.areas,
+        return Scene.with_face_values(self.centroids, self.file_normals, self.areas,
                                       **{**fields, **changes})
 
     def _check(self) -> None:
@@ -220,6 +251,19 @@ class Scene:
         array itself when the scene was never remeshed). The inverse of
         :meth:`on_file_faces`."""
         return per_file_face if self.file_faces is None else per_file_face[self.source_face]
+
+    @property
+    def normals(self) -> FloatArray:
+        """(F, 3) float64, each face's unit normal: its file face's (a new array on a
+        remeshed scene: read it once, or take :meth:`normals_of` for some faces)."""
+        return self.of_file_faces(self.file_normals)
+
+    def normals_of(self, faces: NDArray[np.integer[Any]] | slice | int) -> FloatArray:
+        """(k, 3) float64, the unit normals of ``faces`` ((k,) face indices or a slice;
+        (3,) of one face)."""
+        if self.file_faces is None:
+            return self.file_normals[faces]
+        return self.file_normals[self.source_face[faces]]
 
     @property
     def triangles(self) -> FloatArray:

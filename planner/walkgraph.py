@@ -432,10 +432,10 @@ def _thin_crossings(scene: Scene, caster: RayCaster) -> _Crossings:
         thick, along, face_ab, face_ba, d_ab = _through(caster, pa, pb)
         thin = ((thick >= DOOR_FILLER_MIN_M) & (thick <= DOOR_FILLER_MAX_M)
                 & (face_ba >= 0))
-        thin[thin] = (np.abs(np.einsum("kc,kc->k", scene.normals[face_ab[thin]],
-                                       scene.normals[face_ba[thin]]))
+        thin[thin] = (np.abs(np.einsum("kc,kc->k", scene.normals_of(face_ab[thin]),
+                                       scene.normals_of(face_ba[thin])))
                       >= _PARALLEL_COS)
-        thin[thin] = _panel(scene, caster, scene.normals[face_ab[thin]], pa[thin], pb[thin],
+        thin[thin] = _panel(scene, caster, scene.normals_of(face_ab[thin]), pa[thin], pb[thin],
                             thick[thin])
         x = pa[thin] + along[thin] * (d_ab[thin] + thick[thin] / 2)[:, None]
         kept.append((face_ab[thin], face_ba[thin]))
@@ -489,7 +489,7 @@ def _panel(scene: Scene, caster: RayCaster, normal: NDArray[np.float64],
         met = ((thick <= np.minimum(thick_m + DOOR_WALL_THICKER_M, DOOR_FILLER_MAX_M))
                & (face_ab >= 0))
         for face in (face_ab, np.where(face_ba >= 0, face_ba, face_ab)):
-            met &= np.abs(np.einsum("kc,kc->k", scene.normals[np.maximum(face, 0)], normal)
+            met &= np.abs(np.einsum("kc,kc->k", scene.normals_of(np.maximum(face, 0)), normal)
                           ) >= _PARALLEL_COS
         panel |= met
     return panel
@@ -851,7 +851,7 @@ def _floor_samples(scene: Scene, caster: RayCaster, grid_m: float,
         # a face id past the scene's is a floor the walk adds (planner.survey.space_floors)
         horizontal = np.ones(len(face), bool)
         own = face < scene.n_faces
-        horizontal[own] = np.abs(scene.normals[face[own], 2]) >= _MIN_FLOOR_NZ
+        horizontal[own] = np.abs(scene.normals_of(face[own])[:, 2]) >= _MIN_FLOOR_NZ
         above = floor + np.array([0.0, 0.0, _EPS_M * 10])
         _, free = caster.first_hit(above, up[: len(above)])
         keep = horizontal & (free >= HEADROOM_M)

@@ -613,7 +613,7 @@ def walkable_surfaces(
             break
         hit_point.append(active)
         hit_z.append(z_hit)
-        hit_up.append(np.abs(scene.normals[face, 2]))
+        hit_up.append(np.abs(scene.normals_of(face)[:, 2]))
         z[active] = z_hit + _SURFACE_STEP_M
     if not hit_point:
         dropped["no_floor"] += len(xy)
@@ -957,7 +957,7 @@ def place_on_floor(
     face, distance = caster.first_hit(origins, up)
     steep = math.cos(math.radians(_MAX_FLOOR_SLOPE_DEG))
     has_floor = face >= 0
-    has_floor[has_floor] = np.abs(scene.normals[face[has_floor], 2]) >= steep
+    has_floor[has_floor] = np.abs(scene.normals_of(face[has_floor])[:, 2]) >= steep
     dropped["no_floor"] += int((~has_floor).sum())
     floor_z = below + distance[has_floor]
     xy = xy[has_floor]

@@ -104,7 +104,7 @@ def displaced_positions(scene: Scene, positions: NDArray[np.float64], tolerance_
         heads = points + np.array([offsets[at, 0], offsets[at, 1], 0.0])
         hit, drop = caster.first_hit(heads, down)
         ok = has_floor & (hit >= 0)
-        ok[ok] = np.abs(scene.normals[hit[ok], 2]) >= steep
+        ok[ok] = np.abs(scene.normals_of(hit[ok])[:, 2]) >= steep
         new_floor = heads[:, 2] - drop
         ok[ok] = np.abs(new_floor[ok] - floor_z[ok]) <= SAME_FLOOR_M  # (no -inf - -inf)
         heads[:, 2] = np.where(ok, new_floor + height, heads[:, 2])

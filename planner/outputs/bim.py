@@ -179,7 +179,8 @@ def face_reasons(result: PlanResult, faces: NDArray[np.int64]) -> NDArray[np.int
 
     def block(start: int) -> int:
         chunk = slice(start, start + step)
-        _reason_codes(faces[chunk], result.scene.centroids, result.scene.normals, positions,
+        _reason_codes(faces[chunk], result.scene.centroids, result.scene.file_normals,
+                      result.scene.source_face, positions,
                       lim.min_incidence_deg, lim.min_density_pts_m2, lim.dof_min_m,
                       lim.dof_max_m, lim.elevation_min_deg, lim.elevation_max_deg,
                       lim.angular_step_rad, codes[chunk])
@@ -193,8 +194,9 @@ def face_reasons(result: PlanResult, faces: NDArray[np.int64]) -> NDArray[np.int
 @numba.njit(nogil=True, cache=True)
 def _reason_codes(  # compiled; compared with the numpy formulation in tests/planner/test_ifc.py
     faces: NDArray[np.int64], centroids: NDArray[np.float64], normals: NDArray[np.float64],
-    positions: NDArray[np.float64], min_incidence_deg: NDArray[np.float64],
-    min_density: NDArray[np.float64], dof_min_m: float, dof_max_m: float,
+    source: NDArray[np.int32], positions: NDArray[np.float64],
+    min_incidence_deg: NDArray[np.float64], min_density: NDArray[np.float64],
+    dof_min_m: float, dof_max_m: float,
     elevation_min_deg: float, elevation_max_deg: float, angular_step_rad: float,
     out: NDArray[np.int64],
 ) -> None:
@@ -216,7 +218,8 @@ def _reason_codes(  # compiled; compared with the numpy formulation in tests/pla
     for i in range(faces.shape[0]):
         f = faces[i]
         cx, cy, cz = centroids[f, 0], centroids[f, 1], centroids[f, 2]
-        nx, ny, nz = normals[f, 0], normals[f, 1], normals[f, 2]
+        g = source[f]  # the normal is the file face's
+        nx, ny, nz = normals[g, 0], normals[g, 1], normals[g, 2]
         density = min_density[f]
         incidence_min = min_incidence_deg[f]
         sin_incidence_min = np.sin(np.radians(incidence_min))

@@ -416,7 +416,7 @@ def floor_faces(result: PlanResult, level: Level) -> NDArray[np.int64]:
     picked = []
     for start in range(0, scene.n_faces, CHUNK_FACES):
         block = slice(start, start + CHUNK_FACES)
-        up = scene.normals[block, 2] >= _UP_NZ
+        up = scene.normals_of(block)[:, 2] >= _UP_NZ
         picked.append(start + np.flatnonzero(
             up & (cz[block] >= level.floor_z - 0.2) & (cz[block] <= level.section_z)))
     below = np.concatenate(picked)

@@ -356,7 +356,7 @@ def _outlined(scene: Scene, rows: NDArray[np.int32], offsets: NDArray[np.int64],
     pieces = offsets[chosen + 1] - offsets[chosen]
     cuts = np.searchsorted(np.cumsum(pieces), np.arange(
         _OUTLINE_CHUNK_PIECES, int(pieces.sum()), _OUTLINE_CHUNK_PIECES), side="right")
-    main = np.argmax(np.abs(scene.normals[first[chosen]]), axis=1)
+    main = np.argmax(np.abs(scene.normals_of(first[chosen])), axis=1)
     # the two axes other than the main axis of each feature's normal
     axes = np.stack([(main == 0).astype(np.int64), 2 - (main == 2).astype(np.int64)], axis=1)
     found: list[tuple[NDArray[np.int64], NDArray[np.int64]]] = []
@@ -448,7 +448,7 @@ def _outlined_part(scene: Scene, rows: NDArray[np.int32], offsets: NDArray[np.in
     made = np.bincount(triangle_feature, minlength=len(chosen))
     bad |= (np.abs(drawn - area) > 2.0 * _COLLINEAR_M * length + 1e-9 * area) | (made == 0)
     bad &= status == _OUTLINED
-    flip = (cross * scene.normals[first[chosen[triangle_feature]]]).sum(axis=1) < 0
+    flip = (cross * scene.normals_of(first[chosen[triangle_feature]])).sum(axis=1) < 0
     triangles[flip] = triangles[flip][:, ::-1]
     keep = ~bad[triangle_feature]
     # the features that failed: their faces
@@ -469,7 +469,7 @@ def _merge(scene: Scene, pieces: NDArray[np.int32], first: int, area: float
     triangulated (GEOS's constrained Delaunay, no new vertices), wound as the file face.
     The pieces themselves when that fails to cover exactly their area with their
     vertices."""
-    vertices, normal = scene.vertices, scene.normals[first]
+    vertices, normal = scene.vertices, scene.normals_of(first)
     axes = [a for a in range(3) if a != int(np.argmax(np.abs(normal)))]
     flat = vertices[pieces][:, :, axes]  # (m, 3, 2): the plane seen along its main axis
     try:

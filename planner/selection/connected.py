@@ -60,7 +60,7 @@ def scatter_weights_of(scene: Scene, faces: NDArray[np.integer[Any]] | slice
                         ) -> NDArray[np.float64]:
     """(n, 6) float64: the rows ``faces`` of :func:`scatter_weights`, without the (F, 6)
     array (48 bytes a face) when only some faces are wanted."""
-    n, area_m2 = scene.normals[faces], scene.areas[faces]
+    n, area_m2 = scene.normals_of(faces), scene.areas[faces]
     return np.stack([n[:, i] * n[:, j] * area_m2 for i, j in SCATTER_TERMS], axis=1)
 
 

@@ -59,7 +59,8 @@ class Registration:
 @numba.njit(nogil=True, cache=True)
 def _shared_sums(indptr: NDArray[np.int32], faces: NDArray[np.int32], n_faces: int,
                  areas: NDArray[np.float64], normals: NDArray[np.float64],
-                 terms: NDArray[np.int64]) -> NDArray[np.float64]:  # compiled; see test_survey
+                 source: NDArray[np.int32], terms: NDArray[np.int64]
+                 ) -> NDArray[np.float64]:  # compiled; see test_survey
     """(N, N, 1 + T) float64: for every two of the N rows (``indptr``, ascending ``faces``:
     a CSR pattern over ``n_faces`` faces), the area of the faces both hold and the T
     area-weighted normal products n_i n_j area of the (T, 2) ``terms`` (``SCATTER_TERMS``,
@@ -67,7 +68,8 @@ def _shared_sums(indptr: NDArray[np.int32], faces: NDArray[np.int32], n_faces: i
     in ascending order. That is the order of the sparse product ``rows @ rows.T`` with the
     weights on the left (and of :func:`overlap_with`), so the sums are the same bits,
     without the transposed copy and (nnz,) weights a product needs: only the rows holding
-    each face, 4 bytes an entry and a face.
+    each face, 4 bytes an entry and a face. A face's normal is its file face's, row
+    ``source[face]`` of ``normals``.
     """
     n = len(indptr) - 1
     # the rows holding each face, by a counting sort of the entries (rows stay ascending)
@@ -93,8 +95,10 @@ def _shared_sums(indptr: NDArray[np.int32], faces: NDArray[np.int32], n_faces: i
             face = faces[entry]
             area = areas[face]
             weight[0] = area
+            normal = source[face]
             for k in range(len(terms)):
-                weight[1 + k] = normals[face, terms[k, 0]] * normals[face, terms[k, 1]] * area
+                weight[1 + k] = (normals[normal, terms[k, 0]] * normals[normal, terms[k, 1]]
+                                 * area)
             for at in range(first[face], first[face + 1]):
                 other = holder[at]
                 for k in range(width):
@@ -121,7 +125,7 @@ def station_registration(scene: Scene, station_overlap: sp.csr_matrix,
     # (S, S) the shared area, (S, S, 6) the shared faces' area-weighted normal scatter
     sums = _shared_sums(np.asarray(shared.indptr, np.int32),
                         np.asarray(shared.indices, np.int32), scene.n_faces, scene.areas,
-                        np.ascontiguousarray(scene.normals), np.array(SCATTER_TERMS))
+                        scene.file_normals, scene.source_face, np.array(SCATTER_TERMS))
     overlap_m2, scatter6 = sums[:, :, 0], sums[:, :, 1:]
     edges: list[Edge] = []
     rows: list[int] = []

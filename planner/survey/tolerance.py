@@ -382,7 +382,7 @@ def _common(a: NDArray[np.int32], b: NDArray[np.int32]) -> NDArray[np.int32]:
 
 def _scatter(scene: Scene, faces: NDArray[np.int32]) -> NDArray[np.float64]:
     """(3, 3) float64: the area-weighted normal scatter of ``faces``."""
-    normals = scene.normals[faces]
+    normals = scene.normals_of(faces)
     scatter: NDArray[np.float64] = (normals * scene.areas[faces][:, None]).T @ normals
     return scatter
 
@@ -398,7 +398,7 @@ def _sample(scene: Scene, faces: NDArray[np.int32]) -> NDArray[np.int32]:
     area_m2 = scene.areas[faces]
     need_m2 = _SAMPLE_CONSTRAINT * float(area_m2.sum())
     axes = np.linalg.eigh(_scatter(scene, faces))[1]  # (3, 3) columns
-    along_m2 = (scene.normals[faces] @ axes) ** 2 * area_m2[:, None]  # (n, 3)
+    along_m2 = (scene.normals_of(faces) @ axes) ** 2 * area_m2[:, None]  # (n, 3)
     # the faces in a pseudo-random order, then stably by weight along each axis
     spread = np.argsort((faces.astype(np.uint64) * np.uint64(2654435761)) % np.uint64(1 << 32))
     picked = np.zeros(len(faces), bool)
@@ -460,7 +460,7 @@ def _apart_for_good(scene: Scene, nominal: Registration, rows: list[NDArray[np.i
         if min_overlap_m2 is not None and float(area_m2.sum()) < min_overlap_m2 * (1 - 1e-9):
             continue
         weakest = np.linalg.eigh(_scatter(scene, faces))[1][:, 0]
-        along_m2 = float(((scene.normals[faces] @ weakest) ** 2) @ area_m2)
+        along_m2 = float(((scene.normals_of(faces) @ weakest) ** 2) @ area_m2)
         if along_m2 >= 0.5 * MIN_CONSTRAINT * float(area_m2.min()):
             return False
     return True

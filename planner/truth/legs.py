@@ -24,7 +24,7 @@ Array letters: F faces, K segments, H heights.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -105,9 +105,8 @@ def legs_through_walls(scene: Scene, door: NDArray[np.bool_],
     lift[:, 0, 2] = heights - KNEE_HEIGHT_M
     from_a = (a[None] + lift).reshape(-1, 3)  # (H * K, 3), height by height
     from_b = (b[None] + lift).reshape(-1, 3)
-    normals = np.asarray(scene.normals, np.float64)
-    face, hit_at = _blocked(caster, normals, from_a, from_b)
-    back_face, back_at = _blocked(caster, normals, from_b, from_a)
+    face, hit_at = _blocked(caster, scene.normals_of, from_a, from_b)
+    back_face, back_at = _blocked(caster, scene.normals_of, from_b, from_a)
     use_back = (face < 0) & (back_face >= 0)
     face = np.where(use_back, back_face, face)
     hit_at[use_back] = back_at[use_back]
@@ -134,11 +133,14 @@ def legs_through_walls(scene: Scene, door: NDArray[np.bool_],
     return result
 
 
-def _blocked(caster: RayCaster, normals: NDArray[np.float64], a: NDArray[np.float64],
-             b: NDArray[np.float64]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+def _blocked(caster: RayCaster,
+             normals_of: Callable[[NDArray[np.int64]], NDArray[np.float64]],
+             a: NDArray[np.float64], b: NDArray[np.float64]
+             ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """The face each segment (K, 3) a -> (K, 3) b crosses first, -1 when free, and the
-    (K, 3) hit points (NaN when free). A face in the segment's own plane (``normals``,
-    (F, 3), within ``_GRAZING`` of square to the normal) is grazed, not crossed: the ray
+    (K, 3) hit points (NaN when free). A face in the segment's own plane (``normals_of``:
+    (k,) faces -> (k, 3) unit normals; within ``_GRAZING`` of square to the normal) is
+    grazed, not crossed: the ray
     goes on past it (a path along a wall's face, or along a mitred corner's plane, where
     float32 rays report a hit anywhere on the line)."""
     face = np.full(len(a), -1, np.int64)
@@ -156,7 +158,7 @@ def _blocked(caster: RayCaster, normals: NDArray[np.float64], a: NDArray[np.floa
             inside = (hit_face >= 0) & (travelled[todo] + distance < length[block[todo]])
             grazed = np.zeros(len(todo), bool)
             grazed[inside] = np.abs(np.einsum(
-                "kc,kc->k", normals[hit_face[inside]], direction[todo[inside]])) < _GRAZING
+                "kc,kc->k", normals_of(hit_face[inside]), direction[todo[inside]])) < _GRAZING
             crossed = inside & ~grazed
             done = todo[crossed]
             face[block[done]] = hit_face[crossed]

@@ -150,10 +150,11 @@ def _meets_incidence(scene: Scene, limits: FaceLimits,
     """(S, F) bool: station s sees face f at its min_incidence_deg or more (centroid ray)."""
     usable = np.zeros((len(stations_xyz), scene.n_faces), bool)
     min_sin = np.sin(np.radians(limits.min_incidence_deg))
+    normals = scene.normals
     for s, position in enumerate(stations_xyz):
         ray = scene.centroids - position
         length = np.linalg.norm(ray, axis=1)
-        facing = np.abs(np.einsum("ij,ij->i", ray, scene.normals))
+        facing = np.abs(np.einsum("ij,ij->i", ray, normals))
         usable[s] = facing >= min_sin * length
     return usable
 

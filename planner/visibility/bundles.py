@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import threading
 import weakref
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
@@ -278,9 +279,11 @@ class BundleCuller:
     ruled out, down to the finest level (a bundle inside a hidden one is hidden)."""
 
     def __init__(self, bundles: Bundles, reach_m: float, rays: BundleRays,
-                 shells: ClosedShells | None = None, normals: NDArray[np.float64] | None = None
+                 shells: ClosedShells | None = None,
+                 normals_of: Callable[[NDArray[np.int64]], NDArray[np.float64]] | None = None
                  ) -> None:
-        """``shells`` and the scene's (F, 3) ``normals``: a bundle whose pieces all lie on
+        """``shells`` and the scene's ``normals_of`` ((k,) faces -> (k, 3) unit normals,
+        :meth:`planner.scene.Scene.normals_of`): a bundle whose pieces all lie on
         one closed shell, far from its other faces (``shells.side``), is hidden from a point
         outside every shell and behind the bundle's plane, without rays (the rule of
         :mod:`planner.visibility.solids`, which holds for each of its pieces)."""
@@ -288,8 +291,8 @@ class BundleCuller:
         self.reach_m = reach_m
         self._rays = rays
         # the shells and, per level, each bundle's shared side and normal
-        self._shelled = None if shells is None or normals is None else (
-            shells, _level_sides(bundles, shells, normals))
+        self._shelled = None if shells is None or normals_of is None else (
+            shells, _level_sides(bundles, shells, normals_of))
         self._searches = [_LevelSearch.of(level, side, reach_m)
                           for level, side in zip(bundles.levels, BUNDLE_SIDES_M, strict=True)]
 
@@ -400,7 +403,7 @@ def bundle_culler(scene: Scene, reach_m: float, occlusion: object, *,
         return None  # decided before the bundles are made: a short search never needs them
     bundles = bundles_of(scene)
     return None if bundles is None else BundleCuller(
-        bundles, reach_m, occlusion, closed_shells(scene, occlusion), scene.normals)
+        bundles, reach_m, occlusion, closed_shells(scene, occlusion), scene.normals_of)
 
 
 _SIDES: weakref.WeakKeyDictionary[
@@ -408,7 +411,8 @@ _SIDES: weakref.WeakKeyDictionary[
     weakref.WeakKeyDictionary()
 
 
-def _level_sides(bundles: Bundles, shells: ClosedShells, normals: NDArray[np.float64]
+def _level_sides(bundles: Bundles, shells: ClosedShells,
+                 normals_of: Callable[[NDArray[np.int64]], NDArray[np.float64]]
                  ) -> list[tuple[NDArray[np.int8], NDArray[np.float64]]]:
     """Per level, (K,) the side every piece of each bundle shares (``shells.side`` of its
     faces, 0 where they differ) and (K, 3) its pieces' normal (a bundle is of one file face,
@@ -422,7 +426,7 @@ def _level_sides(bundles: Bundles, shells: ClosedShells, normals: NDArray[np.flo
     n = len(bundles.levels[-1])
     # per bundle, its pieces and those facing out (+1) and in (-1) of their shell (whole
     # counts in float64, as np.bincount's weighted sums give them), and the normal of its
-    # last piece; counted a block of pieces at a time, in order, so that no (F, 3) copy of
+    # last piece; counted a block of pieces at a time, in order, so that no (F, 3) array of
     # the normals is made (92 MB on a 3.8 M-face sports hall, the peak of its visibility)
     total: NDArray[Any] = np.zeros(n)
     out: NDArray[Any] = np.zeros(n)
@@ -434,7 +438,7 @@ def _level_sides(bundles: Bundles, shells: ClosedShells, normals: NDArray[np.flo
         total += np.bincount(bundle, minlength=n)
         out += np.bincount(bundle, weights=side == 1, minlength=n)
         into += np.bincount(bundle, weights=side == -1, minlength=n)
-        normal[bundle] = normals[faces]
+        normal[bundle] = normals_of(faces)
     sides = []
     for index in range(len(bundles.levels) - 1, -1, -1):
         shared = np.where(total == 0, 0, np.where(out == total, 1, np.where(

@@ -182,8 +182,9 @@ def _cell_keys(
 def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     points: NDArray[np.float64], keys: NDArray[np.int64], first_index: int,
     faces: NDArray[np.int32], face_xyz: NDArray[np.float64],
-    face_normal: NDArray[np.float64], face_class: NDArray[np.integer[Any]],
-    min_sin_incidence: NDArray[np.float64], min_density: NDArray[np.float64],
+    face_normal: NDArray[np.float64], face_source: NDArray[np.int32],
+    face_class: NDArray[np.integer[Any]], min_sin_incidence: NDArray[np.float64],
+    min_density: NDArray[np.float64],
     dof_min_m: float, dof_max_m: float, min_sin_elevation: float, max_sin_elevation: float,
     reach_m: float, angular_step_rad: float,
     cell_start: NDArray[np.int64], cell_members: NDArray[np.int32],
@@ -196,8 +197,9 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     """Write the pairs of (B, 3) ``points`` x the candidate faces that pass every limit;
     returns how many.
 
-    ``face_xyz`` and ``face_normal`` are the scene's (F, 3) centroids and normals, read
-    through the f face indices ``faces`` (no per-plan copy: 48 bytes a face saved);
+    ``face_xyz`` is the scene's (F, 3) centroids, read through the f face indices
+    ``faces``, and ``face_normal`` its (F0, 3) file faces' normals, read through the (F,)
+    ``face_source`` (no per-plan copy: 48 bytes a face saved);
     ``face_class`` (f,) picks each face's thresholds from the (K,) ``min_sin_incidence``
     and ``min_density`` (K: the distinct pairs of them, 1 without group requirements).
     Each point tests the faces of the cells its ``keys`` name (:func:`_cell_keys`). A
@@ -233,6 +235,8 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
             f = faces[i]
             k = face_class[i]
             fx, fy, fz = face_xyz[f, 0], face_xyz[f, 1], face_xyz[f, 2]
+            g = face_source[f]
+            nx, ny, nz = face_normal[g, 0], face_normal[g, 1], face_normal[g, 2]
             bundle = bundle_of[f] if bundled else -1
             for key in keys[first:last]:
                 b = key - cell * n_points
@@ -250,7 +254,7 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
                 if uz < min_sin_elevation or uz > max_sin_elevation:
                     continue
                 ux, uy = ox / d, oy / d
-                toward = ux * face_normal[f, 0] + uy * face_normal[f, 1] + uz * face_normal[f, 2]
+                toward = ux * nx + uy * ny + uz * nz
                 if sided and outside[b] and face_side[f] * toward * d > margin_m:
                     continue  # seen from inside its closed shell: the ray ends in the shell
                 s = abs(toward)
@@ -283,14 +287,16 @@ def lpd_of_faces(scene: Scene, limits: FaceLimits, point_xyz: NDArray[np.float64
     point is known to qualify for, such as a station's row of the coverage table."""
     out = np.empty(len(faces), np.float32)
     _face_lpd(np.ascontiguousarray(point_xyz, np.float64), np.asarray(faces, np.int32),
-              scene.centroids, scene.normals, limits.angular_step_rad, out)
+              scene.centroids, scene.file_normals, scene.source_face,
+              limits.angular_step_rad, out)
     return out
 
 
 @numba.njit(nogil=True, cache=True)
 def _face_lpd(point: NDArray[np.float64], faces: NDArray[np.int32],
               face_xyz: NDArray[np.float64], face_normal: NDArray[np.float64],
-              angular_step_rad: float, out: NDArray[np.float32]
+              face_source: NDArray[np.int32], angular_step_rad: float,
+              out: NDArray[np.float32]
               ) -> None:  # compiled; compared with the limits kernel in test_limits
     """The LPD of :func:`_pass_limits` for each of ``faces`` from ``point``, into ``out``."""
     px, py, pz = point[0], point[1], point[2]
@@ -300,7 +306,8 @@ def _face_lpd(point: NDArray[np.float64], faces: NDArray[np.int32],
         d = np.sqrt(ox * ox + oy * oy + oz * oz)
         uz = oz / d
         ux, uy = ox / d, oy / d
-        s = abs(ux * face_normal[f, 0] + uy * face_normal[f, 1] + uz * face_normal[f, 2])
+        g = face_source[f]
+        s = abs(ux * face_normal[g, 0] + uy * face_normal[g, 1] + uz * face_normal[g, 2])
         spacing = angular_step_rad * d
         out[i] = s / (spacing * spacing)
 
@@ -370,7 +377,8 @@ class PairFinder:
         self._faces = np.flatnonzero(limits.target).astype(np.int32)  # (f,) the targets
         # the scene's own (F, 3) arrays, read through self._faces: no (f, 3) copies
         self._face_xyz = scene.centroids
-        self._face_normal = scene.normals
+        self._face_normal = scene.file_normals  # (F0, 3), through source_face
+        self._face_source = scene.source_face
         # (f,) class of each target's thresholds, (K,) incidence in degrees and density
         self._face_class, incidence_deg, self._min_density = threshold_classes(
             self._faces, limits.min_incidence_deg, limits.min_density_pts_m2)
@@ -454,7 +462,7 @@ class PairFinder:
                       np.empty(tested, np.float32), np.empty(tested, np.float32))
         n = _pass_limits(
             points, keys, first_index, self._faces[faces], self._face_xyz,
-            self._face_normal, self._face_class[faces], self._min_sin_incidence,
+            self._face_normal, self._face_source, self._face_class[faces], self._min_sin_incidence,
             self._min_density, lim.dof_min_m, lim.dof_max_m, self._min_sin_elevation,
             self._max_sin_elevation, self.reach_m, lim.angular_step_rad, grid.start,
             grid.members, bundle_of, hidden_mask, face_side, outside, margin_m,

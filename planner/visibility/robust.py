@@ -115,7 +115,7 @@ def disc_limits_hold(scene: Scene, limits: FaceLimits, position: NDArray[np.floa
         sine = np.divide(dz, reach, out=np.zeros_like(dz), where=reach > 0)
         ok &= (sine >= low) & (sine <= high)
     unit = offset / np.maximum(distance, 1e-12)[:, None]
-    incidence = np.arcsin(np.clip(np.abs(np.einsum("ij,ij->i", unit, scene.normals[faces])),
+    incidence = np.arcsin(np.clip(np.abs(np.einsum("ij,ij->i", unit, scene.normals_of(faces))),
                                   0.0, 1.0))
     turn = np.arcsin(np.clip(radius_m / np.maximum(distance, 1e-12), 0.0, 1.0))
     worst = np.sin(np.maximum(incidence - turn, 0.0))

@@ -68,7 +68,7 @@ def faces_to_split(scene: Scene, positions_xyz: NDArray[np.float64], limits: Fac
         """(p,) the test of the module docstring for (p,) faces (into ``faces``) and
         candidates; the bounding sphere decides most pairs, the exact distance the rest."""
         c = positions_xyz[candidate]  # (p, 3)
-        h = np.abs(np.einsum("pk,pk->p", c - triangles[face, 0], scene.normals[faces[face]]))
+        h = np.abs(np.einsum("pk,pk->p", c - triangles[face, 0], scene.normals_of(faces[face])))
         allowed = np.minimum(reach[face], _reach_at(h, min_sin[face], density[face], step2))
         allowed = allowed * (1 + _SLACK) + _SLACK
         gap = np.linalg.norm(c - centre[face], axis=1)

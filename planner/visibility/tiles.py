@@ -58,7 +58,7 @@ from scipy.spatial import cKDTree
 from planner.limits import FaceLimits
 from planner.memory import release_freed_memory
 from planner.rays.embree import BvhFaces, BvhPart, EmbreeBvh, EmbreeOcclusion
-from planner.scene import Scene, compact_indices
+from planner.scene import Scene, compact_indices, face_values, unit_normals
 from planner.visibility.bundles import bundle_culler
 from planner.visibility.cells import PointGrid
 from planner.visibility.coverage import QualifiedPairs
@@ -110,7 +110,7 @@ class Tile:
         if self.scene.file_faces is None or self.bvh.bvh_occludes is None:
             return self
         scene = copy.copy(self.scene)
-        for name in ("file_vertices", "file_faces", "centroids", "normals", "areas"):
+        for name in ("file_vertices", "file_faces", "centroids", "file_normals", "areas"):
             object.__setattr__(scene, name, None)
         return dataclasses.replace(self, scene=scene,
                                    bvh=dataclasses.replace(self.bvh, bvh_occludes=None))
@@ -118,9 +118,12 @@ class Tile:
     def attached(self, occluders: Occluders) -> Tile:
         """The :meth:`detached` tile with the file's mesh of ``occluders`` (the same arrays,
         not copies) and its faces' centroids, normals and areas derived again."""
-        # the constructor derives the centroids, normals and areas again
-        scene = dataclasses.replace(self.scene, file_vertices=occluders.vertices,
-                                    file_faces=occluders.faces)
+        centroids, _, areas = face_values(self.scene.vertices, self.scene.faces,
+                                          normals=False)
+        fields = {spec.name: getattr(self.scene, spec.name)
+                  for spec in dataclasses.fields(self.scene) if spec.init}
+        fields.update(file_vertices=occluders.vertices, file_faces=occluders.faces)
+        scene = Scene.with_face_values(centroids, occluders.normals(), areas, **fields)
         return dataclasses.replace(self, scene=scene, bvh=occluders.part)
 
     @property
@@ -129,7 +132,7 @@ class Tile:
         scene = self.scene
         arrays: list[NDArray[Any] | None] = [
             scene.vertices, scene.faces, scene.source_face, scene.file_face_group,
-            scene.file_face_element, scene.centroids, scene.normals, scene.areas,
+            scene.file_face_element, scene.centroids, scene.file_normals, scene.areas,
             scene.file_vertices, scene.file_faces, self.faces, self.positions,
             self.candidates, self.limits.target, self.limits.occludes,
             self.limits.min_density_pts_m2, self.limits.min_incidence_deg,
@@ -162,6 +165,7 @@ class Occluders:
         self.faces = faces
         self.part = part
         self._bvh: EmbreeBvh | None = None
+        self._normals: NDArray[np.float64] | None = None
         self._lock = threading.Lock()
 
     def __reduce__(self) -> tuple[type[Occluders], tuple[NDArray[np.float64],
@@ -176,6 +180,15 @@ class Occluders:
                 self._bvh = EmbreeBvh(self.vertices, self.faces, self.part.bvh_occludes,
                                       scale_m=self.part.scale_m, quads=self.part.quads)
             return self._bvh
+
+    def normals(self) -> NDArray[np.float64]:
+        """(F0, 3) the file faces' unit normals (its tiles' pieces share them), derived
+        once."""
+        with self._lock:
+            if self._normals is None:
+                self._normals = unit_normals(self.vertices, self.faces)
+                self._normals.flags.writeable = False
+            return self._normals
 
     @property
     def nbytes(self) -> int:
@@ -338,18 +351,21 @@ def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool,
         if keep_file_mesh:
             file_ids = np.arange(len(scene.file_faces), dtype=np.int64)
             file_vertices, file_faces = scene.file_vertices, scene.file_faces
+            file_normals = scene.file_normals
             source = scene.source_face[faces]
         else:
             file_ids = np.unique(scene.source_face[faces]).astype(np.int64)
             file_used, file_faces = compact_indices(scene.file_faces[file_ids],
                                                     len(scene.file_vertices))
             file_vertices = scene.file_vertices[file_used]
+            file_normals = scene.file_normals[file_ids]
             source = np.searchsorted(file_ids, scene.source_face[faces]).astype(np.int32)
         fields: dict[str, Any] = {
             "file_face_group": scene.file_face_group[file_ids], "source_face": source,
             "file_face_element": np.full(len(file_ids), -1, np.int32),
             "file_vertices": file_vertices, "file_faces": file_faces}
     else:
+        file_normals = scene.file_normals[faces]
         fields = {"file_face_group": scene.file_face_group[faces],
                   "source_face": np.arange(len(faces), dtype=np.int32),
                   "file_face_element": np.full(len(faces), -1, np.int32)}
@@ -359,7 +375,7 @@ def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool,
         return Scene.with_face_values(None, None, None, vertices=vertices, faces=triangles,
                                       groups=scene.groups, **fields)
     return Scene.with_face_values(
-        scene.centroids[faces], scene.normals[faces], scene.areas[faces],
+        scene.centroids[faces], file_normals, scene.areas[faces],
         vertices=vertices, faces=triangles, groups=scene.groups, **fields)
 
 

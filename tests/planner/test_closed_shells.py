@@ -145,7 +145,7 @@ def test_bundles_behind_a_shell_are_ruled_out_without_rays() -> None:
                        for y in np.linspace(low[1] + 1.7, high[1] - 1.9, 3)])
     (bundle_of, by_rays), rays = BundleCuller(bundles, reach_m, occlusion).hidden(points)
     (_, by_shells), fewer = BundleCuller(bundles, reach_m, occlusion, shells,
-                                         scene.normals).hidden(points)
+                                         scene.normals_of).hidden(points)
     assert fewer < rays
     # every piece of a bundle the shells hide is hidden when its own ray is cast
     point, bundle = np.nonzero(by_shells & ~by_rays)
@@ -181,7 +181,7 @@ def test_the_bundles_shared_sides_are_the_same_counted_in_blocks_of_any_size(
     for size in (1_000, 1 << 30):
         monkeypatch.setattr(module, "_KEY_BLOCK_FACES", size)
         module._SIDES.pop(bundles, None)  # kept per bundles: count again
-        made[size] = module._level_sides(bundles, shells, scene.normals)
+        made[size] = module._level_sides(bundles, shells, scene.normals_of)
     for (side, normal), (side_once, normal_once) in zip(made[1_000], made[1 << 30],
                                                        strict=True):
         assert np.array_equal(side, side_once) and np.array_equal(normal, normal_once)

@@ -372,9 +372,11 @@ def test_station_pair_sums_equal_the_dense_masked_products() -> None:
     rng = np.random.default_rng(5)
     n_faces = 400
     area = rng.uniform(0.01, 0.5, n_faces)
-    normals = rng.normal(size=(n_faces, 3))
-    normals[::7, 0] = 0.0  # x products of exactly zero, some sums of +-0.0
-    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    file_normals = rng.normal(size=(n_faces // 4, 3))  # pieces share their file face's
+    file_normals[::7, 0] = 0.0  # x products of exactly zero, some sums of +-0.0
+    file_normals /= np.linalg.norm(file_normals, axis=1)[:, None]
+    source = rng.integers(0, len(file_normals), n_faces).astype(np.int32)
+    normals = file_normals[source]
     weights6 = np.stack([normals[:, i] * normals[:, j] * area for i, j in SCATTER_TERMS], 1)
     rows = [np.sort(rng.choice(n_faces, k, replace=False)) for k in (120, 0, 300, 5, 200)]
     rows.append(np.setdiff1d(np.arange(n_faces), rows[0]))  # shares nothing with row 0
@@ -382,7 +384,7 @@ def test_station_pair_sums_equal_the_dense_masked_products() -> None:
                             np.r_[0, np.cumsum([len(r) for r in rows])]),
                            shape=(len(rows), n_faces))
     sums = _shared_sums(matrix.indptr.astype(np.int32), matrix.indices.astype(np.int32),
-                        n_faces, area, normals, np.array(SCATTER_TERMS))
+                        n_faces, area, file_normals, source, np.array(SCATTER_TERMS))
     assert sums.shape == (len(rows), len(rows), 7)
     for a, faces in enumerate(rows):
         mask = np.zeros(n_faces)
