@@ -56,9 +56,7 @@ def face_values(vertices: FloatArray, faces: IndexArray, *, normals: bool = True
 
     def derive(start: int) -> None:
         block = slice(start, start + _DERIVE_BLOCK_FACES)
-        triangles = vertices[faces[block]]  # (B, 3, 3)
-        cross = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
-        doubled = np.linalg.norm(cross, axis=1)
+        triangles, cross, doubled = _cross_products(vertices, faces[block])
         if unit is not None:
             np.divide(cross, doubled[:, None], out=unit[block], where=doubled[:, None] > 0)
         centroids[block] = triangles.mean(axis=1)
@@ -70,10 +68,25 @@ def face_values(vertices: FloatArray, faces: IndexArray, *, normals: bool = True
 
 def unit_normals(vertices: FloatArray, faces: IndexArray) -> FloatArray:
     """(F, 3) float64: the unit normals of the (F, 3) ``faces`` (zero for a face of no
-    area)."""
-    normals = face_values(vertices, faces)[1]
-    assert normals is not None
-    return normals
+    area), the same bits as :func:`face_values` gives them."""
+    unit = np.zeros((len(faces), 3))
+
+    def derive(start: int) -> None:
+        block = slice(start, start + _DERIVE_BLOCK_FACES)
+        _, cross, doubled = _cross_products(vertices, faces[block])
+        np.divide(cross, doubled[:, None], out=unit[block], where=doubled[:, None] > 0)
+
+    list(in_block_order(derive, range(0, len(faces), _DERIVE_BLOCK_FACES)))
+    return unit
+
+
+def _cross_products(vertices: FloatArray, faces: IndexArray
+                    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(B, 3, 3) corners of the (B, 3) ``faces``, (B, 3) the cross products of their
+    edges from the first corner and (B,) the products' lengths (twice the areas)."""
+    triangles = vertices[faces]
+    cross = np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0])
+    return triangles, cross, np.linalg.norm(cross, axis=1)
 
 
 @dataclass(frozen=True)
