@@ -210,10 +210,24 @@ class Scene:
         derived again (a million faces: 0.35 CPU s)."""
         if {"vertices", "faces"} & changes.keys():
             raise ValueError("replaced keeps the vertices and faces; build a new Scene")
-        fields = {spec.name: getattr(self, spec.name) for spec in dataclasses.fields(self)
-                  if spec.init}
         return Scene.with_face_values(self.centroids, self.file_normals, self.areas,
-                                      **{**fields, **changes})
+                                      **{**self._init_fields(), **changes})
+
+    def over_file_mesh(self, file_vertices: FloatArray, file_faces: IndexArray,
+                       file_normals: FloatArray) -> Scene:
+        """The scene over the file mesh of (V0, 3) ``file_vertices`` and (F0, 3)
+        ``file_faces`` (the same arrays, not copies), whose (F0, 3) unit normals are given
+        (``file_normals``: a worker derives them once for all its tiles); its faces'
+        centroids and areas derived from its vertices. For a part that travelled without
+        them (:meth:`planner.visibility.tiles.Tile.detached`)."""
+        centroids, _, areas = face_values(self.vertices, self.faces, normals=False)
+        return Scene.with_face_values(centroids, file_normals, areas, **{
+            **self._init_fields(), "file_vertices": file_vertices, "file_faces": file_faces})
+
+    def _init_fields(self) -> dict[str, Any]:
+        """The constructor's fields, by name."""
+        return {spec.name: getattr(self, spec.name) for spec in dataclasses.fields(self)
+                if spec.init}
 
     def _check(self) -> None:
         """Checks the fields and makes the arrays read-only (int32 indices)."""

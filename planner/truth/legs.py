@@ -140,9 +140,8 @@ def _blocked(caster: RayCaster,
     """The face each segment (K, 3) a -> (K, 3) b crosses first, -1 when free, and the
     (K, 3) hit points (NaN when free). A face in the segment's own plane (``normals_of``:
     (k,) faces -> (k, 3) unit normals; within ``_GRAZING`` of square to the normal) is
-    grazed, not crossed: the ray
-    goes on past it (a path along a wall's face, or along a mitred corner's plane, where
-    float32 rays report a hit anywhere on the line)."""
+    grazed, not crossed: the ray goes on past it (a path along a wall's face, or along a
+    mitred corner's plane, where float32 rays report a hit anywhere on the line)."""
     face = np.full(len(a), -1, np.int64)
     at = np.full((len(a), 3), np.nan)
     delta = b - a

@@ -58,7 +58,7 @@ from scipy.spatial import cKDTree
 from planner.limits import FaceLimits
 from planner.memory import release_freed_memory
 from planner.rays.embree import BvhFaces, BvhPart, EmbreeBvh, EmbreeOcclusion
-from planner.scene import Scene, compact_indices, face_values, unit_normals
+from planner.scene import Scene, compact_indices, unit_normals
 from planner.visibility.bundles import bundle_culler
 from planner.visibility.cells import PointGrid
 from planner.visibility.coverage import QualifiedPairs
@@ -117,13 +117,10 @@ class Tile:
 
     def attached(self, occluders: Occluders) -> Tile:
         """The :meth:`detached` tile with the file's mesh of ``occluders`` (the same arrays,
-        not copies) and its faces' centroids, normals and areas derived again."""
-        centroids, _, areas = face_values(self.scene.vertices, self.scene.faces,
-                                          normals=False)
-        fields = {spec.name: getattr(self.scene, spec.name)
-                  for spec in dataclasses.fields(self.scene) if spec.init}
-        fields.update(file_vertices=occluders.vertices, file_faces=occluders.faces)
-        scene = Scene.with_face_values(centroids, occluders.normals(), areas, **fields)
+        not copies), its faces' centroids and areas derived again and its file faces'
+        normals the occluders' (derived once on a worker)."""
+        scene = self.scene.over_file_mesh(occluders.vertices, occluders.faces,
+                                          occluders.normals())
         return dataclasses.replace(self, scene=scene, bvh=occluders.part)
 
     @property
