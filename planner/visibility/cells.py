@@ -51,6 +51,79 @@ def cell_members(cell_of: NDArray[np.int32], n_cells: int
 
 
 @numba.njit(nogil=True, cache=True)
+def grouped_members(cell_of: NDArray[np.int32], group: NDArray[np.int32], n_groups: int,
+                    n_cells: int, most_per_run: int
+                    ) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.int64],
+                               NDArray[np.int64], NDArray[np.int32]]:
+    """:func:`cell_members` with each cell's points ordered by their ``group`` (n,) (-1:
+    in none, first), then by position, and cut into *runs*: the points of one cell and one
+    group, one after the other, at most ``most_per_run`` of them (a cell's points in no
+    group make runs of that many).
+
+    Returns the (n_cells + 1,) starts and (n,) members as :func:`cell_members`, the
+    (n_cells + 1,) first run of each cell, the (R + 1,) first member of each run and the
+    (R,) group of each run. Two counting sorts (by group, then stably by cell), no argsort.
+    """
+    n = cell_of.shape[0]
+    # the points by group, stably: group g's from by_group_start[g + 1]
+    by_group_start = np.zeros(n_groups + 2, np.int64)
+    for i in range(n):
+        by_group_start[group[i] + 2] += 1
+    for g in range(n_groups + 1):
+        by_group_start[g + 1] += by_group_start[g]
+    by_group = np.empty(n, np.int32)
+    for i in range(n):
+        by_group[by_group_start[group[i] + 1]] = i
+        by_group_start[group[i] + 1] += 1
+    # then stably by cell: (cell, group, position)
+    start = np.zeros(n_cells + 1, np.int64)
+    for i in range(n):
+        start[cell_of[i] + 1] += 1
+    for c in range(n_cells):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    members = np.empty(n, np.int32)
+    for j in range(n):
+        i = by_group[j]
+        members[fill[cell_of[i]]] = i
+        fill[cell_of[i]] += 1
+    # the runs: a new one where the cell or the group changes, or the run is full
+    # (counted, then written)
+    no_int64, no_int32 = np.zeros(0, np.int64), np.zeros(0, np.int32)
+    n_runs = _runs(start, members, group, most_per_run, no_int64, no_int64, no_int32, False)
+    cell_runs = np.zeros(n_cells + 1, np.int64)
+    run_first = np.empty(n_runs + 1, np.int64)
+    run_group = np.empty(n_runs, np.int32)
+    _runs(start, members, group, most_per_run, cell_runs, run_first, run_group, True)
+    return start, members, cell_runs, run_first, run_group
+
+
+@numba.njit(nogil=True, cache=True)
+def _runs(start: NDArray[np.int64], members: NDArray[np.int32], group: NDArray[np.int32],
+          most_per_run: int, cell_runs: NDArray[np.int64], run_first: NDArray[np.int64],
+          run_group: NDArray[np.int32], write: bool) -> int:
+    """Count the runs of :func:`grouped_members` and, with ``write``, fill their arrays."""
+    n_cells = start.shape[0] - 1
+    r = 0
+    for c in range(n_cells):
+        if write:
+            cell_runs[c] = r
+        opened = start[c]
+        for m in range(start[c], start[c + 1]):
+            if (m == start[c] or group[members[m]] != group[members[m - 1]]
+                    or m - opened == most_per_run):
+                opened = m
+                if write:
+                    run_first[r] = m
+                    run_group[r] = group[members[m]]
+                r += 1
+    if write:
+        cell_runs[n_cells] = r
+        run_first[r] = members.shape[0]
+    return r
+
+
+@numba.njit(nogil=True, cache=True)
 def _bounds(points: NDArray[np.float64], subset: NDArray[np.int32],
             low: NDArray[np.float64], high: NDArray[np.float64]) -> None:
     """The lowest and highest coordinate of the (n,) ``subset`` of the (N, 3) points, per
@@ -80,6 +153,9 @@ def _cells_of(points: NDArray[np.float64], subset: NDArray[np.int32],
         out[i] = cell
 
 
+# the longest run of a RunGrid: a part of a pair search holds whole runs, so this bounds the
+# part's tests beyond the most asked (a cell's faces in no bundle would be one long run)
+MOST_PER_RUN = 512
 # most cells a grid has (a cell is at least the reach wide): bounds the starts
 MAX_CELLS = 1 << 21
 
@@ -105,18 +181,56 @@ class PointGrid:
         if len(faces) == 0:
             return cls(np.zeros(3), 1.0, np.ones(3, np.int64), np.zeros(2, np.int64),
                        np.zeros(0, np.int32))
-        low, high = np.empty(3), np.empty(3)
-        _bounds(face_xyz, faces, low, high)
-        extent = np.maximum(high - low, 1e-9)
-        # wider than the reach by far more than rounding, so no face in reach is missed
-        cell_m = max(reach_m * (1.0 + 1e-6) / cells_per_reach, float(extent.max()) * 1e-6)
-        while np.prod(np.floor(extent / cell_m) + 1) > MAX_CELLS:
-            cell_m *= 2.0
-        dims = (np.floor(extent / cell_m) + 1).astype(np.int64)
-        cell_of = np.empty(len(faces), np.int32)
-        _cells_of(face_xyz, faces, low, cell_m, dims, cell_of)
+        low, cell_m, dims, cell_of = _layout(face_xyz, faces, reach_m, cells_per_reach)
         start, members = cell_members(cell_of, int(np.prod(dims)))
         return cls(low, cell_m, dims, start, members)
+
+
+@dataclass(frozen=True)
+class RunGrid(PointGrid):
+    """A :class:`PointGrid` whose points carry a group (the pair search's: each piece's
+    finest bundle, :mod:`planner.visibility.bundles`), each cell's members ordered by group
+    and cut into runs of one group: a search skips a run whose group it has ruled out with
+    one test, instead of one a point."""
+
+    cell_runs: NDArray[np.int64]  # (cells + 1,) the runs of cell c: cell_runs[c]:cell_runs[c+1]
+    run_first: NDArray[np.int64]  # (R + 1,) the members of run r: run_first[r]:run_first[r+1]
+    run_group: NDArray[np.int32]  # (R,) the group of each run, -1: points in no group
+
+    @classmethod
+    def grouped(cls, face_xyz: NDArray[np.float64], faces: NDArray[np.int32], reach_m: float,
+                cells_per_reach: int, group: NDArray[np.int32] | None) -> RunGrid:
+        """:meth:`PointGrid.of` with the (N,) ``group`` of every point (-1: none; None: no
+        point is in a group)."""
+        subset_group = (np.full(len(faces), -1, np.int32) if group is None
+                        else np.ascontiguousarray(group[faces], np.int32))
+        n_groups = int(subset_group.max()) + 1 if len(faces) else 0
+        if len(faces) == 0:
+            return cls(np.zeros(3), 1.0, np.ones(3, np.int64), np.zeros(2, np.int64),
+                       np.zeros(0, np.int32), np.zeros(2, np.int64), np.zeros(1, np.int64),
+                       np.zeros(0, np.int32))
+        low, cell_m, dims, cell_of = _layout(face_xyz, faces, reach_m, cells_per_reach)
+        start, members, cell_runs, run_first, run_group = grouped_members(
+            cell_of, subset_group, n_groups, int(np.prod(dims)), MOST_PER_RUN)
+        return cls(low, cell_m, dims, start, members, cell_runs, run_first, run_group)
+
+
+def _layout(face_xyz: NDArray[np.float64], faces: NDArray[np.int32], reach_m: float,
+            cells_per_reach: int) -> tuple[NDArray[np.float64], float, NDArray[np.int64],
+                                           NDArray[np.int32]]:
+    """The grid of :meth:`PointGrid.of` for the (n,) non-empty ``faces``: its (3,) lowest
+    corner, cell side, (3,) cells along each axis and (n,) cell of each point."""
+    low, high = np.empty(3), np.empty(3)
+    _bounds(face_xyz, faces, low, high)
+    extent = np.maximum(high - low, 1e-9)
+    # wider than the reach by far more than rounding, so no face in reach is missed
+    cell_m = max(reach_m * (1.0 + 1e-6) / cells_per_reach, float(extent.max()) * 1e-6)
+    while np.prod(np.floor(extent / cell_m) + 1) > MAX_CELLS:
+        cell_m *= 2.0
+    dims = (np.floor(extent / cell_m) + 1).astype(np.int64)
+    cell_of = np.empty(len(faces), np.int32)
+    _cells_of(face_xyz, faces, low, cell_m, dims, cell_of)
+    return low, cell_m, dims, cell_of
 
 
 def pairs_in_reach(points: NDArray[np.float64], centre: NDArray[np.float64],

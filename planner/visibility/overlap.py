@@ -104,12 +104,13 @@ class OverlapRows:
     def _local_search(self) -> tuple[PairFinder, BundleCuller | None]:
         """The pair search and the bundle culler of the rows computed here (made once)."""
         if self._search is None:
-            finder = PairFinder(self._scene, self._limits,
-                                shells=closed_shells(self._scene, self._occlusion))
             # a row reaches far (25 m at the default overlap density), mostly into other
             # rooms: bundles hidden behind a wall are ruled out with four rays, not one a piece
-            self._search = (finder, bundle_culler(self._scene, finder.reach_m,
-                                                  self._occlusion))
+            culler = bundle_culler(self._scene, search_reach_m(self._limits), self._occlusion)
+            finder = PairFinder(self._scene, self._limits,
+                                shells=closed_shells(self._scene, self._occlusion),
+                                bundle_of=None if culler is None else culler.bundles.bundle_of)
+            self._search = (finder, culler)
         return self._search
 
     def _row(self, candidate: int) -> tuple[NDArray[np.int32], int]:

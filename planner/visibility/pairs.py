@@ -30,7 +30,7 @@ from planner.limits import FaceLimits
 from planner.rays import ExactRays, Occlusion
 from planner.scene import Scene
 from planner.visibility.bundles import HiddenBundles
-from planner.visibility.cells import PointGrid
+from planner.visibility.cells import RunGrid
 from planner.visibility.solids import ClosedShells
 
 
@@ -187,8 +187,9 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     min_density: NDArray[np.float64],
     dof_min_m: float, dof_max_m: float, min_sin_elevation: float, max_sin_elevation: float,
     reach_m: float, angular_step_rad: float,
-    cell_start: NDArray[np.int64], cell_members: NDArray[np.int32],
-    bundle_of: NDArray[np.int32], hidden: NDArray[np.bool_],
+    cell_runs: NDArray[np.int64], run_first: NDArray[np.int64],
+    run_group: NDArray[np.int32], members: NDArray[np.int32], every_runs: tuple[int, int],
+    hidden: NDArray[np.bool_],
     face_side: NDArray[np.int8], outside: NDArray[np.bool_], margin_m: float,
     out_candidate: NDArray[np.int32], out_face: NDArray[np.int32],
     out_origin: NDArray[np.float32], out_direction: NDArray[np.float32],
@@ -202,25 +203,29 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     ``face_source`` (no per-plan copy: 48 bytes a face saved);
     ``face_class`` (f,) picks each face's thresholds from the (K,) ``min_sin_incidence``
     and ``min_density`` (K: the distinct pairs of them, 1 without group requirements).
-    Each point tests the faces of the cells its ``keys`` name (:func:`_cell_keys`). A
-    face of a bundle hidden from the point (``bundle_of`` (F,), empty for none, and
-    ``hidden`` (B, K): :mod:`planner.visibility.bundles`) is left out untested: its ray would
-    end in the occluder that hides the bundle. So is a face seen from inside its closed
-    shell (``face_side`` (F,), empty for none: :mod:`planner.visibility.solids`) by a point
+    Each point tests the faces of the cells its ``keys`` name (:func:`_cell_keys`), run by
+    run (:class:`planner.visibility.cells.RunGrid`: ``cell_runs``, ``run_first``,
+    ``run_group`` over the (f,) positions ``members``); the key past the grid's cells
+    tests the runs ``every_runs`` (first, stop). A run's group is its faces' finest bundle:
+    a bundle hidden from the point (``hidden`` (B, K), K = 0 for none:
+    :mod:`planner.visibility.bundles`) is left out untested, its faces' rays would end in
+    the occluder that hides it. So is a face seen from inside its closed shell
+    (``face_side`` (F,), empty for none: :mod:`planner.visibility.solids`) by a point
     ``outside`` (B,) every shell, more than ``margin_m`` behind the face's plane.
 
-    The search runs cell by cell: each cell's faces are read once and tested against
-    every point of the block that searches the cell (the block's points stand close
-    together, so they search mostly the same cells), not read again point after point
-    from memory (16 candidates a block: 14 instead of 24 ns a test). The pairs come out
-    in no particular order (:func:`sorted_by_face` orders them).
+    The search runs cell by cell: each cell's runs are tested against every point of the
+    block that searches the cell (the block's points stand close together, so they search
+    mostly the same cells), a run's faces staying in cache from one point to the next. A
+    run ruled out costs one test a point, not one a face: at the overlap reach most of a
+    row's faces lie in hidden bundles. The pairs come out in no particular order
+    (:func:`sorted_by_face` orders them).
     """
     n_points = points.shape[0]
     n = 0
-    bundled = bundle_of.shape[0] > 0
+    bundled = hidden.shape[1] > 0
     sided = face_side.shape[0] > 0
     reach2 = reach_m * reach_m * (1.0 + 1e-9)
-    every_face = cell_start.shape[0] - 1
+    every_cell = cell_runs.shape[0] - 1
     n_keys = keys.shape[0]
     first = 0
     while first < n_keys:  # one cell: its points are keys[first:last]
@@ -228,53 +233,54 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
         last = first
         while last < n_keys and keys[last] // n_points == cell:
             last += 1
-        every = cell == every_face
-        low, high = (0, faces.shape[0]) if every else (cell_start[cell], cell_start[cell + 1])
-        for m in range(low, high):
-            i = m if every else cell_members[m]
-            f = faces[i]
-            k = face_class[i]
-            fx, fy, fz = face_xyz[f, 0], face_xyz[f, 1], face_xyz[f, 2]
-            g = face_source[f]
-            nx, ny, nz = face_normal[g, 0], face_normal[g, 1], face_normal[g, 2]
-            bundle = bundle_of[f] if bundled else -1
+        low, high = every_runs if cell == every_cell else (cell_runs[cell], cell_runs[cell + 1])
+        for r in range(low, high):
+            bundle = run_group[r] if bundled else -1
             for key in keys[first:last]:
                 b = key - cell * n_points
                 if bundle >= 0 and hidden[b, bundle]:
                     continue
                 px, py, pz = points[b, 0], points[b, 1], points[b, 2]
-                ox, oy, oz = fx - px, fy - py, fz - pz
-                d2 = ox * ox + oy * oy + oz * oz
-                if d2 > reach2:
-                    continue
-                d = np.sqrt(d2)
-                if d < dof_min_m or d > dof_max_m or d <= 0.0:
-                    continue
-                uz = oz / d
-                if uz < min_sin_elevation or uz > max_sin_elevation:
-                    continue
-                ux, uy = ox / d, oy / d
-                toward = ux * nx + uy * ny + uz * nz
-                if sided and outside[b] and face_side[f] * toward * d > margin_m:
-                    continue  # seen from inside its closed shell: the ray ends in the shell
-                s = abs(toward)
-                if s < min_sin_incidence[k]:
-                    continue
-                spacing = angular_step_rad * d
-                lpd = s / (spacing * spacing)
-                if lpd < min_density[k]:
-                    continue
-                out_candidate[n] = first_index + b
-                out_face[n] = f
-                out_distance[n] = d
-                out_origin[n, 0] = px
-                out_origin[n, 1] = py
-                out_origin[n, 2] = pz
-                out_direction[n, 0] = ux
-                out_direction[n, 1] = uy
-                out_direction[n, 2] = uz
-                out_lpd[n] = lpd
-                n += 1
+                shelled = sided and outside[b]
+                for m in range(run_first[r], run_first[r + 1]):
+                    i = members[m]
+                    f = faces[i]
+                    fx, fy, fz = face_xyz[f, 0], face_xyz[f, 1], face_xyz[f, 2]
+                    ox, oy, oz = fx - px, fy - py, fz - pz
+                    d2 = ox * ox + oy * oy + oz * oz
+                    if d2 > reach2:
+                        continue
+                    d = np.sqrt(d2)
+                    if d < dof_min_m or d > dof_max_m or d <= 0.0:
+                        continue
+                    uz = oz / d
+                    if uz < min_sin_elevation or uz > max_sin_elevation:
+                        continue
+                    ux, uy = ox / d, oy / d
+                    g = face_source[f]
+                    nx, ny, nz = face_normal[g, 0], face_normal[g, 1], face_normal[g, 2]
+                    toward = ux * nx + uy * ny + uz * nz
+                    if shelled and face_side[f] * toward * d > margin_m:
+                        continue  # seen from inside its closed shell: the ray ends in the shell
+                    s = abs(toward)
+                    k = face_class[i]
+                    if s < min_sin_incidence[k]:
+                        continue
+                    spacing = angular_step_rad * d
+                    lpd = s / (spacing * spacing)
+                    if lpd < min_density[k]:
+                        continue
+                    out_candidate[n] = first_index + b
+                    out_face[n] = f
+                    out_distance[n] = d
+                    out_origin[n, 0] = px
+                    out_origin[n, 1] = py
+                    out_origin[n, 2] = pz
+                    out_direction[n, 0] = ux
+                    out_direction[n, 1] = uy
+                    out_direction[n, 2] = uz
+                    out_lpd[n] = lpd
+                    n += 1
         first = last
     return n
 
@@ -342,7 +348,6 @@ def _cells_within(px: float, py: float, pz: float, grid_origin: NDArray[np.float
     return n
 
 
-_NO_BUNDLES = np.zeros(0, np.int32)
 _NO_SIDES = np.zeros(0, np.int8)
 # candidates whose cells are looked up together when blocks are planned
 _KEY_BLOCK_POINTS = 256
@@ -365,10 +370,14 @@ class PairFinder:
     """
 
     def __init__(self, scene: Scene, limits: FaceLimits, *,
-                 reach_m: float | None = None, shells: ClosedShells | None = None) -> None:
+                 reach_m: float | None = None, shells: ClosedShells | None = None,
+                 bundle_of: NDArray[np.int32] | None = None) -> None:
         """``shells``: the closed shells of the occlusion the pairs' rays will be cast
         with (:func:`planner.visibility.solids.closed_shells`): faces seen from inside
-        their shell are left out, as their rays would end in it."""
+        their shell are left out, as their rays would end in it. ``bundle_of``: the (F,)
+        finest bundle of each face (:attr:`planner.visibility.bundles.Bundles.bundle_of`)
+        of the culler whose hidden bundles the searches will be given: the faces of a
+        bundle sit together in the grid, so a hidden one is skipped at once."""
         self.limits = limits
         self._shells = shells
         # a tile of a model (planner.visibility.tiles) searches as far as the whole model
@@ -388,8 +397,9 @@ class PairFinder:
         self._max_sin_elevation = math.sin(math.radians(limits.elevation_max_deg))
         # only the faces within reach of a candidate are tested (on a 10 M-face building
         # a candidate reaches some thousandths of them): the cells around it
-        self._grid = PointGrid.of(self._face_xyz, self._faces, self.reach_m,
-                                  cells_per_reach=_CELLS_PER_REACH)
+        self._bundle_of = bundle_of
+        self._grid = RunGrid.grouped(self._face_xyz, self._faces, self.reach_m,
+                                     _CELLS_PER_REACH, bundle_of)
 
     def find(self, candidates_xyz: NDArray[np.float64], first_index: int,
              hidden: HiddenBundles | None = None, *, ordered: bool = True
@@ -406,7 +416,7 @@ class PairFinder:
         keys, tests = self._cell_keys(points)
         tested = int(tests.sum())
         pairs = self._pass(points, first_index, hidden, self._sides(points), keys, tested,
-                           slice(None))
+                           (0, len(self._grid.run_group)))
         if ordered:
             pairs = pairs.subset(sorted_by_face(pairs.candidate, pairs.face))
         return pairs, tested
@@ -415,25 +425,32 @@ class PairFinder:
               hidden: HiddenBundles | None = None, *, most_tests: int) -> Iterator[Pairs]:
         """The pairs of one candidate (the (1, 3) ``candidate_xyz``, numbered ``index``)
         that :meth:`find` gives unordered, in parts of at most ``most_tests`` pair tests
-        (a grid cell of more is a part of its own): the same pairs in the same order,
-        concatenated. A row of the overlap density reaches 25 m, most of a sports hall's
-        3.8 M pieces; found at once its pairs (40 bytes each) made the overlap rows' peak."""
+        (a grid cell of more, or where every face is tested a run of the grid of more, is a
+        part of its own): the same pairs in the same order, concatenated. A row of the
+        overlap density reaches 25 m, most of a sports hall's 3.8 M pieces; found at once
+        its pairs (40 bytes each) made the overlap rows' peak."""
         points = np.ascontiguousarray(candidate_xyz, np.float64).reshape(1, 3)
         keys, _ = self._cell_keys(points)
         sides = self._sides(points)
-        start = self._grid.start
-        every_face = len(start) - 1  # the key of a point that tests every face
+        grid = self._grid
+        every_face = len(grid.start) - 1  # the key of a point that tests every face
         if len(keys) == 1 and int(keys[0]) == every_face:
-            for low in range(0, len(self._faces), most_tests):
-                high = min(low + most_tests, len(self._faces))
-                yield self._pass(points, index, hidden, sides, keys, high - low,
-                                 slice(low, high))
+            # consecutive runs of at most most_tests faces (a longer run: a part alone)
+            first, n_runs = 0, len(grid.run_group)
+            while first < n_runs:
+                stop = int(np.searchsorted(grid.run_first, grid.run_first[first] + most_tests,
+                                           "right")) - 1
+                stop = min(max(stop, first + 1), n_runs)
+                yield self._pass(points, index, hidden, sides, keys,
+                                 int(grid.run_first[stop] - grid.run_first[first]),
+                                 (first, stop))
+                first = stop
             return
         # one point: its keys are its cells, in order; consecutive cells make a part
-        counts = start[keys + 1] - start[keys]
+        counts = grid.start[keys + 1] - grid.start[keys]
         for first, stop in _consecutive_blocks(counts, len(counts), most_tests):
             yield self._pass(points, index, hidden, sides, keys[first:stop],
-                             int(counts[first:stop].sum()), slice(None))
+                             int(counts[first:stop].sum()), (0, 0))
 
     def _sides(self, points: NDArray[np.float64]
                ) -> tuple[NDArray[np.int8], NDArray[np.bool_], float]:
@@ -447,25 +464,31 @@ class PairFinder:
     def _pass(self, points: NDArray[np.float64], first_index: int,
               hidden: HiddenBundles | None,
               sides: tuple[NDArray[np.int8], NDArray[np.bool_], float],
-              keys: NDArray[np.int64], tested: int, faces: slice) -> Pairs:
+              keys: NDArray[np.int64], tested: int, every_runs: tuple[int, int]) -> Pairs:
         """The pairs of (B, 3) ``points`` that pass the limits (:func:`_pass_limits`), in
-        the order found, testing the cells ``keys`` names (``tested`` tests) among the
-        targets ``faces`` (a slice of them: only for the key that tests every face);
+        the order found, testing the cells ``keys`` names (``tested`` tests; the key that
+        tests every face: the grid's runs ``every_runs``, first and stop);
         ``sides``: :meth:`_sides` of the points."""
         lim, grid = self.limits, self._grid
-        bundle_of, hidden_mask = ((_NO_BUNDLES, np.zeros((len(points), 0), bool))
-                                  if hidden is None else hidden)
+        if hidden is None:
+            hidden_mask = np.zeros((len(points), 0), bool)
+        elif hidden[0] is not self._bundle_of:
+            raise ValueError("hidden bundles of another bundling than this search's "
+                             "(PairFinder's bundle_of)")
+        else:
+            hidden_mask = hidden[1]
         face_side, outside, margin_m = sides
         # no more pairs than tests: untouched pages cost nothing
         pairs = Pairs(np.empty(tested, np.int32), np.empty(tested, np.int32),
                       np.empty((tested, 3), np.float32), np.empty((tested, 3), np.float32),
                       np.empty(tested, np.float32), np.empty(tested, np.float32))
         n = _pass_limits(
-            points, keys, first_index, self._faces[faces], self._face_xyz,
-            self._face_normal, self._face_source, self._face_class[faces], self._min_sin_incidence,
+            points, keys, first_index, self._faces, self._face_xyz,
+            self._face_normal, self._face_source, self._face_class, self._min_sin_incidence,
             self._min_density, lim.dof_min_m, lim.dof_max_m, self._min_sin_elevation,
-            self._max_sin_elevation, self.reach_m, lim.angular_step_rad, grid.start,
-            grid.members, bundle_of, hidden_mask, face_side, outside, margin_m,
+            self._max_sin_elevation, self.reach_m, lim.angular_step_rad, grid.cell_runs,
+            grid.run_first, grid.run_group, grid.members, every_runs, hidden_mask,
+            face_side, outside, margin_m,
             pairs.candidate, pairs.face, pairs.origin, pairs.direction, pairs.distance_m,
             pairs.lpd_pts_m2,
         )

@@ -38,6 +38,7 @@ from planner.visibility.pairs import (
     TESTS_PER_BLOCK,
     PairFinder,
     lpd_of_faces,
+    search_reach_m,
     sorted_by_face,
     visible_pairs,
 )
@@ -290,10 +291,11 @@ def qualify_pairs(
     Blocks of candidates run on a thread pool (the compiled limits loop and Embree both
     release the GIL); they come out in block order, so they do not depend on timing.
     """
-    finder = PairFinder(scene, limits, reach_m=reach_m,
-                        shells=closed_shells(scene, occlusion))
-    culler = None if bundles is False else bundle_culler(scene, finder.reach_m, occlusion,
+    reach_m = search_reach_m(limits) if reach_m is None else reach_m
+    culler = None if bundles is False else bundle_culler(scene, reach_m, occlusion,
                                                          always=bool(bundles))
+    finder = PairFinder(scene, limits, reach_m=reach_m, shells=closed_shells(scene, occlusion),
+                        bundle_of=None if culler is None else culler.bundles.bundle_of)
     # neighbouring candidates in a block share the pair search of their cells
     stop_of = dict(finder.blocks(positions, most_tests=most_tests))
 

@@ -334,27 +334,73 @@ def _far_from_shell(centroids: NDArray[np.float64], pieces: NDArray[np.int64],
                     side: NDArray[np.int8]) -> None:
     """``side[pieces[i]] = flip[i]`` where the piece's centroid lies farther than
     ``margin_m`` from every face of its shell but its own (row ``own_row[i]`` of
-    ``triangles``); compiled: a shell's every face, for each of its pieces."""
-    for i in range(len(pieces)):
-        f = pieces[i]
-        px, py, pz = centroids[f, 0], centroids[f, 1], centroids[f, 2]
-        far = True
+    ``triangles``); compiled.
+
+    The pieces of one face (consecutive, the same ``own_row``) lie in that face's box, so
+    only the shell's faces whose box, widened by the margin, meets it can come within the
+    margin of one of them: those are found once for the face (a wall's few neighbours of
+    its shell's hundreds of faces), then each piece is tested against them as against
+    every face of the shell (the rest would fail the box test for every piece)."""
+    near = np.empty(MAX_SHELL_FACES, np.int64)  # the rows a face's pieces are tested against
+    i = 0
+    while i < len(pieces):
+        own = own_row[i]
+        stop = i + 1
+        while stop < len(pieces) and own_row[stop] == own:
+            stop += 1
+        # the own face's box, widened far past the rounding of its pieces' centroids
+        tri = triangles[own]
+        slack = _CENTROID_SLACK_M + margin_m
+        k = 0
         for row in range(starts[shell[i]], starts[shell[i] + 1]):
-            if row == own_row[i]:
+            if row == own:
                 continue
-            tri = triangles[row]
-            if (px < min(tri[0, 0], tri[1, 0], tri[2, 0]) - margin_m
-                    or px > max(tri[0, 0], tri[1, 0], tri[2, 0]) + margin_m
-                    or py < min(tri[0, 1], tri[1, 1], tri[2, 1]) - margin_m
-                    or py > max(tri[0, 1], tri[1, 1], tri[2, 1]) + margin_m
-                    or pz < min(tri[0, 2], tri[1, 2], tri[2, 2]) - margin_m
-                    or pz > max(tri[0, 2], tri[1, 2], tri[2, 2]) + margin_m):
+            other = triangles[row]
+            if stop - i > 1 and _boxes_apart(tri, other, slack):
                 continue
-            if _point_triangle_distance(px, py, pz, tri) <= margin_m:
-                far = False
-                break
-        if far:
-            side[f] = flip[i]
+            near[k] = row
+            k += 1
+        for j in range(i, stop):
+            f = pieces[j]
+            if _far_from_rows(centroids[f, 0], centroids[f, 1], centroids[f, 2], near[:k],
+                              triangles, margin_m):
+                side[f] = flip[j]
+        i = stop
+
+
+# far more than a centroid's rounding outside its face's box (some 1e-14 m at 100 m)
+_CENTROID_SLACK_M = 1e-6
+
+
+@numba.njit(nogil=True, cache=True)
+def _boxes_apart(tri: NDArray[np.float64], other: NDArray[np.float64], gap_m: float) -> bool:
+    """Whether the (3, 3) triangles' boxes are more than ``gap_m`` apart along some axis."""
+    for axis in range(3):
+        if (min(other[0, axis], other[1, axis], other[2, axis])
+                > max(tri[0, axis], tri[1, axis], tri[2, axis]) + gap_m
+                or max(other[0, axis], other[1, axis], other[2, axis])
+                < min(tri[0, axis], tri[1, axis], tri[2, axis]) - gap_m):
+            return True
+    return False
+
+
+@numba.njit(nogil=True, cache=True)
+def _far_from_rows(px: float, py: float, pz: float, rows: NDArray[np.int64],
+                   triangles: NDArray[np.float64], margin_m: float) -> bool:
+    """Whether the point lies farther than ``margin_m`` from each of the ``rows`` of
+    ``triangles`` (a box test first, the distance where the point is in the widened box)."""
+    for row in rows:
+        tri = triangles[row]
+        if (px < min(tri[0, 0], tri[1, 0], tri[2, 0]) - margin_m
+                or px > max(tri[0, 0], tri[1, 0], tri[2, 0]) + margin_m
+                or py < min(tri[0, 1], tri[1, 1], tri[2, 1]) - margin_m
+                or py > max(tri[0, 1], tri[1, 1], tri[2, 1]) + margin_m
+                or pz < min(tri[0, 2], tri[1, 2], tri[2, 2]) - margin_m
+                or pz > max(tri[0, 2], tri[1, 2], tri[2, 2]) + margin_m):
+            continue
+        if _point_triangle_distance(px, py, pz, tri) <= margin_m:
+            return False
+    return True
 
 
 @numba.njit(nogil=True, cache=True)

@@ -473,8 +473,9 @@ def overlap_tile(tile: Tile, occluders: Occluders | None = None
 
 
 def _rows(tile: Tile, occlusion: EmbreeOcclusion) -> tuple[list[NDArray[np.int32]], int]:
-    finder = PairFinder(tile.scene, tile.limits, reach_m=tile.reach_m)
-    culler = bundle_culler(tile.scene, finder.reach_m, occlusion)
+    culler = bundle_culler(tile.scene, tile.reach_m, occlusion)
+    finder = PairFinder(tile.scene, tile.limits, reach_m=tile.reach_m,
+                        bundle_of=None if culler is None else culler.bundles.bundle_of)
     rows, rays = [], 0
     for index in range(len(tile.positions)):
         faces, cast = overlap_row(finder, culler, occlusion, tile.positions,

@@ -200,10 +200,10 @@ def test_a_candidates_pairs_found_in_parts_are_those_found_at_once(office: Scene
     any size give the pairs of one search, in its order, with the bundles hidden from
     the candidate left out of both."""
     limits = overlap_limits(FaceLimits.from_spec(PlanSpec(), office), density_pts_m2)
-    finder = PairFinder(office, limits)
     occlusion = make_occlusion(office, limits.occludes, "embree", file_faces=True)
     bundles = bundles_of(office)
     assert bundles is not None
+    finder = PairFinder(office, limits, bundle_of=bundles.bundle_of)
     culler = BundleCuller(bundles, finder.reach_m, occlusion)
     points = _stations(office)[::9]
     for c, point in enumerate(points):
@@ -288,3 +288,36 @@ def test_the_culler_searches_the_bundles_that_can_get_rays_in_radius_classes(
         assert len(found[0]) > 100
         assert np.array_equal(found[0], point[keep]) and np.array_equal(found[1], bundle[keep])
     assert classes > 4
+
+
+def test_the_grid_keeps_each_cells_pieces_in_runs_of_one_bundle() -> None:
+    """The pair search's grid orders each cell's points by group (a bundle; -1 first),
+    then by index, and cuts them into runs of one group of at most the longest run: the
+    same points per cell as a plain grid, every run one group."""
+    from planner.visibility.cells import MOST_PER_RUN, PointGrid, RunGrid
+
+    rng = np.random.default_rng(11)
+    xyz = rng.uniform(0, 10, size=(20_000, 3))
+    group = rng.integers(-1, 40, size=len(xyz)).astype(np.int32)
+    group[:2_000] = -1  # in one cell, more points in no group than a run holds
+    xyz[:2_000] = rng.uniform(0.1, 0.9, size=(2_000, 3))
+    subset = np.arange(0, len(xyz), 2, dtype=np.int32)
+    plain = PointGrid.of(xyz, subset, 4.0, cells_per_reach=2)
+    grid = RunGrid.grouped(xyz, subset, 4.0, 2, group)
+    assert np.array_equal(plain.start, grid.start)
+    n_runs = len(grid.run_group)
+    assert grid.run_first[0] == 0 and grid.run_first[-1] == len(subset)
+    assert grid.cell_runs[-1] == n_runs
+    for cell in range(len(grid.start) - 1):
+        members = grid.members[grid.start[cell]:grid.start[cell + 1]]
+        assert sorted(members.tolist()) == plain.members[
+            plain.start[cell]:plain.start[cell + 1]].tolist()
+        keys = list(zip(group[subset[members]].tolist(), members.tolist(), strict=True))
+        assert keys == sorted(keys)
+        runs = range(grid.cell_runs[cell], grid.cell_runs[cell + 1])
+        assert sum(grid.run_first[r + 1] - grid.run_first[r] for r in runs) == len(members)
+        for r in runs:
+            in_run = grid.members[grid.run_first[r]:grid.run_first[r + 1]]
+            assert 0 < len(in_run) <= MOST_PER_RUN
+            assert set(group[subset[in_run]].tolist()) == {grid.run_group[r]}
+    assert (np.diff(grid.run_first) == MOST_PER_RUN).any()  # a cell's long run is cut
