@@ -13,6 +13,7 @@ Array letters: F faces.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -76,13 +77,18 @@ class FaceLimits:
             occludes=occludes,
         )
 
-    @property
+    @cached_property
     def reach_m(self) -> float:
-        """No pair farther than this can qualify: the DOF or the density range head-on."""
-        targets = self.min_density_pts_m2[self.target]
-        if len(targets) == 0:
+        """No pair farther than this can qualify: the DOF or the density range head-on.
+        Found once per limits, without a gathered copy of the targets' densities (asked
+        for by every pair search: on a 9.7 M-face office some 80 MB and 40 ms a time)."""
+        density, target = self.min_density_pts_m2, self.target
+        if not target.any():
             return 0.0
-        return min(self.dof_max_m, density_range_m(float(targets.min()), self.angular_step_rad))
+        uniform = density.strides == (0,) or len(density) == 0
+        lowest = float(density[0]) if uniform else float(
+            np.min(density, where=target, initial=np.inf))
+        return min(self.dof_max_m, density_range_m(lowest, self.angular_step_rad))
 
 
 def _uniform(value: float | bool, n: int) -> NDArray[Any]:
