@@ -33,6 +33,7 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
@@ -62,7 +63,7 @@ UPRIGHT_HEIGHTS_M = (KNEE_HEIGHT_M, 0.8, 1.1, 1.4, HEADROOM_M - 0.05)
 # DOCUMENT-K-2013-STAIRS/WebSearch/page0015.html); steeper than 45 deg is a ladder or a wall
 MAX_WALK_SLOPE_DEG = 45.0
 _MIN_FLOOR_NZ = math.cos(math.radians(MAX_WALK_SLOPE_DEG))
-_LINKS_PER_BLOCK = 1 << 18
+_LINKS_PER_BLOCK = 1 << 16
 _MAX_LEVELS = 32  # surfaces followed down one grid column (slabs, furniture, stairs, roofs)
 _EPS_M = 1e-3
 
@@ -987,27 +988,52 @@ def _neighbour_pairs(floor_xyz: NDArray[np.float64], ix: NDArray[np.int64],
     """(P,) a and (P,) b: the pairs of the (N, 3) floor samples in neighbouring grid
     columns (8 neighbours; columns (N,) ix, iy; ``reach`` 2: the columns two steps away
     along the same 8 directions instead) whose heights differ by at most ``STEP_M``, each
-    pair once."""
+    pair once: direction by direction, by a, then by b's height in its column.
+
+    Found by a compiled search of each neighbour column in the samples sorted by column,
+    counted and then written: no (P,) temporaries. (As numpy's repeats and gathers of every
+    pair in reach, filtered afterwards, the links of a house's 114 x 203 m site made its
+    plan's peak.)"""
     n = len(floor_xyz)
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
     # nodes by grid column: a neighbour column's nodes are found by a sorted-key search
     # (columns shifted to start at 0; the model's own samples are sorted already)
-    shift_x, shift_y = (int(ix.min()), int(iy.min())) if n else (0, 0)
-    ix, iy = ix - shift_x, iy - shift_y
-    width = int(iy.max()) + 1 + reach if n else 1
+    ix, iy = ix - int(ix.min()), iy - int(iy.min())
+    width = int(iy.max()) + 1 + reach
     key = ix * width + iy
     by_key = np.lexsort((floor_xyz[:, 2], key))
     sorted_key = key[by_key]
-    rows: list[NDArray[np.int64]] = []
-    cols: list[NDArray[np.int64]] = []
-    for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
-        target = (ix + reach * dx) * width + (iy + reach * dy)
-        a, b = cell_pairs(sorted_key, by_key, target)
-        close = np.abs(floor_xyz[a, 2] - floor_xyz[b, 2]) <= STEP_M
-        rows.append(a[close])
-        cols.append(b[close])
-    a = np.concatenate(rows) if rows else np.zeros(0, np.int64)
-    b = np.concatenate(cols) if cols else np.zeros(0, np.int64)
+    z = np.ascontiguousarray(floor_xyz[:, 2])
+    count = _neighbours(sorted_key, by_key, ix, iy, width, reach, z, STEP_M,
+                        np.zeros(0, np.int64), np.zeros(0, np.int64))
+    a, b = np.empty(count, np.int64), np.empty(count, np.int64)
+    _neighbours(sorted_key, by_key, ix, iy, width, reach, z, STEP_M, a, b)
     return a, b
+
+
+@numba.njit(nogil=True, cache=True)
+def _neighbours(sorted_key: NDArray[np.int64], by_key: NDArray[np.int64],
+                ix: NDArray[np.int64], iy: NDArray[np.int64], width: int, reach: int,
+                z: NDArray[np.float64], step_m: float, out_a: NDArray[np.int64],
+                out_b: NDArray[np.int64]) -> int:
+    """Count the pairs of :func:`_neighbour_pairs`, writing them into ``out_a`` and
+    ``out_b`` when they have room; compiled."""
+    write = out_a.shape[0] > 0
+    n = 0
+    for dx, dy in ((1, 0), (0, 1), (1, 1), (1, -1)):
+        for i in range(ix.shape[0]):
+            target = (ix[i] + reach * dx) * width + (iy[i] + reach * dy)
+            first = np.searchsorted(sorted_key, target, side="left")
+            stop = np.searchsorted(sorted_key, target, side="right")
+            for m in range(first, stop):
+                j = by_key[m]
+                if abs(z[i] - z[j]) <= step_m:
+                    if write:
+                        out_a[n] = i
+                        out_b[n] = j
+                    n += 1
+    return n
 
 
 def build_walk_graph(scene: Scene, caster: RayCaster, *, ground: bool = True,

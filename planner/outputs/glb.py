@@ -444,21 +444,89 @@ def _features(result: PlanResult, classes: NDArray[np.uint8]) -> _Features:
                          corners=scene.faces, triangle_feature=None)
     source = scene.source_face
     ratio = _lpd_ratio(result)
-    key = source.astype(np.int64) * (len(CLASS_NAMES) * LPD_BANDS) + (
-        classes.astype(np.int64) * LPD_BANDS + lpd_bands(ratio, classes))
-    rows = np.argsort(key, kind="stable").astype(np.int32)
-    sorted_key = key[rows]
-    del key  # before the features' starts are found: (F,) int64 each, beside the pictures'
-    # a feature starts where the key changes (no (F,) int64 differences)
-    changes = np.flatnonzero(sorted_key[1:] != sorted_key[:-1]) + 1
-    del sorted_key
-    offsets = np.concatenate([[0] if n else [], changes, [n]]).astype(np.int64)
+    # each face's state within its file face: class, then LPD band
+    state = (classes * LPD_BANDS + lpd_bands(ratio, classes)).astype(np.uint8)
+    n_states = len(CLASS_NAMES) * LPD_BANDS
+    # the faces by (file face, state), stably: a split scene keeps each file face's
+    # pieces together in file order, so a counting sort of each file face's run of pieces
+    # (no (F,) int64 keys, their argsort and their sorted copy: some 160 MB on a 5 M-piece
+    # model, the peak of its outputs); a scene not in that order takes the sort
+    n_features = _count_features(source, state, n_states)
+    if n_features >= 0:
+        rows = np.empty(n, np.int32)
+        offsets = np.empty(n_features + 1, np.int64)
+        _sorted_features(source, state, n_states, rows, offsets)
+    else:
+        key = source.astype(np.int64) * n_states + state
+        rows = np.argsort(key, kind="stable").astype(np.int32)
+        sorted_key = key[rows]
+        del key
+        # a feature starts where the key changes (no (F,) int64 differences)
+        changes = np.flatnonzero(sorted_key[1:] != sorted_key[:-1]) + 1
+        del sorted_key
+        offsets = np.concatenate([[0] if n else [], changes, [n]]).astype(np.int64)
+    del state
     worst = _first_least(ratio, rows, offsets)
     del ratio
     corners, made = group_triangles(scene, rows, offsets)
     return _Features(rows=rows, offsets=offsets, worst=worst,
                      classes=classes[rows[offsets[:-1]]], corners=corners,
                      triangle_feature=np.repeat(np.arange(len(made), dtype=np.int32), made))
+
+
+@numba.njit(nogil=True, cache=True)
+def _count_features(source: NDArray[np.int32], state: NDArray[np.uint8], n_states: int
+                    ) -> int:
+    """How many distinct (file face, state) the (F,) faces hold, when ``source`` never
+    decreases (each file face's pieces together, in file order); -1 when it does."""
+    seen = np.zeros(n_states, np.bool_)
+    features = 0
+    first = 0
+    while first < len(source):
+        stop = first
+        while stop < len(source) and source[stop] == source[first]:
+            stop += 1
+        if stop < len(source) and source[stop] < source[first]:
+            return -1
+        seen[:] = False
+        for i in range(first, stop):
+            if not seen[state[i]]:
+                seen[state[i]] = True
+                features += 1
+        first = stop
+    return features
+
+
+@numba.njit(nogil=True, cache=True)
+def _sorted_features(source: NDArray[np.int32], state: NDArray[np.uint8], n_states: int,
+                     rows: NDArray[np.int32], offsets: NDArray[np.int64]) -> None:
+    """The (F,) faces sorted stably by (file face, state) into ``rows``, and where each
+    feature (a distinct pair) starts in them into ``offsets`` (its last: F), for a
+    ``source`` that never decreases (:func:`_count_features`); a counting sort of each file
+    face's run of faces."""
+    count = np.zeros(n_states, np.int64)
+    place = np.zeros(n_states, np.int64)
+    feature = 0
+    first = 0
+    while first < len(source):
+        stop = first
+        while stop < len(source) and source[stop] == source[first]:
+            stop += 1
+        count[:] = 0
+        for i in range(first, stop):
+            count[state[i]] += 1
+        at = first
+        for k in range(n_states):
+            place[k] = at
+            if count[k]:
+                offsets[feature] = at
+                feature += 1
+            at += count[k]
+        for i in range(first, stop):
+            rows[place[state[i]]] = i
+            place[state[i]] += 1
+        first = stop
+    offsets[feature] = len(source)
 
 
 @numba.njit(nogil=True, cache=True)

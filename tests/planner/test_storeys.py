@@ -337,3 +337,32 @@ def test_a_station_under_a_low_ceiling_gives_the_head_room() -> None:
     assert unreachable == (3,)
     assert reasons[0].startswith("no floor a person can walk on under it: only 1.40 m is "
                                  "free over its floor"), reasons
+
+
+@pytest.mark.parametrize("reach", [1, 2])
+def test_the_walk_links_every_two_samples_of_neighbouring_columns_a_step_apart(reach: int
+                                                                                ) -> None:
+    """The walk graph's links: every two floor samples whose columns are neighbours (or two
+    columns apart along the same directions) and whose heights differ by at most a step,
+    each pair once, as a search of every pair finds them; several surfaces in a column
+    (a floor, a stair's flight, the slab above) link only to those a step away."""
+    from planner.walkgraph import STEP_M, _neighbour_pairs
+
+    rng = np.random.default_rng(5)
+    n = 3_000
+    ix, iy = rng.integers(-20, 20, n), rng.integers(-10, 30, n)
+    z = rng.choice([0.0, 0.15, 0.3, 2.9], n) + rng.normal(0.0, 0.02, n)
+    xyz = np.stack([ix * 0.25, iy * 0.25, z], axis=1)
+    a, b = _neighbour_pairs(xyz, ix, iy, reach)
+    found = set(zip(a.tolist(), b.tolist(), strict=True))
+    assert len(found) == len(a)  # each pair once
+    dx, dy = ix[None, :] - ix[:, None], iy[None, :] - iy[:, None]
+    offsets = {(reach, 0), (0, reach), (reach, reach), (reach, -reach)}
+    linked = np.zeros((n, n), bool)
+    for ox, oy in offsets:
+        linked |= (dx == ox) & (dy == oy)
+    linked &= np.abs(z[None, :] - z[:, None]) <= STEP_M
+    assert found == set(zip(*np.nonzero(linked), strict=True))
+    assert len(found) > 1_000
+    # direction by direction, each one's pairs by their first sample
+    assert (np.diff(a) < 0).sum() <= 3
