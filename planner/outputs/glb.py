@@ -483,9 +483,7 @@ def _count_features(source: NDArray[np.int32], state: NDArray[np.uint8], n_state
     features = 0
     first = 0
     while first < len(source):
-        stop = first
-        while stop < len(source) and source[stop] == source[first]:
-            stop += 1
+        stop = _run_end(source, first)
         if stop < len(source) and source[stop] < source[first]:
             return -1
         seen[:] = False
@@ -509,9 +507,7 @@ def _sorted_features(source: NDArray[np.int32], state: NDArray[np.uint8], n_stat
     feature = 0
     first = 0
     while first < len(source):
-        stop = first
-        while stop < len(source) and source[stop] == source[first]:
-            stop += 1
+        stop = _run_end(source, first)
         count[:] = 0
         for i in range(first, stop):
             count[state[i]] += 1
@@ -527,6 +523,15 @@ def _sorted_features(source: NDArray[np.int32], state: NDArray[np.uint8], n_stat
             place[state[i]] += 1
         first = stop
     offsets[feature] = len(source)
+
+
+@numba.njit(nogil=True, cache=True)
+def _run_end(source: NDArray[np.int32], first: int) -> int:
+    """Where the run of faces of ``source[first]``'s file face from ``first`` ends."""
+    stop = first + 1
+    while stop < len(source) and source[stop] == source[first]:
+        stop += 1
+    return stop
 
 
 @numba.njit(nogil=True, cache=True)
