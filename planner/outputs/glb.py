@@ -451,11 +451,12 @@ def _features(result: PlanResult, classes: NDArray[np.uint8]) -> _Features:
     # pieces together in file order, so a counting sort of each file face's run of pieces
     # (no (F,) int64 keys, their argsort and their sorted copy: some 160 MB on a 5 M-piece
     # model, the peak of its outputs); a scene not in that order takes the sort
-    n_features = _count_features(source, state, n_states)
+    rows = np.empty(n, np.int32)
+    n_features = _features_by_face(source, state, n_states, rows, np.zeros(0, np.int64),
+                                   False)
     if n_features >= 0:
-        rows = np.empty(n, np.int32)
         offsets = np.empty(n_features + 1, np.int64)
-        _sorted_features(source, state, n_states, rows, offsets)
+        _features_by_face(source, state, n_states, rows, offsets, True)
     else:
         key = source.astype(np.int64) * n_states + state
         rows = np.argsort(key, kind="stable").astype(np.int32)
@@ -475,39 +476,23 @@ def _features(result: PlanResult, classes: NDArray[np.uint8]) -> _Features:
 
 
 @numba.njit(nogil=True, cache=True)
-def _count_features(source: NDArray[np.int32], state: NDArray[np.uint8], n_states: int
-                    ) -> int:
-    """How many distinct (file face, state) the (F,) faces hold, when ``source`` never
-    decreases (each file face's pieces together, in file order); -1 when it does."""
-    seen = np.zeros(n_states, np.bool_)
-    features = 0
-    first = 0
-    while first < len(source):
-        stop = _run_end(source, first)
-        if stop < len(source) and source[stop] < source[first]:
-            return -1
-        seen[:] = False
-        for i in range(first, stop):
-            if not seen[state[i]]:
-                seen[state[i]] = True
-                features += 1
-        first = stop
-    return features
-
-
-@numba.njit(nogil=True, cache=True)
-def _sorted_features(source: NDArray[np.int32], state: NDArray[np.uint8], n_states: int,
-                     rows: NDArray[np.int32], offsets: NDArray[np.int64]) -> None:
-    """The (F,) faces sorted stably by (file face, state) into ``rows``, and where each
-    feature (a distinct pair) starts in them into ``offsets`` (its last: F), for a
-    ``source`` that never decreases (:func:`_count_features`); a counting sort of each file
-    face's run of faces."""
+def _features_by_face(source: NDArray[np.int32], state: NDArray[np.uint8], n_states: int,
+                      rows: NDArray[np.int32], offsets: NDArray[np.int64], write: bool) -> int:
+    """How many features (distinct (file face, state)) the (F,) faces hold, -1 when
+    ``source`` decreases somewhere (a file face's pieces not together in file order); with
+    ``write``, the faces sorted stably by (file face, state) into ``rows`` and where each
+    feature starts in them into ``offsets`` (its last: F). A counting sort of each file
+    face's run of faces; compiled."""
     count = np.zeros(n_states, np.int64)
     place = np.zeros(n_states, np.int64)
     feature = 0
     first = 0
     while first < len(source):
-        stop = _run_end(source, first)
+        stop = first + 1
+        while stop < len(source) and source[stop] == source[first]:
+            stop += 1
+        if stop < len(source) and source[stop] < source[first]:
+            return -1
         count[:] = 0
         for i in range(first, stop):
             count[state[i]] += 1
@@ -515,23 +500,18 @@ def _sorted_features(source: NDArray[np.int32], state: NDArray[np.uint8], n_stat
         for k in range(n_states):
             place[k] = at
             if count[k]:
-                offsets[feature] = at
+                if write:
+                    offsets[feature] = at
                 feature += 1
             at += count[k]
-        for i in range(first, stop):
-            rows[place[state[i]]] = i
-            place[state[i]] += 1
+        if write:
+            for i in range(first, stop):
+                rows[place[state[i]]] = i
+                place[state[i]] += 1
         first = stop
-    offsets[feature] = len(source)
-
-
-@numba.njit(nogil=True, cache=True)
-def _run_end(source: NDArray[np.int32], first: int) -> int:
-    """Where the run of faces of ``source[first]``'s file face from ``first`` ends."""
-    stop = first + 1
-    while stop < len(source) and source[stop] == source[first]:
-        stop += 1
-    return stop
+    if write:
+        offsets[feature] = len(source)
+    return feature
 
 
 @numba.njit(nogil=True, cache=True)

@@ -37,17 +37,32 @@ def cell_members(cell_of: NDArray[np.int32], n_cells: int
                  ) -> tuple[NDArray[np.int64], NDArray[np.int32]]:
     """Counting sort of the n points by cell: (n_cells + 1,) starts and (n,) members, the
     points of each cell in increasing order (4 bytes a point, no (n,) int64 argsort)."""
-    start = np.zeros(n_cells + 1, np.int64)
-    for i in range(cell_of.shape[0]):
-        start[cell_of[i] + 1] += 1
-    for c in range(n_cells):
-        start[c + 1] += start[c]
+    return _stable_by(cell_of, 0, n_cells, _IN_ORDER)
+
+
+# no order given to _stable_by: the points in increasing order
+_IN_ORDER = np.zeros(0, np.int32)
+
+
+@numba.njit(nogil=True, cache=True)
+def _stable_by(key: NDArray[np.int32], shift: int, n_keys: int, order: NDArray[np.int32]
+               ) -> tuple[NDArray[np.int64], NDArray[np.int32]]:
+    """Counting sort of the n points by ``key`` + ``shift`` (0 to ``n_keys`` - 1), those of
+    one key in the (n,) ``order`` given (empty: increasing): (n_keys + 1,) starts and (n,)
+    points."""
+    n = key.shape[0]
+    start = np.zeros(n_keys + 1, np.int64)
+    for i in range(n):
+        start[key[i] + shift + 1] += 1
+    for k in range(n_keys):
+        start[k + 1] += start[k]
     fill = start[:-1].copy()
-    members = np.empty(cell_of.shape[0], np.int32)
-    for i in range(cell_of.shape[0]):
-        members[fill[cell_of[i]]] = i
-        fill[cell_of[i]] += 1
-    return start, members
+    points = np.empty(n, np.int32)
+    for j in range(n):
+        i = order[j] if order.shape[0] else j
+        points[fill[key[i] + shift]] = i
+        fill[key[i] + shift] += 1
+    return start, points
 
 
 @numba.njit(nogil=True, cache=True)
@@ -64,29 +79,8 @@ def grouped_members(cell_of: NDArray[np.int32], group: NDArray[np.int32], n_grou
     (n_cells + 1,) first run of each cell, the (R + 1,) first member of each run and the
     (R,) group of each run. Two counting sorts (by group, then stably by cell), no argsort.
     """
-    n = cell_of.shape[0]
-    # the points by group, stably: group g's from by_group_start[g + 1]
-    by_group_start = np.zeros(n_groups + 2, np.int64)
-    for i in range(n):
-        by_group_start[group[i] + 2] += 1
-    for g in range(n_groups + 1):
-        by_group_start[g + 1] += by_group_start[g]
-    by_group = np.empty(n, np.int32)
-    for i in range(n):
-        by_group[by_group_start[group[i] + 1]] = i
-        by_group_start[group[i] + 1] += 1
-    # then stably by cell: (cell, group, position)
-    start = np.zeros(n_cells + 1, np.int64)
-    for i in range(n):
-        start[cell_of[i] + 1] += 1
-    for c in range(n_cells):
-        start[c + 1] += start[c]
-    fill = start[:-1].copy()
-    members = np.empty(n, np.int32)
-    for j in range(n):
-        i = by_group[j]
-        members[fill[cell_of[i]]] = i
-        fill[cell_of[i]] += 1
+    _, by_group = _stable_by(group, 1, n_groups + 1, _IN_ORDER)
+    start, members = _stable_by(cell_of, 0, n_cells, by_group)
     # the runs: a new one where the cell or the group changes, or the run is full
     # (counted, then written)
     no_int64, no_int32 = np.zeros(0, np.int64), np.zeros(0, np.int32)

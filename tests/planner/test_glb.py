@@ -482,16 +482,16 @@ def test_features_sorted_a_file_face_at_a_time_are_those_of_the_sort_of_every_fa
     file face, then state, stably) are sorted one file face's run at a time: the same rows
     and feature starts as a stable sort of every face's key; a scene whose file faces are
     not in order is told apart and sorted whole."""
-    from planner.outputs.glb import _count_features, _sorted_features
+    from planner.outputs.glb import _features_by_face
 
     rng = np.random.default_rng(2)
     source = np.sort(rng.integers(0, 400, 20_000)).astype(np.int32)
     state = rng.integers(0, 16, len(source)).astype(np.uint8)
     state[source % 7 == 0] = 3  # file faces of one state: one feature each
-    n_features = _count_features(source, state, 16)
     rows = np.empty(len(source), np.int32)
+    n_features = _features_by_face(source, state, 16, rows, np.zeros(0, np.int64), False)
     offsets = np.empty(n_features + 1, np.int64)
-    _sorted_features(source, state, 16, rows, offsets)
+    _features_by_face(source, state, 16, rows, offsets, True)
     key = source.astype(np.int64) * 16 + state
     order = np.argsort(key, kind="stable")
     assert np.array_equal(rows, order)
@@ -499,4 +499,4 @@ def test_features_sorted_a_file_face_at_a_time_are_those_of_the_sort_of_every_fa
     assert np.array_equal(offsets, np.append(starts, len(source)))
     shuffled = source.copy()
     shuffled[[10, 15_000]] = shuffled[[15_000, 10]]
-    assert _count_features(shuffled, state, 16) == -1
+    assert _features_by_face(shuffled, state, 16, rows, offsets, False) == -1
