@@ -190,6 +190,9 @@ class RunGrid(PointGrid):
     cell_runs: NDArray[np.int64]  # (cells + 1,) the runs of cell c: cell_runs[c]:cell_runs[c+1]
     run_first: NDArray[np.int64]  # (R + 1,) the members of run r: run_first[r]:run_first[r+1]
     run_group: NDArray[np.int32]  # (R,) the group of each run, -1: points in no group
+    # (R, 6) float32, each run's box (lowest x, y, z, then highest), rounded outward so that
+    # it holds every point of the run: a search skips a run whose box lies out of reach
+    run_box: NDArray[np.float32]
 
     @classmethod
     def grouped(cls, face_xyz: NDArray[np.float64], faces: NDArray[np.int32], reach_m: float,
@@ -202,11 +205,38 @@ class RunGrid(PointGrid):
         if len(faces) == 0:
             return cls(np.zeros(3), 1.0, np.ones(3, np.int64), np.zeros(2, np.int64),
                        np.zeros(0, np.int32), np.zeros(2, np.int64), np.zeros(1, np.int64),
-                       np.zeros(0, np.int32))
+                       np.zeros(0, np.int32), np.zeros((0, 6), np.float32))
         low, cell_m, dims, cell_of = _layout(face_xyz, faces, reach_m, cells_per_reach)
         start, members, cell_runs, run_first, run_group = grouped_members(
             cell_of, subset_group, n_groups, int(np.prod(dims)), MOST_PER_RUN)
-        return cls(low, cell_m, dims, start, members, cell_runs, run_first, run_group)
+        run_box = np.empty((len(run_group), 6), np.float32)
+        _run_boxes(face_xyz, faces, members, run_first, run_box)
+        return cls(low, cell_m, dims, start, members, cell_runs, run_first, run_group,
+                   run_box)
+
+
+@numba.njit(nogil=True, cache=True)
+def _run_boxes(points: NDArray[np.float64], subset: NDArray[np.int32],
+               members: NDArray[np.int32], run_first: NDArray[np.int64],
+               out: NDArray[np.float32]) -> None:
+    """Each run's box into the (R, 6) ``out``: the lowest and highest coordinate of its
+    points ``points[subset[members[run]]]`` per axis, in float32 rounded outward (a bound
+    that is not a float32 moves one step out), so the box holds every point exactly."""
+    for r in range(run_first.shape[0] - 1):
+        for axis in range(3):
+            low = points[subset[members[run_first[r]]], axis]
+            high = low
+            for m in range(run_first[r], run_first[r + 1]):
+                value = points[subset[members[m]], axis]
+                low = min(low, value)
+                high = max(high, value)
+            low32, high32 = np.float32(low), np.float32(high)
+            if np.float64(low32) > low:
+                low32 = np.nextafter(low32, np.float32(-np.inf))
+            if np.float64(high32) < high:
+                high32 = np.nextafter(high32, np.float32(np.inf))
+            out[r, axis] = low32
+            out[r, axis + 3] = high32
 
 
 def _layout(face_xyz: NDArray[np.float64], faces: NDArray[np.int32], reach_m: float,

@@ -188,8 +188,9 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     dof_min_m: float, dof_max_m: float, min_sin_elevation: float, max_sin_elevation: float,
     reach_m: float, angular_step_rad: float,
     cell_runs: NDArray[np.int64], run_first: NDArray[np.int64],
-    run_group: NDArray[np.int32], members: NDArray[np.int32], every_runs: tuple[int, int],
-    hidden: NDArray[np.bool_],
+    run_group: NDArray[np.int32], run_box: NDArray[np.float32], members: NDArray[np.int32],
+    every_runs: tuple[int, int], run_plane_face: NDArray[np.int32],
+    run_plane: NDArray[np.float32], hidden: NDArray[np.bool_],
     face_side: NDArray[np.int8], outside: NDArray[np.bool_], margin_m: float,
     out_candidate: NDArray[np.int32], out_face: NDArray[np.int32],
     out_origin: NDArray[np.float32], out_direction: NDArray[np.float32],
@@ -205,9 +206,17 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     and ``min_density`` (K: the distinct pairs of them, 1 without group requirements).
     Each point tests the faces of the cells its ``keys`` name (:func:`_cell_keys`), run by
     run (:class:`planner.visibility.cells.RunGrid`: ``cell_runs``, ``run_first``,
-    ``run_group`` over the (f,) positions ``members``); the key past the grid's cells
-    tests the runs ``every_runs`` (first, stop). A run's group is its faces' finest bundle:
-    a bundle hidden from the point (``hidden`` (B, K), K = 0 for none:
+    ``run_group`` and ``run_box`` over the (f,) positions ``members``); the key past the
+    grid's cells tests the runs ``every_runs`` (first, stop). A run is skipped with one
+    test where none of its faces can pass: its box lies beyond the reach, or its faces lie
+    on one plane (``run_plane_face`` (R,), the file face whose normal they share, -1: not
+    one; ``run_plane`` (R, 2), the least and greatest offset n . c of their centroids c)
+    and the point lies so near that plane, for the run's distance, that no face has the
+    least incidence or density of any class: a face's sine of incidence is the point's
+    distance from the plane over the face's distance d (at least the box's), its density
+    that sine over (SPS d)^2. Each bound is widened well past the rounding of the values
+    the faces' own tests compute. A run's group is its faces' finest bundle: a bundle
+    hidden from the point (``hidden`` (B, K), K = 0 for none:
     :mod:`planner.visibility.bundles`) is left out untested, its faces' rays would end in
     the occluder that hides it. So is a face seen from inside its closed shell
     (``face_side`` (F,), empty for none: :mod:`planner.visibility.solids`) by a point
@@ -225,8 +234,11 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     bundled = hidden.shape[1] > 0
     sided = face_side.shape[0] > 0
     reach2 = reach_m * reach_m * (1.0 + 1e-9)
+    box_reach2 = reach_m * reach_m * (1.0 + 1e-6) + 1e-12
     every_cell = cell_runs.shape[0] - 1
     n_keys = keys.shape[0]
+    least_sin_incidence = min_sin_incidence.min()
+    least_density_step2 = min_density.min() * angular_step_rad * angular_step_rad
     first = 0
     while first < n_keys:  # one cell: its points are keys[first:last]
         cell = keys[first] // n_points
@@ -241,6 +253,25 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
                 if bundle >= 0 and hidden[b, bundle]:
                     continue
                 px, py, pz = points[b, 0], points[b, 1], points[b, 2]
+                # the whole run ruled out at once: its box out of reach, or (its faces on
+                # one plane) so far from the point and so close to the plane that no face
+                # can have the least incidence or density of any class
+                gx = max(run_box[r, 0] - px, 0.0, px - run_box[r, 3])
+                gy = max(run_box[r, 1] - py, 0.0, py - run_box[r, 4])
+                gz = max(run_box[r, 2] - pz, 0.0, pz - run_box[r, 5])
+                box2 = gx * gx + gy * gy + gz * gz
+                if box2 > box_reach2:
+                    continue
+                g = run_plane_face[r]
+                if g >= 0 and box2 > 0.0:
+                    on_plane = (px * face_normal[g, 0] + py * face_normal[g, 1]
+                                + pz * face_normal[g, 2])
+                    apart = max(abs(run_plane[r, 0] - on_plane),
+                                abs(run_plane[r, 1] - on_plane)) * (1.0 + 1e-6) + 1e-6
+                    near = np.sqrt(box2) * (1.0 - 1e-9)
+                    if (apart < least_sin_incidence * near
+                            or apart < least_density_step2 * near * near * near):
+                        continue
                 shelled = sided and outside[b]
                 for m in range(run_first[r], run_first[r + 1]):
                     i = members[m]
@@ -283,6 +314,39 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
                     n += 1
         first = last
     return n
+
+
+@numba.njit(nogil=True, cache=True)
+def _run_planes(faces: NDArray[np.int32], face_xyz: NDArray[np.float64],
+                face_source: NDArray[np.int32], face_normal: NDArray[np.float64],
+                members: NDArray[np.int32], run_first: NDArray[np.int64],
+                out_face: NDArray[np.int32], out_plane: NDArray[np.float32]) -> None:
+    """Each run's plane into the (R,) ``out_face`` and (R, 2) ``out_plane``: the file face
+    all its faces ``faces[members[run]]`` are pieces of (-1 where they are not of one), and
+    the least and greatest offset n . c of their centroids along its normal n, in float32
+    rounded outward."""
+    for r in range(run_first.shape[0] - 1):
+        g = face_source[faces[members[run_first[r]]]]
+        low, high = np.inf, -np.inf
+        for m in range(run_first[r], run_first[r + 1]):
+            f = faces[members[m]]
+            if face_source[f] != g:
+                g = -1
+                break
+            offset = (face_xyz[f, 0] * face_normal[g, 0] + face_xyz[f, 1] * face_normal[g, 1]
+                      + face_xyz[f, 2] * face_normal[g, 2])
+            low = min(low, offset)
+            high = max(high, offset)
+        out_face[r] = g
+        if g < 0:
+            out_plane[r, 0], out_plane[r, 1] = 0.0, 0.0
+            continue
+        low32, high32 = np.float32(low), np.float32(high)
+        if np.float64(low32) > low:
+            low32 = np.nextafter(low32, np.float32(-np.inf))
+        if np.float64(high32) < high:
+            high32 = np.nextafter(high32, np.float32(np.inf))
+        out_plane[r, 0], out_plane[r, 1] = low32, high32
 
 
 def lpd_of_faces(scene: Scene, limits: FaceLimits, point_xyz: NDArray[np.float64],
@@ -400,6 +464,13 @@ class PairFinder:
         self._bundle_of = bundle_of
         self._grid = RunGrid.grouped(self._face_xyz, self._faces, self.reach_m,
                                      _CELLS_PER_REACH, bundle_of)
+        # each run's plane, where its faces share one (those of a bundle always do)
+        n_runs = len(self._grid.run_group)
+        self._run_plane_face = np.empty(n_runs, np.int32)  # (R,) file face, -1: none
+        self._run_plane = np.empty((n_runs, 2), np.float32)  # (R, 2) least, greatest n . c
+        _run_planes(self._faces, self._face_xyz, self._face_source, self._face_normal,
+                    self._grid.members, self._grid.run_first, self._run_plane_face,
+                    self._run_plane)
 
     def find(self, candidates_xyz: NDArray[np.float64], first_index: int,
              hidden: HiddenBundles | None = None, *, ordered: bool = True
@@ -487,7 +558,8 @@ class PairFinder:
             self._face_normal, self._face_source, self._face_class, self._min_sin_incidence,
             self._min_density, lim.dof_min_m, lim.dof_max_m, self._min_sin_elevation,
             self._max_sin_elevation, self.reach_m, lim.angular_step_rad, grid.cell_runs,
-            grid.run_first, grid.run_group, grid.members, every_runs, hidden_mask,
+            grid.run_first, grid.run_group, grid.run_box, grid.members, every_runs,
+            self._run_plane_face, self._run_plane, hidden_mask,
             face_side, outside, margin_m,
             pairs.candidate, pairs.face, pairs.origin, pairs.direction, pairs.distance_m,
             pairs.lpd_pts_m2,

@@ -321,3 +321,67 @@ def test_the_grid_keeps_each_cells_pieces_in_runs_of_one_bundle() -> None:
             assert 0 < len(in_run) <= MOST_PER_RUN
             assert set(group[subset[in_run]].tolist()) == {grid.run_group[r]}
     assert (np.diff(grid.run_first) == MOST_PER_RUN).any()  # a cell's long run is cut
+    # each run's float32 box holds every point of the run
+    for r in range(n_runs):
+        points = xyz[subset[grid.members[grid.run_first[r]:grid.run_first[r + 1]]]]
+        assert grid.run_box.dtype == np.float32
+        assert (grid.run_box[r, :3].astype(np.float64) <= points.min(axis=0)).all()
+        assert (grid.run_box[r, 3:].astype(np.float64) >= points.max(axis=0)).all()
+
+
+def _limits_passed(scene: Scene, limits: FaceLimits, point: np.ndarray, reach_m: float
+                   ) -> np.ndarray:
+    """(k,) the target faces that pass every analytic limit from the (3,) ``point``, each
+    face tested on its own in numpy, in the pair search's own float64 operations."""
+    faces = np.flatnonzero(limits.target)
+    offset = scene.centroids[faces] - point
+    d2 = offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1] + offset[:, 2] * offset[:, 2]
+    d = np.sqrt(d2)
+    unit = offset / np.where(d > 0, d, 1.0)[:, None]
+    normal = scene.file_normals[scene.source_face[faces]]
+    sine = np.abs(unit[:, 0] * normal[:, 0] + unit[:, 1] * normal[:, 1]
+                  + unit[:, 2] * normal[:, 2])
+    spacing = limits.angular_step_rad * d
+    ok = ((d2 <= reach_m * reach_m * (1.0 + 1e-9)) & (d >= limits.dof_min_m)
+          & (d <= limits.dof_max_m) & (d > 0)
+          & (unit[:, 2] >= np.sin(np.radians(limits.elevation_min_deg)))
+          & (unit[:, 2] <= np.sin(np.radians(limits.elevation_max_deg)))
+          & (sine >= np.sin(np.radians(limits.min_incidence_deg[faces])))
+          & (sine / np.where(d > 0, spacing * spacing, 1.0)
+             >= limits.min_density_pts_m2[faces]))
+    return faces[ok]
+
+
+@pytest.mark.parametrize("density", ["coverage", "overlap"])
+def test_runs_ruled_out_whole_leave_the_pairs_of_testing_every_face(office: Scene,
+                                                                     density: str) -> None:
+    """The pair search skips a run of its grid whose box lies out of reach, or whose faces
+    share a plane the station sees too obliquely or too far for any of them to pass: it
+    finds exactly the faces that pass when every face is tested on its own."""
+    limits = FaceLimits.from_spec(PlanSpec(), office)
+    if density == "overlap":
+        limits = overlap_limits(limits, 1600.0)
+    bundles = bundles_of(office)
+    assert bundles is not None
+    finder = PairFinder(office, limits, bundle_of=bundles.bundle_of)
+    stations = _stations(office)[::3]
+    grid, reach = finder._grid, finder.reach_m
+    # the cases are there: runs out of reach, and planar runs in reach but too oblique
+    gap = np.maximum(np.maximum(grid.run_box[None, :, :3] - stations[:, None, :], 0.0),
+                     stations[:, None, :] - grid.run_box[None, :, 3:])
+    box_m = np.linalg.norm(gap, axis=2)  # (stations, runs)
+    planar = finder._run_plane_face >= 0
+    assert planar.mean() > 0.9
+    normal = office.file_normals[np.maximum(finder._run_plane_face, 0)]  # (runs, 3)
+    apart_m = np.max(np.abs(finder._run_plane[None, :, :] - (stations @ normal.T)[:, :, None]),
+                     axis=2)
+    oblique = planar & (box_m > 0) & (box_m <= reach) & (
+        apart_m < np.sin(np.radians(limits.min_incidence_deg.min())) * box_m)
+    if density == "coverage":
+        assert (box_m > reach).sum() > 1_000
+    assert oblique.sum() > 1_000
+    near, _ = finder.find(stations, 0)
+    assert len(near) > 10_000
+    for c, point in enumerate(stations):
+        found = np.sort(near.face[near.candidate == c])
+        assert np.array_equal(found, _limits_passed(office, limits, point, reach))
