@@ -124,3 +124,19 @@ def test_split_to_size_gives_trimesh_s_pieces_value_for_value() -> None:
     with pytest.raises(ValueError, match="max_iter"):
         split_to_size(np.array([[0.0, 0, 0], [9, 0, 0], [0, 9, 0]]), np.array([[0, 1, 2]]),
                       0.1, 2)
+
+
+def test_long_edges_are_those_trimesh_measures_bit_for_bit() -> None:
+    """The split's compiled edge test finds the same long edges as trimesh's numpy
+    measure, also for a limit equal to an edge's own length (to the last bit)."""
+    from planner.scene import _long_edges
+
+    rng = np.random.default_rng(3)
+    vertices = rng.uniform(-300, 300, (20_000, 3)) * rng.choice([1e-3, 1.0, 10.0], (20_000, 1))
+    faces = rng.integers(0, len(vertices), (50_000, 3)).astype(np.int32)
+    # the lengths as trimesh measures them: from the smaller corner index to the larger
+    ends = np.sort(np.stack([faces, np.roll(faces, -1, axis=1)], axis=2), axis=2)
+    length_m = ((vertices[ends[..., 0]] - vertices[ends[..., 1]]) ** 2).sum(axis=2) ** 0.5
+    for max_edge_m in (0.2, 1.0, 50.0, *length_m[:50, 2]):
+        assert np.array_equal(_long_edges(vertices, faces, float(max_edge_m)),
+                              length_m > max_edge_m)
