@@ -220,8 +220,8 @@ def _run_boxes(points: NDArray[np.float64], subset: NDArray[np.int32],
                members: NDArray[np.int32], run_first: NDArray[np.int64],
                out: NDArray[np.float32]) -> None:
     """Each run's box into the (R, 6) ``out``: the lowest and highest coordinate of its
-    points ``points[subset[members[run]]]`` per axis, in float32 rounded outward (a bound
-    that is not a float32 moves one step out), so the box holds every point exactly."""
+    points ``points[subset[members[run]]]`` per axis, rounded outward to float32
+    (:func:`float32_outward`), so the box holds every point exactly."""
     for r in range(run_first.shape[0] - 1):
         for axis in range(3):
             low = points[subset[members[run_first[r]]], axis]
@@ -230,13 +230,19 @@ def _run_boxes(points: NDArray[np.float64], subset: NDArray[np.int32],
                 value = points[subset[members[m]], axis]
                 low = min(low, value)
                 high = max(high, value)
-            low32, high32 = np.float32(low), np.float32(high)
-            if np.float64(low32) > low:
-                low32 = np.nextafter(low32, np.float32(-np.inf))
-            if np.float64(high32) < high:
-                high32 = np.nextafter(high32, np.float32(np.inf))
-            out[r, axis] = low32
-            out[r, axis + 3] = high32
+            out[r, axis], out[r, axis + 3] = float32_outward(low, high)
+
+
+@numba.njit(nogil=True, cache=True)
+def float32_outward(low: float, high: float) -> tuple[np.float32, np.float32]:
+    """The float64 interval [low, high] as float32 bounds that hold it: a bound that is
+    not a float32 moves one float32 step out."""
+    low32, high32 = np.float32(low), np.float32(high)
+    if np.float64(low32) > low:
+        low32 = np.nextafter(low32, np.float32(-np.inf))
+    if np.float64(high32) < high:
+        high32 = np.nextafter(high32, np.float32(np.inf))
+    return low32, high32
 
 
 def _layout(face_xyz: NDArray[np.float64], faces: NDArray[np.int32], reach_m: float,

@@ -30,7 +30,7 @@ from planner.limits import FaceLimits
 from planner.rays import ExactRays, Occlusion
 from planner.scene import Scene
 from planner.visibility.bundles import HiddenBundles
-from planner.visibility.cells import RunGrid
+from planner.visibility.cells import RunGrid, float32_outward
 from planner.visibility.solids import ClosedShells
 
 
@@ -323,8 +323,8 @@ def _run_planes(faces: NDArray[np.int32], face_xyz: NDArray[np.float64],
                 out_face: NDArray[np.int32], out_plane: NDArray[np.float32]) -> None:
     """Each run's plane into the (R,) ``out_face`` and (R, 2) ``out_plane``: the file face
     all its faces ``faces[members[run]]`` are pieces of (-1 where they are not of one), and
-    the least and greatest offset n . c of their centroids along its normal n, in float32
-    rounded outward."""
+    the least and greatest offset n . c of their centroids along its normal n, rounded
+    outward to float32 (:func:`planner.visibility.cells.float32_outward`)."""
     for r in range(run_first.shape[0] - 1):
         g = face_source[faces[members[run_first[r]]]]
         low, high = np.inf, -np.inf
@@ -341,12 +341,7 @@ def _run_planes(faces: NDArray[np.int32], face_xyz: NDArray[np.float64],
         if g < 0:
             out_plane[r, 0], out_plane[r, 1] = 0.0, 0.0
             continue
-        low32, high32 = np.float32(low), np.float32(high)
-        if np.float64(low32) > low:
-            low32 = np.nextafter(low32, np.float32(-np.inf))
-        if np.float64(high32) < high:
-            high32 = np.nextafter(high32, np.float32(np.inf))
-        out_plane[r, 0], out_plane[r, 1] = low32, high32
+        out_plane[r, 0], out_plane[r, 1] = float32_outward(low, high)
 
 
 def lpd_of_faces(scene: Scene, limits: FaceLimits, point_xyz: NDArray[np.float64],
