@@ -43,6 +43,9 @@ CoverageModel = Literal["centroid", "sampled"]
 COVERAGE_MODELS: tuple[CoverageModel, ...] = ("centroid", "sampled")
 Occluders = Literal["file", "remeshed"]
 OCCLUDERS: tuple[Occluders, ...] = ("file", "remeshed")
+# the radius a robust plan holds its faces within when no placement_tolerance_m is given: a
+# tripod centred over a mark by eye, without a plummet, lands within some 0.25 m of it
+ROBUST_TOLERANCE_M = 0.25
 
 
 @dataclass(frozen=True)
@@ -124,10 +127,15 @@ class PlanSpec:
     setup_time_s: float | None = None  # per station; null: the preset's, else 60 s
     walking_speed_m_s: float = 0.8
     # placement tolerance (planner.candidates.placement): the report of what each station keeps
-    # when set up anywhere within this radius (0: no report), and robust planning (a face
-    # counts for a candidate only when it qualifies from every displaced position)
-    placement_tolerance_m: float = 0.25
+    # when set up anywhere within this radius (null or 0: no report), and robust planning (a
+    # face counts for a candidate only when it qualifies from every displaced position;
+    # within ROBUST_TOLERANCE_M when no radius is given)
+    placement_tolerance_m: float | None = None
     robust: bool = False
+    # rays: decide every one in float64 as the brute-force reference does (a second Embree
+    # cast and float64 arbitration where float32 cannot decide a grazing ray), instead of
+    # one cast with the pinned kernels (planner.rays.pinned)
+    exact_rays: bool = False
 
     def __post_init__(self) -> None:
         # accept plain data too (dicts, lists), as from_mapping does
@@ -150,6 +158,15 @@ class PlanSpec:
     def scanner_profile(self) -> ScannerProfile | None:
         """The instrument ``scanner`` stands for (a preset's figures filled in), or None."""
         return None if self.scanner is None else resolve(self.scanner)
+
+    @property
+    def tolerance_radius_m(self) -> float:
+        """The radius of the placement-tolerance report and of robust planning:
+        ``placement_tolerance_m``, else :data:`ROBUST_TOLERANCE_M` for a robust plan, else
+        0 (no report)."""
+        if self.placement_tolerance_m is not None:
+            return self.placement_tolerance_m
+        return ROBUST_TOLERANCE_M if self.robust else 0.0
 
     @property
     def heights_m(self) -> tuple[float, ...]:
@@ -275,7 +292,7 @@ RANGES: dict[str, Range] = {
     "unit_scale": Range(gt=0, le=1e6, hint="0.001 for a model in millimetres"),
     "grid_spacing_m": Range(gt=0, le=10_000),
     "scanner_height_m": Range(gt=0, le=1_000),
-    "placement_tolerance_m": Range(ge=0, le=5, hint="0 turns the tolerance report off"),
+    "placement_tolerance_m": Range(ge=0, le=5, hint="null or 0 turns the tolerance report off"),
     "clearance_m": Range(ge=0, le=1_000),
     "min_overlap_m2": Range(gt=0, le=1e9, hint="or null for no overlap constraint"),
     "overlap_density_pts_m2": Range(gt=0, le=1e9),
@@ -323,7 +340,7 @@ GROUP_RANGES: dict[str, Range] = {
 
 _NULLABLE = {"max_edge_m", "candidates", "area_of_interest", "storeys", "rooms",
              "curve_goals", "fixed_stations", "scanner", "min_overlap_m2", "route_start",
-             "setup_time_s", "up_axis", "scanner_heights_m"}
+             "setup_time_s", "up_axis", "scanner_heights_m", "placement_tolerance_m"}
 _FLOATS = {
     f.name
     for f in fields(PlanSpec)
@@ -626,8 +643,9 @@ def _validate(spec: PlanSpec) -> None:
         _check(spec.candidates is None, "scanner_heights_m",
                "applies to generated candidates; explicit candidates carry their own z "
                "(leave scanner_heights_m null or drop candidates)")
-    _check(not spec.robust or spec.placement_tolerance_m > 0, "robust",
-           "needs placement_tolerance_m greater than 0 (the radius a setup may be off)")
+    _check(not spec.robust or spec.tolerance_radius_m > 0, "robust",
+           "needs placement_tolerance_m greater than 0 or null (the radius a setup may be "
+           f"off; null: {ROBUST_TOLERANCE_M} m)")
     if spec.area_of_interest is not None:
         _check(len(spec.area_of_interest) >= 3, "area_of_interest",
                "needs at least 3 [x, y] vertices")

@@ -122,7 +122,7 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
     if sight.scene.n_faces >= BOUNDED_HEAP_FACES:
         bound_heap()  # from here on freed arrays leave the process at once, not at a trim
     tolerance = None
-    if spec.placement_tolerance_m > 0:
+    if spec.tolerance_radius_m > 0:
         tolerance, station_overlap = plan_tolerance(
             sight, table, chosen, stations_xyz, station_overlap, stats, threads=threads,
             fanout=fanout)

@@ -218,11 +218,14 @@ class PlanParameters(BaseModel):
     setup_time_s: Number | None = _d("setup_time_s",
                                      "per-station setup, seconds; null: the preset's or 60")
     walking_speed_m_s: Number = _d("walking_speed_m_s", "walking speed with the kit, m/s")
-    placement_tolerance_m: Number = _d(
+    placement_tolerance_m: Number | None = _d(
         "placement_tolerance_m", "radius a tripod may land off its planned position, metres; "
-        "the plan reports what each station keeps within it (0: no report)")
+        "the plan reports what each station keeps within it (null or 0: no report)")
     robust: StrictBool = _d("robust", "credit a face to a candidate only when it qualifies from "
-                            "every position within placement_tolerance_m")
+                            "every position within placement_tolerance_m (null: 0.25 m)")
+    exact_rays: StrictBool = _d(
+        "exact_rays", "decide every ray in float64 as the brute-force reference does (slower); "
+        "false: one Embree cast a ray, the same on every machine with AVX2")
 
 
 class ExecuteInputs(BaseModel):

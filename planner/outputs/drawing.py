@@ -860,7 +860,7 @@ def legend_handles(result: PlanResult) -> list[Any]:
         handles.append(Line2D([], [], marker="o", color="none", markerfacecolor="none",
                               markeredgecolor=CRITICAL_RGB, markeredgewidth=2.0, markersize=13,
                               label=f"critical (crit.): goal breaks if set up "
-                                    f"{result.spec.placement_tolerance_m:g} m off"))
+                                    f"{result.spec.tolerance_radius_m:g} m off"))
     if math.isfinite(reach):
         handles.append(Line2D([], [], color=_rgb(STATION_RGB), linestyle=(0, (4, 3)),
                               alpha=0.7, label=f"head-on density range {reach:.2f} m"))

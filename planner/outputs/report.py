@@ -44,6 +44,7 @@ from planner.io.orientation import scene_rotation, to_model
 from planner.memory import release_freed_memory
 from planner.outputs.canonical import canonical_json as canonical_json  # re-exported
 from planner.pipeline import PlanResult
+from planner.rays.pinned import KERNELS as RAY_KERNELS
 from planner.selection.curve import coverage_curve
 from planner.selection.greedy import GOAL_SLACK_M2
 
@@ -170,6 +171,9 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
         "curve": coverage_curve(result.selections, result.optimal_curve),
         "selection": result.selection_report,
         "parameters": result.spec.to_dict(),
+        # which kernels decided the rays: plans are byte for byte the same on machines whose
+        # kernels are the same (exact rays: on every machine)
+        "rays": {"kernels": RAY_KERNELS, "exact": result.spec.exact_rays},
         "candidates": _with_stations(result.candidates.summary(), stations,
                                      result.candidates.also_in),
         "scene": {

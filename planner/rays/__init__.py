@@ -41,21 +41,24 @@ def make_ray_caster(scene: Scene, occludes: NDArray[np.bool_], *,
 
 
 def make_occlusion(scene: Scene, occludes: NDArray[np.bool_], backend: Backend, *,
-                   file_faces: bool = False, like: Occlusion | None = None) -> Occlusion:
+                   file_faces: bool = False, like: Occlusion | None = None,
+                   exact: bool = False) -> Occlusion:
     """The occlusion test over the faces where ``occludes`` (F,) is true.
 
     ``file_faces`` (Embree only): the rays are tested against the model's faces before
     remeshing, and a hit on the target's ``source_face`` counts as reaching the target.
     The brute-force reference always tests the scene's own (remeshed) faces. ``like``: an
     occlusion whose BVH is shared when it holds the same faces of the same mesh (the
-    verdicts are then the same as a new one's, without building it again).
+    verdicts are then the same as a new one's, without building it again). ``exact``
+    (Embree only; the reference always is): every ray decided in float64 as the reference
+    decides it, not by one float32 cast.
     """
     if backend == "embree":
         from planner.rays.embree import EmbreeOcclusion
 
         bvh = like.reused_bvh(scene, occludes, file_faces=file_faces) \
             if isinstance(like, EmbreeOcclusion) else None
-        return EmbreeOcclusion(scene, occludes, file_faces=file_faces, bvh=bvh)
+        return EmbreeOcclusion(scene, occludes, file_faces=file_faces, bvh=bvh, exact=exact)
     if backend == "bruteforce":
         from planner.rays.bruteforce import BruteForceOcclusion
 

@@ -21,6 +21,8 @@ _CHUNK_WORK = 1_000_000  # ray-triangle tests per numpy step (~200 MB of tempora
 class BruteForceOcclusion:
     """Moller-Trumbore in numpy over the occluding faces plus each ray's own target."""
 
+    exact = True  # float64 throughout: it is the reference
+
     def __init__(self, scene: Scene, occludes: NDArray[np.bool_]) -> None:
         self._triangles = scene.triangles
         self._occluders = np.flatnonzero(occludes)

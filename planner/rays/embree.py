@@ -1,4 +1,5 @@
-"""Embree occlusion queries (the only module that imports embreex).
+"""Embree occlusion queries (through :mod:`planner.rays.pinned`, Embree on a device pinned to
+one instruction set).
 
 A missing embreex is a loud error: there is no silent slow path.
 """
@@ -13,20 +14,10 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.errors import PlannerError
 from planner.rays.bruteforce import ray_triangle_distance
+from planner.rays.pinned import PinnedScene
 from planner.rays.protocols import FAR_LIMIT_FACTOR, ExactRays
 from planner.scene import Scene
-
-try:
-    from embreex import rtcore_scene
-    from embreex.mesh_construction import TriangleMesh
-except ImportError as exc:  # pragma: no cover - depends on the installation
-    raise PlannerError(
-        "embreex is not installed; install the project with its dependencies "
-        "(pip install -e .) to get the Embree ray caster"
-    ) from exc
-
 
 # probe rays for a ray float32 cannot decide run this far beside it, on four sides: 20x the
 # float32 rounding of a point 5 m away, far below the size of any face that matters
@@ -137,11 +128,13 @@ class BvhPart:
         remeshed part, whose pieces are not all in it; None: from the pieces' ``occludes``)
     scale_m : the largest coordinate of the whole BVH, which sets the clear-hit margin
     quads : whether bundles may hide behind quads (the whole BVH's size decides)
+    exact : every ray decided in float64 as the reference does (the plan's ``exact_rays``)
     """
 
     bvh_occludes: NDArray[np.bool_] | None
     scale_m: float
     quads: bool
+    exact: bool = False
 
 
 def clear_margin_m(scale_m: float) -> float:
@@ -160,7 +153,7 @@ class BvhFaces:
         with ``file_faces`` on a remeshed scene, else the scene's own)
     occluding : (b,) int64, the BVH faces that occlude, ascending
     file_faces : the BVH holds the file's faces of a remeshed scene
-    scale_m, quads : as :class:`BvhPart`
+    scale_m, quads, exact : as :class:`BvhPart`
     """
 
     vertices: NDArray[np.float64]
@@ -169,13 +162,14 @@ class BvhFaces:
     file_faces: bool
     scale_m: float
     quads: bool
+    exact: bool
 
 
 class EmbreeBvh:
-    """The two Embree BVHs (robust and fast mode) over the occluding faces of one mesh, and
-    what deciding a ray in float64 needs of them: the state an :class:`EmbreeOcclusion`
-    casts against, which several of them may share (a Dask worker's tiles of one plan,
-    :class:`planner.visibility.tiles.Occluders`).
+    """The Embree BVH (robust mode; a fast-mode one too once exact rays need it) over the
+    occluding faces of one mesh, and what deciding a ray in float64 needs of them: the
+    state an :class:`EmbreeOcclusion` casts against, which several of them may share (a
+    Dask worker's tiles of one plan, :class:`planner.visibility.tiles.Occluders`).
 
     ``vertices`` (V, 3) float64 and ``faces`` (B, 3) int32 are the mesh, ``occluding`` (B,)
     bool which of its faces the BVH holds (in the mesh's order: the same faces in the same
@@ -190,9 +184,9 @@ class EmbreeBvh:
         self.mesh = (vertices, faces)
         # the mesh's own scale and quads, not a larger model's (reused_bvh)
         self.own_scale = scale_m is None and quads is None
-        self.scene = rtcore_scene.EmbreeScene(robust=True)
-        # the same faces in Embree's fast mode: where the two casts disagree, float64 decides
-        self.check_scene = rtcore_scene.EmbreeScene(robust=False)
+        self.scene: PinnedScene | None = None
+        # the same faces in Embree's fast mode, built when exact rays first need it
+        self._check_scene: PinnedScene | None = None
         self.faces: NDArray[np.int64] = np.flatnonzero(occluding)  # (b,) the BVH's faces
         self.empty = len(self.faces) == 0
         self.all_occlude = bool(np.asarray(occluding, bool).all())
@@ -203,8 +197,7 @@ class EmbreeBvh:
             # indexed (shared vertices): a third faster to build than a triangle soup
             vertices32 = vertices.astype(np.float32)
             faces32 = faces[self.faces].astype(np.int32)
-            self._mesh = TriangleMesh(self.scene, vertices32, faces32)
-            self._check_mesh = TriangleMesh(self.check_scene, vertices32, faces32)
+            self.scene = PinnedScene(vertices32, faces32, robust=True)
             # the corners as Embree holds them (float32), for the clear-hit test
             self.corners32 = (vertices32, faces32)
             self.scale_m = (float(np.abs(vertices32).max(initial=1.0)) if scale_m is None
@@ -217,6 +210,15 @@ class EmbreeBvh:
         self._quad_partners: tuple[NDArray[np.int32], NDArray[np.int8],
                                    NDArray[np.int32]] | None = None
         self._lock = threading.Lock()
+
+    def check_scene(self) -> PinnedScene:
+        """The occluding faces in Embree's fast mode, built the first time exact rays
+        compare the two modes' verdicts (a second BVH, as large as the first)."""
+        with self._lock:
+            if self._check_scene is None:
+                vertices32, faces32 = self.corners32
+                self._check_scene = PinnedScene(vertices32, faces32, robust=False)
+            return self._check_scene
 
     def quads(self) -> tuple[NDArray[np.int32], NDArray[np.int8], NDArray[np.int32]]:
         """The BVH triangles' quad partners (:func:`quad_partners`), found the first time
@@ -261,35 +263,36 @@ class EmbreeOcclusion:
 
     float32 cannot decide every ray: one that grazes an edge or a corner of an occluder
     (common in models built on a grid, where a ray from a grid point to a centroid often
-    passes exactly through a vertex) is decided by rounding, and Embree's rounding depends
-    on the instruction set the CPU offers (AVX2 and AVX-512 disagree on a few rays). So
-    ``visible`` casts every ray in Embree's robust (watertight) mode and, unless that cast
-    hit an occluder clearly (well inside its edges and in front of the target, a hit every
-    mode finds, so the verdicts cannot differ), again in its fast mode; it decides the rays
-    where the two disagree in float64 as the brute-force reference does, against the
-    faces either cast hit and every face sharing a vertex with them. Measured: 150 of
-    hall-small's 3.0 M rays and 2,296 of hall-full's 17.6 M disagree;
-    the robust cast alone was wrong on 21 and 35 of them, enough to change the stations
-    the coverage curve needs at 100 % on hall-small (37 instead of the reference's 36) on
-    an AVX2 machine. The second cast costs a second BVH and ray time: hall-full's
-    visibility stage went from 2.15 s to 3.93 s on 2 cores (benchmarks/plan_hall.py).
-    Leaving it out on clear hits saves it on 35 % of hall-full's rays and 63 % of
-    FZK-Haus's (most of a building's rays end in a wall of another room): FZK-Haus's
-    65.9 M rays took 32.6 CPU s instead of 40.8, every verdict the same
-    (tests/planner/test_occlusion.py compares them ray by ray).
+    passes exactly through a vertex) is decided by rounding. Embree's rounding depends on
+    its kernels, which :mod:`planner.rays.pinned` pins to one instruction set, so by
+    default ``visible`` casts every ray once, in Embree's robust (watertight) mode, and
+    every machine with that set decides it the same way.
+
+    ``exact`` decides every ray as the brute-force reference does, in float64: unless the
+    robust cast hit an occluder clearly (well inside its edges and in front of the target,
+    a hit every mode finds), the ray is cast again in Embree's fast mode, and the rays
+    where the two disagree are decided in float64 against the faces either cast hit and
+    every face sharing a vertex with them. Measured: 150 of hall-small's 3.0 M rays and
+    2,296 of hall-full's 17.6 M disagree; the robust cast alone differs from the reference
+    on 21 and 35 of them, which moves the stations hall-small's coverage curve needs at
+    100 % by one (37 instead of the reference's 36). The second cast costs a second BVH
+    and ray time (tests/planner/test_occlusion.py compares the exact verdicts with the
+    reference ray by ray).
 
     ``part_of`` (:class:`BvhPart`): the scene is a part of a larger model (a tile, cut
     with every occluder a ray of the part can meet); which BVH faces occlude, the clear
     margin and the quads are then the whole model's, so the part's verdicts are its.
     ``bvh`` (:class:`EmbreeBvh`): cast against that BVH, built once over this scene's BVH
     mesh (the file's mesh with ``file_faces``) and shared, instead of building one.
+    ``exact`` (or ``part_of.exact``): decide every ray in float64, as above.
 
     ``visible`` releases the GIL inside Embree, so threads calling it run in parallel.
     """
 
     def __init__(self, scene: Scene, occludes: NDArray[np.bool_], *,
                  file_faces: bool = False, part_of: BvhPart | None = None,
-                 bvh: EmbreeBvh | None = None) -> None:
+                 bvh: EmbreeBvh | None = None, exact: bool = False) -> None:
+        self.exact = exact or (part_of is not None and part_of.exact)
         remeshed = file_faces and scene.file_faces is not None
         bvh_vertices, bvh_faces = scene.file_mesh if remeshed else (scene.vertices, scene.faces)
         # (F,) the BVH face each scene face is part of (the identity on an unremeshed scene)
@@ -311,7 +314,7 @@ class EmbreeOcclusion:
             raise ValueError("the shared BVH is not over this scene's BVH mesh")
         self._bvh = bvh
         # the BVH's own state, read through these names by the queries below
-        self._scene, self._check_scene = bvh.scene, bvh.check_scene
+        self._scene = bvh.scene
         self._faces, self._empty = bvh.faces, bvh.empty
         self._corners32 = bvh.corners32
         self._scale_m, self._clear_margin_m = bvh.scale_m, bvh.clear_margin_m
@@ -340,7 +343,8 @@ class EmbreeOcclusion:
         """The faces this occlusion casts against (see :class:`BvhFaces`)."""
         vertices, faces = self._bvh_mesh
         return BvhFaces(vertices, faces, self._faces.astype(np.int64),
-                        self._source_face is not None, self._scale_m, self._quads_allowed)
+                        self._source_face is not None, self._scale_m, self._quads_allowed,
+                        self.exact)
 
     def visible(
         self,
@@ -362,17 +366,18 @@ class EmbreeOcclusion:
         origins32 = np.ascontiguousarray(origins, np.float32)
         directions32 = np.ascontiguousarray(directions, np.float32)
         far = np.multiply(distances_m, FAR_LIMIT_FACTOR, dtype=np.float32)
-        prim = np.asarray(self._scene.run(origins32, directions32, dists=far,
-                                          query="INTERSECT"), np.int64)
+        assert self._scene is not None
+        prim = self._scene.first_hits(origins32, directions32, far)
         targets: NDArray[np.int64] = np.asarray(target_faces, np.int64)
         visible = self._reaches(prim, targets)
+        if not self.exact:
+            return visible
         # the fast-mode cast, for the rays whose robust verdict is not a clear hit on an
         # occluder (a clear hit is found in either mode, so both casts would agree on it)
         unsure = np.flatnonzero(~self._clear_hits(origins32, directions32, prim, visible,
                                                   distances_m))
-        check_unsure = np.asarray(self._check_scene.run(
-            origins32[unsure], directions32[unsure], dists=far[unsure], query="INTERSECT"),
-            np.int64) if len(unsure) else np.zeros(0, np.int64)
+        check_unsure = self._bvh.check_scene().first_hits(
+            origins32[unsure], directions32[unsure], far[unsure])
         differ = visible[unsure] != self._reaches(check_unsure, targets[unsure])
         doubtful, check = unsure[differ], check_unsure[differ]  # check: at the doubtful rays
         if len(doubtful):
@@ -426,8 +431,8 @@ class EmbreeOcclusion:
             corners = corners[reaches]
         directions32 = (offset / distance_m[:, :, None]).reshape(-1, 3).astype(np.float32)
         far = np.multiply(distance_m.ravel(), FAR_LIMIT_FACTOR, dtype=np.float32)
-        prim = np.asarray(self._scene.run(np.repeat(origins32, 4, axis=0), directions32,
-                                          dists=far, query="INTERSECT"), np.int64)
+        assert self._scene is not None
+        prim = self._scene.first_hits(np.repeat(origins32, 4, axis=0), directions32, far)
         vertices32, faces32 = self._corners32
         ruled_out = np.zeros(len(start), bool)
         _bundle_hidden_kernel(start, np.ascontiguousarray(corners, np.float64),
@@ -466,9 +471,9 @@ class EmbreeOcclusion:
         offsets = np.stack([side_a, -side_a, side_b, -side_b], axis=1) * _PROBE_OFFSET_M
         probe_origins = (origins[:, None, :] + offsets).reshape(-1, 3).astype(np.float32)
         probe_directions = np.repeat(directions, 4, axis=0).astype(np.float32)
-        hits = [np.asarray(scene.run(probe_origins, probe_directions, query="INTERSECT"),
-                           np.int64).reshape(-1, 4)
-                for scene in (self._scene, self._check_scene)]
+        assert self._scene is not None
+        hits = [scene.first_hits(probe_origins, probe_directions).reshape(-1, 4)
+                for scene in (self._scene, self._bvh.check_scene())]
         return np.concatenate(hits, axis=1)
 
     def _decide_exactly(
@@ -535,11 +540,9 @@ class EmbreeOcclusion:
         """
         if self._empty or len(origins) == 0:
             return np.full(len(origins), -1, np.int64)
-        prim = np.asarray(self._scene.run(
-            np.ascontiguousarray(origins, np.float32),
-            np.ascontiguousarray(directions, np.float32),
-            query="INTERSECT",
-        ), np.int64)
+        assert self._scene is not None
+        prim = self._scene.first_hits(np.ascontiguousarray(origins, np.float32),
+                                      np.ascontiguousarray(directions, np.float32))
         face: NDArray[np.int64] = np.where(prim >= 0, self._faces[np.maximum(prim, 0)], -1)
         return face
 
@@ -553,17 +556,15 @@ class EmbreeOcclusion:
         """
         if self._empty or len(origins) == 0:
             return np.full(len(origins), -1, np.int64), np.full(len(origins), np.inf)
-        info = self._scene.run(
+        assert self._scene is not None
+        prim, tfar = self._scene.first_hits_and_distances(
             np.ascontiguousarray(origins, np.float32),
-            np.ascontiguousarray(directions, np.float32),
-            output=True,
-        )
-        prim = np.asarray(info["primID"], np.int64)
+            np.ascontiguousarray(directions, np.float32))
         hit = prim >= 0
         face = np.where(hit, self._faces[np.where(hit, prim, 0)], -1)
         if self._source_face is not None:
             face = np.where(hit, self._first_piece[np.maximum(face, 0)], -1)
-        distance = np.where(hit, np.asarray(info["tfar"], np.float64), np.inf)
+        distance = np.where(hit, tfar.astype(np.float64), np.inf)
         return face, distance
 
 

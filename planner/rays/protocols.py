@@ -26,7 +26,13 @@ ExactRays = Callable[[NDArray[np.int64]], tuple[NDArray[np.float64], NDArray[np.
 
 
 class Occlusion(Protocol):
-    """Answers, for P rays, whether each reaches its target face unblocked."""
+    """Answers, for P rays, whether each reaches its target face unblocked.
+
+    ``exact``: every ray is decided as the float64 brute-force reference decides it (else
+    by one float32 cast, the same on every machine with the pinned kernels).
+    """
+
+    exact: bool
 
     def visible(
         self,

@@ -197,7 +197,8 @@ def _worst_case_network(
     overlap = overlap_limits(limits, overlap_density_pts_m2)
     if (doors & limits.occludes).any():  # doors are open for the overlap rays, as the survey's
         overlap = dataclasses.replace(overlap, occludes=limits.occludes & ~doors)
-        occlusion = make_occlusion(scene, overlap.occludes, "embree", file_faces=file_faces)
+        occlusion = make_occlusion(scene, overlap.occludes, "embree", file_faces=file_faces,
+                                   exact=occlusion.exact)
     shared = shared_faces_only(station_overlap)
     rows = [np.asarray(shared.indices[shared.indptr[n]:shared.indptr[n + 1]], np.int32)
             for n in range(shared.shape[0])]
@@ -505,13 +506,13 @@ def plan_tolerance(sight: Sight, table: CoverageTable, chosen: Selection,
     release_freed_memory()
     t_tolerance, cpu_tolerance = time.perf_counter(), time.process_time()
     displaced = displaced_positions(
-        scene, stations_xyz, spec.placement_tolerance_m, spec.clearance_m, sight.caster)
+        scene, stations_xyz, spec.tolerance_radius_m, spec.clearance_m, sight.caster)
     release_freed_memory()
     stats.seconds["tolerance_setups"] = time.perf_counter() - t_tolerance
     tolerance = placement_tolerance(
         scene, table, chosen.stations, displaced, sight.limits,
         sight.qualifier(most_tests=STATION_TESTS_PER_BLOCK),
-        tolerance_m=spec.placement_tolerance_m,
+        tolerance_m=spec.tolerance_radius_m,
         covered_area_m2=chosen.covered_area_m2[-1] if chosen.stations else 0.0,
         goal_area_m2=spec.coverage_goal * table.max_achievable_area_m2,
         station_overlap=station_overlap, min_overlap_m2=spec.min_overlap_m2,

@@ -76,7 +76,8 @@ class OverlapRows:
         self._occludes = limits.occludes
         if (doors & limits.occludes).any():
             self._occludes = limits.occludes & ~doors
-            occlusion = make_occlusion(scene, self._occludes, "embree", file_faces=file_faces)
+            occlusion = make_occlusion(scene, self._occludes, "embree", file_faces=file_faces,
+                                       exact=occlusion.exact)
         self._scene = scene
         self._fanout = fanout
         self.n_faces = scene.n_faces

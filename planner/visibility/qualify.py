@@ -86,7 +86,8 @@ class Sight:
         limits = FaceLimits.from_spec(spec, scene)
         return cls(scene, spec, limits,
                    make_occlusion(scene, limits.occludes, backend,
-                                  file_faces=spec.occluders == "file"),
+                                  file_faces=spec.occluders == "file",
+                                  exact=spec.exact_rays),
                    backend)
 
     @functools.cached_property
@@ -113,7 +114,7 @@ class Sight:
         limits = FaceLimits.from_spec(self.spec, scene)
         return Sight(scene, self.spec, limits,
                      make_occlusion(scene, limits.occludes, self.backend, file_faces=True,
-                                    like=self.occlusion),
+                                    like=self.occlusion, exact=self.spec.exact_rays),
                      self.backend)
 
     def qualifier(self, most_tests: int = TESTS_PER_BLOCK
@@ -191,9 +192,9 @@ def robust_table(sight: Sight, table: CoverageTable, positions: np.ndarray, stat
     t_robust = time.perf_counter()
     robust = CoverageTable.from_blocks(robust_blocks(
         scene, table, displaced_positions(
-            scene, positions, spec.placement_tolerance_m, spec.clearance_m, sight.caster),
+            scene, positions, spec.tolerance_radius_m, spec.clearance_m, sight.caster),
         sight.limits, sight.qualifier(), threads=threads,
-        disc_radius_m=spec.placement_tolerance_m if spec.coverage_model == "centroid"
+        disc_radius_m=spec.tolerance_radius_m if spec.coverage_model == "centroid"
         else None,
         # part of the coverage table: a cancel is heard, the percentage stays put
         notify=lambda _: notify(progress, "visibility", 1.0)),

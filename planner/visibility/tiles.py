@@ -224,7 +224,8 @@ class TileCutter:
         if not self._file_bvh or file_vertices is None or file_faces is None:
             return None
         return Occluders(file_vertices, file_faces,
-                         BvhPart(self._bvh_occludes, self.bvh.scale_m, self.bvh.quads))
+                         BvhPart(self._bvh_occludes, self.bvh.scale_m, self.bvh.quads,
+                                 self.bvh.exact))
 
     def cut(self, candidates: NDArray[np.int64], positions: NDArray[np.float64], *,
             detached: bool = False) -> Tile:
@@ -285,7 +286,7 @@ class TileCutter:
         tile = Tile(part, part_limits, faces.astype(np.int32),
                     np.ascontiguousarray(positions, np.float64),
                     np.asarray(candidates, np.int64), self.reach_m, bvh.file_faces,
-                    BvhPart(self._bvh_occludes, bvh.scale_m, bvh.quads))
+                    BvhPart(self._bvh_occludes, bvh.scale_m, bvh.quads, bvh.exact))
         return tile.detached() if detached else tile
 
 

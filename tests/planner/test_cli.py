@@ -19,7 +19,9 @@ def scanplan(*args: str) -> subprocess.CompletedProcess[str]:
 @pytest.fixture(scope="module")
 def hall_small(scenes_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     params = tmp_path_factory.mktemp("params") / "params.json"
-    params.write_text(json.dumps({"max_edge_m": None, "method": "weighted_greedy"}))
+    # exact rays: the curve is compared with the reference's (expected.json) at every goal
+    params.write_text(json.dumps({"max_edge_m": None, "method": "weighted_greedy",
+                                  "exact_rays": True}))
     outs = {}
     for run in ("a", "b"):
         out = tmp_path_factory.mktemp(f"out-{run}")

@@ -15,18 +15,45 @@ from planner.pipeline import PlanResult, plan
 from planner.selection.curve import GOALS
 
 
-def run_hall(scenes_dir: Path, name: str) -> tuple[PlanResult, dict]:
+def run_hall(scenes_dir: Path, name: str, *, exact_rays: bool = True
+             ) -> tuple[PlanResult, dict]:
     folder = scenes_dir / name
     scene = read_scene(folder / "hall.obj", max_edge_m=None)
     candidates = read_candidates_csv(folder / "candidates.csv")
-    spec = PlanSpec(candidates=tuple(map(tuple, candidates.tolist())), max_edge_m=None)
+    spec = PlanSpec(candidates=tuple(map(tuple, candidates.tolist())), max_edge_m=None,
+                    exact_rays=exact_rays)
     expected = json.loads((folder / "expected.json").read_text())
     return plan(scene, spec), expected
 
 
+# with exact rays every ray is decided as the brute-force reference decides it: the whole
+# curve is the reference's
 @pytest.fixture(scope="module", params=["hall-small", "hall-full"])
 def hall(request: pytest.FixtureRequest, scenes_dir: Path) -> tuple[PlanResult, dict]:
     return run_hall(scenes_dir, request.param)
+
+
+@pytest.fixture(scope="module", params=["hall-small", "hall-full"])
+def hall_at_defaults(request: pytest.FixtureRequest, scenes_dir: Path
+                     ) -> tuple[PlanResult, dict]:
+    return run_hall(scenes_dir, request.param, exact_rays=False)
+
+
+@pytest.mark.parametrize("method", ["greedy", "weighted_greedy"])
+def test_defaults_keep_the_paper_s_stations(hall_at_defaults: tuple[PlanResult, dict],
+                                             method: str) -> None:
+    """One cast a ray (the default) keeps the reference's stations at the paper's goal,
+    80 %, and its curve below 100 %. At 100 % the last faces are often seen by one grazing
+    ray: there the curve may differ by a station (hall-small: 37 and 32 against the
+    reference's 36 and 31)."""
+    result, expected = hall_at_defaults
+    assert list(result.selections[method].truncated(0.8).stations) == \
+        expected["goal_0.8"][method]["stations"]
+    curve = [result.selections[method].count_for_goal(goal) for goal in GOALS]
+    reference = expected["coverage_curve"][method]
+    assert curve[:-1] == reference[:-1]
+    assert abs(curve[-1] - reference[-1]) <= 1
+    assert result.table.n_pairs == pytest.approx(expected["qualified_pairs"], rel=1e-4)
 
 
 def test_totals_match(hall: tuple[PlanResult, dict]) -> None:

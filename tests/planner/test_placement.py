@@ -113,7 +113,8 @@ def _hall(scenes_dir: Path, name: str, **params: object) -> tuple[PlanResult, Pl
 
 @pytest.fixture(scope="module")
 def hall_default(scenes_dir: Path) -> tuple[PlanResult, PlanSpec, Path]:
-    return _hall(scenes_dir, "hall-small")
+    """The report asked for at the radius a crew setting up by eye gives."""
+    return _hall(scenes_dir, "hall-small", placement_tolerance_m=TOLERANCE_M)
 
 
 @pytest.fixture(scope="module")
@@ -196,16 +197,19 @@ def test_tolerance_report_agrees_with_an_independent_recomputation(
         assert s["tolerance"]["critical"] == (keeps < goal_m2 - 1e-6)
 
 
-def test_default_plan_only_gains_the_tolerance_keys(
+def test_the_report_asked_for_only_gains_the_tolerance_keys(
         hall_default: tuple[PlanResult, PlanSpec, Path], scenes_dir: Path) -> None:
     result, _, _ = hall_default
-    without, _, _ = _hall(scenes_dir, "hall-small", placement_tolerance_m=0)
+    without, _, _ = _hall(scenes_dir, "hall-small")  # the default: no report
+    assert without.spec.placement_tolerance_m is None
+    off, _, _ = _hall(scenes_dir, "hall-small", placement_tolerance_m=0)
     with_report, without_report = plan_document(result), plan_document(without)
     assert "tolerance" not in without_report and "tolerance" in with_report
+    assert "tolerance" not in plan_document(off)
     del with_report["tolerance"]
     for station in with_report["stations"]:
         del station["tolerance"]
-    with_report["parameters"]["placement_tolerance_m"] = 0.0
+    with_report["parameters"]["placement_tolerance_m"] = None
     assert json.dumps(with_report, sort_keys=True) == json.dumps(without_report, sort_keys=True)
     assert faces_npz(result) == faces_npz(without)
 

@@ -1,0 +1,244 @@
+"""Embree through its C API on a device pinned to one instruction set.
+
+Embree picks its kernels at run time from the CPU's instruction sets (SSE4.2, AVX, AVX2,
+AVX-512), and kernels of two sets round a ray that grazes an edge differently: an AVX2 and
+an AVX-512 machine disagree on a few rays of a building. So the plan would depend on the
+machine. Embree's device configuration caps the kernels it may use (``max_isa``, Embree's
+API reference, ``rtcNewDevice``: "isa", "max_isa"); every machine that has the capped set
+then runs the same kernels, the same instructions on the same float32 data, and decides
+every ray the same way with one cast.
+
+The cap is AVX2 (with FMA3, BMI1/2, LZCNT and MOVBE, as Embree defines it: Intel Haswell,
+2013, and later; AMD Excavator, 2015, and Zen). A CPU without it runs Embree's best set
+below AVX2, which :data:`KERNELS` names and every plan records; on ARM the kernels are the
+NEON ones of that build.
+
+embreex's Python wrapper makes its devices with no configuration, so this module calls
+the Embree library that embreex ships (the same binary) through ctypes, and casts rays in
+compiled loops that call ``rtcIntersect1`` directly (the GIL released).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import glob
+import os
+import platform
+import threading
+from typing import Any
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from planner.errors import PlannerError
+
+# Embree 4's C API (include/embree4/rtcore_*.h): the enum values this module passes
+_GEOMETRY_TYPE_TRIANGLE = 0
+_BUFFER_TYPE_INDEX, _BUFFER_TYPE_VERTEX = 0, 1
+_FORMAT_UINT3, _FORMAT_FLOAT3 = 0x5003, 0x9003
+_SCENE_FLAG_ROBUST = 1 << 2
+_BUILD_QUALITY_MEDIUM = 1  # Embree's default for static scenes
+_INVALID_ID = 0xFFFFFFFF
+# RTCRayHit: the ray (org, tnear, dir, time, tfar, mask, id, flags: 12 x 4 bytes) and the
+# hit (Ng, u, v, primID, geomID, instID, instPrimID), aligned to 16 bytes: 96 bytes; the
+# words of it the loops below write and read
+_RAYHIT_WORDS = 24
+_TFAR, _MASK, _ID, _FLAGS = 8, 9, 10, 11
+_PRIM_ID, _GEOM_ID, _INST_ID, _INST_PRIM_ID = 17, 18, 19, 20
+
+# Embree's AVX2 set, in LLVM's names of the CPU features (Embree's common/sys/sysinfo.h:
+# ISA_AVX2 = AVX + AVX2, FMA3, BMI1, BMI2, LZCNT, MOVBE)
+_AVX2_FEATURES = ("avx", "avx2", "fma", "bmi", "bmi2", "lzcnt", "movbe", "sse4.2")
+
+
+def _library_path() -> str:
+    """The Embree 4 shared library that embreex's wheel bundles beside its package."""
+    try:
+        import embreex
+    except ImportError as exc:  # pragma: no cover - depends on the installation
+        raise PlannerError(
+            "embreex is not installed; install the project with its dependencies "
+            "(pip install -e .) to get the Embree ray caster") from exc
+    package = os.path.dirname(embreex.__file__)
+    site = os.path.dirname(package)
+    patterns = (os.path.join(site, "embreex.libs", "libembree4*"),  # Linux (auditwheel)
+                os.path.join(package, ".dylibs", "libembree4*"),  # macOS (delocate)
+                os.path.join(site, "embreex.libs", "embree4*.dll"))  # Windows (delvewheel)
+    for pattern in patterns:
+        found = sorted(glob.glob(pattern))
+        if found:
+            return found[0]
+    raise PlannerError(f"embreex's Embree 4 library was not found beside {package}; "
+                       "reinstall embreex from its wheel (pip install --force-reinstall embreex)")
+
+
+def _kernel_set() -> tuple[str, bytes]:
+    """The instruction set the kernels are pinned to on this CPU, and the device config."""
+    machine = platform.machine().lower()
+    if machine not in ("x86_64", "amd64", "i686", "x86"):
+        return f"{machine} (Embree's default kernels)", b""
+    import llvmlite.binding as llvm
+
+    features = llvm.get_host_cpu_features()
+    if all(features.get(name, False) for name in _AVX2_FEATURES):
+        return "avx2", b"max_isa=avx2"
+    if features.get("sse4.2", False):
+        return "sse4.2", b"max_isa=sse4.2"
+    return "sse2", b"max_isa=sse2"
+
+
+_LIB = ctypes.CDLL(_library_path())
+_VOID = ctypes.c_void_p
+for _name, _args, _result in (
+        ("rtcNewDevice", [ctypes.c_char_p], _VOID),
+        ("rtcGetDeviceError", [_VOID], ctypes.c_int),
+        ("rtcNewScene", [_VOID], _VOID),
+        ("rtcSetSceneFlags", [_VOID, ctypes.c_int], None),
+        ("rtcSetSceneBuildQuality", [_VOID, ctypes.c_int], None),
+        ("rtcNewGeometry", [_VOID, ctypes.c_int], _VOID),
+        ("rtcSetNewGeometryBuffer", [_VOID, ctypes.c_int, ctypes.c_uint, ctypes.c_int,
+                                     ctypes.c_size_t, ctypes.c_size_t], _VOID),
+        ("rtcCommitGeometry", [_VOID], None),
+        ("rtcAttachGeometry", [_VOID, _VOID], ctypes.c_uint),
+        ("rtcReleaseGeometry", [_VOID], None),
+        ("rtcCommitScene", [_VOID], None),
+        ("rtcReleaseScene", [_VOID], None),
+        ("rtcIntersect1", [_VOID, _VOID, _VOID], None)):
+    _function = getattr(_LIB, _name)
+    _function.argtypes, _function.restype = _args, _result
+_intersect1 = _LIB.rtcIntersect1
+
+#: the instruction set every ray of this process is decided with ("avx2" on any x86-64
+#: CPU since 2013-2015)
+KERNELS, _CONFIG = _kernel_set()
+_device: int | None = None
+_device_lock = threading.Lock()
+
+
+def _the_device() -> int:
+    """This process's pinned Embree device (thread-safe, made once)."""
+    global _device
+    with _device_lock:
+        if _device is None:
+            device = _LIB.rtcNewDevice(_CONFIG or None)
+            if not device:
+                raise PlannerError(f"Embree refused its device (config {_CONFIG.decode()!r})")
+            _device = int(device)
+        return _device
+
+
+def _check(what: str) -> None:
+    code = _LIB.rtcGetDeviceError(_the_device())
+    if code:
+        raise PlannerError(f"Embree failed to {what} (error {code}); the model may be "
+                           "too large for this machine's memory")
+
+
+class PinnedScene:
+    """One triangle mesh in an Embree scene on the pinned device, built at once.
+
+    ``vertices32`` (V, 3) float32 and ``faces32`` (B, 3) int32 are copied into Embree's own
+    buffers (16 and 12 bytes a vertex and a triangle); ``robust``: Embree's watertight mode
+    (no ray slips between two triangles that share an edge), else its fast mode.
+    """
+
+    def __init__(self, vertices32: NDArray[np.float32], faces32: NDArray[np.int32], *,
+                 robust: bool) -> None:
+        device = _the_device()
+        self._scene = int(_LIB.rtcNewScene(device))
+        if robust:
+            _LIB.rtcSetSceneFlags(self._scene, _SCENE_FLAG_ROBUST)
+        _LIB.rtcSetSceneBuildQuality(self._scene, _BUILD_QUALITY_MEDIUM)
+        geometry = _LIB.rtcNewGeometry(device, _GEOMETRY_TYPE_TRIANGLE)
+        vertex_buffer = _LIB.rtcSetNewGeometryBuffer(
+            geometry, _BUFFER_TYPE_VERTEX, 0, _FORMAT_FLOAT3, 16, len(vertices32))
+        index_buffer = _LIB.rtcSetNewGeometryBuffer(
+            geometry, _BUFFER_TYPE_INDEX, 0, _FORMAT_UINT3, 12, len(faces32))
+        _check("allocate the model's buffers")
+        if len(vertices32):
+            as_vertices = np.ctypeslib.as_array(
+                (ctypes.c_float * (4 * len(vertices32))).from_address(vertex_buffer))
+            as_vertices.reshape(-1, 4)[:, :3] = vertices32
+        if len(faces32):
+            as_faces = np.ctypeslib.as_array(
+                (ctypes.c_uint32 * (3 * len(faces32))).from_address(index_buffer))
+            as_faces.reshape(-1, 3)[:] = faces32
+        _LIB.rtcCommitGeometry(geometry)
+        _LIB.rtcAttachGeometry(self._scene, geometry)
+        _LIB.rtcReleaseGeometry(geometry)
+        _LIB.rtcCommitScene(self._scene)
+        _check("build its BVH")
+
+    def __del__(self) -> None:
+        scene = getattr(self, "_scene", 0)
+        if scene:
+            _LIB.rtcReleaseScene(scene)
+            self._scene = 0
+
+    def first_hits(self, origins32: NDArray[np.float32], directions32: NDArray[np.float32],
+                   far32: NDArray[np.float32] | None = None) -> NDArray[np.int64]:
+        """(R,) the triangle each (R, 3) ray hits first within ``far32`` (R,) (unbounded
+        when None), -1 for none: Embree's closest hit from tnear 0."""
+        prim = np.empty(len(origins32), np.int64)
+        if len(origins32):
+            _cast(_intersect1, self._scene, _contiguous32(origins32),
+                  _contiguous32(directions32), _far(far32, len(origins32)), prim,
+                  np.empty(0, np.float32))
+        return prim
+
+    def first_hits_and_distances(
+            self, origins32: NDArray[np.float32], directions32: NDArray[np.float32]
+    ) -> tuple[NDArray[np.int64], NDArray[np.float32]]:
+        """(R,) the first triangle each (R, 3) ray hits (-1: none) and (R,) its distance
+        along the direction (Embree's tfar; the ray's far limit for a miss)."""
+        prim = np.empty(len(origins32), np.int64)
+        distance = _far(None, len(origins32)).copy()
+        if len(origins32):
+            _cast(_intersect1, self._scene, _contiguous32(origins32),
+                  _contiguous32(directions32), distance, prim, distance)
+        return prim, distance
+
+
+def _contiguous32(array: NDArray[Any]) -> NDArray[np.float32]:
+    return np.ascontiguousarray(array, np.float32)
+
+
+def _far(far32: NDArray[np.float32] | None, n: int) -> NDArray[np.float32]:
+    if far32 is None:
+        return np.full(n, np.inf, np.float32)
+    return np.ascontiguousarray(far32, np.float32)
+
+
+@numba.njit(nogil=True, cache=True)
+def _cast(intersect1: Any, scene: int, origins32: NDArray[np.float32],
+          directions32: NDArray[np.float32], far32: NDArray[np.float32], prim: NDArray[np.int64],
+          distance: NDArray[np.float32]) -> None:
+    """Cast each (R, 3) ray with ``intersect1`` (Embree's ``rtcIntersect1``, passed as a
+    first-class function so that the compiled loop is cached across processes) up to
+    ``far32`` (R,); write its first triangle to ``prim`` (R,) (-1: none) and, when
+    ``distance`` is not empty, its tfar."""
+    # one RTCRayHit, aligned to 16 bytes inside a slightly longer buffer
+    buffer = np.zeros(_RAYHIT_WORDS + 4, np.float32)
+    start = ((16 - buffer.ctypes.data % 16) % 16) // 4
+    ray = buffer[start:start + _RAYHIT_WORDS]
+    words = ray.view(np.uint32)
+    with_distance = distance.shape[0] > 0
+    for r in range(origins32.shape[0]):
+        ray[0], ray[1], ray[2] = origins32[r, 0], origins32[r, 1], origins32[r, 2]
+        ray[3] = 0.0  # tnear
+        ray[4], ray[5], ray[6] = directions32[r, 0], directions32[r, 1], directions32[r, 2]
+        ray[7] = 0.0  # time
+        ray[_TFAR] = far32[r]
+        words[_MASK] = _INVALID_ID  # every geometry
+        words[_ID] = 0
+        words[_FLAGS] = 0
+        words[_PRIM_ID] = _INVALID_ID
+        words[_GEOM_ID] = _INVALID_ID
+        words[_INST_ID] = _INVALID_ID
+        words[_INST_PRIM_ID] = _INVALID_ID
+        intersect1(scene, ray.ctypes, 0)
+        hit = words[_GEOM_ID] != _INVALID_ID
+        prim[r] = np.int64(words[_PRIM_ID]) if hit else -1
+        if with_distance:
+            distance[r] = ray[_TFAR]
