@@ -112,24 +112,23 @@ _intersect1 = _LIB.rtcIntersect1
 #: the instruction set every ray of this process is decided with ("avx2" on any x86-64
 #: CPU since 2013-2015)
 KERNELS, _CONFIG = _kernel_set()
-_device: int | None = None
+_devices: dict[bytes, int] = {}
 _device_lock = threading.Lock()
 
 
-def _the_device() -> int:
-    """This process's pinned Embree device (thread-safe, made once)."""
-    global _device
+def _device(config: bytes) -> int:
+    """The Embree device of ``config`` in this process (thread-safe, made once)."""
     with _device_lock:
-        if _device is None:
-            device = _LIB.rtcNewDevice(_CONFIG or None)
+        if config not in _devices:
+            device = _LIB.rtcNewDevice(config or None)
             if not device:
-                raise PlannerError(f"Embree refused its device (config {_CONFIG.decode()!r})")
-            _device = int(device)
-        return _device
+                raise PlannerError(f"Embree refused its device (config {config.decode()!r})")
+            _devices[config] = int(device)
+        return _devices[config]
 
 
-def _check(what: str) -> None:
-    code = _LIB.rtcGetDeviceError(_the_device())
+def _check(device: int, what: str) -> None:
+    code = _LIB.rtcGetDeviceError(device)
     if code:
         raise PlannerError(f"Embree failed to {what} (error {code}); the model may be "
                            "too large for this machine's memory")
@@ -141,11 +140,13 @@ class PinnedScene:
     ``vertices32`` (V, 3) float32 and ``faces32`` (B, 3) int32 are copied into Embree's own
     buffers (16 and 12 bytes a vertex and a triangle); ``robust``: Embree's watertight mode
     (no ray slips between two triangles that share an edge), else its fast mode.
+    ``max_isa`` caps the kernels at another instruction set than the pinned one (Embree's
+    names: "sse4.2", "avx", "avx2", "avx512"): only to show that the set decides rays.
     """
 
     def __init__(self, vertices32: NDArray[np.float32], faces32: NDArray[np.int32], *,
-                 robust: bool) -> None:
-        device = _the_device()
+                 robust: bool, max_isa: str | None = None) -> None:
+        device = _device(_CONFIG if max_isa is None else b"max_isa=" + max_isa.encode())
         self._scene = int(_LIB.rtcNewScene(device))
         if robust:
             _LIB.rtcSetSceneFlags(self._scene, _SCENE_FLAG_ROBUST)
@@ -155,7 +156,7 @@ class PinnedScene:
             geometry, _BUFFER_TYPE_VERTEX, 0, _FORMAT_FLOAT3, 16, len(vertices32))
         index_buffer = _LIB.rtcSetNewGeometryBuffer(
             geometry, _BUFFER_TYPE_INDEX, 0, _FORMAT_UINT3, 12, len(faces32))
-        _check("allocate the model's buffers")
+        _check(device, "allocate the model's buffers")
         if len(vertices32):
             as_vertices = np.ctypeslib.as_array(
                 (ctypes.c_float * (4 * len(vertices32))).from_address(vertex_buffer))
@@ -168,7 +169,7 @@ class PinnedScene:
         _LIB.rtcAttachGeometry(self._scene, geometry)
         _LIB.rtcReleaseGeometry(geometry)
         _LIB.rtcCommitScene(self._scene)
-        _check("build its BVH")
+        _check(device, "build its BVH")
 
     def __del__(self) -> None:
         scene = getattr(self, "_scene", 0)

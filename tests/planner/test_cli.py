@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from planner.rays.pinned import KERNELS
+
 
 def scanplan(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "planner", *args], capture_output=True,
@@ -45,6 +47,7 @@ def test_plan_json_has_the_contract(hall_small: dict[str, Path], scenes_dir: Pat
     assert stations == expected["goal_0.8"]["weighted_greedy"]["stations"]
     assert plan["curve"]["greedy"] == expected["coverage_curve"]["greedy"]
     assert plan["parameters"]["method"] == "weighted_greedy"
+    assert plan["rays"] == {"kernels": KERNELS, "exact": True}
     assert plan["candidates"]["count"] == expected["candidates"]
     first = plan["stations"][0]
     assert set(first) >= {"candidate_index", "position", "new_area_m2", "covered_area_m2",
