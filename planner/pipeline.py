@@ -126,9 +126,9 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
         tolerance, station_overlap = plan_tolerance(
             sight, table, chosen, stations_xyz, station_overlap, stats, threads=threads,
             fanout=fanout)
-        # its threads' freed scratch, still in their arenas (the office: 320 MB), before the
-        # densities and the per-face results make the next peak
-        release_freed_memory()
+    # the threads' freed scratch (the overlap rows', the tolerance's: on the office 320 MB),
+    # still in their arenas, before the densities and the per-face results make the next peak
+    release_freed_memory()
     # with a scanner, each station's least density margin over the faces it is credited
     # with chooses its setting (planner.scanners)
     faces = coverage_state(
