@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from http import HTTPStatus
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response, status
@@ -173,12 +174,21 @@ def delete_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInf
 
 @router.get("/{job_id}/results", response_model=JobResults,
             responses={200: {"links": output_links("$request.path.job_id")},
-                       **problem_responses(409)})
+                       **problem_responses(409, 422)})
 def get_results(job_id: str, services: ServicesDep, owner: OwnerDep) -> JobResults | Response:
-    """The plan inline and every output by href; a failed job's problem."""
+    """The plan inline and every output by href; a failed job's problem.
+
+    A job that failed on its input (an unreadable model, a plan over the caps, out of
+    memory) answers with that problem's 4xx status. One that failed on the service's side
+    (the planning process killed, an unexpected error) answers 409: this request is
+    sound, the job's state is what keeps the results from it; the problem's type, title and
+    detail still say what happened."""
     job = visible_job(services, owner, job_id)
     if job.status == FAILED and job.problem is not None:
-        return JSONResponse(job.problem, status_code=int(job.problem.get("status", 500)),
+        code = int(job.problem.get("status", HTTPStatus.CONFLICT))
+        if not 400 <= code < 500:
+            code = HTTPStatus.CONFLICT
+        return JSONResponse({**job.problem, "status": code}, status_code=code,
                             media_type=MEDIA_TYPE)
     if job.status != SUCCESSFUL or job.outputs is None:
         raise ResultNotReadyError(f"job {job_id} is {job.status}; results come once it is "

@@ -134,4 +134,12 @@ def test_a_plan_killed_on_its_last_attempt_fails_naming_signal_stage_and_tries(
     assert "stage" in problem["detail"] and "out of memory" not in problem["detail"]
     assert queue.enqueued == [job_id], "no retry after the last attempt"
     assert [a["outcome"] for a in status["attempt_log"]] == ["killed"]
+    # its results: the same problem, with a 4xx status (the request is sound, the job's
+    # state keeps the results from it), never a server error
+    results = client.get(f"/jobs/{job_id}/results")
+    assert results.status_code == 409, results.text
+    assert results.headers["content-type"].startswith("application/problem+json")
+    answer = results.json()
+    assert answer["status"] == 409 and answer["type"] == problem["type"]
+    assert answer["detail"] == problem["detail"]
     client.__exit__(None, None, None)
