@@ -1,4 +1,4 @@
-"""Shared fixtures: where the team's test scenes live, an S3-compatible server."""
+"""Shared fixtures: the test models (tests/data_files.py), an S3-compatible server."""
 
 from __future__ import annotations
 
@@ -7,17 +7,20 @@ from pathlib import Path
 
 import pytest
 
+from planner.examples import DataMissingError
+from tests.data_files import scenes_layout
 from tests.s3_server import S3Server
-
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
-SCENES = SHARED / "scenes"
 
 
 @pytest.fixture(scope="session")
 def scenes_dir() -> Path:
-    if not SCENES.is_dir():
-        pytest.skip(f"the shared scenes are not beside the checkout ({SCENES})")
-    return SCENES
+    """Every test model in the scenes folder's layout; missing ones fail the test (never
+    skip it) with what to set."""
+    try:
+        return scenes_layout()
+    except DataMissingError as exc:
+        missing = str(exc)
+    pytest.fail(missing, pytrace=False)
 
 
 @pytest.fixture(scope="session")

@@ -14,10 +14,10 @@ from typing import Any
 
 import pytest
 
+from tests.data_files import HALL_SMALL as HALL
 from tests.e2e.service_process import Service
 
 ROOT = Path(__file__).resolve().parents[2]
-HALL = ROOT.parent / "shared" / "scenes" / "hall-small"
 GENERATOR = str(Path(sys.executable).with_name("openapi-python-client"))
 
 
@@ -36,9 +36,6 @@ def client_package(tmp_path: Path) -> Iterator[str]:
 
 
 def test_generated_client_runs_a_plan(tmp_path: Path, client_package: str) -> None:
-    if not HALL.is_dir():
-        pytest.skip(f"the shared scenes are not beside the checkout ({HALL})")
-
     def load(name: str) -> Any:
         return importlib.import_module(f"{client_package}.{name}")
 

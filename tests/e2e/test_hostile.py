@@ -4,23 +4,20 @@ job, and the service answers its health check after every one."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
 
+from tests.data_files import HALL_SMALL as HALL
 from tests.e2e.service_process import Service, wait_for
 
-HALL = Path(__file__).resolve().parents[2].parent / "shared" / "scenes" / "hall-small"
 FINISHED = ("successful", "failed", "dismissed")
 PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00\x00\x01\x00\x00\x00\x01\x08\x00\x00\x00"
 
 
 @pytest.fixture(scope="module")
 def service(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    if not HALL.is_dir():
-        pytest.skip(f"the shared scenes are not beside the checkout ({HALL})")
     running = Service(tmp_path_factory.mktemp("hostile") / "data", workers=1,
                       env={"SCANPLAN_JOB_MEMORY_LIMIT_MB": "3072"}).start()
     yield running

@@ -15,16 +15,14 @@ import httpx
 import pytest
 from owslib.ogcapi.processes import Processes
 
+from tests.data_files import HALL_SMALL as HALL
 from tests.e2e.service_process import Service
 
-HALL = Path(__file__).resolve().parents[2].parent / "shared" / "scenes" / "hall-small"
 CORE = "http://www.opengis.net/spec/ogcapi-processes-1/1.0/conf/core"
 
 
 @pytest.fixture
 def service(tmp_path: Path) -> Any:
-    if not HALL.is_dir():
-        pytest.skip(f"the shared scenes are not beside the checkout ({HALL})")
     running = Service(tmp_path / "data", workers=1).start()
     yield running
     running.stop()

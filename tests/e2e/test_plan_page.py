@@ -10,12 +10,12 @@ from typing import Any
 
 import pytest
 
+from tests.data_files import HALL_SMALL as HALL
 from tests.e2e.service_process import Service
 from tests.e2e.test_viewer import ARGS, find_browser
 
 pytestmark = pytest.mark.browser
 
-HALL = Path(__file__).resolve().parents[2].parent / "shared" / "scenes" / "hall-small"
 
 DROP = """([name, b64]) => {
   const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
@@ -31,8 +31,6 @@ DROP = """([name, b64]) => {
 
 @pytest.fixture
 def service(tmp_path: Path) -> Iterator[Service]:
-    if not HALL.is_dir():
-        pytest.skip(f"the shared scenes are not beside the checkout ({HALL})")
     running = Service(tmp_path / "data", workers=1).start()
     yield running
     running.stop()

@@ -16,17 +16,14 @@ from planner.io.readers import read_scene
 from planner.outputs.report import write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
+from tests.data_files import scenes_layout
 from tests.e2e.service_process import Service, child_pids, wait_for
 
-SCENES = Path(__file__).resolve().parents[2].parent / "shared" / "scenes"
 FINISHED = ("successful", "failed", "dismissed")
 
 
 def _scene(name: str) -> Path:
-    folder = SCENES / name
-    if not folder.is_dir():
-        pytest.skip(f"the shared scenes are not beside the checkout ({folder})")
-    return folder
+    return scenes_layout() / name
 
 
 def _parameters(folder: Path) -> dict[str, Any]:

@@ -30,12 +30,12 @@ from planner.outputs.ifc_plan import COVERAGE_PSET, OBJECT_TYPE, STATION_PSET, p
 from planner.outputs.report import absent_outputs, write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
+from tests.data_files import BCF_XSD
 from tests.planner.ifc_parts import body_and_building, placed
 
 ifcopenshell = pytest.importorskip("ifcopenshell")
 xmlschema = pytest.importorskip("xmlschema")
 
-BCF_XSD = Path(__file__).resolve().parents[2].parent / "shared" / "standards" / "bcf-3.0"
 HOUSE = "IfcOpenHouse_IFC4.ifc"
 MM = 0.001  # the plan.json positions are rounded to the micrometre; 1 mm is the contract
 

@@ -16,9 +16,7 @@ from fastapi.testclient import TestClient
 from service.config import Settings
 from service.main import create_app
 from service.worker import WorkerContext, build_context, execute_job
-
-SHARED = Path(__file__).resolve().parents[2].parent / "shared"
-HALL = SHARED / "scenes" / "hall-small"
+from tests.data_files import HALL_SMALL as HALL
 
 
 class InlineQueue:
@@ -40,8 +38,6 @@ class InlineQueue:
 
 @pytest.fixture(scope="session")
 def hall() -> Path:
-    if not HALL.is_dir():
-        pytest.skip(f"the shared scenes are not beside the checkout ({HALL})")
     return HALL
 
 

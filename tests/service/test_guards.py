@@ -17,8 +17,6 @@ from fastapi.testclient import TestClient
 from tests.e2e.service_process import child_pids
 from tests.service.conftest import InlineQueue, make_client, submit, upload
 
-SCENES = Path(__file__).resolve().parents[2].parent / "shared" / "scenes"
-
 
 @pytest.fixture
 def held(tmp_path: Path) -> Any:

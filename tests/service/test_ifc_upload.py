@@ -10,17 +10,14 @@ from typing import Any
 import pytest
 from fastapi.testclient import TestClient
 
-from tests.service.conftest import SHARED, submit
+from tests.service.conftest import submit
 
-FZK = SHARED / "scenes" / "AC20-FZK-Haus.ifc"
 GROUND_FLOOR_ROOMS = {"Flur", "Buero", "Bad", "Schlafzimmer", "Wohnen", "Küche"}
 
 
 @pytest.fixture(scope="module")
-def fzk_bytes() -> bytes:
-    if not FZK.is_file():
-        pytest.skip(f"the shared scenes are not beside the checkout ({FZK})")
-    return FZK.read_bytes()
+def fzk_bytes(scenes_dir: Path) -> bytes:
+    return (scenes_dir / "AC20-FZK-Haus.ifc").read_bytes()
 
 
 def test_ifc_upload_and_a_ground_floor_plan(client: TestClient, fzk_bytes: bytes) -> None:
