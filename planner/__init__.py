@@ -10,6 +10,8 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from planner.version import __version__
+
 if TYPE_CHECKING:  # for type checkers and editors; at run time __getattr__ loads them
     from planner.errors import PlannerError
     from planner.io.readers import read_scene
@@ -27,7 +29,8 @@ _EXPORTS = {
     "write_outputs": "planner.outputs.report",
 }
 
-__all__ = ["PlanResult", "PlanSpec", "PlannerError", "plan", "read_scene", "write_outputs"]
+__all__ = ["PlanResult", "PlanSpec", "PlannerError", "__version__", "plan", "read_scene",
+           "write_outputs"]
 
 
 def __getattr__(name: str) -> Any:

@@ -20,6 +20,7 @@ from typing import Any, TextIO
 
 from planner.errors import PlannerError
 from planner.parameters import PlanSpec
+from planner.version import __version__
 
 
 class ProgressLine:
@@ -202,10 +203,33 @@ def run_verify(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_examples(args: argparse.Namespace) -> int:
+    from planner.examples import EXAMPLES, copy_example
+
+    if args.name is None:
+        width = max(len(name) for name in EXAMPLES)
+        for example in EXAMPLES.values():
+            print(f"{example.name:<{width}}  {example.about}")
+        print("\nscanplan examples NAME copies one here (the public ones are downloaded "
+              "once, checked by sha256; offline: set SCANPLAN_DATA_MIRROR)")
+        return 0
+    copied = copy_example(args.name, Path(args.to))
+    example = EXAMPLES[args.name]
+    for path in copied:
+        print(f"wrote {path}")
+    command = ["scanplan", "plan", str(copied[0])]
+    if example.candidates is not None:
+        command += ["--candidates", str(Path(args.to) / Path(example.candidates).name)]
+    command += ["--out", f"{args.name}-plan"]
+    print("plan it with:\n  " + " ".join(command))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="scanplan", description="Plan terrestrial laser scanner stations on a 3D model."
     )
+    parser.add_argument("--version", action="version", version=f"scanplan {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("plan", help="plan stations for a model and write the results")
     p.add_argument("scene", help="model file: OBJ, PLY, STL, OFF, GLB/glTF or IFC")
@@ -229,6 +253,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "and unit_scale)")
     v.add_argument("--quiet", action="store_true", help="print nothing on success")
     v.set_defaults(handler=run_verify)
+    e = sub.add_parser("examples", help="list the example models, or fetch one to plan")
+    e.add_argument("name", nargs="?", help="the example to fetch (none: list them)")
+    e.add_argument("--to", default=".", help="the directory to copy it into (default: here)")
+    e.set_defaults(handler=run_examples)
     for entry in entry_points(group="scanplan.commands"):
         entry.load()(sub)
     return parser

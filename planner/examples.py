@@ -219,8 +219,8 @@ def _missing(data: DataFile, mirror: str | None) -> str:
     where = (f"{MIRROR_VARIABLE}={mirror} has no {data.path}" if mirror
              else f"{MIRROR_VARIABLE} is not set")
     return (f"{data.path} is not here: {where}, and it is not in the cache {cache_dir()}. "
-            f"Set {MIRROR_VARIABLE} to a directory laid out as the scenes folder "
-            f"(CI: ../shared/scenes), or let scanplan download it from {data.url}")
+            f"Set {MIRROR_VARIABLE} to an offline copy that holds it at that path, or let "
+            f"scanplan download it from {data.url}")
 
 
 def copy_example(name: str, to: Path) -> list[Path]:

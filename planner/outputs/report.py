@@ -47,6 +47,7 @@ from planner.pipeline import PlanResult
 from planner.rays.pinned import KERNELS as RAY_KERNELS
 from planner.selection.curve import coverage_curve
 from planner.selection.greedy import GOAL_SLACK_M2
+from planner.version import __version__
 
 FORMAT_VERSION = 1
 _AREA_DECIMALS = 6
@@ -152,6 +153,7 @@ def plan_document(result: PlanResult) -> dict[str, Any]:
         stations.append(station)
     document: dict[str, Any] = {
         "format_version": FORMAT_VERSION,
+        "scanplan_version": __version__,
         "method": chosen.method,
         "coverage_goal": result.spec.coverage_goal,
         "goal_reached": bool(covered >= result.spec.coverage_goal * max_area - GOAL_SLACK_M2),

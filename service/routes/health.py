@@ -6,6 +6,7 @@ from typing import Any
 
 from fastapi import APIRouter
 
+from planner.version import __version__
 from service.deps import ServicesDep
 from service.problems import NotReadyError, problem_responses
 
@@ -15,8 +16,8 @@ router = APIRouter(tags=["health"], responses=problem_responses(500))
 # async: answered on the event loop, without a thread-pool hop
 @router.get("/healthz")
 async def healthz() -> dict[str, str]:
-    """Liveness: the API process answers."""
-    return {"status": "ok"}
+    """Liveness: the API process answers, with scanplan's version."""
+    return {"status": "ok", "version": __version__}
 
 
 @router.get("/readyz", responses=problem_responses(503))

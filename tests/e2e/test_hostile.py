@@ -9,6 +9,7 @@ from typing import Any
 import httpx
 import pytest
 
+from planner.version import __version__
 from tests.data_files import HALL_SMALL as HALL
 from tests.e2e.service_process import Service, wait_for
 
@@ -34,7 +35,8 @@ def mesh(service: Service) -> str:
 
 
 def _healthy(service: Service) -> None:
-    assert httpx.get(f"{service.url}/healthz", timeout=5).json() == {"status": "ok"}
+    answer = httpx.get(f"{service.url}/healthz", timeout=5).json()
+    assert answer == {"status": "ok", "version": __version__}
 
 
 def _problem(answer: httpx.Response, *statuses: int) -> dict[str, Any]:

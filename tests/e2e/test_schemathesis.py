@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from planner.version import __version__
 from tests.e2e.service_process import Service
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -35,7 +36,7 @@ def test_schemathesis_finds_no_contract_failure(tmp_path: Path) -> None:
         assert run.returncode == 0, report
         assert "✅ Stateful" in report, report  # upload -> execute -> status -> results
         with service.client() as client:
-            assert client.get("/healthz").json() == {"status": "ok"}
+            assert client.get("/healthz").json() == {"status": "ok", "version": __version__}
     finally:
         service.stop()
         service.kill_leftovers()

@@ -16,6 +16,7 @@ from planner.io.readers import read_scene
 from planner.outputs.report import write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
+from planner.version import __version__
 from tests.data_files import scenes_layout
 from tests.e2e.service_process import Service, child_pids, wait_for
 
@@ -210,4 +211,4 @@ def test_bad_input_keeps_the_service_serving(shared_service: Service) -> None:
             assert answer.status_code == status
             assert answer.headers["content-type"] == "application/problem+json"
         assert client.get("/jobs/nope").status_code == 404
-        assert client.get("/healthz").json() == {"status": "ok"}
+        assert client.get("/healthz").json() == {"status": "ok", "version": __version__}

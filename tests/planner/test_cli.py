@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
@@ -126,3 +127,37 @@ def test_planner_package_exports_load_on_use() -> None:
     assert {"plan", "read_scene", "write_outputs"} <= set(dir(planner))
     with pytest.raises(AttributeError, match="no_such_name"):
         planner.no_such_name  # noqa: B018
+
+
+def test_version_is_the_package_s() -> None:
+    done = scanplan("--version")
+    assert done.returncode == 0
+    assert done.stdout.strip() == f"scanplan {metadata.version('scanplan')}"
+
+
+def test_an_example_is_listed_copied_and_planned_with_the_command_it_prints(
+        tmp_path: Path) -> None:
+    listed = scanplan("examples")
+    assert listed.returncode == 0, listed.stderr
+    names = [line.split()[0] for line in listed.stdout.splitlines()[:-2] if line.strip()]
+    assert {"hall-small", "ifcopenhouse", "fzk-haus", "amersfoort"} <= set(names)
+    copied = subprocess.run([sys.executable, "-m", "planner", "examples", "ifcopenhouse",
+                             "--to", "models"], capture_output=True, text=True, timeout=60,
+                            cwd=tmp_path, check=False)
+    assert copied.returncode == 0, copied.stderr
+    assert (tmp_path / "models" / "IfcOpenHouse_IFC4.ifc").is_file()
+    command = copied.stdout.splitlines()[-1].split()
+    assert command[:2] == ["scanplan", "plan"]
+    planned = subprocess.run([sys.executable, "-m", "planner", *command[1:], "--quiet"],
+                             capture_output=True, text=True, timeout=300, cwd=tmp_path,
+                             check=False)
+    assert planned.returncode == 0, planned.stderr
+    plan = json.loads((tmp_path / "ifcopenhouse-plan" / "plan.json").read_text())
+    assert plan["scanplan_version"] == metadata.version("scanplan")
+    assert plan["totals"]["stations"] >= 1 and plan["goal_reached"]
+
+
+def test_an_unknown_example_is_one_line_naming_the_known_ones(tmp_path: Path) -> None:
+    done = scanplan("examples", "no-such-house", "--to", str(tmp_path))
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1 and "hall-small" in done.stderr
