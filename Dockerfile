@@ -2,13 +2,16 @@
 # Scale-out (Redis queue, PostgreSQL job table): see compose.yaml, profile "scale".
 FROM python:3.11-slim
 
-# numba caches the compiled limits kernel; site-packages is read-only for the service user
+# numba caches the compiled limits kernel; site-packages is read-only for the service user,
+# who has no home: matplotlib's config, ezdxf's and the examples' caches go to /tmp
 ENV PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \
     PIP_NO_CACHE_DIR=1 \
     PIP_DISABLE_PIP_VERSION_CHECK=1 \
     SCANPLAN_DATA_DIR=/data \
-    NUMBA_CACHE_DIR=/tmp/numba-cache
+    NUMBA_CACHE_DIR=/tmp/numba-cache \
+    MPLCONFIGDIR=/tmp/matplotlib \
+    XDG_CACHE_HOME=/tmp/cache
 
 WORKDIR /app
 COPY pyproject.toml README.md ./

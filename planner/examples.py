@@ -8,7 +8,8 @@ order:
    IfcOpenHouse IFC example);
 2. in the directory ``SCANPLAN_DATA_MIRROR`` names, laid out the same way (an offline
    mirror: CI points it at the team's scenes folder);
-3. in the download cache (``SCANPLAN_DATA_CACHE``, default ``~/.cache/scanplan``);
+3. in the download cache (``SCANPLAN_DATA_CACHE``, default ``scanplan`` in the user's
+   cache folder);
 4. downloaded from its public source at a pinned commit, with pooch, into that cache.
 
 Every file taken from a mirror, the cache or the network is checked against its sha256.
@@ -154,9 +155,12 @@ class DataMissingError(PlannerError):
 
 
 def cache_dir() -> Path:
-    """Where downloaded files are kept: ``SCANPLAN_DATA_CACHE``, else ~/.cache/scanplan."""
+    """Where downloaded files are kept: ``SCANPLAN_DATA_CACHE``, else ``scanplan`` in the
+    user's cache folder (``XDG_CACHE_HOME``, else ~/.cache)."""
     given = os.environ.get(CACHE_VARIABLE)
-    return Path(given) if given else Path.home() / ".cache" / "scanplan"
+    if given:
+        return Path(given)
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "scanplan"
 
 
 def _packaged(path: str) -> Path | None:
