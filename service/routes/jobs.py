@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from http import HTTPStatus
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Query, Request, Response, status
@@ -172,28 +171,39 @@ def delete_job(job_id: str, services: ServicesDep, owner: OwnerDep) -> StatusInf
     return document
 
 
+def failed_job_problem(stored: dict[str, Any]) -> dict[str, Any]:
+    """The answer of ``GET /jobs/{id}/results`` for a failed job: its stored problem.
+
+    A problem of the input (415, 422) is answered with its own status. A failure of the
+    service while it planned (a worker lost, a planning process killed, an unexpected error:
+    the stored status is 5xx) is no error of this request, which asked for the results of a
+    job that exists and has failed: it is answered 409 (the job's state conflicts with
+    results), with the stored type, title and detail, and the stored status as
+    ``job_status``. No request is answered 5xx for a job's failure."""
+    status_code = stored.get("status")
+    if isinstance(status_code, int) and 400 <= status_code < 500:
+        return stored
+    return {**stored, "status": status.HTTP_409_CONFLICT, "job_status": status_code}
+
+
 @router.get("/{job_id}/results", response_model=JobResults,
             responses={200: {"links": output_links("$request.path.job_id")},
                        **problem_responses(409, 422)})
 def get_results(job_id: str, services: ServicesDep, owner: OwnerDep) -> JobResults | Response:
-    """The plan inline and every output by href; a failed job's problem.
-
-    A job that failed on its input (an unreadable model, a plan over the caps, out of
-    memory) answers with that problem's 4xx status. One that failed on the service's side
-    (the planning process killed, an unexpected error) answers 409: this request is
-    sound, the job's state is what keeps the results from it; the problem's type, title and
-    detail still say what happened."""
+    """The plan inline and every output by href; a failed job's problem
+    (:func:`failed_job_problem`: 4xx, never 5xx)."""
     job = visible_job(services, owner, job_id)
     if job.status == FAILED and job.problem is not None:
-        code = int(job.problem.get("status", HTTPStatus.CONFLICT))
-        if not 400 <= code < 500:
-            code = HTTPStatus.CONFLICT
-        return JSONResponse({**job.problem, "status": code}, status_code=code,
-                            media_type=MEDIA_TYPE)
+        problem = failed_job_problem(job.problem)
+        return JSONResponse(problem, status_code=problem["status"], media_type=MEDIA_TYPE)
     if job.status != SUCCESSFUL or job.outputs is None:
         raise ResultNotReadyError(f"job {job_id} is {job.status}; results come once it is "
                                   "successful")
-    plan = services.store.read_bytes(result_key(job_id, "plan.json"))
+    try:
+        plan = services.store.read_bytes(result_key(job_id, "plan.json"))
+    except FileNotFoundError:  # deleted (DELETE /jobs/{id}) while this request ran
+        raise NoSuchJobError(f"job {job_id} was dismissed (DELETE); it and its results are "
+                             "gone; GET /jobs lists yours") from None
     document: dict[str, dict[str, Any]] = {PLAN_OUTPUT: json.loads(plan.decode("utf-8"))}
     for name, meta in sorted(job.outputs.items()):
         document[name] = OutputRef(href=f"/jobs/{job_id}/results/{name}",

@@ -143,3 +143,54 @@ def test_a_plan_killed_on_its_last_attempt_fails_naming_signal_stage_and_tries(
     assert answer["status"] == 409 and answer["type"] == problem["type"]
     assert answer["detail"] == problem["detail"]
     client.__exit__(None, None, None)
+
+
+def _job_endpoints_answer_no_5xx(client: Any, job_id: str) -> dict[str, int]:
+    """Every ``/jobs/{id}`` request a client makes; the status of each (none may be 5xx)."""
+    answers = {path: client.get(path).status_code for path in (
+        "/jobs", f"/jobs/{job_id}", f"/jobs/{job_id}/results",
+        f"/jobs/{job_id}/results/plan.json", f"/jobs/{job_id}/callbacks")}
+    assert all(code < 500 for code in answers.values()), answers
+    return answers
+
+
+def test_the_results_of_a_job_failed_by_the_service_are_its_problem_not_a_5xx(
+        held: Any) -> None:
+    """A job whose plan failed for the service's own reason (here its planning process was
+    killed on its last attempt; an unexpected error stores a 500 problem the same way):
+    ``GET /jobs/{id}/results`` answered 500 with the stored problem. It answers 409 with that
+    problem's type and detail, and no job endpoint answers 5xx in any state of the job."""
+    client, queue, job_id = held(max_attempts=1)
+    assert _job_endpoints_answer_no_5xx(client, job_id)[f"/jobs/{job_id}/results"] == 404
+    _run_and_kill_its_child(queue)
+    assert client.get(f"/jobs/{job_id}").json()["status"] == "failed"
+    results = client.get(f"/jobs/{job_id}/results")
+    assert results.status_code == 409, results.text
+    assert results.headers["content-type"].startswith("application/problem+json")
+    problem = results.json()
+    assert problem["status"] == 409 and problem["job_status"] == 500
+    assert problem["type"].endswith("plan-killed") and "SIGKILL" in problem["detail"]
+    _job_endpoints_answer_no_5xx(client, job_id)
+    assert client.delete(f"/jobs/{job_id}").status_code == 200
+    assert _job_endpoints_answer_no_5xx(client, job_id)[f"/jobs/{job_id}"] == 404
+    assert client.delete(f"/jobs/{job_id}").status_code == 404
+    client.__exit__(None, None, None)
+
+
+def test_a_job_deleted_while_its_plan_process_runs_answers_no_5xx(held: Any) -> None:
+    client, queue, job_id = held(max_attempts=1)
+    assert queue.ctx is not None
+    worker = threading.Thread(target=execute_job, args=(queue.ctx, job_id))
+    before = set(child_pids(os.getpid()))
+    worker.start()
+    deadline = time.monotonic() + 60
+    while not set(child_pids(os.getpid())) - before:
+        assert worker.is_alive() and time.monotonic() < deadline, "no planning process"
+        time.sleep(0.005)
+    _job_endpoints_answer_no_5xx(client, job_id)  # running
+    assert client.delete(f"/jobs/{job_id}").json()["status"] == "dismissed"
+    _job_endpoints_answer_no_5xx(client, job_id)  # dismissed, its process still running
+    worker.join(60)
+    assert not worker.is_alive()
+    assert _job_endpoints_answer_no_5xx(client, job_id)[f"/jobs/{job_id}/results"] == 404
+    client.__exit__(None, None, None)
