@@ -31,6 +31,7 @@ from planner.parameters import (
     SETTING_RANGES,
     check_range,
 )
+from planner.version import __version__
 from service.auth import KeyRing
 from service.callbacks import CallbackDispatcher, CallbackStore
 from service.config import Settings
@@ -54,7 +55,6 @@ from service.store import open_store
 from service.worker import Reaper
 
 log = logging.getLogger("scanplan.service")
-VERSION = "0.1.0"
 DESCRIPTION = """Plan terrestrial laser scanner stations on a 3D model.
 
 Upload a model with `POST /meshes`, start a plan with `POST /processes/scan-plan/execution`,
@@ -95,7 +95,7 @@ def create_app(settings: Settings | None = None, *, queue: JobQueue | None = Non
             services.jobs.engine.dispose()
 
     # operation ids are the handlers' names: what a generated client calls its functions
-    app = FastAPI(title="scanplan", version=VERSION, description=DESCRIPTION,
+    app = FastAPI(title="scanplan", version=__version__, description=DESCRIPTION,
                   lifespan=lifespan, generate_unique_id_function=lambda route: route.name,
                   dependencies=[Depends(_single_query_values)])
     _add_problem_component(app)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 from collections.abc import Iterator
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 
@@ -517,3 +518,12 @@ def test_a_query_parameter_given_twice_is_refused_unless_it_is_a_list(
     assert_problem(client.get("/jobs?limit=2&limit=3"), 422, "limit")
     assert client.get("/jobs?status=accepted&status=running").status_code == 200
     assert_problem(client.get("/jobs?offset=2703897329755260715008&limit=353"), 422, "offset")
+
+
+def test_the_version_is_the_package_s_everywhere(client: TestClient) -> None:
+    version = metadata.version("scanplan")
+    assert client.get("/healthz").json() == {"status": "ok", "version": version}
+    assert client.get("/openapi.json").json()["info"]["version"] == version
+    committed = json.loads((Path(__file__).resolve().parents[2] / "openapi" /
+                            "openapi.json").read_text())
+    assert committed["info"]["version"] == version
