@@ -84,6 +84,10 @@ class PlanSpec:
     min_sampled_fraction: float = 1.0
     # selection
     method: Method = "greedy"
+    # a budget: the plan with the most coverage in this many stations (greedy or weighted
+    # greedy, maximum coverage), whether or not it reaches the goal; null: the fewest
+    # stations that reach the goal
+    max_stations: int | None = None
     optimal_time_limit_s: float = 60.0
     curve_goals: tuple[float, ...] | None = None  # goals of the curve's optimal row
     fixed_stations: tuple[tuple[float, float, float], ...] | None = None  # re-scan
@@ -299,6 +303,7 @@ RANGES: dict[str, Range] = {
     "setup_time_s": Range(ge=0, le=86_400, hint="or null for the preset's"),
     "walking_speed_m_s": Range(gt=0, le=100, hint="0.8 is a slow walk with a tripod"),
     "samples_per_face": Range(ge=1, le=256, hint="a square number; use 16"),
+    "max_stations": Range(ge=1, le=100_000, hint="a budget of stations; null: no budget"),
     "min_sampled_fraction": Range(gt=0, le=1, hint="1 means the whole face"),
 }
 # each coordinate of candidates, fixed_stations, area_of_interest and route_start, in model
@@ -340,7 +345,8 @@ GROUP_RANGES: dict[str, Range] = {
 
 _NULLABLE = {"max_edge_m", "candidates", "area_of_interest", "storeys", "rooms",
              "curve_goals", "fixed_stations", "scanner", "min_overlap_m2", "route_start",
-             "setup_time_s", "up_axis", "scanner_heights_m", "placement_tolerance_m"}
+             "setup_time_s", "up_axis", "scanner_heights_m", "placement_tolerance_m",
+             "max_stations"}
 _FLOATS = {
     f.name
     for f in fields(PlanSpec)
@@ -382,9 +388,14 @@ def _convert(name: str, value: Any) -> Any:
         if value not in COVERAGE_MODELS:
             raise ParameterError(name, f"{value!r} is not one of {', '.join(COVERAGE_MODELS)}")
         return value
-    if name in ("verify", "robust"):
+    if name in ("verify", "robust", "exact_rays"):
         if not isinstance(value, bool):
             raise ParameterError(name, f"expected true or false, got {value!r}")
+        return value
+    if name == "max_stations":
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
+            raise ParameterError(name, f"expected a whole number of stations or null, got "
+                                 f"{value!r}")
         return value
     if name == "samples_per_face":
         if isinstance(value, bool) or not isinstance(value, int):
@@ -643,6 +654,13 @@ def _validate(spec: PlanSpec) -> None:
         _check(spec.candidates is None, "scanner_heights_m",
                "applies to generated candidates; explicit candidates carry their own z "
                "(leave scanner_heights_m null or drop candidates)")
+    if spec.max_stations is not None:
+        _check(spec.method != "optimal", "max_stations",
+               "plans a budget with greedy or weighted_greedy (the most coverage in that many "
+               "stations); optimal finds the fewest stations for the goal: drop one of them")
+        _check(spec.fixed_stations is None or spec.max_stations >= len(spec.fixed_stations),
+               "max_stations", "is below the number of fixed_stations, which every plan "
+               "keeps; raise it or drop stations from fixed_stations")
     _check(not spec.robust or spec.tolerance_radius_m > 0, "robust",
            "needs placement_tolerance_m greater than 0 or null (the radius a setup may be "
            f"off; null: {ROBUST_TOLERANCE_M} m)")

@@ -165,6 +165,9 @@ class PlanParameters(BaseModel):
         "group_requirements", "per-group overrides keyed by group name")
     method: Literal["greedy", "weighted_greedy", "optimal"] = _d(
         "method", "station selection method")
+    max_stations: Annotated[int, Strict()] | None = _d(
+        "max_stations", "a budget: the most coverage in this many stations (greedy or "
+        "weighted_greedy), the goal reached or not; null: the fewest stations for the goal")
     optimal_time_limit_s: Number = _d("optimal_time_limit_s", "MILP time limit, seconds")
     curve_goals: list[Goal] | None = _d(
         "curve_goals", "goals in (0, 1] of the curve's optimal row; null: the plan's goal "

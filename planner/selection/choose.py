@@ -17,6 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from planner.progress import ProgressCallback, Stats, notify
+from planner.selection.budget import budget_report, first_stations
 from planner.selection.connected import connected_greedy, overlap_graph
 from planner.selection.connectivity import Connectivity
 from planner.selection.greedy import Selection
@@ -78,14 +79,27 @@ def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tup
         progress=lambda fraction: notify(progress, "selection", fraction),
         connectivity=connectivity)
     chosen = outcome.chosen
+    budget = spec.max_stations
+    order = outcome.selections.get(spec.method)
     station_overlap = None
+    if rows is not None and min_overlap_m2 is not None and spec.method != "optimal":
+        # registration constraint: every station after the first overlaps a chosen one
+        order = connected_greedy(
+            table, rows, scene, positions, min_overlap_m2,
+            weighted=spec.method == "weighted_greedy",
+            goal=spec.coverage_goal if budget is None else 1.0)
+        chosen = order.truncated(spec.coverage_goal)
+    if budget is not None and order is not None:
+        # a budget: the most coverage in that many stations, the goal reached or not
+        chosen = first_stations(order, budget)
+        report = outcome.report
+        n, lower = len(chosen.stations), int(report["lower_bound"])
+        report["budget"] = {**budget_report(table, order, budget),
+                            "goal_needs_at_least": lower}
+        report["stations"] = n
+        report["gap"] = round(max(0.0, (n - lower) / n), 6) if n else 0.0
+        report["proven_optimal"] = False
     if rows is not None and min_overlap_m2 is not None:
-        if spec.method != "optimal":
-            # registration constraint: every station after the first overlaps a chosen one
-            chosen = connected_greedy(
-                table, rows, scene, positions, min_overlap_m2,
-                weighted=spec.method == "weighted_greedy", goal=spec.coverage_goal,
-            ).truncated(spec.coverage_goal)
         station_overlap = rows.matrix(list(chosen.stations))
         stats.seconds["overlap"] = rows.seconds
         stats.overlap_rows = rows.n_computed
