@@ -50,6 +50,21 @@ MODELS = {
     "openhouse": SCENES / "IfcOpenHouse_IFC4.ifc",
 }
 LARGE = ("lantern", "amersfoort")
+# what --without-slabs deletes: the structural model's slabs and the finishes on them
+STRIPPED = ("IfcSlab", "IfcCovering")
+
+
+def _strip(ifc: str, out: str) -> None:
+    """Child: ``ifc`` without its IfcSlab and IfcCovering elements (with their relations),
+    as an architect's discipline model arrives without the structural one."""
+    import ifcopenshell
+    import ifcopenshell.api.root
+
+    model = ifcopenshell.open(ifc)
+    for ifc_class in STRIPPED:
+        for product in model.by_type(ifc_class):
+            ifcopenshell.api.root.remove_product(model, product=product)
+    model.write(out)
 
 
 def _export(ifc: str, obj: str, doors: str) -> None:
@@ -223,6 +238,10 @@ def main() -> None:
     parser.add_argument("--outputs", choices=("all", "plan"), default="all",
                         help="write every output (as the command line) or plan.json only")
     parser.add_argument("--grid-spacing-m", type=float, default=None)
+    parser.add_argument("--slabs", choices=("with", "without", "both"), default="with",
+                        help="plan each model as it is, without its IfcSlab and IfcCovering "
+                             "elements (an architect's model without the structural one; "
+                             "its plain mesh too), or both")
     parser.add_argument("--json", type=Path, default=None, help="write the figures here")
     parser.add_argument("--keep", type=Path, default=None, help="keep the outputs here")
     args = parser.parse_args()
@@ -240,16 +259,23 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         for name in names:
-            ifc = MODELS[name]
-            if "ifc" in forms:
-                results.append(_run(f"{name} IFC", ifc, spec, None, args.keep,
-                                    args.outputs))
-            if "obj" in forms:
-                obj, doors = work / f"{name}.obj", work / f"{name}.doors.npy"
-                subprocess.run([sys.executable, __file__, "--export", str(ifc), str(obj),
-                                str(doors)], check=True, cwd=ROOT)
-                results.append(_run(f"{name} OBJ", obj, spec, doors, args.keep,
-                                    args.outputs))
+            variants = [] if args.slabs == "without" else [(name, MODELS[name])]
+            if args.slabs != "with":
+                bare = work / f"{name}-without-slabs.ifc"
+                subprocess.run([sys.executable, __file__, "--strip", str(MODELS[name]),
+                                str(bare)], check=True, cwd=ROOT)
+                variants.append((f"{name} without slabs", bare))
+            for label, ifc in variants:
+                if "ifc" in forms:
+                    results.append(_run(f"{label} IFC", ifc, spec, None, args.keep,
+                                        args.outputs))
+                if "obj" in forms:
+                    stem = label.replace(" ", "-")
+                    obj, doors = work / f"{stem}.obj", work / f"{stem}.doors.npy"
+                    subprocess.run([sys.executable, __file__, "--export", str(ifc),
+                                    str(obj), str(doors)], check=True, cwd=ROOT)
+                    results.append(_run(f"{label} OBJ", obj, spec, doors, args.keep,
+                                        args.outputs))
     print("\n| model | storeys | candidates | stations | unreachable | rooms w/o station "
           "| legs through walls | not storeys | wall s | CPU s | outputs CPU s | peak MiB |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
@@ -275,6 +301,8 @@ if __name__ == "__main__":
     sys.path.insert(0, str(ROOT))
     if len(sys.argv) == 7 and sys.argv[1] == "--child":
         _child(*sys.argv[2:])
+    elif len(sys.argv) == 4 and sys.argv[1] == "--strip":
+        _strip(*sys.argv[2:])
     elif len(sys.argv) == 5 and sys.argv[1] == "--export":
         _export(*sys.argv[2:])
     else:

@@ -15,9 +15,14 @@ sample of its floor (``WALK_GRID_M`` apart, inside its floor polygon):
    tell; a stair hall's large hole on a storey with slabs stays a hole).
 2. *Its samples become floor* where the model has none: no surface within
    ``FLOOR_TOLERANCE_M`` of the floor (the model's own floor, where it has one, is walked
-   as it is) and none below it closer than ``HEADROOM_M`` (a stair or a void under the
-   room's outline: its treads need their head room, and a floor over a stairwell would
-   take it).
+   as it is; the top of a wall or of other structure, ``STRUCTURE_CLASSES``, is not a
+   floor: the lower storey's walls stop where the missing slab would start, a hand's
+   breadth under the room's floor, and their tops are laid over), none below it closer
+   than ``HEADROOM_M`` (a void under the room's outline; a wall's top excepted)
+   and no stair closer than ``STAIR_HEADROOM_M`` under it (``STAIRWELL_CLASSES`` met first
+   straight down, at the sample or at a corner of its square): a room's outline often
+   spans the stairwell that the missing slab leaves open, and a floor there would cut the
+   flight's head room (further down, under a landing, a lower flight keeps its floor).
 
 The samples reach ``DOORWAY_M`` beyond the room's outline, so that the floor runs
 through the doorways and openings of its walls (inside a wall the ray meets the wall's
@@ -48,6 +53,17 @@ FLOOR_PROBE_M = 0.5  # the floor is looked for from this high above the room's f
 # the floor reaches this far beyond the room's outline: through the wall's doorways and
 # openings (a wall's own foot is a surface at the floor, where no floor is added)
 DOORWAY_M = 0.5
+_EPS_M = 1e-3
+# what lies under a stairwell: a room's floor is not laid over these (an architectural model
+# draws the room over its stair's opening; the opening was the slab's, which it lacks)
+# structure whose top is not a floor: a wall's top, a column's, a beam's (a room's floor is
+# laid over them where the model has no slab)
+STRUCTURE_CLASSES = ("IfcWall", "IfcWallStandardCase", "IfcCurtainWall", "IfcColumn",
+                     "IfcBeam", "IfcMember")
+# the head room over a stair's pitch line: 2.0 m (Approved Document K, 2013 edition, 1.10;
+# DIN 18065:2020 gives 2.0 m too), more than a floor's HEADROOM_M
+STAIR_HEADROOM_M = 2.0
+STAIRWELL_CLASSES = ("IfcStair", "IfcStairFlight", "IfcRamp", "IfcRampFlight", "IfcRailing")
 
 
 class FloorsCaster:
@@ -74,6 +90,8 @@ def room_floor_samples(scene: Scene, caster: RayCaster) -> tuple[NDArray[np.floa
     """(S, 3) floor samples of the rooms without a slab (see the module docstring) and
     those rooms' names, in model order."""
     spaces = scene.metadata.get("spaces") or []
+    stairs = _faces_of_classes(scene, STAIRWELL_CLASSES)
+    structure = _faces_of_classes(scene, STRUCTURE_CLASSES)
     candidates: list[tuple[str, NDArray[np.float64]]] = []
     counts: dict[str, tuple[str, int, int]] = {}
     down = np.array([0.0, 0.0, -1.0])
@@ -95,16 +113,22 @@ def room_floor_samples(scene: Scene, caster: RayCaster) -> tuple[NDArray[np.floa
             continue
         floor_z = float(space["floor_z_m"])
         origins = np.column_stack([xy, np.full(len(xy), floor_z + FLOOR_PROBE_M)])
-        _, distance = caster.first_hit(origins, np.tile(down, (len(xy), 1)))
+        face, distance = caster.first_hit(origins, np.tile(down, (len(xy), 1)))
         below_m = distance - FLOOR_PROBE_M  # how far under the room's floor the hit is
-        has_floor = np.abs(below_m) <= FLOOR_TOLERANCE_M
-        lacks = below_m > FLOOR_TOLERANCE_M  # a hit above the floor (furniture) can't tell
+        # the top of a wall under the floor (an up-facing face of structure met from
+        # above); a ray from inside a wall meets its foot from within, facing down
+        wall_top = structure[face] & (below_m > _EPS_M)
+        wall_top[wall_top] = scene.normals_of(face[wall_top])[:, 2] > 0
+        has_floor = (np.abs(below_m) <= FLOOR_TOLERANCE_M) & ~wall_top
+        # a hit above the floor (furniture) cannot tell
+        lacks = (below_m > FLOOR_TOLERANCE_M) | wall_top
         own = intersects_xy(polygon, xy[:, 0], xy[:, 1])  # the room's own floor decides
         gid = str(space["global_id"])
         counts[gid] = (str(space["storey"]), int(has_floor[own].sum()), int(lacks[own].sum()))
         # no floor of the model here, nor a stair or anything else within head room below
         # (and nothing standing on the floor: a hit above it is furniture or a wall's foot)
-        free = ~has_floor & (below_m > HEADROOM_M)
+        free = ~has_floor & ((below_m > HEADROOM_M) | wall_top)
+        free[free] = ~_over_stairs(caster, stairs, origins[free])
         if free.any():
             candidates.append((gid, np.column_stack([xy[free],
                                                      np.full(int(free.sum()), floor_z)])))
@@ -115,6 +139,35 @@ def room_floor_samples(scene: Scene, caster: RayCaster) -> tuple[NDArray[np.floa
     if not points:
         return np.zeros((0, 3)), []
     return np.concatenate(points), [name[gid] for gid, _ in candidates if gid in bare]
+
+
+def _faces_of_classes(scene: Scene, ifc_classes: tuple[str, ...]) -> NDArray[np.bool_]:
+    """(F + 1,) bool: the faces of elements of ``ifc_classes`` (the last entry, read for a
+    ray that hits nothing, false)."""
+    classes = np.array([e.ifc_class in ifc_classes for e in scene.elements] + [False])
+    mask = np.zeros(scene.n_faces + 1, bool)
+    mask[:-1] = classes[scene.face_element]
+    return mask
+
+
+def _over_stairs(caster: RayCaster, stairs: NDArray[np.bool_],
+                 origins: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """(S,) bool: a stair is the first thing straight down from the (S, 3) ``origins``
+    (``FLOOR_PROBE_M`` over the floor), under the floor closer than ``STAIR_HEADROOM_M``, at
+    the sample or at a corner of its square (inset by a centimetre)."""
+    over = np.zeros(len(origins), bool)
+    if not stairs.any() or len(origins) == 0:
+        return over
+    reach = WALK_GRID_M / 2 - 0.01
+    down = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
+    for dx, dy in ((0.0, 0.0), (-reach, -reach), (reach, -reach), (reach, reach),
+                   (-reach, reach)):
+        face, distance = caster.first_hit(origins + np.array([dx, dy, 0.0]), down)
+        # a miss (-1) reads the last entry: false
+        # under the floor: a stair that stands on it (its first treads) is no stairwell
+        below_m = distance - FLOOR_PROBE_M
+        over |= stairs[face] & (below_m > _EPS_M) & (below_m < STAIR_HEADROOM_M)
+    return over
 
 
 def with_room_floors(scene: Scene, caster: RayCaster) -> tuple[RayCaster, list[str]]:
