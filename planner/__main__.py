@@ -135,11 +135,12 @@ def run_plan(args: argparse.Namespace) -> int:
         )
         for name, reason in absent_outputs(result).items():
             print(f"no {name}: {reason}")
-        from planner.survey.route import door_checks_line
+        from planner.survey.route import door_checks_line, parts_line
 
-        line = door_checks_line(plan_doc.get("route"))  # a plain mesh's glazed doors
-        if line:
-            print(line)
+        for line in (parts_line(plan_doc.get("route")),  # a model not joined on foot
+                     door_checks_line(plan_doc.get("route"))):  # a plain mesh's glazed doors
+            if line:
+                print(line)
     return 0
 
 

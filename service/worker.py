@@ -211,13 +211,14 @@ def _done_message(ctx: WorkerContext, job_id: str) -> str:
     """"done", then the storeys planned and what was left out when there is more than one
     level (:func:`planner.candidates.grid.levels_line`), for an IFC model one clause per
     storey with its rooms (:func:`planner.candidates.rooms.rooms_lines`), why there is no
-    plan.ifc for an input that is not IFC, and for a plain mesh the glazed openings on the
-    route that the crew must check (:func:`planner.survey.route.door_checks_line`), each in
-    a clause of its own."""
+    plan.ifc for an input that is not IFC, the parts of the walk the model does not join
+    (:func:`planner.survey.route.parts_line`), and for a plain mesh the glazed openings on
+    the route that the crew must check (:func:`planner.survey.route.door_checks_line`), each
+    in a clause of its own."""
     from planner.candidates.grid import levels_line
     from planner.candidates.rooms import rooms_lines
     from planner.outputs.ifc_plan import reason_without_ifc
-    from planner.survey.route import door_checks_line
+    from planner.survey.route import door_checks_line, parts_line
 
     try:
         plan_doc = json.loads(ctx.meshes.store.read_bytes(result_key(job_id, "plan.json")))
@@ -225,6 +226,7 @@ def _done_message(ctx: WorkerContext, job_id: str) -> str:
         clauses = [levels_line(plan_doc["candidates"].get("levels")),
                    *rooms_lines(plan_doc["candidates"].get("rooms")),
                    None if no_ifc is None else f"no plan.ifc: {no_ifc}",
+                   parts_line(plan_doc.get("route")),
                    door_checks_line(plan_doc.get("route"))]
     except (OSError, ValueError, KeyError):
         clauses = []

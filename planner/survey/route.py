@@ -10,11 +10,16 @@ from ``route_start`` when given (snapped to the graph like a station), else from
 station gives the shortest tour (a dummy depot at distance 0 from every station). Neither
 step has a time limit, so the same input gives the same route.
 
-Stations not attached to the graph, or in another part of it than the start (or, with no
-start, than the most stations), are *unreachable*: they are reported by id, each with the
-reason, and never joined by a straight line. The reason names what is missing, found from
-the graph and the model (with the storeys, rooms and doors of :class:`Places` where the
-model has them):
+Stations not attached to the graph are *unreachable*: they are reported by id, each with
+the reason, and never joined by a straight line. A model whose parts the walk does not join
+(a storey no stair reaches, rooms behind a door the model closes) is still walked: the part
+of the start (or, with no start, of the most stations) first, then, part after part, the
+one with the station nearest to where the last ended, from that station, each part its own
+shortest tour (:class:`RoutePart`). Between two parts the route says where the crew must go
+on by a way the model lacks (:class:`PartStep`), with the reason the first station of the
+next part would be cut off. The reasons, for a station or a part, name what is missing,
+found from the graph and the model (with the storeys, rooms and doors of :class:`Places`
+where the model has them):
 
 - *not on a floor*: nothing under it; a floor with less than ``HEADROOM_M`` over it (under
   a stair, a low roof: the head room measured); a floor within reach whose knee-high way
@@ -249,13 +254,50 @@ class DoorCheck:
 
 
 @dataclass(frozen=True)
+class RoutePart:
+    """The stations of one part of the walk the model joins on foot, in walking order,
+    and the length of its legs."""
+
+    visits: tuple[int, ...]
+    length_m: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"visits": list(self.visits), "length_m": round(self.length_m, 3)}
+
+
+@dataclass(frozen=True)
+class PartStep:
+    """Where the route goes on from one part of the walk to the next, which the model
+    does not join on foot (no stair or door between them, or a defect): the crew walks
+    it on site, by a way the model lacks."""
+
+    start: int | None  # the last station of the part before (None: the route's start)
+    end: int  # the first station of the next part
+    straight_m: float  # between the two stations' feet, in a straight line
+    reason: str  # why the model has no way between them (as an unreachable station's)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"from": self.start, "to": self.end, "straight_m": round(self.straight_m, 3),
+                "note": "the model has no stair or way here; walk it on site: "
+                        + self.reason}
+
+
+@dataclass(frozen=True)
 class Route:
+    """The walking route. ``visits``: every station on a floor, in walking order; a model
+    whose parts are not joined on foot (no stair between storeys, a door it closes) is
+    walked part after part (``parts``, two or more; empty when one part holds them all),
+    with a step between each part and the next (``steps``) that the crew walks on site.
+    ``unreachable``: the stations on no floor a person can walk on."""
+
     visits: tuple[int, ...]  # station ids in walking order
-    legs: tuple[Leg, ...]
+    legs: tuple[Leg, ...]  # within the parts
     unreachable: tuple[int, ...]
     unreachable_reasons: tuple[str, ...] = ()  # one per unreachable station
     # legs through found doors of a plain mesh that may be fixed windows (door_checks)
     door_checks: tuple[DoorCheck, ...] = ()
+    parts: tuple[RoutePart, ...] = ()
+    steps: tuple[PartStep, ...] = ()
 
     @property
     def length_m(self) -> float:
@@ -274,6 +316,10 @@ class Route:
                                     in zip(self.unreachable, self.unreachable_reasons,
                                            strict=True)},
         }
+        if self.parts:
+            data["parts"] = [part.to_dict() for part in self.parts]
+        if self.steps:
+            data["steps_between_parts"] = [step.to_dict() for step in self.steps]
         if self.door_checks:
             data["door_checks"] = [check.to_dict() for check in self.door_checks]
         return data
@@ -338,6 +384,20 @@ def door_checks_line(route: dict[str, Any] | None) -> str | None:
             f"{', '.join(map(str, legs))} of the route pass{'es' if len(legs) == 1 else ''} "
             "through one that the plan takes for a door and that may be a fixed window "
             "(route.door_checks)")
+
+
+def parts_line(route: dict[str, Any] | None) -> str | None:
+    """A clause for a job's message from plan.json's ``route``: the steps between parts
+    of the walk that the model does not join, which the crew walks on site; None when
+    one part holds every station."""
+    steps = (route or {}).get("steps_between_parts") or []
+    if not steps:
+        return None
+    between = ", ".join(f"{'the start' if step['from'] is None else step['from']} -> "
+                        f"{step['to']}" for step in steps)
+    return (f"the model joins the route's stations in {len(steps) + 1} parts, with no stair "
+            f"or way between them: walk on site from station {between} "
+            "(route.steps_between_parts)")
 
 
 def attach(graph: WalkGraph, caster: RayCaster, points: NDArray[np.float64]
@@ -500,26 +560,72 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
             values, counts = np.unique(counted, return_counts=True)
             best = values[counts == counts.max()]
             main = int(next(label for label in labels[:s] if label in set(best.tolist())))
-    reachable = [i for i in range(s) if main >= 0 and labels[i] == main]
-    unreachable = tuple(i + 1 for i in range(s) if i not in set(reachable))
+    unreachable = tuple(i + 1 for i in range(s) if labels[i] < 0)
     why = _Why(graph, caster, labels, feet, component, int(main), places)
     reasons = tuple(why.station(i - 1) for i in unreachable)
-    if not reachable:
+    if main < 0:
         return Route((), (), unreachable, reasons)
-    sources = [int(nodes[i]) for i in reachable]
-    if route_start is not None:
-        sources.append(int(nodes[s]))
+    # each part of the walk its own tour: the route's part first (from the start), then
+    # the part nearest to where the last one ended, from its station nearest to that
+    members: dict[int, list[int]] = {}
+    for i in range(s):
+        if labels[i] >= 0:
+            members.setdefault(int(labels[i]), []).append(i)
+    visits: list[int] = []
+    legs: list[Leg] = []
+    parts: list[RoutePart] = []
+    steps: list[PartStep] = []
+    label = int(main)
+    last: int | None = s if route_start is not None else None  # point index ended at
+    while True:
+        points_in = members.pop(label, [])
+        first: int | None = None
+        if label == main and route_start is not None:
+            points_in = [*points_in, s]
+            first = len(points_in) - 1
+        elif last is not None:
+            gap_m = np.linalg.norm(feet[points_in] - feet[last], axis=1)
+            first = int(np.lexsort((points_in, gap_m))[0])
+            steps.append(PartStep(None if last == s else last + 1, points_in[first] + 1,
+                                  float(gap_m[first]), why.station(points_in[first])))
+        part_visits, part_legs = _tour(graph, nodes, feet, points_in, first, s)
+        visits += part_visits
+        legs += part_legs
+        if part_visits:
+            parts.append(RoutePart(tuple(part_visits),
+                                   float(sum(leg.length_m for leg in part_legs))))
+            last = part_visits[-1] - 1
+        if not members:
+            break
+        # the next part: the one with the station nearest to where this one ended
+        assert last is not None  # the route's part holds a station or the start
+        ends = np.array([i for held in members.values() for i in held])
+        gap_m = np.linalg.norm(feet[ends] - feet[last], axis=1)
+        label = int(labels[ends[np.lexsort((ends, gap_m))[0]]])
+    return Route(tuple(visits), tuple(legs), unreachable, reasons,
+                 parts=tuple(parts) if len(parts) > 1 else (), steps=tuple(steps))
+
+
+def _tour(graph: WalkGraph, nodes: NDArray[np.int64], feet: NDArray[np.float64],
+          points_in: list[int], first: int | None, start_index: int
+          ) -> tuple[list[int], list[Leg]]:
+    """The shortest open tour over the points ``points_in`` (indices into ``nodes`` and
+    ``feet``: stations, and the route's start at ``start_index``) of one part of the
+    graph, from ``points_in[first]`` when given: the station ids in walking order (the
+    start left out) and the legs."""
+    if not points_in:
+        return [], []
+    sources = [int(nodes[i]) for i in points_in]
     between_m, trees = _shortest_paths(graph, sources)
     # foot -> node -> ... -> node -> foot; the attaching segments count too
-    attach_m = np.linalg.norm(graph.floor_xyz[sources] - (feet[reachable + ([s] if route_start
-                              is not None else [])] - [0, 0, KNEE_HEIGHT_M]), axis=1)
+    attach_m = np.linalg.norm(graph.floor_xyz[sources] - (feet[points_in]
+                              - [0, 0, KNEE_HEIGHT_M]), axis=1)
     cost = between_m + attach_m[:, None] + attach_m[None, :]
     np.fill_diagonal(cost, 0.0)
-    start = len(reachable) if route_start is not None else None
-    order = open_tour(cost, start)
+    order = open_tour(cost, first)
     knee = np.array([0.0, 0.0, KNEE_HEIGHT_M])
-    point_ids = [i + 1 for i in reachable] + ([None] if route_start is not None else [])
-    feet_used = feet[reachable + ([s] if route_start is not None else [])]
+    point_ids = [None if i == start_index else i + 1 for i in points_in]
+    feet_used = feet[points_in]
     legs: list[Leg] = []
     for a, b in itertools.pairwise(order):
         path_nodes = trees.path(a, sources, b)
@@ -528,8 +634,7 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
         assert end is not None  # only the start is None, and it is never visited later
         legs.append(Leg(point_ids[a], end, float(cost[a, b]),
                         tuple((float(p[0]), float(p[1]), float(p[2])) for p in path)))
-    visits = tuple(pid for pid in (point_ids[i] for i in order) if pid is not None)
-    return Route(visits, tuple(legs), unreachable, reasons)
+    return [pid for pid in (point_ids[i] for i in order) if pid is not None], legs
 
 
 # sources whose shortest-path trees are grown at a time: the (k, N) float64 distances and

@@ -230,6 +230,13 @@ function showFieldTime(doc) {
       ? `not reachable on foot, left off the route: station${unreachable.length === 1 ? '' : 's'} ` +
         `${unreachable.join(', ')}`
       : 'every station is on the walking route' }));
+  const steps = Array.isArray(route.steps_between_parts) ? route.steps_between_parts : [];
+  if (steps.length) {
+    box.append(el('p', { 'data-note': 'parts', class: 'warn',
+      text: `the model joins the stations in ${steps.length + 1} parts; walk on site from ` +
+        steps.map((s) => `${s.from === null ? 'the start' : `station ${s.from}`} to station ${s.to}`)
+          .join(', ') + ' (no stair or way in the model)' }));
+  }
   box.hidden = false;
 }
 

@@ -237,7 +237,9 @@ def check_route_and_time(page: Any, plan: dict[str, Any]) -> None:
     time say what plan.json says."""
     route, edges = plan["route"], plan["registration"]["edges"]
     overlays = page.evaluate("window.scanplanViewer.overlays()")
-    assert len(overlays["legs"]) == len(route["legs"]) == len(route["visits"]) - 1
+    # a leg between consecutive stations of each part: none across a step between parts
+    steps = len(route.get("steps_between_parts", []))
+    assert len(overlays["legs"]) == len(route["legs"]) == len(route["visits"]) - 1 - steps
     assert len(overlays["edges"]) == len(edges) >= 1
     at = {int(k): v for k, v in overlays["stations"].items()}
     for leg, drawn in zip(route["legs"], overlays["legs"], strict=True):
@@ -335,7 +337,7 @@ def test_viewer_colours_what_the_verification_delivered(
         server: tuple[str, InlineQueue], scenes_dir: Path, browser_context: Any,
         tmp_path: Path) -> None:
     base, _ = server
-    # a re-scan whose earlier station stands on a machine, not reachable on foot
+    # a re-scan whose earlier station stands on a machine, not joined to the floor on foot
     job = submit(base, scenes_dir, verify=True, fixed_stations=[[1.4, 1.9, 2.45]])
     verification = httpx.get(f"{base}/jobs/{job}/results/verification.json").json()
     totals = verification["totals"]
@@ -344,14 +346,18 @@ def test_viewer_colours_what_the_verification_delivered(
     with np.load(npz) as faces:
         covered, delivered = faces["covered"], faces["verified_delivered"]
     plan = httpx.get(f"{base}/jobs/{job}/results/plan.json").json()
-    assert plan["route"]["unreachable"] == [1] and plan["stations"][0]["visit"] is None
+    # it is walked in a part of its own, after a step the crew makes on site (a ladder)
+    steps = plan["route"]["steps_between_parts"]
+    assert plan["route"]["unreachable"] == [] and [step["to"] for step in steps] == [1]
+    assert plan["stations"][0]["visit"] == len(plan["stations"])
     page, errors = open_page(browser_context, f"{base}/jobs/{job}/viewer")
     page.wait_for_function("window.scanplanViewer && window.scanplanViewer.ready",
                            timeout=60_000)
     page.wait_for_timeout(500)
     check_route_and_time(page, plan)
-    assert page.locator('#fieldtime [data-note="unreachable"]').inner_text().endswith(
-        "station 1")
+    parts = page.locator('#fieldtime [data-note="parts"]').inner_text()
+    assert "parts; walk on site from station" in parts and parts.endswith(
+        "to station 1 (no stair or way in the model)"), parts
     note = page.locator("#delivered-note").inner_text()
     assert f"({totals['promised_not_delivered_faces']} faces)" in note
     radio = page.locator('#colouring input[value="delivered"]')

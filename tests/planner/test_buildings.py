@@ -171,7 +171,7 @@ def test_the_route_reaches_every_room_of_both_units_through_doors_stairs_and_out
         office: Scene, office_caster: RayCaster) -> None:
     stations = office_stations()
     route = walk(office, office_caster, stations)
-    assert route.unreachable == ()
+    assert route.unreachable == () and route.steps == ()
     assert sorted(route.visits) == list(range(1, len(stations) + 1))
     path = np.concatenate([np.asarray(leg.path) for leg in route.legs])
     unit_a, unit_b = units(ROOMS)
@@ -195,9 +195,11 @@ def test_a_platform_reached_only_by_a_ladder_is_a_storey_and_its_station_says_wh
     heights = {round(float(z), 2) for z in candidates.positions[:, 2]}
     assert heights == {1.5, 3.7}  # the hall floor and the platform
     route = walk(scene, caster, np.array([[1.0, 1.5, 1.5], [2.5, 1.5, 1.5], [4.5, 1.5, 3.7]]))
-    assert route.unreachable == (3,)
-    assert "ladder" in route.unreachable_reasons[0]
-    assert route.to_dict()["unreachable_reasons"] == {"3": route.unreachable_reasons[0]}
+    # the platform's station is walked after a step the crew makes on site (the ladder)
+    assert route.unreachable == () and route.visits[-1] == 3
+    (step,) = route.steps
+    assert step.end == 3 and "ladder" in step.reason
+    assert route.to_dict()["steps_between_parts"][0]["note"].endswith(step.reason)
 
 
 # the shared IFC houses, as IFC and as plain meshes ------------------------------------------
@@ -250,6 +252,7 @@ def test_the_houses_get_every_storey_and_a_route_to_every_station(
     route = walk(scene, caster, stations)
     assert route.unreachable == (), list(zip(route.unreachable, route.unreachable_reasons,
                                              strict=True))
+    assert route.steps == (), route.steps
     # doors, independently of the mesh's door rule: the IFC model's door faces
     reference = ifc_reading(ifc)
     door = np.array([e.ifc_class == "IfcDoor" for e in reference.elements] + [False])

@@ -40,6 +40,7 @@ def test_every_station_is_on_the_route_through_the_doors(planned: tuple[Any, dic
     stations = document["stations"]
     assert {s["label"]["storey"] for s in stations} == {"Level 0", "Level 1"}
     assert route["unreachable"] == [], route["unreachable_reasons"]
+    assert "steps_between_parts" not in route, route["steps_between_parts"]
     assert sorted(route["visits"]) == list(range(1, len(stations) + 1))
     scene = result.scene
     legs = legs_in_plan(scene, route)

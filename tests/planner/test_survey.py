@@ -271,9 +271,19 @@ def test_unreachable_station_is_reported_not_joined() -> None:
     caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
     stations = np.array([[2.0, 2.0, 1.5], [11.0, 1.0, 1.5], [6.2, 3.0, 1.5]])
     route = plan_route(build_walk_graph(scene, caster), caster, stations, None).to_dict()
-    assert route["unreachable"] == [2]
-    assert sorted(route["visits"]) == [1, 3]
+    # the sealed closet's station is walked in a part of its own: no leg joins it, the
+    # step to it says why (the crew finds the way in on site)
+    assert route["unreachable"] == []
+    assert route["visits"][-1] == 2 and sorted(route["visits"]) == [1, 2, 3]
     assert all(2 not in (leg["from"], leg["to"]) for leg in route["legs"])
+    (step,) = route["steps_between_parts"]
+    assert step["to"] == 2 and step["from"] == route["visits"][-2]
+    assert "cut off from the route" in step["note"], step
+    assert "a room without a door or opening in the model" in step["note"], step
+    assert [part["visits"] for part in route["parts"]] == [route["visits"][:2], [2]]
+    assert route["parts"][1]["length_m"] == 0.0
+    assert sum(part["length_m"] for part in route["parts"]) == pytest.approx(
+        route["length_m"], abs=0.01)
     for leg in route["legs"]:
         _assert_free_at_knee_height(caster, leg["path"])
         # the only way between the rooms is the door
@@ -467,8 +477,10 @@ def test_a_cut_off_piece_of_the_site_is_told_from_a_closed_room() -> None:
     stations = np.array([[2.0, 2.0, 1.5], [-5.0, 2.0, 1.3], [15.0, 9.0, 1.3],
                          [25.0, 0.0, -1.0], [11.0, 1.0, 1.5]])
     route = plan_route(build_walk_graph(scene, caster), caster, stations, None)
-    assert route.unreachable == (3, 4, 5)
-    pen, pit, closet = route.unreachable_reasons
+    assert route.unreachable == ()
+    reasons = {step.end: step.reason for step in route.steps}
+    assert sorted(reasons) == [3, 4, 5]
+    pen, pit, closet = reasons[3], reasons[4], reasons[5]
     assert pen.startswith("it stands on the site outside the building, cut off from the "
                           "route (33.1 m² of open ground at -0.20 m: no roof or ceiling over "
                           "it, outside the building's footprint)"), pen
@@ -486,7 +498,7 @@ def test_route_looks_beyond_the_area_when_two_parts_reach_its_edge() -> None:
     """Two stations either side of a long fence: on the walked area alone (the candidates'
     ground and 5 m round it) they are apart, but both parts reach the area's edge, so the
     survey walks the whole site and goes round the fence's far end; a sealed closet's
-    station stays unreachable without that (its part reaches no edge)."""
+    station stays apart without that (its part reaches no edge)."""
     scene = _site_with_a_fence()
     spec = PlanSpec(max_edge_m=None)
     limits = FaceLimits.from_spec(spec, scene)
@@ -494,12 +506,12 @@ def test_route_looks_beyond_the_area_when_two_parts_reach_its_edge() -> None:
     stations = np.array([[15.0, 0.0, 1.3], [25.0, 0.0, 1.3]])
     area = walk_area(stations)
     walked = build_walk_graph(scene, caster, area_xy=area)
-    assert plan_route(walked, caster, stations, None).unreachable == (2,)
+    assert [step.end for step in plan_route(walked, caster, stations, None).steps] == [2]
     assert parts_may_join_outside(walked, caster, stations)
     found = survey(scene, spec, stations, limits, make_occlusion(scene, limits.occludes,
                                                                  "embree"),
                    caster, {}, walk_area_xy=area).route.to_dict()
-    assert found["unreachable"] == []
+    assert found["unreachable"] == [] and "steps_between_parts" not in found
     (leg,) = found["legs"]
     assert max(p[1] for p in leg["path"]) > 40.0  # round the fence's end
     assert leg["length_m"] > 2 * 40.0
@@ -508,5 +520,5 @@ def test_route_looks_beyond_the_area_when_two_parts_reach_its_edge() -> None:
     inside = np.array([[3.6, 2.0, 1.5], [11.0, 1.0, 1.5]])
     # an area that cuts room A and holds the closet whole
     graph = build_walk_graph(closet, closet_caster, area_xy=np.array([[3.0, -1.0], [13.0, 5.0]]))
-    assert plan_route(graph, closet_caster, inside, None).unreachable == (2,)
+    assert [step.end for step in plan_route(graph, closet_caster, inside, None).steps] == [2]
     assert len(graph.cut_nodes) and not parts_may_join_outside(graph, closet_caster, inside)
