@@ -943,7 +943,9 @@ class _Why:
                     f"{_m(float(graph.floor_xyz[b[k], 2]))}), more than the {STEP_M:g} m a "
                     "person steps, and no stair or steps are modelled there")
             if clauses:
-                return f"{what}: " + "; and ".join(clauses)
+                door = None if outdoors or any(" door " in c for c in clauses) \
+                    else self._door_of(part)
+                return f"{what}: " + "; and ".join([*clauses, *([door] if door else [])])
         # the two parts never meet: name the storeys no stair joins
         route_z = graph.floor_xyz[self._main_nodes, 2]
         nearest = route_z[np.argmin(np.abs(route_z - low))]
@@ -953,10 +955,112 @@ class _Why:
             return (f"{what}: no modelled ground joins it to the route (the route's floor "
                     f"nearest its height, at {_m(float(nearest))}, lies elsewhere): the site's "
                     "ground between them is not modelled, or the model's site ends first")
+        door = self._door_of(part)
         if abs(float(nearest) - low) <= STEP_M:
+            if door is not None:  # a door of the model opens from it: say where it leads
+                return (f"{what}: the route's floor at the same height "
+                        f"({_m(float(nearest))}) lies elsewhere; {door}")
             return (f"{what}: the route's floor at the same height ({_m(float(nearest))}) "
                     "lies elsewhere and no floor, door or way around the outside leads "
                     "between them: a room without a door or opening in the model")
         return (f"{what}: no stair, ramp or steps join {theirs} to {ours}, the route's "
                 f"nearest: the model has no stair geometry between them (a stair left out or "
-                "without a body, a ladder, a hatch)")
+                "without a body, a ladder, a hatch)" + (f"; and {door}" if door else ""))
+
+    def _door_of(self, part: NDArray[np.int64]) -> str | None:
+        """A clause naming a door of the model that opens from the cut-off ``part`` and
+        what stops the walk through it, with coordinates; None when no door does. A door
+        opens from the part when the part has floor within ``_MEET_M`` of the door's middle,
+        at most a step over its sill and at most head room under it, and its two sides'
+        floors are not both the part's; of those, the door nearest to the route's part
+        (the first in the model's order on a tie)."""
+        frames = self.places.frames()
+        if len(frames) == 0:
+            return None
+        graph = self.graph
+        sills = np.array([lo[2] for _, lo, _ in self.places.doors], np.float64)
+        tree = cKDTree(graph.floor_xyz[part, :2])
+        found: list[tuple[float, int]] = []
+        for d in range(len(frames)):
+            near = tree.query_ball_point(frames[d, :2], _MEET_M)
+            rise = sills[d] - graph.floor_xyz[part[near], 2]
+            if not near or not ((rise >= -STEP_M) & (rise <= HEADROOM_M)).any():
+                continue
+            to_route = 0.0 if self._main_tree is None else float(
+                self._main_tree.query(frames[d, :2])[0])
+            found.append((to_route, d))
+        own = int(self.component[part[0]])
+        for _, d in sorted(found):
+            sill = float(sills[d])
+            cx, cy, ux, uy, _, half_depth = (float(v) for v in frames[d])
+            normal = np.array([-uy, ux])
+            sides = [np.array([cx, cy]) + sign * (half_depth + graph.grid_m) * normal
+                     for sign in (1.0, -1.0)]
+            nodes = [self._floor_under(xy, sill) for xy in sides]
+            labels = [-1 if n < 0 else int(self.component[n]) for n in nodes]
+            if own not in labels or labels[0] == labels[1]:
+                continue  # not beside the part, or within it: not what cuts it off
+            this = labels.index(own)
+            return self._door_clause(d, sides[this], nodes[this], sides[1 - this],
+                                     nodes[1 - this], own)
+        return None
+
+    def _door_clause(self, d: int, near_xy: NDArray[np.float64], near_node: int,
+                     far_xy: NDArray[np.float64], far_node: int, own: int) -> str:
+        """What stops the walk through door ``d`` from its side on the cut-off part
+        ``own`` ((2,) ``near_xy``, floor node ``near_node``) to its other side
+        (``far_xy``, ``far_node``, -1 for no floor there)."""
+        graph = self.graph
+        frames = self.places.frames()
+        name, sill = self.places.doors[d][0], float(self.places.doors[d][1][2])
+        door = (f"its door {name!r} at ({frames[d, 0]:.2f}, {frames[d, 1]:.2f}), sill at "
+                f"{_m(sill)}")
+        near_z = float(graph.floor_xyz[near_node, 2])
+        if sill - near_z > STEP_M:
+            return (f"{door}, stands {sill - near_z:.2f} m over this part's floor "
+                    f"({_m(near_z)}) at ({near_xy[0]:.2f}, {near_xy[1]:.2f}), and no step or "
+                    "stair is modelled up to its sill")
+        where = f"({far_xy[0]:.2f}, {far_xy[1]:.2f})"
+        if far_node < 0:
+            _, drop = self.caster.first_hit(np.array([[*far_xy, sill + KNEE_HEIGHT_M]]),
+                                            np.array([[0.0, 0.0, -1.0]]))
+            if not np.isfinite(drop[0]):
+                return (f"{door}, leads to nothing: no floor, slab or ground under its far "
+                        f"side at {where} in the model")
+            below = float(drop[0]) - KNEE_HEIGHT_M
+            if below <= STEP_M:
+                return (f"{door}, leads to a surface at {where} at {_m(sill - below)} that "
+                        "no one walks on (too little head room, too steep, or too narrow)")
+            return (f"{door}, leads to no floor within a step of its sill: under its far "
+                    f"side at {where} the model's first surface lies {below:.2f} m lower, at "
+                    f"{_m(sill - below)}, and no stair or steps are modelled there")
+        far_z = float(graph.floor_xyz[far_node, 2])
+        if sill - far_z > STEP_M:
+            return (f"{door}, leads to floor {sill - far_z:.2f} m under its sill at {where} "
+                    f"({_m(far_z)}), and no step or stair is modelled down to it")
+        far_label = int(self.component[far_node])
+        if far_label not in (self.main, own):
+            return (f"{door}, leads to floor at {where} at {_m(far_z)} that is cut off from "
+                    "the route too")
+        knee_z = max(near_z, far_z) + KNEE_HEIGHT_M
+        near_xyz = np.array([*near_xy, knee_z])
+        direction = np.array([*far_xy, knee_z]) - near_xyz
+        length = float(np.linalg.norm(direction))
+        _, hit = self.caster.first_hit(near_xyz[None], (direction / length)[None])
+        at = near_xyz + direction / length * min(float(hit[0]), length)
+        return (f"{door}, leads to the route's floor, but something stands in its way at "
+                f"({at[0]:.2f}, {at[1]:.2f}) at {KNEE_HEIGHT_M:g} m above the floor "
+                "(a wall drawn through the opening, a leaf outside the door)")
+
+    def _floor_under(self, xy: NDArray[np.float64], sill_m: float) -> int:
+        """The graph node under a door's side: within 1.5 grid steps of the (2,) point
+        ``xy``, at most a step over the door's sill ``sill_m`` and at most head room under
+        it, the highest (then the nearest, then the first); -1 when none."""
+        graph = self.graph
+        horizontal = np.linalg.norm(graph.floor_xyz[:, :2] - xy, axis=1)
+        rise = sill_m - graph.floor_xyz[:, 2]
+        near = np.flatnonzero((horizontal <= 1.5 * graph.grid_m) & (rise >= -STEP_M)
+                              & (rise <= HEADROOM_M))
+        if len(near) == 0:
+            return -1
+        return int(near[np.lexsort((near, horizontal[near], rise[near]))[0]])

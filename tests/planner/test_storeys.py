@@ -371,3 +371,23 @@ def test_the_walk_links_every_two_samples_of_neighbouring_columns_a_step_apart(r
     assert len(found) > 1_000
     # direction by direction, each one's pairs by their first sample
     assert (np.diff(a) < 0).sum() <= 3
+
+
+def test_a_room_whose_door_leads_to_no_floor_names_the_door_and_the_drop() -> None:
+    """An architect's model without its slab: the east room's floor lies 0.6 m under the
+    west room's and under the door between them (no step modelled). The east room is cut
+    off, and its reason names the door, where it is, its sill and its height over the
+    room's floor."""
+    boxes = _shell(8.0, 4.0, 2.6)
+    boxes += [((0.0, 0.0, -0.2), (4.0, 4.0, 0.0)), ((4.0, 0.0, -0.8), (8.0, 4.0, -0.6)),
+              ((3.9, 0.0, -0.6), (4.1, 1.5, 2.6)), ((3.9, 2.4, -0.6), (4.1, 4.0, 2.6)),
+              ((3.9, 1.5, 2.1), (4.1, 2.4, 2.6)), ((3.9, 1.5, -0.6), (4.1, 2.4, 0.0))]
+    door = Places(doors=(("Door 9 (IfcDoor)", (4.03, 1.63, 0.0), (4.23, 2.53, 2.1)),))
+    unreachable, reasons = _route(boxes, [(2.0, 2.0, 1.5), (6.0, 2.0, 0.9)], door)
+    assert unreachable == (2,)
+    assert "its door 'Door 9 (IfcDoor)' at (4.13, 2.08), sill at +0.00 m, stands 0.60 m over " \
+        "this part's floor (-0.60 m) at (4.48, 2.08), and no step or stair is modelled up to " \
+        "its sill" in reasons[0], reasons
+    # without the door in the model, no door is named
+    _, reasons = _route(boxes, [(2.0, 2.0, 1.5), (6.0, 2.0, 0.9)])
+    assert "its door" not in reasons[0], reasons
