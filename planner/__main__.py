@@ -119,9 +119,10 @@ def run_plan(args: argparse.Namespace) -> int:
         totals = plan_doc["totals"]
         from planner.candidates.grid import levels_line
 
-        line = levels_line(plan_doc["candidates"].get("levels"))
-        if line:
-            print(line)
+        for line in (levels_line(plan_doc["candidates"].get("levels")),
+                     plan_doc["candidates"].get("floor_note")):
+            if line:
+                print(line)
         from planner.candidates.rooms import rooms_lines
 
         for line in rooms_lines(plan_doc["candidates"].get("rooms")):  # IFC: per storey

@@ -224,6 +224,7 @@ def _done_message(ctx: WorkerContext, job_id: str) -> str:
         plan_doc = json.loads(ctx.meshes.store.read_bytes(result_key(job_id, "plan.json")))
         no_ifc = reason_without_ifc(str(plan_doc["scene"].get("format", "")))
         clauses = [levels_line(plan_doc["candidates"].get("levels")),
+                   plan_doc["candidates"].get("floor_note"),
                    *rooms_lines(plan_doc["candidates"].get("rooms")),
                    None if no_ifc is None else f"no plan.ifc: {no_ifc}",
                    parts_line(plan_doc.get("route")),

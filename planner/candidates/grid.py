@@ -112,6 +112,24 @@ _NOT_A_STOREY = {
 }
 
 
+# a model whose storeys' floors add up to less than this share of its footprint has little
+# floor: a building's storeys cover its footprint once or more; an architect's model without
+# its slabs (they live in the structural model) has only stair treads, landings and the tops
+# of walls and furniture
+_LITTLE_FLOOR_SHARE = 0.25
+
+
+def floor_note(floor_m2: float, footprint_m2: float) -> str | None:
+    """What to tell a user whose model has ``floor_m2`` of floor on its planned storeys
+    under a footprint of ``footprint_m2``; None when that is floor enough."""
+    if footprint_m2 <= 0 or floor_m2 >= _LITTLE_FLOOR_SHARE * footprint_m2:
+        return None
+    return (f"the model has {floor_m2:.1f} m² of floor a person can stand on under a "
+            f"footprint of {footprint_m2:.0f} m²: a model without its floor slabs (an "
+            "architect's model, the slabs in the structural one)? Send it as IFC with its "
+            "rooms (IfcSpace), whose bottoms are then the floors, or with its slabs")
+
+
 # the building, not the site (on_the_building): upright surfaces are sampled this far apart
 _BUILDING_SAMPLE_M = 0.5
 
@@ -139,6 +157,8 @@ class CandidateSet:
     also_in : room candidates: per candidate, the GlobalIds of the rooms besides its
         label's that it stands in (rooms overlapping the label's, listed after it; empty
         for most), or empty when unknown
+    floor_note : grid candidates on a model with little floor for its footprint (an
+        architect's model without its slabs): what is missing and what to send instead
     """
 
     positions: NDArray[np.float64]
@@ -151,6 +171,7 @@ class CandidateSet:
     heights_m: NDArray[np.float64] | None = None
     rooms: list[dict[str, object]] | None = None
     also_in: tuple[tuple[str, ...], ...] = ()
+    floor_note: str | None = None
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -168,6 +189,8 @@ class CandidateSet:
             summary["floor_from_space"] = list(self.floor_from_space)
         if self.rooms is not None:
             summary["rooms"] = list(self.rooms)
+        if self.floor_note is not None:
+            summary["floor_note"] = self.floor_note
         return summary
 
 
@@ -298,8 +321,14 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
             f"({spec.clearance_m}) or grid_spacing_m ({spec.grid_spacing_m}), check "
             "area_of_interest, or give candidates explicitly"
         )
+    note = None
+    planned = [entry for entry in levels or [] if "excluded" not in entry]
+    if polygon is None and planned and all("area_m2" in entry for entry in planned):
+        # the storeys' report (floor_levels "storeys") gives each storey's floor area
+        floor_m2 = sum(float(str(entry["area_m2"])) for entry in planned)
+        note = floor_note(floor_m2, len(xy) * spec.grid_spacing_m ** 2)
     return CandidateSet(positions=positions, source="grid", considered=considered,
-                        dropped=dropped, labels=labels, levels=levels)
+                        dropped=dropped, labels=labels, levels=levels, floor_note=note)
 
 
 def walkable_levels(

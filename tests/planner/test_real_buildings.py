@@ -286,6 +286,23 @@ def test_an_architectural_model_without_its_slabs_gets_every_storey_and_a_route_
     assert document["route"]["length_m"] > 0.6 * full["route"]["length_m"]
 
 
+def test_a_plain_mesh_without_its_slabs_says_what_is_missing(scenes_dir: Path,
+                                                            tmp_path: Path) -> None:
+    """The same architectural model without its slabs, exported as a plain mesh: no rooms
+    to stand on, and the floor left (stair treads, a terrace) is a fraction of the
+    footprint. The plan says so and what to send; a plain mesh with its slabs does not."""
+    from tests.planner.buildings import export_plain_mesh
+
+    model = ifcopenshell.open(str(buildings_dir(scenes_dir) / "AC90R1-Jasmin-Sun-105-2x3.ifc"))
+    for slab in model.by_type("IfcSlab"):
+        model.remove(slab)
+    model.write(str(tmp_path / "bare.ifc"))
+    document = planned(export_plain_mesh(tmp_path / "bare.ifc", tmp_path / "bare.obj"))
+    note = document["candidates"]["floor_note"]
+    assert note.startswith("the model has ") and "a model without its floor slabs" in note
+    assert "Send it as IFC with its rooms (IfcSpace)" in note
+
+
 # the corpus: every station reached, no leg through a wall, every room accounted for -------
 
 # the IFC models planned above (once a session, by ``planned``): no new plan here
@@ -357,6 +374,7 @@ def test_the_archicad_house_as_a_plain_mesh_gets_its_storeys_not_its_landings(
     upper floor), the basement's half level and the stair's steps not called storeys, and
     every station reached through the doors the mesh rule finds."""
     document = niedriha_plain
+    assert "floor_note" not in document["candidates"]  # its slabs are floor enough
     levels = document["candidates"]["levels"]
     storeys = [lv for lv in levels if "excluded" not in lv]
     assert [lv["floor_z_m"] for lv in storeys] == [-2.85, 0.0, 2.85], levels
