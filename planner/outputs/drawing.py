@@ -936,6 +936,19 @@ def station_rows(result: PlanResult, orders: Iterable[int], *, visit: bool = Fal
     return rows
 
 
+def _stations_title(result: PlanResult) -> str:
+    """The station table's title: how many stations, and how many the goal needs at least
+    (``selection.lower_bound``) where that is fewer: what no plan can go below."""
+    n = len(result.chosen.stations)
+    lower = result.selection_report.get("lower_bound")
+    needed = ""
+    if lower is not None and int(lower) < n:
+        # a budget's plan may stop short of the goal: the bound is the goal's
+        needed = f", the goal needs at least {lower}" if "budget" in result.selection_report \
+            else f", at least {lower} needed"
+    return f"{n} station{'' if n == 1 else 's'}{needed} (model coordinates, m)"
+
+
 def _station_table(fig: Figure, result: PlanResult, top: float) -> None:
     chosen = result.chosen
     limit = 14
@@ -943,7 +956,7 @@ def _station_table(fig: Figure, result: PlanResult, top: float) -> None:
     scans = () if result.survey is None else result.survey.scans
     if len(chosen.stations) > limit:
         rows.append(f"  ... {len(chosen.stations) - limit} more in stations.csv")
-    fig.text(0.755, top, "Stations (model coordinates, m)", fontsize=8, fontweight="bold",
+    fig.text(0.755, top, _stations_title(result), fontsize=8, fontweight="bold",
              va="bottom")
     # the two scan columns take a smaller type to stay on the page
     fig.text(0.752, top - 0.006, "\n".join(rows), fontsize=5.8 if scans else 6.8,

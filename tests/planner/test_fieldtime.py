@@ -307,3 +307,8 @@ def test_preview_lists_each_stations_setting_and_scan_time(hall_full: PlanResult
     for row, scan in zip(table[1:15], hall_full.survey.scans, strict=False):
         assert row.split()[-3:] == [*(scan.setting or "").split(), f"{scan.scan_s:.0f}s"]
     assert "crew scanner: scans" in texts
+    # the table's title: the plan's stations and the fewest any plan of its goal needs
+    n = len(hall_full.chosen.stations)
+    lower = hall_full.selection_report["lower_bound"]
+    title = f"{n} stations, at least {lower} needed" if lower < n else f"{n} stations"
+    assert f"{title} (model coordinates, m)" in texts
