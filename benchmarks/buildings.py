@@ -172,6 +172,10 @@ def _child(model: str, spec_json: str, out: str, doors: str, outputs: str) -> No
         "candidates": document["candidates"]["count"],
         "stations": len(stations),
         "unreachable": len(route.get("unreachable", [])),
+        # the walk's parts the model does not join, and why (the step's note)
+        "walk_parts": len(route.get("steps_between_parts", [])) + 1,
+        "steps": [f"{step['from']} -> {step['to']}: {step['note']}"
+                  for step in route.get("steps_between_parts", [])],
         "legs": len(route.get("legs", [])),
         "legs_through_walls": [{**leg.to_dict(), "hit": _what(scene, leg.face)}
                                for leg in blocked],
@@ -203,6 +207,7 @@ def _run(label: str, model: Path, spec: dict[str, object], doors: Path | None,
           f"{figures['outputs_cpu_s']:.1f}), "
           f"peak {figures['peak_mib']:,.0f} MiB; {figures['candidates']} candidates, "
           f"{figures['stations']} stations, {figures['unreachable']} unreachable, "
+          f"{figures['walk_parts']} walk part{'s' if figures['walk_parts'] > 1 else ''}, "
           f"{len(figures['legs_through_walls'])} of {figures['legs']} legs through walls "
           f"(checked in {figures['check_s']:.1f} s)")
     if figures["not_storeys"]:
@@ -221,6 +226,8 @@ def _run(label: str, model: Path, spec: dict[str, object], doors: Path | None,
             print(f"      {count} unreachable: {reason}")
         for room in entry["rooms_without_stations"]:
             print(f"      no station: {room}")
+    for step in figures["steps"]:
+        print(f"      step between parts {step}")
     for leg in figures["legs_through_walls"][:5]:
         print(f"      through a wall: leg {leg['from']} -> {leg['to']} at {leg['at']} "
               f"({leg['height_m']} m above its floor) {leg['hit']}")
@@ -276,17 +283,18 @@ def main() -> None:
                                     str(obj), str(doors)], check=True, cwd=ROOT)
                     results.append(_run(f"{label} OBJ", obj, spec, doors, args.keep,
                                         args.outputs))
-    print("\n| model | storeys | candidates | stations | unreachable | rooms w/o station "
-          "| legs through walls | not storeys | wall s | CPU s | outputs CPU s | peak MiB |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("\n| model | storeys | candidates | stations | unreachable | walk parts "
+          "| rooms w/o station | legs through walls | not storeys | wall s | CPU s "
+          "| outputs CPU s | peak MiB |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for figures in results:
         if figures is None or "failed" in figures:
             label = "?" if figures is None else figures["label"]
-            print(f"| {label} | failed | | | | | | | | | | |")
+            print(f"| {label} | failed | | | | | | | | | | | |")
             continue
         storeys = [s for s in figures["storeys"].values() if s["stations"]]
         print(f"| {figures['label']} | {len(storeys)} | {figures['candidates']} "
-              f"| {figures['stations']} | {figures['unreachable']} "
+              f"| {figures['stations']} | {figures['unreachable']} | {figures['walk_parts']} "
               f"| {sum(len(s['rooms_without_stations']) for s in figures['storeys'].values())}"
               f" | {len(figures['legs_through_walls'])} of {figures['legs']} "
               f"| {', '.join(f'{n} {k}' for k, n in figures['not_storeys'].items()) or '-'} "

@@ -315,9 +315,19 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
                 levels, labels = _level_labels(positions[:, 2] - spec.scanner_height_m,
                                                level_of)
     if len(positions) == 0:
+        counts = ", ".join(f"{k}: {v}" for k, v in dropped.items() if v)
+        if dropped.get("no_floor", 0) * 2 > considered - dropped["outside_area_of_interest"]:
+            # most of the building's grid points found no floor under them: not a matter
+            # of the parameters
+            raise NoCandidatesError(
+                f"no grid point is left out of {considered} ({counts}): most of the "
+                "building's points have no floor under them. A model without its floor "
+                "slabs (an architect's model, the slabs in the structural one)? Send it as "
+                "IFC with its rooms (IfcSpace), whose bottoms are then the floors, or with "
+                "its slabs; or give candidates explicitly")
         raise NoCandidatesError(
             f"no grid point is left out of {considered} "
-            f"({', '.join(f'{k}: {v}' for k, v in dropped.items() if v)}); lower clearance_m "
+            f"({counts}); lower clearance_m "
             f"({spec.clearance_m}) or grid_spacing_m ({spec.grid_spacing_m}), check "
             "area_of_interest, or give candidates explicitly"
         )

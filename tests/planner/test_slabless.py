@@ -6,6 +6,7 @@ room's floor, no leg through a wall, and no walk along a wall's top."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -72,3 +73,24 @@ def test_the_walk_is_on_floors_and_treads_never_on_a_walls_top(
     # the crew climbs: the walk reaches the upper storey's floor from the stair's last tread
     assert floor_z.max() == pytest.approx(STOREY_M, abs=0.01)
     assert (np.abs(floor_z - (STOREY_M - RISER_M)) < 0.01).any()
+
+
+def test_a_model_without_slabs_or_rooms_is_told_what_is_missing(scenes_dir: Path,
+                                                                tmp_path: Path) -> None:
+    """IfcOpenHouse without its slabs: no rooms and no floor. The error says so, and what
+    to send; not to lower the clearance or the grid spacing."""
+    import ifcopenshell
+
+    from planner.errors import NoCandidatesError
+
+    model = ifcopenshell.open(str(scenes_dir / "IfcOpenHouse_IFC4.ifc"))
+    for slab in model.by_type("IfcSlab"):
+        model.remove(slab)
+    model.write(str(tmp_path / "bare.ifc"))
+    spec = PlanSpec()
+    scene = read_scene(tmp_path / "bare.ifc", max_edge_m=spec.max_edge_m)
+    with pytest.raises(NoCandidatesError) as raised:
+        plan(scene, spec)
+    assert "most of the building's points have no floor under them. A model without its " \
+        "floor slabs" in str(raised.value)
+    assert "lower clearance_m" not in str(raised.value)
