@@ -59,12 +59,19 @@ from scipy.sparse.csgraph import connected_components
 
 from planner.visibility.coverage import CoverageTable
 
-# subgradient iterations (fixed: no clock, the same bound for the same table)
+# volume iterations per round (fixed: no clock, the same bound for the same table)
 ITERATIONS = 250
-# the step factor is adapted every this many iterations (CFT)
-STEP_PERIOD = 20
-# the first step factor (Held & Karp: 2)
-START_STEP = 2.0
+# full cover: classes added per round, rounds at most, and how far below 1 the primal
+# estimate may cover a class before it is added
+ROWS_PER_ROUND = 1000
+ROUNDS = 8
+PRIMAL_SLACK = 0.05
+# volume algorithm: the first and largest step factor, the weight of the newest minimiser
+# in the primal average, and steps without improvement before the factor is cut
+START_STEP = 0.1
+MAX_STEP = 2.0
+AVERAGE = 0.1
+RED_STEPS = 20
 # relative tolerance taken off a bound before it is rounded up (float64 sums)
 ROUND_TOLERANCE = 1e-9
 METHOD = "lagrangian dual of the set-cover LP (subgradient, Caprara-Fischetti-Toth steps)"
@@ -167,9 +174,10 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
     """The fewest stations any plan needs to cover ``need_m2`` (fixed stations included).
 
     ``need_m2``: the area to cover, fixed stations' faces included (goal * max achievable
-    - slack); ``upper_stations``: the stations of a known plan (the subgradient steps aim
-    at it; the bound stops early once it meets it). ``fixed`` stations are in every plan:
-    their faces count as covered.
+    - slack); ``upper_stations``: the stations of a known plan (the steps aim at it; the
+    search stops early once the bound meets it). ``fixed`` stations are in every plan:
+    their faces count as covered. ``iterations`` per round of rows (see the module
+    docstring).
     """
     n_fixed = len(fixed)
     covered = np.zeros(table.n_faces, bool)
@@ -187,12 +195,11 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
     allowance = float(area.sum()) - need
     must = area > allowance
     size = np.diff(cover.indptr)
-    alone = must & (size == 1)
-    forced = np.unique(cover.indices[cover.indptr[:-1][alone]])
+    forced = np.unique(cover.indices[cover.indptr[:-1][must & (size == 1)]])
     if len(forced):
-        hit = np.zeros(table.n_candidates, bool)
-        hit[forced] = True
-        taken = np.asarray((cover.T @ hit.astype(np.float64)) > 0).reshape(-1)
+        hit = np.zeros(table.n_candidates)
+        hit[forced] = 1.0
+        taken = np.asarray(cover.T @ hit).reshape(-1) > 0
         need -= float(area[taken].sum())
         cover, area, must = cover[:, ~taken], area[~taken], must[~taken]
     base = n_fixed + len(forced)
@@ -201,21 +208,24 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
     full = float(area[~must].sum()) <= allowance  # covering the must classes is enough
     if full:
         cover, area = cover[:, must], area[must]
-    solver = _Subgradient(cover, area, need, full)
+    problem = _Lagrangian(cover, area, need, full)
     target = max(1.0, float(upper_stations - base))
-    done = solver.run(target, iterations)
-    value = solver.best_value()
-    stations = base + solver.best_stations()
-    return StationBound(stations=stations, lp_value=base + value, iterations=done,
-                        forced=len(forced), classes=classes,
-                        components=solver.n_components)
+    done = problem.solve(target, iterations)
+    return StationBound(stations=base + problem.best_stations(),
+                        lp_value=base + float(problem.best.sum()), iterations=done,
+                        forced=len(forced), classes=classes, components=problem.n_components)
 
 
-class _Subgradient:
-    """The Lagrangian of one cover problem and its best multipliers so far.
+class _Lagrangian:
+    """The Lagrangian of one cover problem, maximised by the volume algorithm.
 
-    ``cover`` (C, K) 0/1 over classes of area ``area`` (K,); ``full``: every class must be
-    covered (the knapsack term is ``sum u``, and components bound separately).
+    ``cover`` (C, K) 0/1 over classes of area ``area`` (K,), ``need`` the area to cover;
+    ``full``: every class must be covered (the knapsack term is ``sum u``, components bound
+    separately, and rows are generated: see :meth:`solve`).
+
+    ``best`` (components,) holds each component's best value and ``best_u`` (K,) the
+    multipliers that gave it (the components' parts of different iterations: the
+    Lagrangian separates, so together they give the sum).
     """
 
     def __init__(self, cover: sp.csc_matrix, area: NDArray[np.float64], need: float,
@@ -229,86 +239,151 @@ class _Subgradient:
         if full:
             graph = sp.bmat([[None, self.rows], [self.rows.T, None]], format="csr")
             self.n_components, label = connected_components(graph, directed=False)
-            self.cand_comp, self.class_comp = label[:n_cand], label[n_cand:]
+            self.cand_comp = label[:n_cand]
+            self.class_comp = label[n_cand:]
         else:
             self.n_components = 1
             self.cand_comp = np.zeros(n_cand, np.int64)
             self.class_comp = np.zeros(n_class, np.int64)
-        # start (CFT): each class at its cheapest candidate's price per area
-        cand_area = self.rows @ area  # (C,)
-        per_area = np.zeros(n_cand)
-        np.divide(1.0, cand_area, out=per_area, where=cand_area > 0)
-        csc = cover.tocsc()
-        cheapest = np.minimum.reduceat(per_area[csc.indices], csc.indptr[:-1])
-        self.u = area * cheapest  # (K,)
         self.best = np.full(self.n_components, -np.inf)
-        self.best_u = self.u.copy()
+        # the start (CFT): each class at its cheapest candidate's price per area
+        cand_area = self.rows @ area  # (C,)
+        price = np.zeros(n_cand)
+        np.divide(1.0, cand_area, out=price, where=cand_area > 0)
+        by_class = cover.tocsc()
+        self.best_u = area * np.minimum.reduceat(price[by_class.indices], by_class.indptr[:-1])
 
-    def evaluate(self, u: NDArray[np.float64]
-                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
-        """Per component L(u), the knapsack's y (K,) and the candidates of negative cost."""
-        reduced = 1.0 - self.rows @ u  # (C,)
-        negative = reduced < 0
-        per_comp = np.bincount(self.cand_comp, weights=np.minimum(reduced, 0.0),
-                               minlength=self.n_components)
-        if self.full:
-            y = np.ones(len(u))
-            per_comp += np.bincount(self.class_comp, weights=u, minlength=self.n_components)
-        else:
-            y = self._knapsack(u)
-            per_comp[0] += float(u @ y)
-        return per_comp, y, negative
+    def solve(self, target: float, iterations: int) -> int:
+        """Volume iterations towards ``target`` (a plan's stations); returns those made.
 
-    def _knapsack(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
-        """(K,) y in [0, 1] of least u . y with area . y >= need (cheapest per area first)."""
-        order = np.lexsort((np.arange(len(u)), u / self.area))
-        reach = np.cumsum(self.area[order])
-        last = min(int(np.searchsorted(reach, self.need)), len(order) - 1)
-        y = np.zeros(len(u))
-        y[order[:last]] = 1.0
-        before = float(reach[last - 1]) if last > 0 else 0.0
-        y[order[last]] = min(1.0, max(0.0, (self.need - before) / self.area[order[last]]))
-        return y
-
-    def run(self, target: float, iterations: int) -> int:
-        """Subgradient steps towards ``target`` (a plan's stations); returns those made."""
-        step = START_STEP
-        recent: list[float] = []
-        u = self.u
-        for it in range(iterations):
-            per_comp, y, negative = self.evaluate(u)
-            value = float(per_comp.sum())
-            better = per_comp > self.best
-            if better.any():
-                self.best = np.maximum(self.best, per_comp)
-                moved = better[self.class_comp]
-                self.best_u[moved] = u[moved]
+        A full cover works on a growing subset of the classes (the others at ``u = 0``,
+        which keeps every value a bound): first the ROWS_PER_ROUND seen by the fewest
+        candidates, then after each round of ``iterations`` the classes the volume
+        algorithm's primal estimate leaves uncovered (at most ROWS_PER_ROUND, fewest
+        candidates first), for at most ROUNDS rounds. Most classes are seen by supersets
+        of another's candidates and never matter.
+        """
+        n_class = self.rows.shape[1]
+        if not self.full:
+            return self._volume(np.arange(n_class), target, iterations)
+        size = np.diff(self.rows.tocsc().indptr)
+        by_size = np.lexsort((np.arange(n_class), size))
+        active = np.zeros(n_class, bool)
+        active[by_size[:ROWS_PER_ROUND]] = True
+        done = 0
+        for _ in range(ROUNDS):
+            done += self._volume(np.flatnonzero(active), target, iterations)
             if self.best_stations() >= target:
-                return it + 1
-            chosen = np.flatnonzero(negative)
-            covered = np.bincount(self.rows[chosen].indices, minlength=len(u)).astype(np.float64)
-            g = y - covered
-            g[(u <= 0) & (g < 0)] = 0.0
-            norm = float(g @ g)
-            if norm == 0:
-                return it + 1  # u is optimal
-            gap = max(target - value, 1e-3 * max(1.0, abs(value)))
-            u = np.maximum(0.0, u + step * gap / norm * g)
-            recent.append(value)
-            if len(recent) == STEP_PERIOD:
-                high, low = max(recent), min(recent)
-                spread = (high - low) / max(abs(high), 1e-12)
-                if spread > 0.01:
-                    step /= 2
-                elif spread < 0.001:
-                    step *= 1.5
-                recent = []
+                break
+            seen = self.rows.T @ self._primal  # (K,) how much the estimate covers
+            missed = np.flatnonzero(~active & (seen < 1.0 - PRIMAL_SLACK))
+            if len(missed) == 0:
+                break
+            active[missed[np.lexsort((missed, size[missed]))][:ROWS_PER_ROUND]] = True
+        return done
+
+    def _volume(self, columns: NDArray[np.int64], target: float, iterations: int) -> int:
+        """Volume algorithm on ``columns`` (classes), from ``best_u``; iterations made.
+
+        Barahona & Anbil: steps from the best multipliers along the subgradient of the
+        averaged primal (``x_bar``, ``y_bar``: a running convex combination of the
+        Lagrangian's minimisers, which approaches an optimal LP solution), the step factor
+        raised after improving steps and cut after :data:`RED_STEPS` steps without.
+        """
+        rows = self.rows[:, columns].tocsr()  # (C, K')
+        area = self.area[columns]
+        comp = self.class_comp[columns]
+        u_best = self.best_u[columns].copy()
+        value, y, x = self._evaluate(rows, area, comp, u_best)
+        l_best = float(value.sum())
+        self._record(columns, value, u_best)
+        x_bar, y_bar = x.astype(np.float64), y
+        seen_bar = self._covered(rows, x)
+        factor = START_STEP
+        red = 0
+        for it in range(iterations):
+            if self.best_stations() >= target:
+                self._primal = x_bar
+                return it
+            g_bar = y_bar - seen_bar
+            g_bar[(u_best <= 0) & (g_bar < 0)] = 0.0
+            norm = _dot(g_bar, g_bar)
+            if norm <= 0:
+                break
+            gap = max(target - l_best, 1e-3 * max(1.0, abs(l_best)))
+            u = np.maximum(0.0, u_best + factor * gap / norm * g_bar)
+            value, y, x = self._evaluate(rows, area, comp, u)
+            self._record(columns, value, u)
+            seen = self._covered(rows, x)
+            x_bar = AVERAGE * x + (1 - AVERAGE) * x_bar
+            y_bar = AVERAGE * y + (1 - AVERAGE) * y_bar
+            seen_bar = AVERAGE * seen + (1 - AVERAGE) * seen_bar
+            total = float(value.sum())
+            if total > l_best:
+                if _dot(y - seen, g_bar) >= 0:  # green: the step could be longer
+                    factor = min(MAX_STEP, factor * 1.1)
+                l_best, u_best = total, u
+                red = 0
+            else:
+                red += 1
+                if red >= RED_STEPS:
+                    factor *= 0.66
+                    red = 0
+        self._primal = x_bar
         return iterations
 
-    def best_value(self) -> float:
-        return float(self.best.sum())
+    def _evaluate(self, rows: sp.csr_matrix, area: NDArray[np.float64],
+                  comp: NDArray[np.int64], u: NDArray[np.float64]
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
+        """L(u) per component, the knapsack's y (K',) and x (C,): the candidates of
+        negative reduced cost (the Lagrangian's minimisers)."""
+        reduced = 1.0 - rows @ u  # (C,)
+        value = np.bincount(self.cand_comp, weights=np.minimum(reduced, 0.0),
+                            minlength=self.n_components)
+        if self.full:
+            y = np.ones(len(u))
+            value += np.bincount(comp, weights=u, minlength=self.n_components)
+        else:
+            y = _knapsack(u, area, self.need)
+            value[0] += _dot(u, y)
+        return value, y, reduced < 0
+
+    @staticmethod
+    def _covered(rows: sp.csr_matrix, x: NDArray[np.bool_]) -> NDArray[np.float64]:
+        """(K',) how many of the candidates ``x`` (C,) cover each class."""
+        chosen = rows[np.flatnonzero(x)]
+        return np.bincount(chosen.indices, minlength=rows.shape[1]).astype(np.float64)
+
+    def _record(self, columns: NDArray[np.int64], value: NDArray[np.float64],
+                u: NDArray[np.float64]) -> None:
+        """Keep each component's best value and its multipliers."""
+        better = value > self.best
+        if better.any():
+            self.best = np.maximum(self.best, value)
+            moved = better[self.class_comp[columns]]
+            self.best_u[:] = np.where(better[self.class_comp], 0.0, self.best_u)
+            self.best_u[columns[moved]] = u[moved]
 
     def best_stations(self) -> int:
         """The bound: each component's best rounded up (one component for partial)."""
         tolerance = ROUND_TOLERANCE * np.maximum(1.0, np.abs(self.best))
         return int(np.maximum(0.0, np.ceil(self.best - tolerance)).sum())
+
+
+def _dot(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+    """``a . b`` without BLAS (whose threads stall on a busy machine for vectors this size)."""
+    return float(np.multiply(a, b).sum())
+
+
+def _knapsack(u: NDArray[np.float64], area: NDArray[np.float64], need: float
+              ) -> NDArray[np.float64]:
+    """(K,) y in [0, 1] of least ``u . y`` with ``area . y >= need`` (cheapest per area
+    first, ties to the lowest index)."""
+    order = np.lexsort((np.arange(len(u)), u / area))
+    reach = np.cumsum(area[order])
+    last = min(int(np.searchsorted(reach, need)), len(order) - 1)
+    y = np.zeros(len(u))
+    y[order[:last]] = 1.0
+    before = float(reach[last - 1]) if last > 0 else 0.0
+    y[order[last]] = min(1.0, max(0.0, (need - before) / float(area[order[last]])))
+    return y
