@@ -151,7 +151,8 @@ def merged_classes(table: CoverageTable, faces: NDArray[np.bool_]
     collided = np.unique(face_of_entry[~same])
     representative[collided] = collided
     leaders, class_of = np.unique(representative, return_inverse=True)
-    area = np.bincount(class_of.reshape(-1), weights=table.face_area_m2[chosen], minlength=len(leaders))
+    area = np.bincount(class_of.reshape(-1), weights=table.face_area_m2[chosen],
+                       minlength=len(leaders)).astype(np.float64)
     cover = sp.csc_matrix((np.ones(int(indptr[leaders + 1].sum() - indptr[leaders].sum())),
                            *_columns(indptr, indices, leaders)),
                           shape=(table.n_candidates, len(leaders)))
@@ -207,8 +208,8 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
         return StationBound(base, float(base), 0, len(forced), classes, 0)
     full = float(area[~must].sum()) <= allowance  # covering the must classes is enough
     if full:
-        cover, area = cover[:, must], area[must]
-    problem = _Lagrangian(cover, area, need, full)
+        cover, area, must = cover[:, must], area[must], must[must]
+    problem = _Lagrangian(cover, area, need, must, full)
     target = max(1.0, float(upper_stations - base))
     done = problem.solve(target, iterations)
     return StationBound(stations=base + problem.best_stations(),
@@ -219,8 +220,9 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
 class _Lagrangian:
     """The Lagrangian of one cover problem, maximised by the volume algorithm.
 
-    ``cover`` (C, K) 0/1 over classes of area ``area`` (K,), ``need`` the area to cover;
-    ``full``: every class must be covered (the knapsack term is ``sum u``, components bound
+    ``cover`` (C, K) 0/1 over classes of area ``area`` (K,), ``need`` the area to cover,
+    ``must`` (K,) bool the classes every plan covers (``y = 1`` in the knapsack); ``full``:
+    every class must be covered (the knapsack term is ``sum u``, components bound
     separately, and rows are generated: see :meth:`solve`).
 
     ``best`` (components,) holds each component's best value and ``best_u`` (K,) the
@@ -229,11 +231,12 @@ class _Lagrangian:
     """
 
     def __init__(self, cover: sp.csc_matrix, area: NDArray[np.float64], need: float,
-                 full: bool) -> None:
+                 must: NDArray[np.bool_], full: bool) -> None:
         self.rows = cover.tocsr()  # (C, K)
         self.rows.data = np.ones(self.rows.nnz)
         self.area = area
         self.need = need
+        self.must = must
         self.full = full
         n_cand, n_class = self.rows.shape
         if full:
@@ -339,12 +342,12 @@ class _Lagrangian:
         negative reduced cost (the Lagrangian's minimisers)."""
         reduced = 1.0 - rows @ u  # (C,)
         value = np.bincount(self.cand_comp, weights=np.minimum(reduced, 0.0),
-                            minlength=self.n_components)
+                            minlength=self.n_components).astype(np.float64)
         if self.full:
             y = np.ones(len(u))
             value += np.bincount(comp, weights=u, minlength=self.n_components)
         else:
-            y = _knapsack(u, area, self.need)
+            y = _knapsack(u, area, self.must, self.need)
             value[0] += _dot(u, y)
         return value, y, reduced < 0
 
@@ -375,15 +378,19 @@ def _dot(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
     return float(np.multiply(a, b).sum())
 
 
-def _knapsack(u: NDArray[np.float64], area: NDArray[np.float64], need: float
-              ) -> NDArray[np.float64]:
-    """(K,) y in [0, 1] of least ``u . y`` with ``area . y >= need`` (cheapest per area
-    first, ties to the lowest index)."""
-    order = np.lexsort((np.arange(len(u)), u / area))
+def _knapsack(u: NDArray[np.float64], area: NDArray[np.float64], must: NDArray[np.bool_],
+              need: float) -> NDArray[np.float64]:
+    """(K,) y in [0, 1] of least ``u . y`` with ``area . y >= need`` and ``y = 1`` on
+    ``must`` (K,) bool: the others cheapest per area first, ties to the lowest index."""
+    y = must.astype(np.float64)
+    rest = need - float(area[must].sum())
+    free = np.flatnonzero(~must)
+    if rest <= 0 or len(free) == 0:
+        return y
+    order = free[np.lexsort((free, u[free] / area[free]))]
     reach = np.cumsum(area[order])
-    last = min(int(np.searchsorted(reach, need)), len(order) - 1)
-    y = np.zeros(len(u))
+    last = min(int(np.searchsorted(reach, rest)), len(order) - 1)
     y[order[:last]] = 1.0
     before = float(reach[last - 1]) if last > 0 else 0.0
-    y[order[last]] = min(1.0, max(0.0, (need - before) / float(area[order[last]])))
+    y[order[last]] = min(1.0, max(0.0, (rest - before) / float(area[order[last]])))
     return y
