@@ -59,8 +59,13 @@ from scipy.sparse.csgraph import connected_components
 
 from planner.visibility.coverage import CoverageTable
 
-# volume iterations per round (fixed: no clock, the same bound for the same table)
+# iterations (fixed: no clock, the same bound for the same table): of the volume algorithm
+# (partial cover) and of PDHG per round of rows (full cover)
 ITERATIONS = 250
+PDHG_ITERATIONS = 1000
+# PDHG restarts from the average this often; power iterations for the step
+RESTART_PERIOD = 200
+NORM_ITERATIONS = 30
 # full cover: classes added per round, rounds at most, and how far below 1 the primal
 # estimate may cover a class before it is added
 ROWS_PER_ROUND = 1000
@@ -170,15 +175,15 @@ def _columns(indptr: NDArray[np.int64], indices: NDArray[np.int32],
 
 
 def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: int,
-                        fixed: tuple[int, ...] = (), iterations: int = ITERATIONS
+                        fixed: tuple[int, ...] = (), iterations: int | None = None
                         ) -> StationBound:
     """The fewest stations any plan needs to cover ``need_m2`` (fixed stations included).
 
     ``need_m2``: the area to cover, fixed stations' faces included (goal * max achievable
     - slack); ``upper_stations``: the stations of a known plan (the steps aim at it; the
     search stops early once the bound meets it). ``fixed`` stations are in every plan:
-    their faces count as covered. ``iterations`` per round of rows (see the module
-    docstring).
+    their faces count as covered. ``iterations``: of the volume algorithm (partial cover,
+    default ITERATIONS) or of PDHG per round of rows (full cover, default PDHG_ITERATIONS).
     """
     n_fixed = len(fixed)
     covered = np.zeros(table.n_faces, bool)
@@ -211,7 +216,8 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
         cover, area, must = cover[:, must], area[must], must[must]
     problem = _Lagrangian(cover, area, need, must, full)
     target = max(1.0, float(upper_stations - base))
-    done = problem.solve(target, iterations)
+    done = problem.solve(target, iterations if iterations is not None else
+                         PDHG_ITERATIONS if full else ITERATIONS)
     return StationBound(stations=base + problem.best_stations(),
                         lp_value=base + float(problem.best.sum()), iterations=done,
                         forced=len(forced), classes=classes, components=problem.n_components)
@@ -274,8 +280,10 @@ class _Lagrangian:
         active = np.zeros(n_class, bool)
         active[by_size[:ROWS_PER_ROUND]] = True
         done = 0
+        self._primal = np.zeros(self.rows.shape[0])
+        self._dual = self.best_u.copy()
         for _ in range(ROUNDS):
-            done += self._volume(np.flatnonzero(active), target, iterations)
+            done += self._pdhg(np.flatnonzero(active), target, iterations)
             if self.best_stations() >= target:
                 break
             seen = self.rows.T @ self._primal  # (K,) how much the estimate covers
@@ -285,11 +293,63 @@ class _Lagrangian:
             active[missed[np.lexsort((missed, size[missed]))][:ROWS_PER_ROUND]] = True
         return done
 
+    def _pdhg(self, columns: NDArray[np.int64], target: float, iterations: int) -> int:
+        """Primal-dual hybrid gradient (full cover) on ``columns``; iterations made.
+
+        Chambolle & Pock's method on the LP ``min 1.x  s.t.  M x >= 1, 0 <= x <= 1`` with
+        ``M`` (K', C) the active classes' rows, as PDLP runs it: steps ``0.95 / |M|``
+        (the norm by power iteration), restarted from the average of the iterates every
+        :data:`RESTART_PERIOD` iterations when the average is better. Every dual iterate
+        ``u`` is a Lagrangian multiplier; the primal ``x`` picks the next rows.
+        """
+        by_class = self.rows[:, columns].T.tocsr()  # (K', C)
+        by_cand = by_class.T.tocsr()  # (C, K')
+        comp = self.class_comp[columns]
+        v = np.ones(by_class.shape[1])
+        for _ in range(NORM_ITERATIONS):
+            v = by_cand @ (by_class @ v)
+            v /= math.sqrt(_dot(v, v))
+        w = by_cand @ (by_class @ v)
+        step = 0.95 / math.sqrt(math.sqrt(_dot(w, w)))
+        x, u = self._primal, self._dual[columns]
+        x_sum, u_sum = np.zeros_like(x), np.zeros_like(u)
+        for it in range(iterations):
+            reduced = 1.0 - by_cand @ u  # (C,)
+            self._record_reduced(columns, comp, u, reduced)
+            if self.best_stations() >= target:
+                self._primal, self._dual[columns] = x, u
+                return it
+            x_new = np.clip(x - step * reduced, 0.0, 1.0)
+            u = np.maximum(0.0, u + step * (1.0 - by_class @ (2.0 * x_new - x)))
+            x = x_new
+            x_sum += x
+            u_sum += u
+            if (it + 1) % RESTART_PERIOD == 0:
+                u_avg = u_sum / RESTART_PERIOD
+                reduced_avg = 1.0 - by_cand @ u_avg
+                if self._record_reduced(columns, comp, u_avg, reduced_avg) >= \
+                        _full_value(u, 1.0 - by_cand @ u):
+                    x, u = x_sum / RESTART_PERIOD, u_avg
+                x_sum[:] = 0.0
+                u_sum[:] = 0.0
+        self._primal, self._dual[columns] = x, u
+        return iterations
+
+    def _record_reduced(self, columns: NDArray[np.int64], comp: NDArray[np.int64],
+                        u: NDArray[np.float64], reduced: NDArray[np.float64]) -> float:
+        """Record a full cover's L(u) per component (reduced costs given); the total."""
+        value = np.bincount(self.cand_comp, weights=np.minimum(reduced, 0.0),
+                            minlength=self.n_components).astype(np.float64)
+        value += np.bincount(comp, weights=u, minlength=self.n_components)
+        self._record(columns, value, u)
+        return float(value.sum())
+
     def _volume(self, columns: NDArray[np.int64], target: float, iterations: int) -> int:
         """Volume algorithm on ``columns`` (classes), from ``best_u``; iterations made.
 
         Barahona & Anbil: steps from the best multipliers along the subgradient of the
-        averaged primal (``x_bar``, ``y_bar``: a running convex combination of the
+        averaged primal (``y_bar`` and the classes' cover by ``x_bar``: running convex
+        combinations of the
         Lagrangian's minimisers, which approaches an optimal LP solution), the step factor
         raised after improving steps and cut after :data:`RED_STEPS` steps without.
         """
@@ -300,13 +360,12 @@ class _Lagrangian:
         value, y, x = self._evaluate(rows, area, comp, u_best)
         l_best = float(value.sum())
         self._record(columns, value, u_best)
-        x_bar, y_bar = x.astype(np.float64), y
+        y_bar = y
         seen_bar = self._covered(rows, x)
         factor = START_STEP
         red = 0
         for it in range(iterations):
             if self.best_stations() >= target:
-                self._primal = x_bar
                 return it
             g_bar = y_bar - seen_bar
             g_bar[(u_best <= 0) & (g_bar < 0)] = 0.0
@@ -318,7 +377,6 @@ class _Lagrangian:
             value, y, x = self._evaluate(rows, area, comp, u)
             self._record(columns, value, u)
             seen = self._covered(rows, x)
-            x_bar = AVERAGE * x + (1 - AVERAGE) * x_bar
             y_bar = AVERAGE * y + (1 - AVERAGE) * y_bar
             seen_bar = AVERAGE * seen + (1 - AVERAGE) * seen_bar
             total = float(value.sum())
@@ -332,7 +390,6 @@ class _Lagrangian:
                 if red >= RED_STEPS:
                     factor *= 0.66
                     red = 0
-        self._primal = x_bar
         return iterations
 
     def _evaluate(self, rows: sp.csr_matrix, area: NDArray[np.float64],
@@ -371,6 +428,11 @@ class _Lagrangian:
         """The bound: each component's best rounded up (one component for partial)."""
         tolerance = ROUND_TOLERANCE * np.maximum(1.0, np.abs(self.best))
         return int(np.maximum(0.0, np.ceil(self.best - tolerance)).sum())
+
+
+def _full_value(u: NDArray[np.float64], reduced: NDArray[np.float64]) -> float:
+    """L(u) of a full cover from the multipliers (K',) and reduced costs ``1 - M^T u`` (C,)."""
+    return float(np.minimum(reduced, 0.0).sum() + u.sum())
 
 
 def _dot(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
