@@ -707,7 +707,10 @@ def choose_stations(table: CoverageTable, *, method: str, goal: float, time_limi
             seconds[step] = seconds.get(step, 0.0) + s
     optimal = solved.get(goal) if method == "optimal" else None
     chosen = optimal.selection if optimal is not None else selections[method].truncated(goal)
+    t_report = time.monotonic()
     report = _selection_report(table, heuristics, chosen, goal, optimal, fixed)
+    if optimal is None:  # the heuristic plan's lower bound
+        seconds["lower_bound"] = time.monotonic() - t_report
     if connectivity is not None and optimal is not None:
         report["connectivity"] = connectivity.report()
     return SelectionOutcome(selections=selections, chosen=chosen, optimal=optimal,
@@ -737,13 +740,16 @@ def _selection_report(table: CoverageTable, selections: Mapping[str, Selection],
         need_rest = need - float(table.face_area_m2[fixed_faces].sum())
         area_bound = len(fixed) + _counting_bound(table, need_rest,
                                                   table.achievable & ~fixed_faces)
-        dual = station_lower_bound(table, need, len(chosen.stations), fixed)
-        lower = min(len(chosen.stations), max(area_bound, dual.stations))
-        status = ("heuristic plan; the lower bound is the " + dual.method
-                  if dual.stations > area_bound else
-                  "heuristic plan; the lower bound is the area bound (fewest candidates "
+        bound = {"area_bound": area_bound, "lagrangian": None}
+        status = ("heuristic plan; the lower bound is the area bound (fewest candidates "
                   "whose areas add up to the goal)")
-        bound = {"area_bound": area_bound, "lagrangian": dual.to_dict()}
+        lower = min(len(chosen.stations), area_bound)
+        if area_bound < len(chosen.stations):  # else the plan meets it already
+            dual = station_lower_bound(table, need, len(chosen.stations), fixed)
+            bound["lagrangian"] = dual.to_dict()
+            if dual.stations > area_bound:
+                lower = min(len(chosen.stations), dual.stations)
+                status = "heuristic plan; the lower bound is the " + dual.method
         search = None
     n = len(chosen.stations)
     return {
