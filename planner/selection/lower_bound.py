@@ -129,11 +129,6 @@ class StationBound:
                 "components": self.components}
 
 
-def _round_up(value: float) -> int:
-    """The smallest whole number of stations at least ``value``, float error forgiven."""
-    return max(0, math.ceil(value - ROUND_TOLERANCE * max(1.0, abs(value))))
-
-
 def merged_classes(table: CoverageTable, faces: NDArray[np.bool_]
                    ) -> tuple[sp.csc_matrix, NDArray[np.float64]]:
     """Faces with identical candidate sets merged into classes, without a loop per face.
@@ -251,7 +246,8 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
 
 
 class _Lagrangian:
-    """The Lagrangian of one cover problem, maximised by the volume algorithm.
+    """The Lagrangian of one cover problem, maximised by PDHG (full cover) or the volume
+    algorithm (partial cover).
 
     ``cover`` (C, K) 0/1 over classes of area ``area`` (K,), ``need`` the area to cover,
     ``must`` (K,) bool the classes every plan covers (``y = 1`` in the knapsack); ``full``:
@@ -292,14 +288,15 @@ class _Lagrangian:
             self.rows.data = self.rows.data.astype(np.float32)
 
     def solve(self, target: float, iterations: int) -> int:
-        """Volume iterations towards ``target`` (a plan's stations); returns those made.
+        """Search multipliers aiming at ``target`` (a plan's stations); the iterations made.
 
-        A full cover works on a growing subset of the classes (the others at ``u = 0``,
-        which keeps every value a bound): first the ROWS_PER_ROUND seen by the fewest
-        candidates, then after each round of ``iterations`` the classes the volume
-        algorithm's primal estimate leaves uncovered (at most ROWS_PER_ROUND, fewest
-        candidates first), for at most ROUNDS rounds. Most classes are seen by supersets
-        of another's candidates and never matter.
+        A partial cover: ``iterations`` of the volume algorithm on every class. A full
+        cover: PDHG on a growing subset of the classes (the others at ``u = 0``, which
+        keeps every value a bound): first the ROWS_PER_ROUND seen by the fewest
+        candidates, then after each round of ``iterations`` those PDHG's primal ``x``
+        covers less than 1 - PRIMAL_SLACK (at most ROWS_PER_ROUND, fewest candidates
+        first), for at most ROUNDS rounds. Most classes are seen by supersets of another's
+        candidates and never matter.
         """
         n_class = self.rows.shape[1]
         if not self.full:
