@@ -95,8 +95,8 @@ PRIMAL_SLACK = 0.05
 # in the primal average, and steps without improvement before the factor is cut
 START_STEP = 0.1
 MAX_STEP = 2.0
-AVERAGE = 0.1
-RED_STEPS = 20
+AVERAGE = 0.02
+RED_STEPS = 5
 # relative tolerance taken off a bound before it is rounded up (float64 sums)
 ROUND_TOLERANCE = 1e-9
 FULL_METHOD = "lagrangian dual of the set-cover LP (PDHG on generated rows)"
