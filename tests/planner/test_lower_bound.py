@@ -107,6 +107,8 @@ def test_partial_goals_stay_below_every_plan(halls: dict[str, PlanResult], name:
         plans += [len(row["stations"]) for row in expected.values()]
     bound = station_lower_bound(table, need_of(table, goal), min(plans))
     assert bound.stations <= min(plans)
+    if goal == 0.95:  # hall-small: 4 (the LP is 3.88), hall-full: 8; the area bound 2 and 5
+        assert bound.stations > area_bound(table, goal)
 
 
 def test_the_same_table_gives_the_same_bound(halls: dict[str, PlanResult]) -> None:
@@ -178,6 +180,28 @@ def test_small_tables_bound_below_the_minimum_and_near_the_lp(
         lp = cover_lp(table, goal)
         bound = station_lower_bound(table, need_of(table, goal), table.n_candidates)
         assert 0.9 * lp - 1e-9 <= bound.lp_value <= lp + 1e-6
+
+
+def corridor_table() -> CoverageTable:
+    """80 stations along a corridor of 3000 faces, each seeing 60 % of a window of them."""
+    rng = np.random.default_rng(11)
+    n_faces = 3000
+    sets = []
+    for _ in range(80):
+        centre, width = int(rng.integers(0, n_faces)), int(rng.integers(100, 600))
+        faces = np.arange(centre - width, centre + width) % n_faces
+        sets.append(sorted(set(faces[rng.random(len(faces)) < 0.6].tolist())))
+    return table_of(sets, rng.uniform(0.01, 0.2, n_faces).tolist())
+
+
+@pytest.mark.parametrize("goal", [0.8, 0.9, 0.95, 1.0])
+def test_a_corridor_reaches_the_cover_lp(goal: float) -> None:
+    table = corridor_table()
+    every_face = greedy(table)  # a plan for every goal: the steps aim at it
+    bound = station_lower_bound(table, need_of(table, goal), len(every_face.stations))
+    lp = cover_lp(table, goal)
+    assert 0.9 * lp <= bound.lp_value <= lp + 1e-6
+    assert area_bound(table, goal) <= bound.stations <= every_face.count_for_goal(goal)
 
 
 def test_greedy_plans_report_the_bound(halls: dict[str, PlanResult]) -> None:
