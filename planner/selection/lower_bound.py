@@ -97,11 +97,15 @@ START_STEP = 0.1
 MAX_STEP = 2.0
 AVERAGE = 0.02
 RED_STEPS = 5
+# tables with more qualified pairs get no Lagrangian bound (only the fixed stations): its
+# matrices take up to about 36 bytes a pair at the peak (hall-full: 11 M pairs, 390 MB)
+MAX_PAIRS = 40_000_000
 # relative tolerance taken off a bound before it is rounded up (float64 sums)
 ROUND_TOLERANCE = 1e-9
 FULL_METHOD = "lagrangian dual of the set-cover LP (PDHG on generated rows)"
 PARTIAL_METHOD = "lagrangian dual of the partial-cover LP (volume algorithm)"
 REDUCTIONS = "fixed stations and the candidates alone in covering a class"
+TOO_LARGE = f"fixed stations only (the table has more than {MAX_PAIRS} pairs)"
 
 
 @dataclass(frozen=True)
@@ -145,7 +149,9 @@ def merged_classes(table: CoverageTable, faces: NDArray[np.bool_]
     area_m2 : (K,) float64, the area of each class
     """
     chosen = np.flatnonzero(faces & table.achievable)
-    sub = table.by_face  # (C, F') CSC
+    # (C, F') CSC; the table keeps it only when the optimal method made it
+    kept = table.__dict__.get("by_face")
+    sub = kept if kept is not None else table.by_candidate.tocsc()
     if len(chosen) < table.n_faces:
         sub = sub[:, chosen]
     indptr, indices = sub.indptr.astype(np.int64), sub.indices
@@ -205,6 +211,8 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
     cover, default PDHG_ITERATIONS).
     """
     n_fixed = len(fixed)
+    if table.n_pairs > MAX_PAIRS:
+        return StationBound(n_fixed, float(n_fixed), 0, 0, 0, 0, TOO_LARGE)
     covered = np.zeros(table.n_faces, bool)
     for s in fixed:
         covered[table.faces_of(s)] = True
@@ -214,8 +222,8 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
         return StationBound(n_fixed, float(n_fixed), 0, 0, 0, 0, REDUCTIONS)
     cover, area = merged_classes(table, rest)
     classes = cover.shape[1]
-    keep = area > 0
-    cover, area = cover[:, keep], area[keep]
+    if not (area > 0).all():
+        cover, area = cover[:, area > 0], area[area > 0]
     # classes a plan may not leave out: larger than all it may leave uncovered
     allowance = float(area.sum()) - need
     must = area > allowance
@@ -231,13 +239,14 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
     if need <= 0 or cover.shape[1] == 0:
         return StationBound(base, float(base), 0, len(forced), classes, 0, REDUCTIONS)
     full = float(area[~must].sum()) <= allowance  # covering the must classes is enough
-    if full:
+    if full and not must.all():
         cover, area, must = cover[:, must], area[must], must[must]
-    problem = _Lagrangian(cover, area, need, must, full)
-    target = max(1.0, float(upper_stations - base))
     if iterations is None:
         iterations = PDHG_ITERATIONS if full else min(
             ITERATIONS, max(MIN_ITERATIONS, PARTIAL_WORK_PAIRS // max(1, cover.nnz)))
+    problem = _Lagrangian(cover, area, need, must, full)
+    del cover  # the problem keeps it by candidate
+    target = max(1.0, float(upper_stations - base))
     done = problem.solve(target, iterations)
     return StationBound(stations=base + problem.best_stations(),
                         lp_value=base + float(problem.best.sum()), iterations=done,

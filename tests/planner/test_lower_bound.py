@@ -212,3 +212,12 @@ def test_greedy_plans_report_the_bound(halls: dict[str, PlanResult]) -> None:
     assert bound["lagrangian"]["stations"] == selection["lower_bound"]
     assert bound["area_bound"] < selection["lower_bound"] <= PROVEN_OPTIMUM["hall-small"]
     assert "lagrangian" in selection["status"] and not selection["proven_optimal"]
+
+
+def test_a_table_too_large_keeps_the_fixed_stations(monkeypatch: pytest.MonkeyPatch) -> None:
+    import planner.selection.lower_bound as lower_bound
+
+    table = corridor_table()
+    monkeypatch.setattr(lower_bound, "MAX_PAIRS", table.n_pairs - 1)
+    bound = station_lower_bound(table, need_of(table, 1.0), 23, fixed=(0, 1))
+    assert bound.stations == 2 and "pairs" in bound.method
