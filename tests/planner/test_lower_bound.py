@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.sparse as sp
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.optimize import linprog
 
 from planner.outputs.report import plan_document
@@ -20,6 +22,7 @@ from planner.selection.lower_bound import merged_classes, station_lower_bound
 from planner.selection.optimal import _counting_bound, face_classes
 from planner.visibility.coverage import CoverageTable, QualifiedPairs
 from tests.planner.test_optimal import hall_plan
+from tests.property.test_optimal_exact import instance
 
 # the optima test_optimal proves at goal 100 %
 PROVEN_OPTIMUM = {"hall-small": 30, "hall-full": 63}
@@ -180,6 +183,19 @@ def test_small_tables_bound_below_the_minimum_and_near_the_lp(
         lp = cover_lp(table, goal)
         bound = station_lower_bound(table, need_of(table, goal), table.n_candidates)
         assert 0.9 * lp - 1e-9 <= bound.lp_value <= lp + 1e-6
+
+
+@settings(max_examples=40, deadline=None)
+@given(instance=instance, goal=st.sampled_from([0.5, 0.8, 0.95, 1.0]),
+       n_fixed=st.integers(0, 1), aim=st.integers(0, 3))
+def test_random_tables_bound_below_the_minimum(instance: tuple[list[list[int]], list[float]],
+                                              goal: float, n_fixed: int, aim: int) -> None:
+    table = table_of(*instance)
+    fixed = tuple(range(n_fixed))
+    fewest = fewest_by_enumeration(table, goal, fixed)
+    # the plan the steps aim at may be the minimum or any larger one
+    bound = station_lower_bound(table, need_of(table, goal), fewest + aim, fixed)
+    assert n_fixed <= bound.stations <= fewest
 
 
 def corridor_table() -> CoverageTable:
