@@ -100,6 +100,10 @@ RED_STEPS = 5
 # tables with more qualified pairs get no Lagrangian bound (only the fixed stations): its
 # matrices take up to about 36 bytes a pair at the peak (hall-full: 11 M pairs, 390 MB)
 MAX_PAIRS = 40_000_000
+# a goal whose must-cover classes (see station_lower_bound) leave out at most this share of
+# the area is bound as a full cover of them (faces of 1e-10 m^2 at 100 % are not a
+# partial cover)
+SLIVER_SHARE = 1e-6
 # relative tolerance taken off a bound before it is rounded up (float64 sums)
 ROUND_TOLERANCE = 1e-9
 FULL_METHOD = "lagrangian dual of the set-cover LP (PDHG on generated rows)"
@@ -238,7 +242,9 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
     base = n_fixed + len(forced)
     if need <= 0 or cover.shape[1] == 0:
         return StationBound(base, float(base), 0, len(forced), classes, 0, REDUCTIONS)
-    full = float(area[~must].sum()) <= allowance  # covering the must classes is enough
+    # every plan covers the must classes, so the set cover of them alone is a relaxation:
+    # exact when covering them is enough, and taken too when the others are slivers
+    full = float(area[~must].sum()) <= max(allowance, SLIVER_SHARE * float(area.sum()))
     if full and not must.all():
         cover, area, must = cover[:, must], area[must], must[must]
     if iterations is None:
