@@ -29,8 +29,7 @@ The selection stage (:func:`choose_stations`) runs both greedy heuristics, and f
 The lower bound is the best of: the fewest candidates whose single areas add up to the goal,
 the Lagrangian dual of the cover LP (:mod:`planner.selection.lower_bound`, which alone may
 prove the incumbent and spare HiGHS), HiGHS's dual bounds, k + 1 for the largest k proven
-short. ``proven_optimal`` is true when
-it meets the plan.
+short. ``proven_optimal`` is true when it meets the plan.
 
 Fixed stations (re-scan, ``fixed_stations``) are in every plan: their faces count as
 covered, the programs are solved for what is still missing, and they are never dropped.
