@@ -27,8 +27,9 @@ The selection stage (:func:`choose_stations`) runs both greedy heuristics, and f
      (proofs stay valid; plans it finds are checked, and repaired, on the exact table).
 
 The lower bound is the best of: the fewest candidates whose single areas add up to the goal,
-HiGHS's dual bounds, k + 1 for the largest k proven short. ``proven_optimal`` is true when
-it meets the plan.
+the Lagrangian dual of the cover LP (:mod:`planner.selection.lower_bound`, which alone may
+prove the incumbent and spare HiGHS), HiGHS's dual bounds, k + 1 for the largest k proven
+short. ``proven_optimal`` is true when it meets the plan.
 
 Fixed stations (re-scan, ``fixed_stations``) are in every plan: their faces count as
 covered, the programs are solved for what is still missing, and they are never dropped.
@@ -60,6 +61,7 @@ from numpy.typing import NDArray
 from planner.selection.connectivity import Connectivity, OverlapGraph, add_flow
 from planner.selection.greedy import GOAL_SLACK_M2, Selection, greedy, replay
 from planner.selection.highs_worker import Answer, HighsProcess
+from planner.selection.lower_bound import station_lower_bound
 from planner.selection.program import ProgramBuilder
 from planner.visibility.coverage import CoverageTable
 
@@ -428,6 +430,13 @@ def solve_optimal(
     lower = n_fixed + _counting_bound(table, need_rest, rest)
     status = "the plan meets the area bound (fewest candidates whose areas add up to the goal)"
     n_classes = 0
+    if len(best) > lower and need_rest > 0:
+        t_bound = time.monotonic()
+        dual = station_lower_bound(table, need, len(best), fixed)
+        seconds["lower_bound"] = time.monotonic() - t_bound
+        if dual.stations > lower:
+            lower = dual.stations
+            status = f"the plan meets the {dual.method}"
     t_milp = time.monotonic()
     reached = graph is None or bool(
         best and replay(table, best, "optimal").covered_area_m2[-1] >= need)
@@ -697,7 +706,10 @@ def choose_stations(table: CoverageTable, *, method: str, goal: float, time_limi
             seconds[step] = seconds.get(step, 0.0) + s
     optimal = solved.get(goal) if method == "optimal" else None
     chosen = optimal.selection if optimal is not None else selections[method].truncated(goal)
+    t_report = time.monotonic()
     report = _selection_report(table, heuristics, chosen, goal, optimal, fixed)
+    if optimal is None:  # the heuristic plan's lower bound
+        seconds["lower_bound"] = time.monotonic() - t_report
     if connectivity is not None and optimal is not None:
         report["connectivity"] = connectivity.report()
     return SelectionOutcome(selections=selections, chosen=chosen, optimal=optimal,
@@ -711,6 +723,7 @@ def _selection_report(table: CoverageTable, selections: Mapping[str, Selection],
     """plan.json's ``selection``: why this plan (the heuristics, local search, bound)."""
     counts = {name: s.count_for_goal(goal) for name, s in sorted(selections.items())}
     best = min(("greedy", "weighted_greedy"), key=lambda name: counts[name])
+    bound: dict[str, Any] | None = None
     if optimal is not None:
         lower, status = optimal.lower_bound, optimal.status
         search: dict[str, Any] | None = {
@@ -724,9 +737,18 @@ def _selection_report(table: CoverageTable, selections: Mapping[str, Selection],
         for s in fixed:
             fixed_faces[table.faces_of(s)] = True
         need_rest = need - float(table.face_area_m2[fixed_faces].sum())
-        lower = min(len(chosen.stations), len(fixed) + _counting_bound(
-            table, need_rest, table.achievable & ~fixed_faces))
-        status = "heuristic plan; the lower bound is the area bound"
+        area_bound = len(fixed) + _counting_bound(table, need_rest,
+                                                  table.achievable & ~fixed_faces)
+        bound = {"area_bound": area_bound, "lagrangian": None}
+        status = ("heuristic plan; the lower bound is the area bound (fewest candidates "
+                  "whose areas add up to the goal)")
+        lower = min(len(chosen.stations), area_bound)
+        if area_bound < len(chosen.stations):  # else the plan meets it already
+            dual = station_lower_bound(table, need, len(chosen.stations), fixed)
+            bound["lagrangian"] = dual.to_dict()
+            if dual.stations > area_bound:
+                lower = min(len(chosen.stations), dual.stations)
+                status = "heuristic plan; the lower bound is the " + dual.method
         search = None
     n = len(chosen.stations)
     return {
@@ -740,4 +762,5 @@ def _selection_report(table: CoverageTable, selections: Mapping[str, Selection],
         "gap": round(float((n - lower) / n) if n else 0.0, 6),
         "proven_optimal": lower == n,
         "status": status,
+        **({} if bound is None else {"bound": bound}),
     }

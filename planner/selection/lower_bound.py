@@ -1,0 +1,505 @@
+"""A proven lower bound on the number of stations: the Lagrangian dual of the cover LP.
+
+The stations that reach a goal solve a (partial) set cover with areas. With ``x_c`` a
+candidate's station and ``y_k`` how much of face class ``k`` (area ``a_k``) counts as
+covered::
+
+    min sum_c x_c  s.t.  sum_k a_k y_k >= need,  y_k <= sum_{c covers k} x_c,
+                         0 <= y_k <= 1,  0 <= x_c <= 1.
+
+Relaxing ``y_k <= sum x_c`` with multipliers ``u_k >= 0`` (Lagrangian relaxation) gives,
+for *every* ``u >= 0``, a lower bound on every plan::
+
+    L(u) = sum_c min(0, 1 - sum_{k in c} u_k) + min{u . y : a . y >= need, 0 <= y <= 1}
+
+The second term is a fractional knapsack: classes by ``u_k / a_k`` ascending until their
+area reaches ``need``. ``max_u L(u)`` is the LP above, and any ``u`` found by any method
+is a valid bound once ``L(u)`` is summed in float64: the search for ``u`` needs no
+accuracy, only the last evaluation. (Scaling ``u`` to column sums at most 1 and choosing
+the knapsack's multiplier gives the textbook dual ``need lam - sum_k max(0, a_k lam -
+u_k)``; ``L`` is never below it.) Two searches, each with a fixed iteration count (no
+clock: the same table gives the same bound):
+
+- full cover (every class must be covered, the knapsack term is ``sum_k u_k``: the
+  set-cover LP dual): PDHG, the primal-dual hybrid gradient of Chambolle & Pock, as PDLP
+  runs it (restarts from the average), on a growing subset of the classes: first those
+  seen by the fewest candidates, then those its primal ``x`` leaves uncovered. Classes
+  left out have ``u_k = 0``, which keeps every value a bound; most are seen by a superset
+  of another class's candidates and never matter. Hall-full at 100 %: the LP's 62.5 (a
+  bound of 63, the proven optimum) from about 2 % of the classes.
+- partial cover: the volume algorithm of Barahona & Anbil (a subgradient method on the
+  averaged primal; one product with the table per iteration), from Caprara, Fischetti &
+  Toth's start ``u_k = a_k min_{c covers k} 1 / area_c``, steps aimed at a known plan.
+
+Lossless reductions come first:
+
+- faces seen by exactly the same candidates merge into one class (areas summed);
+- a class larger than all a plan may leave uncovered is covered by every plan: ``y_k = 1``
+  in the knapsack, and a candidate alone in covering one is in every plan (counted, its
+  classes dropped);
+- for a full cover the bound is the sum over the connected components of candidates and
+  classes of each component's bound, each rounded up (the Lagrangian separates exactly).
+  A partial cover trades area between components, so it keeps one bound.
+
+The bound is ``ceil(L - 1e-9 max(1, |L|))`` (the relative 1e-9 absorbs float64 rounding);
+the caller takes the larger of it and the area bound
+(:func:`planner.selection.optimal._counting_bound`).
+
+Sources:
+
+- M. Held, R. M. Karp, "The traveling-salesman problem and minimum spanning trees: part
+  II", Mathematical Programming 1 (1971) 6-25 (Lagrangian bounds by subgradients).
+- J. E. Beasley, "A Lagrangian heuristic for set-covering problems", Naval Research
+  Logistics 37 (1990) 151-164 (the Lagrangian bound of set covering).
+- A. Caprara, M. Fischetti, P. Toth, "A heuristic method for the set covering problem",
+  Operations Research 47(5) (1999) 730-743 (the starting multipliers; columns/rows by
+  pricing).
+- F. Barahona, R. Anbil, "The volume algorithm: producing primal solutions with a
+  subgradient method", Mathematical Programming 87 (2000) 385-399.
+- A. Chambolle, T. Pock, "A first-order primal-dual algorithm for convex problems with
+  applications to imaging", J. Mathematical Imaging and Vision 40 (2011) 120-145.
+- D. Applegate et al., "Practical large-scale linear programming using primal-dual hybrid
+  gradient", NeurIPS 2021 (PDLP: restarts to the average).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+from scipy.sparse.csgraph import connected_components
+
+from planner.visibility.coverage import CoverageTable
+
+# iterations (fixed: no clock, the same bound for the same table): of the volume algorithm
+# (partial cover: at most ITERATIONS, fewer on large tables so that iterations times the
+# table's pairs stay within PARTIAL_WORK_PAIRS, at least MIN_ITERATIONS) and of PDHG per
+# round of rows (full cover)
+ITERATIONS = 250
+PARTIAL_WORK_PAIRS = 1_200_000_000
+MIN_ITERATIONS = 20
+PDHG_ITERATIONS = 1000
+# PDHG restarts from the average this often; power iterations for the step
+RESTART_PERIOD = 200
+NORM_ITERATIONS = 30
+# full cover: classes added per round, rounds at most, and how far below 1 the primal
+# estimate may cover a class before it is added
+ROWS_PER_ROUND = 1000
+ROUNDS = 8
+PRIMAL_SLACK = 0.05
+# volume algorithm: the first and largest step factor, the weight of the newest minimiser
+# in the primal average, and steps without improvement before the factor is cut
+START_STEP = 0.1
+MAX_STEP = 2.0
+AVERAGE = 0.02
+RED_STEPS = 5
+# tables with more qualified pairs get no Lagrangian bound (only the fixed stations): its
+# matrices take up to about 36 bytes a pair at the peak (hall-full: 11 M pairs, 390 MB)
+MAX_PAIRS = 40_000_000
+# a goal whose must-cover classes (see station_lower_bound) leave out at most this share of
+# the area is bound as a full cover of them (faces of 1e-10 m^2 at 100 % are not a
+# partial cover)
+SLIVER_SHARE = 1e-6
+# relative tolerance taken off a bound before it is rounded up (float64 sums)
+ROUND_TOLERANCE = 1e-9
+FULL_METHOD = "lagrangian dual of the set-cover LP (PDHG on generated rows)"
+PARTIAL_METHOD = "lagrangian dual of the partial-cover LP (volume algorithm)"
+REDUCTIONS = "fixed stations and the candidates alone in covering a class"
+TOO_LARGE = f"fixed stations only (the table has more than {MAX_PAIRS} pairs)"
+
+
+@dataclass(frozen=True)
+class StationBound:
+    """No plan reaches the goal with fewer than ``stations`` stations (fixed ones included).
+
+    ``lp_value`` is the best Lagrangian value (fixed and forced stations included), a lower
+    bound on the cover LP's optimum and so on every plan; ``forced`` counts the candidates
+    alone in covering a class that must be covered; ``components`` is how many independent
+    parts a full cover split into (1 for a partial cover).
+    """
+
+    stations: int
+    lp_value: float
+    iterations: int
+    forced: int
+    classes: int
+    components: int
+    method: str = PARTIAL_METHOD
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"bound": self.method, "stations": self.stations,
+                "lp_value": round(self.lp_value, 6), "iterations": self.iterations,
+                "forced_stations": self.forced, "face_classes": self.classes,
+                "components": self.components}
+
+
+def merged_classes(table: CoverageTable, faces: NDArray[np.bool_]
+                   ) -> tuple[sp.csc_matrix, NDArray[np.float64]]:
+    """Faces with identical candidate sets merged into classes, without a loop per face.
+
+    Each face's candidate set is hashed twice (sums of random 64-bit words, wrapping), faces
+    are grouped by (count, hashes), and every face is checked entry by entry against its
+    group's first face: a face that differs (a hash collision) keeps a class of its own, so
+    the merge is exact. ``faces`` (F,) bool: the faces to merge (those of no candidate are
+    left out).
+
+    Returns
+    -------
+    cover : (C, K) CSC float64 0/1, which candidate covers which class
+    area_m2 : (K,) float64, the area of each class
+    """
+    chosen = np.flatnonzero(faces & table.achievable)
+    # (C, F') CSC; the table keeps it only when the optimal method made it
+    kept = table.__dict__.get("by_face")
+    sub = kept if kept is not None else table.by_candidate.tocsc()
+    if len(chosen) < table.n_faces:
+        sub = sub[:, chosen]
+    indptr, indices = sub.indptr.astype(np.int64), sub.indices
+    count = np.diff(indptr)
+    n = len(chosen)
+    if n == 0:
+        return sp.csc_matrix((table.n_candidates, 0)), np.zeros(0)
+    rng = np.random.default_rng(20240601)
+    words = rng.integers(0, np.iinfo(np.uint64).max, size=(2, table.n_candidates),
+                         dtype=np.uint64, endpoint=True)
+    starts = indptr[:-1]
+    first_hash = np.add.reduceat(words[0][indices], starts)  # every face has a candidate
+    second_hash = np.add.reduceat(words[1][indices], starts)
+    order = np.lexsort((np.arange(n), second_hash, first_hash, count))  # (F',)
+    new = np.ones(n, bool)
+    new[1:] = ((count[order][1:] != count[order][:-1])
+               | (first_hash[order][1:] != first_hash[order][:-1])
+               | (second_hash[order][1:] != second_hash[order][:-1]))
+    group = np.cumsum(new) - 1  # group of order[i]
+    leader = order[new][group]  # (F',) the first face of the group of order[i]
+    representative = np.empty(n, np.int64)
+    representative[order] = leader
+    # check the merged faces entry by entry (the same count within a group, so positions
+    # line up)
+    merged = np.flatnonzero(representative != np.arange(n))
+    if len(merged):
+        entries = _entries(indptr, merged)
+        face_of_entry = np.repeat(merged, count[merged])
+        others = indptr[representative[face_of_entry]] + entries - indptr[face_of_entry]
+        collided = np.unique(face_of_entry[indices[entries] != indices[others]])
+        representative[collided] = collided
+    leaders, class_of = np.unique(representative, return_inverse=True)
+    area = np.bincount(class_of.reshape(-1), weights=table.face_area_m2[chosen],
+                       minlength=len(leaders)).astype(np.float64)
+    cover = sub[:, leaders].astype(np.float64)
+    cover.data[:] = 1.0
+    return cover, area
+
+
+def _entries(indptr: NDArray[np.int64], columns: NDArray[np.int64]) -> NDArray[np.int64]:
+    """The positions in ``indices`` of the entries of CSC ``columns``, column by column."""
+    count = indptr[columns + 1] - indptr[columns]
+    starts = np.cumsum(count) - count  # (len(columns),) where each column's entries begin
+    return np.repeat(indptr[columns] - starts, count) + np.arange(int(count.sum()))
+
+
+def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: int,
+                        fixed: tuple[int, ...] = (), iterations: int | None = None
+                        ) -> StationBound:
+    """The fewest stations any plan needs to cover ``need_m2`` (fixed stations included).
+
+    ``need_m2``: the area to cover, fixed stations' faces included (goal * max achievable
+    - slack); ``upper_stations``: the stations of a known plan (the steps aim at it; the
+    search stops early once the bound meets it). ``fixed`` stations are in every plan:
+    their faces count as covered. ``iterations``: of the volume algorithm (partial cover,
+    default: ITERATIONS within PARTIAL_WORK_PAIRS) or of PDHG per round of rows (full
+    cover, default PDHG_ITERATIONS).
+    """
+    n_fixed = len(fixed)
+    if table.n_pairs > MAX_PAIRS:
+        return StationBound(n_fixed, float(n_fixed), 0, 0, 0, 0, TOO_LARGE)
+    covered = np.zeros(table.n_faces, bool)
+    for s in fixed:
+        covered[table.faces_of(s)] = True
+    rest = table.achievable & ~covered
+    need = need_m2 - float(table.face_area_m2[covered].sum())
+    if need <= 0:
+        return StationBound(n_fixed, float(n_fixed), 0, 0, 0, 0, REDUCTIONS)
+    cover, area = merged_classes(table, rest)
+    classes = cover.shape[1]
+    if not (area > 0).all():
+        cover, area = cover[:, area > 0], area[area > 0]
+    # classes a plan may not leave out: larger than all it may leave uncovered
+    allowance = float(area.sum()) - need
+    must = area > allowance
+    size = np.diff(cover.indptr)
+    forced = np.unique(cover.indices[cover.indptr[:-1][must & (size == 1)]])
+    if len(forced):
+        hit = np.zeros(table.n_candidates)
+        hit[forced] = 1.0
+        taken = np.asarray(cover.T @ hit).reshape(-1) > 0
+        need -= float(area[taken].sum())
+        cover, area, must = cover[:, ~taken], area[~taken], must[~taken]
+    base = n_fixed + len(forced)
+    if need <= 0 or cover.shape[1] == 0:
+        return StationBound(base, float(base), 0, len(forced), classes, 0, REDUCTIONS)
+    # every plan covers the must classes, so the set cover of them alone is a relaxation:
+    # exact when covering them is enough, and taken too when the others are slivers
+    full = float(area[~must].sum()) <= max(allowance, SLIVER_SHARE * float(area.sum()))
+    if full and not must.all():
+        cover, area, must = cover[:, must], area[must], must[must]
+    if iterations is None:
+        iterations = PDHG_ITERATIONS if full else min(
+            ITERATIONS, max(MIN_ITERATIONS, PARTIAL_WORK_PAIRS // max(1, cover.nnz)))
+    problem = _Lagrangian(cover, area, need, must, full)
+    del cover  # the problem keeps it by candidate
+    target = max(1.0, float(upper_stations - base))
+    done = problem.solve(target, iterations)
+    return StationBound(stations=base + problem.best_stations(),
+                        lp_value=base + float(problem.best.sum()), iterations=done,
+                        forced=len(forced), classes=classes, components=problem.n_components,
+                        method=FULL_METHOD if full else PARTIAL_METHOD)
+
+
+class _Lagrangian:
+    """The Lagrangian of one cover problem, maximised by PDHG (full cover) or the volume
+    algorithm (partial cover).
+
+    ``cover`` (C, K) 0/1 over classes of area ``area`` (K,), ``need`` the area to cover,
+    ``must`` (K,) bool the classes every plan covers (``y = 1`` in the knapsack); ``full``:
+    every class must be covered (the knapsack term is ``sum u``, components bound
+    separately, and rows are generated: see :meth:`solve`).
+
+    ``best`` (components,) holds each component's best value and ``best_u`` (K,) the
+    multipliers that gave it (the components' parts of different iterations: the
+    Lagrangian separates, so together they give the sum).
+    """
+
+    def __init__(self, cover: sp.csc_matrix, area: NDArray[np.float64], need: float,
+                 must: NDArray[np.bool_], full: bool) -> None:
+        self.rows = cover.tocsr()  # (C, K)
+        self.rows.data = np.ones(self.rows.nnz)
+        self.area = area
+        self.need = need
+        self.must = must
+        self.full = full
+        n_cand, n_class = self.rows.shape
+        if full:
+            graph = sp.bmat([[None, self.rows], [self.rows.T, None]], format="csr")
+            self.n_components, label = connected_components(graph, directed=False)
+            self.cand_comp = label[:n_cand]
+            self.class_comp = label[n_cand:]
+        else:
+            self.n_components = 1
+            self.cand_comp = np.zeros(n_cand, np.int64)
+            self.class_comp = np.zeros(n_class, np.int64)
+        self.best = np.full(self.n_components, -np.inf)
+        # the start (CFT): each class at its cheapest candidate's price per area
+        cand_area = self.rows @ area  # (C,)
+        price = np.zeros(n_cand)
+        np.divide(1.0, cand_area, out=price, where=cand_area > 0)
+        by_class = cover.tocsc()
+        self.best_u = area * np.minimum.reduceat(price[by_class.indices], by_class.indptr[:-1])
+        if not full:  # the volume algorithm sums in float32
+            self.rows.data = self.rows.data.astype(np.float32)
+
+    def solve(self, target: float, iterations: int) -> int:
+        """Search multipliers aiming at ``target`` (a plan's stations); the iterations made.
+
+        A partial cover: ``iterations`` of the volume algorithm on every class. A full
+        cover: PDHG on a growing subset of the classes (the others at ``u = 0``, which
+        keeps every value a bound): first the ROWS_PER_ROUND seen by the fewest
+        candidates, then after each round of ``iterations`` those PDHG's primal ``x``
+        covers less than 1 - PRIMAL_SLACK (at most ROWS_PER_ROUND, fewest candidates
+        first), for at most ROUNDS rounds. Most classes are seen by supersets of another's
+        candidates and never matter.
+        """
+        n_class = self.rows.shape[1]
+        if not self.full:
+            return self._volume(target, iterations)
+        size = np.diff(self.rows.tocsc().indptr)
+        by_size = np.lexsort((np.arange(n_class), size))
+        active = np.zeros(n_class, bool)
+        active[by_size[:ROWS_PER_ROUND]] = True
+        done = 0
+        self._primal = np.zeros(self.rows.shape[0])
+        self._dual = self.best_u.copy()
+        for _ in range(ROUNDS):
+            done += self._pdhg(np.flatnonzero(active), target, iterations)
+            if self.best_stations() >= target:
+                break
+            seen = self.rows.T @ self._primal  # (K,) how much the estimate covers
+            missed = np.flatnonzero(~active & (seen < 1.0 - PRIMAL_SLACK))
+            if len(missed) == 0:
+                break
+            active[missed[np.lexsort((missed, size[missed]))][:ROWS_PER_ROUND]] = True
+        return done
+
+    def _pdhg(self, columns: NDArray[np.int64], target: float, iterations: int) -> int:
+        """Primal-dual hybrid gradient (full cover) on ``columns``; iterations made.
+
+        Chambolle & Pock's method on the LP ``min 1.x  s.t.  M x >= 1, 0 <= x <= 1`` with
+        ``M`` (K', C) the active classes' rows, as PDLP runs it: steps ``0.95 / |M|``
+        (the norm by power iteration), restarted from the average of the iterates every
+        :data:`RESTART_PERIOD` iterations when the average is better. Every dual iterate
+        ``u`` is a Lagrangian multiplier; the primal ``x`` picks the next rows.
+        """
+        by_class = self.rows[:, columns].T.tocsr()  # (K', C)
+        by_cand = by_class.T.tocsr()  # (C, K')
+        comp = self.class_comp[columns]
+        v = np.ones(by_class.shape[1])
+        for _ in range(NORM_ITERATIONS):
+            v = by_cand @ (by_class @ v)
+            v /= math.sqrt(_dot(v, v))
+        w = by_cand @ (by_class @ v)
+        step = 0.95 / math.sqrt(math.sqrt(_dot(w, w)))
+        x, u = self._primal, self._dual[columns]
+        x_sum, u_sum = np.zeros_like(x), np.zeros_like(u)
+        for it in range(iterations):
+            reduced = 1.0 - by_cand @ u  # (C,)
+            self._record_reduced(columns, comp, u, reduced)
+            if self.best_stations() >= target:
+                self._primal, self._dual[columns] = x, u
+                return it
+            x_new = np.clip(x - step * reduced, 0.0, 1.0)
+            u = np.maximum(0.0, u + step * (1.0 - by_class @ (2.0 * x_new - x)))
+            x = x_new
+            x_sum += x
+            u_sum += u
+            if (it + 1) % RESTART_PERIOD == 0:
+                u_avg = u_sum / RESTART_PERIOD
+                reduced_avg = 1.0 - by_cand @ u_avg
+                if self._record_reduced(columns, comp, u_avg, reduced_avg) >= \
+                        _full_value(u, 1.0 - by_cand @ u):
+                    x, u = x_sum / RESTART_PERIOD, u_avg
+                x_sum[:] = 0.0
+                u_sum[:] = 0.0
+        self._primal, self._dual[columns] = x, u
+        return iterations
+
+    def _record_reduced(self, columns: NDArray[np.int64], comp: NDArray[np.int64],
+                        u: NDArray[np.float64], reduced: NDArray[np.float64]) -> float:
+        """Record a full cover's L(u) per component (reduced costs given); the total."""
+        value = np.bincount(self.cand_comp, weights=np.minimum(reduced, 0.0),
+                            minlength=self.n_components).astype(np.float64)
+        value += np.bincount(comp, weights=u, minlength=self.n_components)
+        self._record(columns, value, u)
+        return float(value.sum())
+
+    def _volume(self, target: float, iterations: int) -> int:
+        """Volume algorithm (partial cover) from ``best_u``; the iterations made.
+
+        Barahona & Anbil: steps from the best multipliers along the subgradient of the
+        averaged primal (running convex combinations of the Lagrangian's minimisers ``y``
+        and of how many chosen candidates cover each class, which approach an optimal LP
+        solution), the step factor raised after improving steps and cut after
+        :data:`RED_STEPS` steps without. The reduced costs are summed in float32 (memory
+        bound: a third faster); the best multipliers are evaluated again in float64.
+        """
+        rows = self.rows
+        u_best = self.best_u.copy()
+        l_best, y, x = self._evaluate(u_best)
+        self._record_partial(l_best, u_best)
+        y_bar = y
+        seen_bar = self._covered(rows, x)
+        factor = START_STEP
+        red = 0
+        done = iterations
+        for it in range(iterations):
+            if self.best_stations() >= target:
+                done = it
+                break
+            g_bar = y_bar - seen_bar
+            g_bar[(u_best <= 0) & (g_bar < 0)] = 0.0
+            norm = _dot(g_bar, g_bar)
+            if norm <= 0:
+                done = it
+                break
+            gap = max(target - l_best, 1e-3 * max(1.0, abs(l_best)))
+            u = np.maximum(0.0, u_best + factor * gap / norm * g_bar)
+            value, y, x = self._evaluate(u)
+            self._record_partial(value, u)
+            seen = self._covered(rows, x)
+            y_bar = AVERAGE * y + (1 - AVERAGE) * y_bar
+            seen_bar = AVERAGE * seen + (1 - AVERAGE) * seen_bar
+            if value > l_best:
+                if _dot(y - seen, g_bar) >= 0:  # green: the step could be longer
+                    factor = min(MAX_STEP, factor * 1.1)
+                l_best, u_best = value, u
+                red = 0
+            else:
+                red += 1
+                if red >= RED_STEPS:
+                    factor *= 0.66
+                    red = 0
+        # the bound: the best multipliers, summed again in float64
+        column_sums = np.zeros(rows.shape[0])
+        filled = np.diff(rows.indptr) > 0
+        column_sums[filled] = np.add.reduceat(self.best_u[rows.indices],
+                                              rows.indptr[:-1][filled])
+        reduced = 1.0 - column_sums
+        self.best[0] = float(np.minimum(reduced, 0.0).sum()) + _dot(
+            self.best_u, _knapsack(self.best_u, self.area, self.must, self.need))
+        return done
+
+    def _evaluate(self, u: NDArray[np.float64]
+                  ) -> tuple[float, NDArray[np.float64], NDArray[np.bool_]]:
+        """L(u) of a partial cover (float32 sums), the knapsack's y (K,) and x (C,): the
+        candidates of negative reduced cost (the Lagrangian's minimisers)."""
+        reduced = 1.0 - self.rows @ u.astype(np.float32)  # (C,) float32
+        y = _knapsack(u, self.area, self.must, self.need)
+        value = float(np.minimum(reduced, 0.0).sum(dtype=np.float64)) + _dot(u, y)
+        return value, y, reduced < 0
+
+    def _record_partial(self, value: float, u: NDArray[np.float64]) -> None:
+        if value > self.best[0]:
+            self.best[0] = value
+            self.best_u = u
+
+    @staticmethod
+    def _covered(rows: sp.csr_matrix, x: NDArray[np.bool_]) -> NDArray[np.float64]:
+        """(K',) how many of the candidates ``x`` (C,) cover each class."""
+        chosen = rows[np.flatnonzero(x)]
+        return np.bincount(chosen.indices, minlength=rows.shape[1]).astype(np.float64)
+
+    def _record(self, columns: NDArray[np.int64], value: NDArray[np.float64],
+                u: NDArray[np.float64]) -> None:
+        """Keep each component's best value and its multipliers."""
+        better = value > self.best
+        if better.any():
+            self.best = np.maximum(self.best, value)
+            moved = better[self.class_comp[columns]]
+            self.best_u[:] = np.where(better[self.class_comp], 0.0, self.best_u)
+            self.best_u[columns[moved]] = u[moved]
+
+    def best_stations(self) -> int:
+        """The bound: each component's best rounded up (one component for partial)."""
+        tolerance = ROUND_TOLERANCE * np.maximum(1.0, np.abs(self.best))
+        return int(np.maximum(0.0, np.ceil(self.best - tolerance)).sum())
+
+
+def _full_value(u: NDArray[np.float64], reduced: NDArray[np.float64]) -> float:
+    """L(u) of a full cover from the multipliers (K',) and reduced costs ``1 - M^T u`` (C,)."""
+    return float(np.minimum(reduced, 0.0).sum() + u.sum())
+
+
+def _dot(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+    """``a . b`` without BLAS (whose threads stall on a busy machine for vectors this size)."""
+    return float(np.multiply(a, b).sum())
+
+
+def _knapsack(u: NDArray[np.float64], area: NDArray[np.float64], must: NDArray[np.bool_],
+              need: float) -> NDArray[np.float64]:
+    """(K,) y in [0, 1] of least ``u . y`` with ``area . y >= need`` and ``y = 1`` on
+    ``must`` (K,) bool: the others cheapest per area first, ties to the lowest index."""
+    y = must.astype(np.float64)
+    rest = need - float(area[must].sum())
+    free = np.flatnonzero(~must)
+    if rest <= 0 or len(free) == 0:
+        return y
+    order = free[np.argsort(u[free] / area[free], kind="stable")]
+    reach = np.cumsum(area[order])
+    last = min(int(np.searchsorted(reach, rest)), len(order) - 1)
+    y[order[:last]] = 1.0
+    before = float(reach[last - 1]) if last > 0 else 0.0
+    y[order[last]] = min(1.0, max(0.0, (rest - before) / float(area[order[last]])))
+    return y
