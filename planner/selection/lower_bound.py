@@ -68,6 +68,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
@@ -80,7 +81,8 @@ from planner.visibility.coverage import CoverageTable
 # table's pairs stay within PARTIAL_WORK_PAIRS, at least MIN_ITERATIONS) and of PDHG per
 # round of rows (full cover)
 ITERATIONS = 250
-PARTIAL_WORK_PAIRS = 1_200_000_000
+# about 1 s of a 2-core machine (15 ms an iteration over hall-full's 10.5 M class pairs)
+PARTIAL_WORK_PAIRS = 600_000_000
 MIN_ITERATIONS = 20
 PDHG_ITERATIONS = 1000
 # PDHG restarts from the average this often; power iterations for the step
@@ -139,67 +141,99 @@ class StationBound:
 
 def merged_classes(table: CoverageTable, faces: NDArray[np.bool_]
                    ) -> tuple[sp.csc_matrix, NDArray[np.float64]]:
-    """Faces with identical candidate sets merged into classes, without a loop per face.
+    """Faces with identical candidate sets merged into classes, from the table's runs.
 
-    Each face's candidate set is hashed twice (sums of random 64-bit words, wrapping), faces
-    are grouped by (count, hashes), and every face is checked entry by entry against its
-    group's first face: a face that differs (a hash collision) keeps a class of its own, so
-    the merge is exact. ``faces`` (F,) bool: the faces to merge (those of no candidate are
-    left out).
+    Each face's candidate set is hashed twice: the sum (wrapping) of a random 64-bit word
+    per candidate, added over each run of the candidate's faces by a difference array (so
+    the work is a pass over the runs and the faces, and the memory a few arrays of F, not
+    a copy of the pairs). Faces with the same count and both hashes are one class: two
+    different sets share 128 random bits with probability 2^-128 a pair of faces (below
+    1e-24 for 10 M faces), and the words are drawn from a fixed seed, so the same table
+    always gives the same classes. ``faces`` (F,) bool: the faces to merge (those of no
+    candidate are left out).
 
     Returns
     -------
-    cover : (C, K) CSC float64 0/1, which candidate covers which class
+    cover : (C, K) CSC float32 0/1, which candidate covers which class
     area_m2 : (K,) float64, the area of each class
     """
     chosen = np.flatnonzero(faces & table.achievable)
-    # (C, F') CSC; the table keeps it only when the optimal method made it
-    kept = table.__dict__.get("by_face")
-    sub = kept if kept is not None else table.by_candidate.tocsc()
-    if len(chosen) < table.n_faces:
-        sub = sub[:, chosen]
-    indptr, indices = sub.indptr.astype(np.int64), sub.indices
-    count = np.diff(indptr)
-    n = len(chosen)
+    n, n_candidates = len(chosen), table.n_candidates
     if n == 0:
-        return sp.csc_matrix((table.n_candidates, 0)), np.zeros(0)
+        return sp.csc_matrix((n_candidates, 0)), np.zeros(0)
     rng = np.random.default_rng(20240601)
-    words = rng.integers(0, np.iinfo(np.uint64).max, size=(2, table.n_candidates),
+    words = rng.integers(0, np.iinfo(np.uint64).max, size=(2, n_candidates),
                          dtype=np.uint64, endpoint=True)
-    starts = indptr[:-1]
-    first_hash = np.add.reduceat(words[0][indices], starts)  # every face has a candidate
-    second_hash = np.add.reduceat(words[1][indices], starts)
-    order = np.lexsort((np.arange(n), second_hash, first_hash, count))  # (F',)
+    hashes = []
+    for word in words:
+        steps = np.zeros(table.n_faces + 1, np.uint64)
+        _add_run_words(table.run_ptr, table.run_start, table.run_length, word, steps)
+        hashes.append(np.cumsum(steps[:-1], dtype=np.uint64)[chosen])
+        del steps
+    count = table.candidates_per_face[chosen]
+    order = np.lexsort((hashes[1], hashes[0], count))  # (F',)
     new = np.ones(n, bool)
     new[1:] = ((count[order][1:] != count[order][:-1])
-               | (first_hash[order][1:] != first_hash[order][:-1])
-               | (second_hash[order][1:] != second_hash[order][:-1]))
-    group = np.cumsum(new) - 1  # group of order[i]
-    leader = order[new][group]  # (F',) the first face of the group of order[i]
-    representative = np.empty(n, np.int64)
-    representative[order] = leader
-    # check the merged faces entry by entry (the same count within a group, so positions
-    # line up)
-    merged = np.flatnonzero(representative != np.arange(n))
-    if len(merged):
-        entries = _entries(indptr, merged)
-        face_of_entry = np.repeat(merged, count[merged])
-        others = indptr[representative[face_of_entry]] + entries - indptr[face_of_entry]
-        collided = np.unique(face_of_entry[indices[entries] != indices[others]])
-        representative[collided] = collided
-    leaders, class_of = np.unique(representative, return_inverse=True)
-    area = np.bincount(class_of.reshape(-1), weights=table.face_area_m2[chosen],
-                       minlength=len(leaders)).astype(np.float64)
-    cover = sub[:, leaders].astype(np.float64)
-    cover.data[:] = 1.0
+               | (hashes[0][order][1:] != hashes[0][order][:-1])
+               | (hashes[1][order][1:] != hashes[1][order][:-1]))
+    del hashes, count
+    class_of = np.full(table.n_faces, -1, np.int64)
+    class_of[chosen[order]] = np.cumsum(new) - 1
+    n_classes = int(new.sum())
+    del order, new
+    area = np.bincount(class_of[chosen], weights=table.face_area_m2[chosen],
+                       minlength=n_classes).astype(np.float64)
+    # which classes each candidate covers: a pass over its runs, each class once
+    indptr = np.zeros(n_candidates + 1, np.int64)
+    last = np.full(n_classes, -1, np.int64)
+    _classes_per_candidate(table.run_ptr, table.run_start, table.run_length, class_of,
+                           last, indptr, np.zeros(0, np.int32), False)
+    indptr = np.cumsum(indptr)
+    indices = np.empty(int(indptr[-1]), np.int32)
+    last[:] = -1
+    _classes_per_candidate(table.run_ptr, table.run_start, table.run_length, class_of,
+                           last, indptr, indices, True)
+    # float32 ones: 8 bytes a pair (the problem sets its own data type)
+    cover = sp.csr_matrix((np.ones(len(indices), np.float32), indices, indptr),
+                          shape=(n_candidates, n_classes)).tocsc()
+    cover.sort_indices()
     return cover, area
 
 
-def _entries(indptr: NDArray[np.int64], columns: NDArray[np.int64]) -> NDArray[np.int64]:
-    """The positions in ``indices`` of the entries of CSC ``columns``, column by column."""
-    count = indptr[columns + 1] - indptr[columns]
-    starts = np.cumsum(count) - count  # (len(columns),) where each column's entries begin
-    return np.repeat(indptr[columns] - starts, count) + np.arange(int(count.sum()))
+@numba.njit(nogil=True, cache=True)
+def _classes_per_candidate(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
+                           run_length: NDArray[np.int32], class_of: NDArray[np.int64],
+                           last: NDArray[np.int64], indptr: NDArray[np.int64],
+                           indices: NDArray[np.int32], fill: bool) -> None:  # compiled
+    """Each candidate's classes, each once (``last[k]``: the last candidate that met class
+    k). Without ``fill``: their count into ``indptr[c + 1]``; with it, into ``indices``
+    from ``indptr[c]`` on (``indptr`` then the cumulative counts)."""
+    for c in range(len(run_ptr) - 1):
+        at = indptr[c]
+        for r in range(run_ptr[c], run_ptr[c + 1]):
+            for f in range(run_start[r], run_start[r] + run_length[r]):
+                k = class_of[f]
+                if k < 0 or last[k] == c:
+                    continue
+                last[k] = c
+                if fill:
+                    indices[at] = k
+                    at += 1
+                else:
+                    indptr[c + 1] += 1
+
+
+@numba.njit(nogil=True, cache=True)
+def _add_run_words(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
+                   run_length: NDArray[np.int32], word: NDArray[np.uint64],
+                   steps: NDArray[np.uint64]) -> None:  # compiled
+    """Add each candidate's ``word`` at the first face of each of its runs and take it off
+    after the last (uint64, wrapping): the cumulative sum is each face's hash."""
+    for c in range(len(run_ptr) - 1):
+        w = word[c]
+        for r in range(run_ptr[c], run_ptr[c + 1]):
+            steps[run_start[r]] += w
+            steps[run_start[r] + run_length[r]] -= w
 
 
 def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: int,
@@ -277,7 +311,9 @@ class _Lagrangian:
     def __init__(self, cover: sp.csc_matrix, area: NDArray[np.float64], need: float,
                  must: NDArray[np.bool_], full: bool) -> None:
         self.rows = cover.tocsr()  # (C, K)
-        self.rows.data = np.ones(self.rows.nnz)
+        # PDHG in float64; the volume algorithm sums in float32 (its best multipliers are
+        # evaluated again in float64)
+        self.rows.data = np.ones(self.rows.nnz, np.float64 if full else np.float32)
         self.area = area
         self.need = need
         self.must = must
@@ -299,8 +335,6 @@ class _Lagrangian:
         np.divide(1.0, cand_area, out=price, where=cand_area > 0)
         by_class = cover.tocsc()
         self.best_u = area * np.minimum.reduceat(price[by_class.indices], by_class.indptr[:-1])
-        if not full:  # the volume algorithm sums in float32
-            self.rows.data = self.rows.data.astype(np.float32)
 
     def solve(self, target: float, iterations: int) -> int:
         """Search multipliers aiming at ``target`` (a plan's stations); the iterations made.

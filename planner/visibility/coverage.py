@@ -162,6 +162,13 @@ class CoverageTable:
             yield first, last
             first = last
 
+    def blocks(self) -> Iterator[tuple[int, int, NDArray[np.int32]]]:
+        """(first, last, faces): whole candidates ``first .. last - 1``, up to about
+        _SUM_BLOCK_PAIRS pairs a block, and their (P',) faces candidate by candidate
+        (``pair_ptr[first:last + 1] - pair_ptr[first]`` delimits each)."""
+        for first, last in self._candidate_blocks():
+            yield first, last, self._faces_of_candidates(first, last)
+
     @property
     def by_candidate(self) -> sp.csr_matrix:
         """(C, F) CSR bool, the table as a sparse matrix (made for the call, 5 bytes a pair)."""
