@@ -99,9 +99,10 @@ START_STEP = 0.1
 MAX_STEP = 2.0
 AVERAGE = 0.02
 RED_STEPS = 5
-# tables with more qualified pairs get no Lagrangian bound (only the fixed stations): its
-# matrices take up to about 36 bytes a pair at the peak (hall-full: 11 M pairs, 390 MB)
-MAX_PAIRS = 40_000_000
+# tables whose face classes have more (candidate, class) pairs get no Lagrangian bound
+# (only the fixed stations): its matrix takes 8 bytes a pair, and a product with it as much
+# again (the 9.7 M-face office: 808,000 classes, within it)
+MAX_PAIRS = 60_000_000
 # a goal whose must-cover classes (see station_lower_bound) leave out at most this share of
 # the area is bound as a full cover of them (faces of 1e-10 m^2 at 100 % are not a
 # partial cover)
@@ -111,7 +112,7 @@ ROUND_TOLERANCE = 1e-9
 FULL_METHOD = "lagrangian dual of the set-cover LP (PDHG on generated rows)"
 PARTIAL_METHOD = "lagrangian dual of the partial-cover LP (volume algorithm)"
 REDUCTIONS = "fixed stations and the candidates alone in covering a class"
-TOO_LARGE = f"fixed stations only (the table has more than {MAX_PAIRS} pairs)"
+TOO_LARGE = f"fixed stations only (the face classes have more than {MAX_PAIRS} pairs)"
 
 
 @dataclass(frozen=True)
@@ -140,47 +141,66 @@ class StationBound:
 
 
 def merged_classes(table: CoverageTable, faces: NDArray[np.bool_]
-                   ) -> tuple[sp.csc_matrix, NDArray[np.float64]]:
+                   ) -> tuple[sp.csr_matrix, NDArray[np.float64]]:
     """Faces with identical candidate sets merged into classes, from the table's runs.
 
     Each face's candidate set is hashed twice: the sum (wrapping) of a random 64-bit word
-    per candidate, added over each run of the candidate's faces by a difference array (so
-    the work is a pass over the runs and the faces, and the memory a few arrays of F, not
-    a copy of the pairs). Faces with the same count and both hashes are one class: two
-    different sets share 128 random bits with probability 2^-128 a pair of faces (below
-    1e-24 for 10 M faces), and the words are drawn from a fixed seed, so the same table
-    always gives the same classes. ``faces`` (F,) bool: the faces to merge (those of no
-    candidate are left out).
+    per candidate, added over each run of the candidate's faces by a difference array (a
+    pass over the runs and the faces: no copy of the pairs). Two different sets share
+    128 random bits with probability 2^-128 a pair of faces (below 1e-24 for 10 M faces);
+    the words come from a fixed seed, so the same table always gives the same classes.
+    The merge is made in two steps that hold a few bytes a face: neighbouring faces in the
+    table's order with the same count and hashes first (the pieces of one file face mostly
+    are), then those runs by sorting their (count, hashes). ``faces`` (F,) bool: the faces
+    to merge (those of no candidate are left out).
 
     Returns
     -------
-    cover : (C, K) CSC float32 0/1, which candidate covers which class
+    cover : (C, K) CSR float32 0/1, which candidate covers which class (by candidate: 8
+        bytes a pair, and no second copy by class)
     area_m2 : (K,) float64, the area of each class
     """
     chosen = np.flatnonzero(faces & table.achievable)
     n, n_candidates = len(chosen), table.n_candidates
     if n == 0:
-        return sp.csc_matrix((n_candidates, 0)), np.zeros(0)
+        return sp.csr_matrix((n_candidates, 0), dtype=np.float32), np.zeros(0)
     rng = np.random.default_rng(20240601)
     words = rng.integers(0, np.iinfo(np.uint64).max, size=(2, n_candidates),
                          dtype=np.uint64, endpoint=True)
-    hashes = []
-    for word in words:
+    count = table.candidates_per_face[chosen]
+
+    def face_hashes(word: NDArray[np.uint64]) -> NDArray[np.uint64]:
+        """(F',) each chosen face's hash under the candidates' ``word``."""
         steps = np.zeros(table.n_faces + 1, np.uint64)
         _add_run_words(table.run_ptr, table.run_start, table.run_length, word, steps)
-        hashes.append(np.cumsum(steps[:-1], dtype=np.uint64)[chosen])
-        del steps
-    count = table.candidates_per_face[chosen]
-    order = np.lexsort((hashes[1], hashes[0], count))  # (F',)
-    new = np.ones(n, bool)
-    new[1:] = ((count[order][1:] != count[order][:-1])
-               | (hashes[0][order][1:] != hashes[0][order][:-1])
-               | (hashes[1][order][1:] != hashes[1][order][:-1]))
-    del hashes, count
-    class_of = np.full(table.n_faces, -1, np.int64)
-    class_of[chosen[order]] = np.cumsum(new) - 1
+        np.cumsum(steps, out=steps)
+        return steps[chosen]
+
+    # step 1: a run starts where a face's count or hashes differ from the face before (one
+    # hash at a time: a few bytes a face)
+    starts = np.ones(n, bool)
+    starts[1:] = count[1:] != count[:-1]
+    for word in words:
+        hashes = face_hashes(word)
+        starts[1:] |= hashes[1:] != hashes[:-1]
+        del hashes
+    first = np.flatnonzero(starts)  # (R,) each run's first face, in chosen's order
+    del starts
+    # step 2: runs with the same (count, hashes) are one class (the hashes made again and
+    # kept at the runs' first faces only)
+    run_keys = (face_hashes(words[1])[first], face_hashes(words[0])[first], count[first])
+    order = np.lexsort(run_keys)
+    new = np.zeros(len(first), bool)
+    new[0] = True
+    for key in run_keys:
+        new[1:] |= key[order][1:] != key[order][:-1]
+    class_of_run = np.empty(len(first), np.int32)
+    class_of_run[order] = np.cumsum(new) - 1
     n_classes = int(new.sum())
-    del order, new
+    del order, new, run_keys
+    class_of = np.full(table.n_faces, -1, np.int32)
+    class_of[chosen] = np.repeat(class_of_run, np.diff(np.append(first, n)))
+    del class_of_run
     area = np.bincount(class_of[chosen], weights=table.face_area_m2[chosen],
                        minlength=n_classes).astype(np.float64)
     # which classes each candidate covers: a pass over its runs, each class once
@@ -195,14 +215,37 @@ def merged_classes(table: CoverageTable, faces: NDArray[np.bool_]
                            last, indptr, indices, True)
     # float32 ones: 8 bytes a pair (the problem sets its own data type)
     cover = sp.csr_matrix((np.ones(len(indices), np.float32), indices, indptr),
-                          shape=(n_candidates, n_classes)).tocsc()
+                          shape=(n_candidates, n_classes))
     cover.sort_indices()
     return cover, area
 
 
 @numba.njit(nogil=True, cache=True)
+def _class_minimum(indptr: NDArray[np.int32], indices: NDArray[np.int32],
+                   price: NDArray[np.float64], cheapest: NDArray[np.float64]
+                   ) -> None:  # compiled
+    """``cheapest[k]``: the least ``price`` of the candidates (CSR rows) covering class k."""
+    for c in range(len(indptr) - 1):
+        for j in range(indptr[c], indptr[c + 1]):
+            k = indices[j]
+            if price[c] < cheapest[k]:
+                cheapest[k] = price[c]
+
+
+@numba.njit(nogil=True, cache=True)
+def _row_sums(indptr: NDArray[np.int32], indices: NDArray[np.int32],
+              values: NDArray[np.float64], sums: NDArray[np.float64]) -> None:  # compiled
+    """``sums[c]``: the sum of ``values`` over row c's classes, in float64, in order."""
+    for c in range(len(indptr) - 1):
+        total = 0.0
+        for j in range(indptr[c], indptr[c + 1]):
+            total += values[indices[j]]
+        sums[c] = total
+
+
+@numba.njit(nogil=True, cache=True)
 def _classes_per_candidate(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
-                           run_length: NDArray[np.int32], class_of: NDArray[np.int64],
+                           run_length: NDArray[np.int32], class_of: NDArray[np.int32],
                            last: NDArray[np.int64], indptr: NDArray[np.int64],
                            indices: NDArray[np.int32], fill: bool) -> None:  # compiled
     """Each candidate's classes, each once (``last[k]``: the last candidate that met class
@@ -249,8 +292,6 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
     cover, default PDHG_ITERATIONS).
     """
     n_fixed = len(fixed)
-    if table.n_pairs > MAX_PAIRS:
-        return StationBound(n_fixed, float(n_fixed), 0, 0, 0, 0, TOO_LARGE)
     covered = np.zeros(table.n_faces, bool)
     for s in fixed:
         covered[table.faces_of(s)] = True
@@ -260,13 +301,17 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
         return StationBound(n_fixed, float(n_fixed), 0, 0, 0, 0, REDUCTIONS)
     cover, area = merged_classes(table, rest)
     classes = cover.shape[1]
+    if cover.nnz > MAX_PAIRS:
+        return StationBound(n_fixed, float(n_fixed), 0, 0, classes, 0, TOO_LARGE)
     if not (area > 0).all():
         cover, area = cover[:, area > 0], area[area > 0]
     # classes a plan may not leave out: larger than all it may leave uncovered
     allowance = float(area.sum()) - need
     must = area > allowance
-    size = np.diff(cover.indptr)
-    forced = np.unique(cover.indices[cover.indptr[:-1][must & (size == 1)]])
+    size = np.bincount(cover.indices, minlength=cover.shape[1])  # (K,) candidates a class
+    # the candidates alone in covering a must class: the rows of those classes' entries
+    alone = np.flatnonzero((must & (size == 1))[cover.indices])
+    forced = np.unique(np.searchsorted(cover.indptr, alone, "right") - 1)
     if len(forced):
         hit = np.zeros(table.n_candidates)
         hit[forced] = 1.0
@@ -308,7 +353,7 @@ class _Lagrangian:
     Lagrangian separates, so together they give the sum).
     """
 
-    def __init__(self, cover: sp.csc_matrix, area: NDArray[np.float64], need: float,
+    def __init__(self, cover: sp.csr_matrix, area: NDArray[np.float64], need: float,
                  must: NDArray[np.bool_], full: bool) -> None:
         self.rows = cover.tocsr()  # (C, K)
         # PDHG in float64; the volume algorithm sums in float32 (its best multipliers are
@@ -333,8 +378,9 @@ class _Lagrangian:
         cand_area = self.rows @ area  # (C,)
         price = np.zeros(n_cand)
         np.divide(1.0, cand_area, out=price, where=cand_area > 0)
-        by_class = cover.tocsc()
-        self.best_u = area * np.minimum.reduceat(price[by_class.indices], by_class.indptr[:-1])
+        cheapest = np.full(n_class, np.inf)
+        _class_minimum(self.rows.indptr, self.rows.indices, price, cheapest)
+        self.best_u = area * cheapest
 
     def solve(self, target: float, iterations: int) -> int:
         """Search multipliers aiming at ``target`` (a plan's stations); the iterations made.
@@ -350,7 +396,7 @@ class _Lagrangian:
         n_class = self.rows.shape[1]
         if not self.full:
             return self._volume(target, iterations)
-        size = np.diff(self.rows.tocsc().indptr)
+        size = np.bincount(self.rows.indices, minlength=n_class)
         by_size = np.lexsort((np.arange(n_class), size))
         active = np.zeros(n_class, bool)
         active[by_size[:ROWS_PER_ROUND]] = True
@@ -467,9 +513,7 @@ class _Lagrangian:
                     red = 0
         # the bound: the best multipliers, summed again in float64
         column_sums = np.zeros(rows.shape[0])
-        filled = np.diff(rows.indptr) > 0
-        column_sums[filled] = np.add.reduceat(self.best_u[rows.indices],
-                                              rows.indptr[:-1][filled])
+        _row_sums(rows.indptr, rows.indices, self.best_u, column_sums)
         reduced = 1.0 - column_sums
         self.best[0] = float(np.minimum(reduced, 0.0).sum()) + _dot(
             self.best_u, _knapsack(self.best_u, self.area, self.must, self.need))
