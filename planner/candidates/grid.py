@@ -112,20 +112,23 @@ _NOT_A_STOREY = {
 }
 
 
-# a model whose storeys' floors add up to less than this share of its footprint has little
-# floor: a building's storeys cover its footprint once or more; an architect's model without
-# its slabs (they live in the structural model) has only stair treads, landings and the tops
-# of walls and furniture
-_LITTLE_FLOOR_SHARE = 0.25
+# a model whose candidates are fewer than this share of the grid points over the building
+# has little floor: a building's floors hold a candidate at 8 % (IfcOpenHouse, a small house
+# amid the walls' reach) to 40 % (Lantern Hollow) of them; the shared buildings without
+# their slabs (an architect's model, the slabs in the structural model) at 0.03 - 2 %, on
+# stair treads, landings and the tops of walls and furniture
+_LITTLE_FLOOR_SHARE = 0.04
 
 
-def floor_note(floor_m2: float, footprint_m2: float) -> str | None:
-    """What to tell a user whose model has ``floor_m2`` of floor on its planned storeys
-    under a footprint of ``footprint_m2``; None when that is floor enough."""
-    if footprint_m2 <= 0 or floor_m2 >= _LITTLE_FLOOR_SHARE * footprint_m2:
+def floor_note(candidates: int, building_points: int, grid_spacing_m: float) -> str | None:
+    """What to tell a user whose model gives ``candidates`` of the ``building_points`` grid
+    points over the building (those not outside it); None when that is floor enough."""
+    if building_points <= 0 or candidates >= _LITTLE_FLOOR_SHARE * building_points:
         return None
-    return (f"the model has {floor_m2:.1f} m² of floor a person can stand on under a "
-            f"footprint of {footprint_m2:.0f} m²: a model without its floor slabs (an "
+    cell_m2 = grid_spacing_m ** 2
+    return (f"the model has floor to stand on at {candidates} of the {building_points} grid "
+            f"points over the building ({candidates * cell_m2:.1f} of "
+            f"{building_points * cell_m2:.0f} m²): a model without its floor slabs (an "
             "architect's model, the slabs in the structural one)? Send it as IFC with its "
             "rooms (IfcSpace), whose bottoms are then the floors, or with its slabs")
 
@@ -331,12 +334,8 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
             f"({spec.clearance_m}) or grid_spacing_m ({spec.grid_spacing_m}), check "
             "area_of_interest, or give candidates explicitly"
         )
-    note = None
-    planned = [entry for entry in levels or [] if "excluded" not in entry]
-    if polygon is None and planned and all("area_m2" in entry for entry in planned):
-        # the storeys' report (floor_levels "storeys") gives each storey's floor area
-        floor_m2 = sum(float(str(entry["area_m2"])) for entry in planned)
-        note = floor_note(floor_m2, len(xy) * spec.grid_spacing_m ** 2)
+    note = None if polygon is not None else floor_note(
+        len(positions), considered - dropped["outside_area_of_interest"], spec.grid_spacing_m)
     return CandidateSet(positions=positions, source="grid", considered=considered,
                         dropped=dropped, labels=labels, levels=levels, floor_note=note)
 
