@@ -763,4 +763,9 @@ def _selection_report(table: CoverageTable, selections: Mapping[str, Selection],
         "proven_optimal": lower == n,
         "status": status,
         **({} if bound is None else {"bound": bound}),
+        # a MILP stopped by the wall-clock limit: how far HiGHS got depends on the machine
+        # and its load, so its stations (and every file drawn from them) may differ between
+        # runs; the heuristics, the local search and the bounds never do
+        **({} if optimal is None else
+           {"stopped_at_time_limit": "time limit" in status.lower()}),
     }

@@ -294,3 +294,16 @@ def test_the_table_gives_back_every_candidates_faces(monkeypatch: pytest.MonkeyP
     expected = [float(sum(area[f] for f in faces)) for faces in sets]  # face order
     assert table.sum_per_candidate(area).tolist() == expected
     assert (table.by_candidate.toarray() == dense.astype(bool)).all()
+
+
+def test_a_plan_stopped_by_its_time_limit_says_its_bytes_may_differ(scenes_dir: Path) -> None:
+    """A proof that finishes is the same everywhere; one stopped by the wall-clock limit
+    depends on how far HiGHS got, and plan.json says so."""
+    stopped = hall_plan(scenes_dir, "hall-full", method="optimal", coverage_goal=0.95,
+                        optimal_time_limit_s=1).selection_report
+    assert not stopped["proven_optimal"] and stopped["stopped_at_time_limit"], stopped
+    proven = hall_plan(scenes_dir, "hall-small", method="optimal", coverage_goal=1.0,
+                       optimal_time_limit_s=30).selection_report
+    assert proven["proven_optimal"] and proven["stopped_at_time_limit"] is False
+    greedy = hall_plan(scenes_dir, "hall-small").selection_report
+    assert "stopped_at_time_limit" not in greedy  # no MILP, nothing stopped
