@@ -6,7 +6,7 @@ classes, relaxed per voxel above ``MAX_NONZEROS``, from the better heuristic's p
 start: :func:`planner.selection.optimal._partial_cover`) and solves it with both, each
 under the same wall-clock limit on the machine's cores:
 
-- HiGHS (highspy), in this process, as ``optimal`` runs it;
+- HiGHS (highspy), as ``optimal`` runs it (in a child process, as ``optimal`` does);
 - CP-SAT: ``x`` and ``y`` binary (a class is covered whole or not), the areas in whole
   square millimetres (the goal rounded up), the heuristic's plan as a hint, with
   ``max_time_in_seconds``; and again with ``max_deterministic_time`` instead (its
@@ -129,13 +129,14 @@ def _cp_sat(cover: sp.csr_matrix, area: np.ndarray, need: float, start: list[int
     return found, math.ceil(solver.BestObjectiveBound() - 1e-6), time.perf_counter() - t0
 
 
-def _cp_sat_child(npz: str, seconds: float, deterministic: bool
-                  ) -> tuple[int | None, int, float]:
-    """CP-SAT on the program saved in ``npz``, in a process of its own."""
+def _child(solver: str, npz: str, seconds: float, deterministic: bool = False
+           ) -> tuple[int | None, int, float]:
+    """``solver`` ("highs", "cp-sat") on the program saved in ``npz``, in a process of its
+    own."""
     import json
     import subprocess
 
-    done = subprocess.run([sys.executable, __file__, "--cp-sat", npz, str(seconds),
+    done = subprocess.run([sys.executable, __file__, f"--{solver}", npz, str(seconds),
                            "1" if deterministic else "0"], capture_output=True, text=True,
                           check=True, cwd=ROOT)
     found, bound, took = json.loads(done.stdout.strip().splitlines()[-1])
@@ -161,9 +162,9 @@ def main() -> None:
             sp.save_npz(npz, cover)
             np.savez(npz.replace(".npz", "-rest.npz"), area=area, need=need,
                      start=np.asarray(start))
-            answers = [_highs(cover, area, need, start, args.seconds),
-                       _cp_sat_child(npz, args.seconds, False),
-                       _cp_sat_child(npz, args.seconds, True)]
+            answers = [_child("highs", npz, args.seconds),
+                       _child("cp-sat", npz, args.seconds, False),
+                       _child("cp-sat", npz, args.seconds, True)]
             rows = [f"{found} / {bound} / {seconds:.1f}" for found, bound, seconds in answers]
             print(f"| {name} | {goal:.0%} | {cover.shape[1]:,} | {cover.nnz:,} "
                   f"| {len(start)} | " + " | ".join(rows) + " |", flush=True)
@@ -171,12 +172,13 @@ def main() -> None:
 
 if __name__ == "__main__":
     sys.path.insert(0, str(ROOT))
-    if len(sys.argv) == 5 and sys.argv[1] == "--cp-sat":
+    if len(sys.argv) == 5 and sys.argv[1] in ("--cp-sat", "--highs"):
         import json
 
         rest = np.load(sys.argv[2].replace(".npz", "-rest.npz"))
-        print(json.dumps(_cp_sat(sp.load_npz(sys.argv[2]).tocsr(), rest["area"],
-                                 float(rest["need"]), rest["start"].tolist(),
-                                 float(sys.argv[3]), sys.argv[4] == "1")))
+        program = (sp.load_npz(sys.argv[2]).tocsr(), rest["area"], float(rest["need"]),
+                   rest["start"].tolist(), float(sys.argv[3]))
+        print(json.dumps(_highs(*program) if sys.argv[1] == "--highs"
+                         else _cp_sat(*program, sys.argv[4] == "1")))
     else:
         main()
