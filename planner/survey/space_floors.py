@@ -60,8 +60,10 @@ _EPS_M = 1e-3
 # laid over them where the model has no slab)
 STRUCTURE_CLASSES = ("IfcWall", "IfcWallStandardCase", "IfcCurtainWall", "IfcColumn",
                      "IfcBeam", "IfcMember")
-# the head room over a stair's pitch line: 2.0 m (Approved Document K, 2013 edition, 1.10;
-# DIN 18065:2020 gives 2.0 m too), more than a floor's HEADROOM_M
+# the head room over a stair's pitch line: 2 m over the whole flight and its landings,
+# measured vertically from the pitch line (Approved Document K, 2013 edition, "Headroom for
+# stairs"; NHBC Standards 2020, 6.6.7, https://nhbc-standards.co.uk/2020/6-superstructure-
+# excluding-roofs/6-6-staircases/6-6-7-design-of-steps/), more than a floor's HEADROOM_M
 STAIR_HEADROOM_M = 2.0
 STAIRWELL_CLASSES = ("IfcStair", "IfcStairFlight", "IfcRamp", "IfcRampFlight", "IfcRailing")
 
