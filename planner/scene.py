@@ -274,6 +274,13 @@ class Scene:
         remeshed scene: read it once, not in a loop)."""
         return self.of_file_faces(self.file_face_element)
 
+    def faces_of_classes(self, ifc_classes: tuple[str, ...]) -> NDArray[np.bool_]:
+        """(F,) bool: the faces of elements of ``ifc_classes`` (none in a plain mesh)."""
+        wanted = np.array([e.ifc_class in ifc_classes for e in self.elements] + [False])
+        # an element index of -1 (no element) picks the trailing False
+        result: NDArray[np.bool_] = self.of_file_faces(wanted[self.file_face_element])
+        return result
+
     def of_file_faces(self, per_file_face: NDArray[_Value]) -> NDArray[_Value]:
         """(F,) the value of (F0,) ``per_file_face`` on each face: its file face's (the
         array itself when the scene was never remeshed). The inverse of

@@ -143,10 +143,7 @@ def door_faces(scene: Scene, caster: RayCaster | None = None) -> NDArray[np.bool
             return np.zeros(scene.n_faces, bool)
         found: NDArray[np.bool_] = mesh_doors(scene, caster) >= 0
         return found
-    door = np.array([e.ifc_class in OPEN_DOOR_CLASSES for e in scene.elements] + [False])
-    # -1 picks the trailing False
-    result: NDArray[np.bool_] = scene.of_file_faces(door[scene.file_face_element])
-    return result
+    return scene.faces_of_classes(OPEN_DOOR_CLASSES)
 
 
 @dataclass(frozen=True, eq=False)

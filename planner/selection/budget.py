@@ -36,9 +36,7 @@ def budget_report(table: CoverageTable, order: Selection, max_stations: int
     ``max_stations`` stations could, and what one station more would add."""
     plan = first_stations(order, max_stations)
     covered = plan.covered_area_m2[-1] if plan.stations else 0.0
-    uncovered = np.ones(table.n_faces, bool)
-    for station in plan.stations:
-        uncovered[table.faces_of(station)] = False
+    uncovered = ~table.covered_by(plan.stations)
     gains = table.sum_per_candidate(table.face_area_m2 * uncovered)  # (C,) beyond the plan
     top = np.sort(gains)[::-1][:max_stations]
     achievable = table.max_achievable_area_m2

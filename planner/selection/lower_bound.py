@@ -292,9 +292,7 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
     cover, default PDHG_ITERATIONS).
     """
     n_fixed = len(fixed)
-    covered = np.zeros(table.n_faces, bool)
-    for s in fixed:
-        covered[table.faces_of(s)] = True
+    covered = table.covered_by(fixed)
     rest = table.achievable & ~covered
     need = need_m2 - float(table.face_area_m2[covered].sum())
     if need <= 0:

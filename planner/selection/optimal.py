@@ -422,9 +422,7 @@ def solve_optimal(
     seconds = {"local_search": time.monotonic() - start}
     after_search = len(best)
 
-    fixed_faces = np.zeros(table.n_faces, bool)
-    for s in fixed:
-        fixed_faces[table.faces_of(s)] = True
+    fixed_faces = table.covered_by(fixed)
     rest = table.achievable & ~fixed_faces
     need_rest = need - float(table.face_area_m2[fixed_faces].sum())
     lower = n_fixed + _counting_bound(table, need_rest, rest)
@@ -733,9 +731,7 @@ def _selection_report(table: CoverageTable, selections: Mapping[str, Selection],
         }
     else:
         need = goal * table.max_achievable_area_m2 - GOAL_SLACK_M2
-        fixed_faces = np.zeros(table.n_faces, bool)
-        for s in fixed:
-            fixed_faces[table.faces_of(s)] = True
+        fixed_faces = table.covered_by(fixed)
         need_rest = need - float(table.face_area_m2[fixed_faces].sum())
         area_bound = len(fixed) + _counting_bound(table, need_rest,
                                                   table.achievable & ~fixed_faces)

@@ -92,8 +92,9 @@ def room_floor_samples(scene: Scene, caster: RayCaster) -> tuple[NDArray[np.floa
     """(S, 3) floor samples of the rooms without a slab (see the module docstring) and
     those rooms' names, in model order."""
     spaces = scene.metadata.get("spaces") or []
-    stairs = _faces_of_classes(scene, STAIRWELL_CLASSES)
-    structure = _faces_of_classes(scene, STRUCTURE_CLASSES)
+    # (F + 1,) the faces of each, the last entry (read for a ray that hits nothing) false
+    stairs = np.append(scene.faces_of_classes(STAIRWELL_CLASSES), False)
+    structure = np.append(scene.faces_of_classes(STRUCTURE_CLASSES), False)
     candidates: list[tuple[str, NDArray[np.float64]]] = []
     counts: dict[str, tuple[str, int, int]] = {}
     down = np.array([0.0, 0.0, -1.0])
@@ -141,15 +142,6 @@ def room_floor_samples(scene: Scene, caster: RayCaster) -> tuple[NDArray[np.floa
     if not points:
         return np.zeros((0, 3)), []
     return np.concatenate(points), [name[gid] for gid, _ in candidates if gid in bare]
-
-
-def _faces_of_classes(scene: Scene, ifc_classes: tuple[str, ...]) -> NDArray[np.bool_]:
-    """(F + 1,) bool: the faces of elements of ``ifc_classes`` (the last entry, read for a
-    ray that hits nothing, false)."""
-    classes = np.array([e.ifc_class in ifc_classes for e in scene.elements] + [False])
-    mask = np.zeros(scene.n_faces + 1, bool)
-    mask[:-1] = classes[scene.face_element]
-    return mask
 
 
 def _over_stairs(caster: RayCaster, stairs: NDArray[np.bool_],

@@ -8,7 +8,7 @@ the analytic limits and the occlusion ray. Pairs come from the visibility stage 
 from __future__ import annotations
 
 import functools
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numba
@@ -212,6 +212,13 @@ class CoverageTable:
         """The area of the faces some candidate qualifies for (kept: every selection reads
         it, and its (F,) temporaries would come back each time)."""
         return float(self.face_area_m2[self.achievable].sum())
+
+    def covered_by(self, candidates: Sequence[int]) -> NDArray[np.bool_]:
+        """(F,) bool: the faces any of ``candidates`` qualifies for."""
+        covered = np.zeros(self.n_faces, bool)
+        for candidate in candidates:
+            covered[self.faces_of(candidate)] = True
+        return covered
 
     def faces_of(self, candidate: int) -> NDArray[np.int32]:
         """Faces that ``candidate`` qualifies for, ascending (a new array)."""

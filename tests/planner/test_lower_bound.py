@@ -4,7 +4,6 @@ bound, the same bound every time, and in plan.json beside every heuristic plan."
 
 from __future__ import annotations
 
-import itertools
 import json
 from pathlib import Path
 
@@ -20,19 +19,12 @@ from planner.pipeline import PlanResult
 from planner.selection.greedy import GOAL_SLACK_M2, greedy
 from planner.selection.lower_bound import merged_classes, station_lower_bound
 from planner.selection.optimal import _counting_bound, face_classes
-from planner.visibility.coverage import CoverageTable, QualifiedPairs
+from planner.visibility.coverage import CoverageTable
 from tests.planner.test_optimal import hall_plan
-from tests.property.test_optimal_exact import instance
+from tests.property.test_optimal_exact import fewest_by_enumeration, instance, table_of
 
 # the optima test_optimal proves at goal 100 %
 PROVEN_OPTIMUM = {"hall-small": 30, "hall-full": 63}
-
-
-def table_of(sets: list[list[int]], areas: list[float]) -> CoverageTable:
-    candidate = np.array([c for c, faces in enumerate(sets) for _ in faces], np.int32)
-    face = np.array([f for faces in sets for f in sorted(faces)], np.int32)
-    pairs = QualifiedPairs(candidate, face, np.full(len(face), 50_000, np.float32))
-    return CoverageTable.from_pairs(pairs, len(sets), np.asarray(areas, np.float64))
 
 
 def need_of(table: CoverageTable, goal: float) -> float:
@@ -156,19 +148,6 @@ def random_tables(count: int) -> list[tuple[list[list[int]], list[float]]]:
         areas = rng.choice([0.5, 1.0, 2.0, 3.0], n_faces).tolist()
         tables.append((sets, areas))
     return tables
-
-
-def fewest_by_enumeration(table: CoverageTable, goal: float, fixed: tuple[int, ...]) -> int:
-    need = need_of(table, goal)
-    free = [c for c in range(table.n_candidates) if c not in fixed]
-    for size in range(len(free) + 1):
-        for subset in itertools.combinations(free, size):
-            faces = np.zeros(table.n_faces, bool)
-            for c in (*fixed, *subset):
-                faces[table.faces_of(c)] = True
-            if table.face_area_m2[faces].sum() >= need:
-                return len(fixed) + size
-    raise AssertionError("every candidate together reaches every goal")
 
 
 @pytest.mark.parametrize(("index", "instance"), list(enumerate(random_tables(12))))
