@@ -130,44 +130,56 @@ def _desk(cx: float, cy: float, z0: float) -> list[Box]:
     return [top, *legs]
 
 
-def _unit_parts(unit: Unit, floors: int, rooms_per_side: int, furnished: bool
-                ) -> tuple[list[Box], list[Box], list[NDArray[np.float64]]]:
-    """(boxes, door leaves, wedges as (6, 3) corner arrays) of one unit."""
+def storey_walls(unit: Unit, rooms_per_side: int, z0: float, z1: float, front_door: bool
+                 ) -> list[tuple[list[Box], list[Box]]]:
+    """One storey's walls of ``unit`` from ``z0`` to ``z1``, each as (wall boxes, door
+    leaves): the facades (the west one with the front door when ``front_door``), the
+    corridor's walls with a door to every room, the walls between rooms and the stair
+    hall's west wall with its door from the corridor."""
     oy = unit.origin_y_m
     length = unit.length_x_m
     corridor0, corridor1 = oy + ROOM_Y_M, oy + ROOM_Y_M + CORRIDOR_Y_M
     north = oy + 2 * ROOM_Y_M + CORRIDOR_Y_M
     hall_x = rooms_per_side * ROOM_X_M
+    f, e = FACADE_M, WALL_M / 2
+    front = [(corridor0 + corridor1) / 2] if front_door else []
+    parts = [
+        _wall_x(-f, length + f, oy - f, oy, z0, z1, []),  # facades
+        _wall_x(-f, length + f, north, north + f, z0, z1, []),
+        _wall_y(-f, 0.0, oy, north, z0, z1, front),
+        _wall_y(length, length + f, oy, north, z0, z1, []),
+    ]
+    room_doors = [i * ROOM_X_M + ROOM_X_M / 2 for i in range(rooms_per_side)]
+    parts.append(_wall_x(0.0, hall_x - e, corridor0 - e, corridor0 + e, z0, z1, room_doors))
+    parts.append(_wall_x(0.0, hall_x - e, corridor1 - e, corridor1 + e, z0, z1, room_doors))
+    for i in range(1, rooms_per_side):  # between rooms
+        x = i * ROOM_X_M
+        parts.append(_wall_y(x - e, x + e, oy, corridor0 - e, z0, z1, []))
+        parts.append(_wall_y(x - e, x + e, corridor1 + e, north, z0, z1, []))
+    # the stair hall's west wall, a door from the corridor
+    parts.append(_wall_y(hall_x - e, hall_x + e, oy, north, z0, z1,
+                         [(corridor0 + corridor1) / 2]))
+    return parts
+
+
+def _unit_parts(unit: Unit, floors: int, rooms_per_side: int, furnished: bool
+                ) -> tuple[list[Box], list[Box], list[NDArray[np.float64]]]:
+    """(boxes, door leaves, wedges as (6, 3) corner arrays) of one unit."""
+    oy = unit.origin_y_m
+    length = unit.length_x_m
+    north = oy + 2 * ROOM_Y_M + CORRIDOR_Y_M
     fx0, fx1 = unit.stair_x_m
     hole = (fx0, fx1, oy, oy + 2 * FLIGHT_Y_M)
     boxes: list[Box] = []
     leaves: list[Box] = []
     wedges: list[NDArray[np.float64]] = []
-    f, e = FACADE_M, WALL_M / 2
+    f = FACADE_M
     for k in range(floors + 1):  # slabs: ground, upper floors, roof
         boxes += _slab(-f, length + f, oy - f, north + f, k * STOREY_M,
                        hole if 0 < k < floors else None)
     for k in range(floors):
         z0, z1 = k * STOREY_M, (k + 1) * STOREY_M - SLAB_M
-        front = [(corridor0 + corridor1) / 2] if k == 0 else []
-        parts = [
-            _wall_x(-f, length + f, oy - f, oy, z0, z1, []),  # facades
-            _wall_x(-f, length + f, north, north + f, z0, z1, []),
-            _wall_y(-f, 0.0, oy, north, z0, z1, front),
-            _wall_y(length, length + f, oy, north, z0, z1, []),
-        ]
-        room_doors = [i * ROOM_X_M + ROOM_X_M / 2 for i in range(rooms_per_side)]
-        parts.append(_wall_x(0.0, hall_x - e, corridor0 - e, corridor0 + e, z0, z1,
-                             room_doors))
-        parts.append(_wall_x(0.0, hall_x - e, corridor1 - e, corridor1 + e, z0, z1,
-                             room_doors))
-        for i in range(1, rooms_per_side):  # between rooms
-            x = i * ROOM_X_M
-            parts.append(_wall_y(x - e, x + e, oy, corridor0 - e, z0, z1, []))
-            parts.append(_wall_y(x - e, x + e, corridor1 + e, north, z0, z1, []))
-        # the stair hall's west wall, a door from the corridor
-        parts.append(_wall_y(hall_x - e, hall_x + e, oy, north, z0, z1,
-                             [(corridor0 + corridor1) / 2]))
+        parts = storey_walls(unit, rooms_per_side, z0, z1, front_door=k == 0)
         for walls, doors in parts:
             boxes += walls
             leaves += doors

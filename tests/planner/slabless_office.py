@@ -32,8 +32,7 @@ from tests.planner.buildings import (
     TREAD_M,
     WALL_M,
     Box,
-    _wall_x,
-    _wall_y,
+    storey_walls,
     units,
 )
 
@@ -93,21 +92,7 @@ def slabless_office_ifc(path: str | Path, floors: int = 2, rooms_per_side: int =
                                                      name=f"Level {k}")
         storey.Elevation = z0
         aggregate.assign_object(model, relating_object=building, products=[storey])
-        front = [(corridor0 + corridor1) / 2] if k == 0 else []
-        room_doors = [i * ROOM_X_M + ROOM_X_M / 2 for i in range(rooms_per_side)]
-        walls = [
-            _wall_x(-f, length + f, oy - f, oy, z0, z1, []),  # facades
-            _wall_x(-f, length + f, north, north + f, z0, z1, []),
-            _wall_y(-f, 0.0, oy, north, z0, z1, front),
-            _wall_y(length, length + f, oy, north, z0, z1, []),
-            _wall_x(0.0, hall_x - e, corridor0 - e, corridor0 + e, z0, z1, room_doors),
-            _wall_x(0.0, hall_x - e, corridor1 - e, corridor1 + e, z0, z1, room_doors),
-            _wall_y(hall_x - e, hall_x + e, oy, north, z0, z1, [(corridor0 + corridor1) / 2]),
-        ]
-        for i in range(1, rooms_per_side):  # between rooms
-            x = i * ROOM_X_M
-            walls.append(_wall_y(x - e, x + e, oy, corridor0 - e, z0, z1, []))
-            walls.append(_wall_y(x - e, x + e, corridor1 + e, north, z0, z1, []))
+        walls = storey_walls(unit_a, rooms_per_side, z0, z1, front_door=k == 0)
         parts = []
         for n, (boxes, leaves) in enumerate(walls):
             parts.append(solid("IfcWall", f"Wall {k}.{n}", boxes))
