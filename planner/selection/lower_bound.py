@@ -171,10 +171,7 @@ def merged_classes(table: CoverageTable, faces: NDArray[np.bool_]
 
     def face_hashes(word: NDArray[np.uint64]) -> NDArray[np.uint64]:
         """(F',) each chosen face's hash under the candidates' ``word``."""
-        steps = np.zeros(table.n_faces + 1, np.uint64)
-        _add_run_words(table.run_ptr, table.run_start, table.run_length, word, steps)
-        np.cumsum(steps, out=steps)
-        return steps[chosen]
+        return table.sum_per_face(word)[chosen]
 
     # step 1: a run starts where a face's count or hashes differ from the face before (one
     # hash at a time: a few bytes a face)
@@ -264,19 +261,6 @@ def _classes_per_candidate(run_ptr: NDArray[np.int64], run_start: NDArray[np.int
                     at += 1
                 else:
                     indptr[c + 1] += 1
-
-
-@numba.njit(nogil=True, cache=True)
-def _add_run_words(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
-                   run_length: NDArray[np.int32], word: NDArray[np.uint64],
-                   steps: NDArray[np.uint64]) -> None:  # compiled
-    """Add each candidate's ``word`` at the first face of each of its runs and take it off
-    after the last (uint64, wrapping): the cumulative sum is each face's hash."""
-    for c in range(len(run_ptr) - 1):
-        w = word[c]
-        for r in range(run_ptr[c], run_ptr[c + 1]):
-            steps[run_start[r]] += w
-            steps[run_start[r] + run_length[r]] -= w
 
 
 def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: int,

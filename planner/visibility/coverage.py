@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any, TypeVar
 
 import numba
 import numpy as np
@@ -17,6 +18,9 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from planner.memory import GrowingArray
+
+# the data type a per-candidate value keeps when it is summed per face
+_Number = TypeVar("_Number", bound=np.number[Any])
 
 
 @dataclass(frozen=True, eq=False)
@@ -192,15 +196,25 @@ class CoverageTable:
         """(F,) int32: how many candidates qualify for each face (k_f), kept once made
         (4 bytes a face: there are fewer than 2**31 candidates).
 
-        Every run adds 1 from its first face on and takes it off after its last: the steps
-        are added in place by a compiled loop (``np.add.at`` took 3.5 s for the 9.7 M-face
-        office's runs, while both greedy heuristics waited for it), then summed.
+        Every candidate adds 1 over its runs (:meth:`sum_per_face`).
         """
-        steps = np.zeros(self.n_faces + 1, np.int32)
-        _add_run_steps(self.run_start, self.run_length, steps)
-        counts: NDArray[np.int32] = np.cumsum(steps[:-1], dtype=np.int32)
+        counts = self.sum_per_face(np.ones(self.n_candidates, np.int32))
         counts.flags.writeable = False  # shared: the plan's faces.npz holds it as is
         return counts
+
+    def sum_per_face(self, per_candidate: NDArray[_Number]) -> NDArray[_Number]:
+        """(F,) the sum of (C,) ``per_candidate`` over the candidates that qualify for each
+        face, in its data type (unsigned integers wrap).
+
+        Each candidate's value is added at the first face of each of its runs and taken off
+        after the last, in place by a compiled loop (``np.add.at`` took 3.5 s for the
+        9.7 M-face office's runs, while both greedy heuristics waited for it), then summed:
+        a pass over the runs and one over the faces, no copy of the pairs.
+        """
+        steps = np.zeros(self.n_faces + 1, per_candidate.dtype)
+        _add_run_values(self.run_ptr, self.run_start, self.run_length, per_candidate, steps)
+        np.cumsum(steps, out=steps)
+        return steps[:-1]
 
     @property
     def achievable(self) -> NDArray[np.bool_]:
@@ -240,9 +254,13 @@ class CoverageTable:
 
 
 @numba.njit(nogil=True, cache=True)
-def _add_run_steps(run_start: NDArray[np.int32], run_length: NDArray[np.int32],
-                   steps: NDArray[np.int32]) -> None:  # compiled; see test_optimal (the table)
-    """``steps[start] += 1`` and ``steps[start + length] -= 1`` for every run."""
-    for r in range(len(run_start)):
-        steps[run_start[r]] += 1
-        steps[run_start[r] + run_length[r]] -= 1
+def _add_run_values(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
+                    run_length: NDArray[np.int32], per_candidate: NDArray[Any],
+                    steps: NDArray[Any]) -> None:  # compiled
+    """``steps[start] += value`` and ``steps[start + length] -= value`` for every run, the
+    value of the run's candidate."""
+    for c in range(len(run_ptr) - 1):
+        value = per_candidate[c]
+        for r in range(run_ptr[c], run_ptr[c + 1]):
+            steps[run_start[r]] += value
+            steps[run_start[r] + run_length[r]] -= value
