@@ -1001,20 +1001,20 @@ class _Why:
             if own not in labels or labels[0] == labels[1]:
                 continue  # not beside the part, or within it: not what cuts it off
             this = labels.index(own)
-            return self._door_clause(d, sides[this], nodes[this], sides[1 - this],
+            door = (f"its door {self.places.doors[d][0]!r} at ({cx:.2f}, {cy:.2f}), sill at "
+                    f"{_m(sill)}")
+            return self._door_clause(door, sill, sides[this], nodes[this], sides[1 - this],
                                      nodes[1 - this], own)
         return None
 
-    def _door_clause(self, d: int, near_xy: NDArray[np.float64], near_node: int,
-                     far_xy: NDArray[np.float64], far_node: int, own: int) -> str:
-        """What stops the walk through door ``d`` from its side on the cut-off part
-        ``own`` ((2,) ``near_xy``, floor node ``near_node``) to its other side
-        (``far_xy``, ``far_node``, -1 for no floor there)."""
+    def _door_clause(self, door: str, sill: float, near_xy: NDArray[np.float64],
+                     near_node: int, far_xy: NDArray[np.float64], far_node: int, own: int
+                     ) -> str:
+        """What stops the walk through the ``door`` (named, with its place and ``sill``
+        height) from its side on the cut-off part ``own`` ((2,) ``near_xy``, floor node
+        ``near_node``) to its other side (``far_xy``, ``far_node``, -1 for no floor
+        there)."""
         graph = self.graph
-        frames = self.places.frames()
-        name, sill = self.places.doors[d][0], float(self.places.doors[d][1][2])
-        door = (f"its door {name!r} at ({frames[d, 0]:.2f}, {frames[d, 1]:.2f}), sill at "
-                f"{_m(sill)}")
         near_z = float(graph.floor_xyz[near_node, 2])
         if sill - near_z > STEP_M:
             return (f"{door}, stands {sill - near_z:.2f} m over this part's floor "
