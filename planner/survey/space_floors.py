@@ -131,6 +131,8 @@ def room_floor_samples(scene: Scene, caster: RayCaster) -> tuple[NDArray[np.floa
         # no floor of the model here, nor a stair or anything else within head room below
         # (and nothing standing on the floor: a hit above it is furniture or a wall's foot)
         free = ~has_floor & ((below_m > HEADROOM_M) | wall_top)
+        # not over a stair: straight down (the ray above) nor at a corner of the square
+        free &= ~(stairs[face] & (below_m > _EPS_M) & (below_m < STAIR_HEADROOM_M))
         free[free] = ~_over_stairs(caster, stairs, origins[free])
         if free.any():
             candidates.append((gid, np.column_stack([xy[free],
@@ -146,16 +148,15 @@ def room_floor_samples(scene: Scene, caster: RayCaster) -> tuple[NDArray[np.floa
 
 def _over_stairs(caster: RayCaster, stairs: NDArray[np.bool_],
                  origins: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """(S,) bool: a stair is the first thing straight down from the (S, 3) ``origins``
-    (``FLOOR_PROBE_M`` over the floor), under the floor closer than ``STAIR_HEADROOM_M``, at
-    the sample or at a corner of its square (inset by a centimetre)."""
+    """(S,) bool: a stair is the first thing straight down from a corner of the square of
+    each of the (S, 3) ``origins`` (``FLOOR_PROBE_M`` over the floor; the corners inset by
+    a centimetre), under the floor closer than ``STAIR_HEADROOM_M``."""
     over = np.zeros(len(origins), bool)
     if not stairs.any() or len(origins) == 0:
         return over
     reach = WALK_GRID_M / 2 - 0.01
     down = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
-    for dx, dy in ((0.0, 0.0), (-reach, -reach), (reach, -reach), (reach, reach),
-                   (-reach, reach)):
+    for dx, dy in ((-reach, -reach), (reach, -reach), (reach, reach), (-reach, reach)):
         face, distance = caster.first_hit(origins + np.array([dx, dy, 0.0]), down)
         # a miss (-1) reads the last entry: false
         # under the floor: a stair that stands on it (its first treads) is no stairwell
