@@ -118,6 +118,10 @@ _NOT_A_STOREY = {
 # their slabs (an architect's model, the slabs in the structural model) at 0.03 - 2 %, on
 # stair treads, landings and the tops of walls and furniture
 _LITTLE_FLOOR_SHARE = 0.04
+# what such a model lacks, and what to send instead
+_NO_SLABS = ("a model without its floor slabs (an architect's model, the slabs in the "
+             "structural one)? Send it as IFC with its rooms (IfcSpace), whose bottoms are "
+             "then the floors, or with its slabs")
 
 
 def floor_note(candidates: int, building_points: int, grid_spacing_m: float) -> str | None:
@@ -128,9 +132,7 @@ def floor_note(candidates: int, building_points: int, grid_spacing_m: float) -> 
     cell_m2 = grid_spacing_m ** 2
     return (f"the model has floor to stand on at {candidates} of the {building_points} grid "
             f"points over the building ({candidates * cell_m2:.1f} of "
-            f"{building_points * cell_m2:.0f} m²): a model without its floor slabs (an "
-            "architect's model, the slabs in the structural one)? Send it as IFC with its "
-            "rooms (IfcSpace), whose bottoms are then the floors, or with its slabs")
+            f"{building_points * cell_m2:.0f} m²): {_NO_SLABS}")
 
 
 # the building, not the site (on_the_building): upright surfaces are sampled this far apart
@@ -324,10 +326,8 @@ def generate_grid(scene: Scene, spec: PlanSpec, caster: RayCaster) -> CandidateS
             # of the parameters
             raise NoCandidatesError(
                 f"no grid point is left out of {considered} ({counts}): most of the "
-                "building's points have no floor under them. A model without its floor "
-                "slabs (an architect's model, the slabs in the structural one)? Send it as "
-                "IFC with its rooms (IfcSpace), whose bottoms are then the floors, or with "
-                "its slabs; or give candidates explicitly")
+                f"building's points have no floor under them. {_NO_SLABS[0].upper()}"
+                f"{_NO_SLABS[1:]}; or give candidates explicitly")
         raise NoCandidatesError(
             f"no grid point is left out of {considered} "
             f"({counts}); lower clearance_m "
