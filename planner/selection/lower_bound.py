@@ -74,6 +74,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
+from planner.selection.classes import merged_classes
 from planner.visibility.coverage import CoverageTable
 
 # iterations (fixed: no clock, the same bound for the same table): of the volume algorithm
@@ -140,83 +141,6 @@ class StationBound:
                 "components": self.components}
 
 
-def merged_classes(table: CoverageTable, faces: NDArray[np.bool_]
-                   ) -> tuple[sp.csr_matrix, NDArray[np.float64]]:
-    """Faces with identical candidate sets merged into classes, from the table's runs.
-
-    Each face's candidate set is hashed twice: the sum (wrapping) of a random 64-bit word
-    per candidate, added over each run of the candidate's faces by a difference array (a
-    pass over the runs and the faces: no copy of the pairs). Two different sets share
-    128 random bits with probability 2^-128 a pair of faces (below 1e-24 for 10 M faces);
-    the words come from a fixed seed, so the same table always gives the same classes.
-    The merge is made in two steps that hold a few bytes a face: neighbouring faces in the
-    table's order with the same count and hashes first (the pieces of one file face mostly
-    are), then those runs by sorting their (count, hashes). ``faces`` (F,) bool: the faces
-    to merge (those of no candidate are left out).
-
-    Returns
-    -------
-    cover : (C, K) CSR float32 0/1, which candidate covers which class (by candidate: 8
-        bytes a pair, and no second copy by class)
-    area_m2 : (K,) float64, the area of each class
-    """
-    chosen = np.flatnonzero(faces & table.achievable)
-    n, n_candidates = len(chosen), table.n_candidates
-    if n == 0:
-        return sp.csr_matrix((n_candidates, 0), dtype=np.float32), np.zeros(0)
-    rng = np.random.default_rng(20240601)
-    words = rng.integers(0, np.iinfo(np.uint64).max, size=(2, n_candidates),
-                         dtype=np.uint64, endpoint=True)
-    count = table.candidates_per_face[chosen]
-
-    def face_hashes(word: NDArray[np.uint64]) -> NDArray[np.uint64]:
-        """(F',) each chosen face's hash under the candidates' ``word``."""
-        return table.sum_per_face(word)[chosen]
-
-    # step 1: a run starts where a face's count or hashes differ from the face before (one
-    # hash at a time: a few bytes a face)
-    starts = np.ones(n, bool)
-    starts[1:] = count[1:] != count[:-1]
-    for word in words:
-        hashes = face_hashes(word)
-        starts[1:] |= hashes[1:] != hashes[:-1]
-        del hashes
-    first = np.flatnonzero(starts)  # (R,) each run's first face, in chosen's order
-    del starts
-    # step 2: runs with the same (count, hashes) are one class (the hashes made again and
-    # kept at the runs' first faces only)
-    run_keys = (face_hashes(words[1])[first], face_hashes(words[0])[first], count[first])
-    order = np.lexsort(run_keys)
-    new = np.zeros(len(first), bool)
-    new[0] = True
-    for key in run_keys:
-        new[1:] |= key[order][1:] != key[order][:-1]
-    class_of_run = np.empty(len(first), np.int32)
-    class_of_run[order] = np.cumsum(new) - 1
-    n_classes = int(new.sum())
-    del order, new, run_keys
-    class_of = np.full(table.n_faces, -1, np.int32)
-    class_of[chosen] = np.repeat(class_of_run, np.diff(np.append(first, n)))
-    del class_of_run
-    area = np.bincount(class_of[chosen], weights=table.face_area_m2[chosen],
-                       minlength=n_classes).astype(np.float64)
-    # which classes each candidate covers: a pass over its runs, each class once
-    indptr = np.zeros(n_candidates + 1, np.int64)
-    last = np.full(n_classes, -1, np.int64)
-    _classes_per_candidate(table.run_ptr, table.run_start, table.run_length, class_of,
-                           last, indptr, np.zeros(0, np.int32), False)
-    indptr = np.cumsum(indptr)
-    indices = np.empty(int(indptr[-1]), np.int32)
-    last[:] = -1
-    _classes_per_candidate(table.run_ptr, table.run_start, table.run_length, class_of,
-                           last, indptr, indices, True)
-    # float32 ones: 8 bytes a pair (the problem sets its own data type)
-    cover = sp.csr_matrix((np.ones(len(indices), np.float32), indices, indptr),
-                          shape=(n_candidates, n_classes))
-    cover.sort_indices()
-    return cover, area
-
-
 @numba.njit(nogil=True, cache=True)
 def _class_minimum(indptr: NDArray[np.int32], indices: NDArray[np.int32],
                    price: NDArray[np.float64], cheapest: NDArray[np.float64]
@@ -238,29 +162,6 @@ def _row_sums(indptr: NDArray[np.int32], indices: NDArray[np.int32],
         for j in range(indptr[c], indptr[c + 1]):
             total += values[indices[j]]
         sums[c] = total
-
-
-@numba.njit(nogil=True, cache=True)
-def _classes_per_candidate(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
-                           run_length: NDArray[np.int32], class_of: NDArray[np.int32],
-                           last: NDArray[np.int64], indptr: NDArray[np.int64],
-                           indices: NDArray[np.int32], fill: bool) -> None:  # compiled
-    """Each candidate's classes, each once (``last[k]``: the last candidate that met class
-    k). Without ``fill``: their count into ``indptr[c + 1]``; with it, into ``indices``
-    from ``indptr[c]`` on (``indptr`` then the cumulative counts)."""
-    for c in range(len(run_ptr) - 1):
-        at = indptr[c]
-        for r in range(run_ptr[c], run_ptr[c + 1]):
-            for f in range(run_start[r], run_start[r] + run_length[r]):
-                k = class_of[f]
-                if k < 0 or last[k] == c:
-                    continue
-                last[k] = c
-                if fill:
-                    indices[at] = k
-                    at += 1
-                else:
-                    indptr[c + 1] += 1
 
 
 def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: int,

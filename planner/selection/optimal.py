@@ -58,6 +58,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from planner.selection.classes import class_table
 from planner.selection.connectivity import Connectivity, OverlapGraph, add_flow
 from planner.selection.greedy import GOAL_SLACK_M2, Selection, greedy, replay
 from planner.selection.highs_worker import Answer, HighsProcess
@@ -127,28 +128,19 @@ Keep = Callable[[Sequence[int]], bool]
 
 def face_classes(table: CoverageTable, faces: NDArray[np.bool_] | None = None
                  ) -> tuple[sp.csc_matrix, np.ndarray]:
-    """Merge faces with identical candidate sets.
+    """Merge faces with identical candidate sets (:mod:`planner.selection.classes`).
 
     ``faces`` (F,) bool limits the classes to those faces (default: all achievable ones).
 
     Returns
     -------
-    cover : (C, K) CSC float64 0/1, which candidate covers which class
-    area_m2 : (K,) float64, the area of each class
+    cover : (C, K) CSC float64 0/1, which candidate covers which class, the classes in
+        the order of their first face
+    area : (K,) float64, the area of each class
     """
-    csc = table.by_face
-    mask = table.achievable if faces is None else faces & table.achievable
-    achievable = np.flatnonzero(mask)
-    keys: dict[bytes, int] = {}
-    class_of = np.empty(len(achievable), np.int64)
-    for i, f in enumerate(achievable):
-        rows = csc.indices[csc.indptr[f]:csc.indptr[f + 1]]
-        class_of[i] = keys.setdefault(rows.tobytes(), len(keys))
-    area = np.bincount(class_of, weights=table.face_area_m2[achievable], minlength=len(keys))
-    first = np.unique(class_of, return_index=True)[1]
-    columns = achievable[first]
-    cover = (csc[:, columns] != 0).astype(np.float64).tocsc()
-    return cover, area
+    classes = class_table(table, table.achievable if faces is None else faces)
+    cover = classes.table.by_face.astype(np.float64)
+    return cover, classes.table.face_area_m2
 
 
 def relaxed_classes(
@@ -417,27 +409,33 @@ def solve_optimal(
     heuristic = list(incumbents[pick].stations[:counts[pick]])
     n_fixed = len(fixed)
     keep = None if graph is None else graph.connected
-    best, moves = local_search(table, heuristic, need, n_fixed, stop, swaps=goal < 1.0,
-                               keep=keep)
-    seconds = {"local_search": time.monotonic() - start}
-    after_search = len(best)
-
+    # the search runs on the face classes of what the fixed stations leave (lossless: every
+    # plan covers the same area of them, summed in another order; GOAL_SLACK_M2 absorbs it)
     fixed_faces = table.covered_by(fixed)
     rest = table.achievable & ~fixed_faces
     need_rest = need - float(table.face_area_m2[fixed_faces].sum())
-    lower = n_fixed + _counting_bound(table, need_rest, rest)
+    classes = class_table(table, rest)
+    del rest, fixed_faces
+    search = classes.table
+    best, moves = local_search(search, heuristic, need_rest, n_fixed, stop,
+                               swaps=goal < 1.0, keep=keep)
+    seconds = {"local_search": time.monotonic() - start}
+    after_search = len(best)
+
+    everything = np.ones(classes.n_classes, bool)
+    lower = n_fixed + _counting_bound(search, need_rest, everything)
     status = "the plan meets the area bound (fewest candidates whose areas add up to the goal)"
     n_classes = 0
     if len(best) > lower and need_rest > 0:
         t_bound = time.monotonic()
-        dual = station_lower_bound(table, need, len(best), fixed)
+        dual = station_lower_bound(search, need_rest, len(best) - n_fixed)
         seconds["lower_bound"] = time.monotonic() - t_bound
-        if dual.stations > lower:
-            lower = dual.stations
+        if n_fixed + dual.stations > lower:
+            lower = n_fixed + dual.stations
             status = f"the plan meets the {dual.method}"
     t_milp = time.monotonic()
     reached = graph is None or bool(
-        best and replay(table, best, "optimal").covered_area_m2[-1] >= need)
+        best and replay(search, best, "optimal").covered_area_m2[-1] >= need_rest)
     if not reached:
         status = "the connected greedy plan does not reach the goal"
     elif graph is not None and graph.too_big:
@@ -448,16 +446,24 @@ def solve_optimal(
             highs.start()
             solver = _set_cover if goal >= 1.0 else _partial_cover
             best, lower, status, n_classes = solver(
-                _Problem(table, centroids, rest, need_rest, fixed, constraint_hooks, stop,
-                         highs, graph), best, lower)
+                _Problem(search, centroids[classes.first_face], everything, need_rest,
+                         fixed, constraint_hooks, stop, highs, graph), best, lower)
     seconds["milp"] = time.monotonic() - t_milp
-    found = len(best)
+    # the classes hold only what the fixed stations leave
+    stations = list(fixed) + _order_by_gain(search, [s for s in best if s not in fixed],
+                                            np.zeros(classes.n_classes, bool))
+    del search, classes
+    selection = replay(table, stations, "optimal", n_fixed)
+    if stations and selection.covered_area_m2[-1] < need:
+        # the class sums met the goal by less than their order's rounding (never seen)
+        fallback = replay(table, heuristic, "optimal", n_fixed)
+        if fallback.covered_area_m2[-1] >= need:
+            selection, moves = fallback, []
+    found = len(selection.stations)
     lower = min(lower, found)
-    stations = list(fixed) + _order_by_gain(table, [s for s in best if s not in fixed],
-                                            fixed_faces)
     return OptimalResult(
         goal=goal,
-        selection=replay(table, stations, "optimal", n_fixed),
+        selection=selection,
         lower_bound=int(lower),
         gap=float((found - lower) / found) if found else 0.0,
         proven_optimal=lower == found and reached,
@@ -542,8 +548,8 @@ def _set_cover(problem: _Problem, best: list[int], lower: int
                       if answer.status == 0 else
                       f"time limit reached in the set cover ({answer.message})")
             break
-        repaired = _repair(problem.table, plan, problem.need_m2 + _fixed_area(problem),
-                           n_fixed, problem.deadline, problem.keep)
+        repaired = _repair(problem.table, plan, problem.need_m2, n_fixed, problem.deadline,
+                           problem.keep)
         if repaired and len(repaired) < len(best):
             best = repaired
         if len(best) <= lower:
@@ -556,12 +562,6 @@ def _set_cover(problem: _Problem, best: list[int], lower: int
         add = missed[np.lexsort((missed, size[missed]))][:SET_COVER_ROWS_PER_ROUND]
         active[add] = True
     return best, lower, status, n_class
-
-
-def _fixed_area(problem: _Problem) -> float:
-    """Area the fixed stations cover (``need_m2`` is what is missing beyond it)."""
-    table = problem.table
-    return float(table.face_area_m2[table.achievable & ~problem.rest].sum())
 
 
 def _partial_cover(problem: _Problem, best: list[int], lower: int
@@ -577,7 +577,6 @@ def _partial_cover(problem: _Problem, best: list[int], lower: int
     cover, area, exact = relaxed_classes(table, problem.centroids, MAX_NONZEROS, problem.rest)
     n_cand, n_class = cover.shape
     n_fixed = len(problem.fixed)
-    need_total = problem.need_m2 + _fixed_area(problem)
     builder = problem.builder()
     builder.set_cost(0, np.ones(n_cand))
     builder.add_variables(np.zeros(n_class), integer=False, lower=0.0, upper=1.0)
@@ -597,13 +596,13 @@ def _partial_cover(problem: _Problem, best: list[int], lower: int
     status = f"HiGHS: {answer.message}"
     if answer.x is not None:
         plan = problem.plan_of(answer.x)
-        if not exact and replay(table, plan, "optimal").covered_area_m2[-1] < need_total:
-            plan = _repair(table, plan, need_total, n_fixed, problem.deadline, problem.keep)
-            status += " (relaxed answer, repaired on the exact table)"
+        if replay(table, plan, "optimal").covered_area_m2[-1] < problem.need_m2:
+            plan = _repair(table, plan, problem.need_m2, n_fixed, problem.deadline,
+                           problem.keep)
+            if not exact:
+                status += " (relaxed answer, repaired on the exact table)"
         if plan and len(plan) < len(best):
             best = plan
-        if answer.status == 0 and exact:
-            lower = max(lower, len(best))
     if not exact:
         status += f"; relaxed per voxel to {n_class} classes"
     return best, lower, status, n_class

@@ -134,6 +134,23 @@ class CoverageTable:
         return cls(run_ptr=run_ptr, run_start=run_start.done(), run_length=run_length.done(),
                    pair_ptr=pair_ptr, face_area_m2=face_area_m2)
 
+    @classmethod
+    def from_csr(cls, pattern: sp.csr_matrix, face_area_m2: NDArray[np.float64]
+                 ) -> CoverageTable:
+        """Build from a (C, F) CSR pattern with sorted indices (its values are ignored)."""
+        pairs = np.diff(pattern.indptr).astype(np.int64)
+        candidate = np.repeat(np.arange(pattern.shape[0], dtype=np.int32), pairs)
+        face = pattern.indices.astype(np.int32, copy=False)
+        new = np.ones(len(face), bool)  # (P,) the pair starts a run
+        new[1:] = (face[1:] != face[:-1] + 1) | (candidate[1:] != candidate[:-1])
+        first = np.flatnonzero(new)
+        run_ptr = np.zeros(pattern.shape[0] + 1, np.int64)
+        np.cumsum(np.bincount(candidate[first], minlength=pattern.shape[0]), out=run_ptr[1:])
+        return cls(run_ptr=run_ptr, run_start=face[first].copy(),
+                   run_length=np.diff(first, append=len(face)).astype(np.int32),
+                   pair_ptr=pattern.indptr.astype(np.int64),
+                   face_area_m2=np.asarray(face_area_m2, np.float64))
+
     @property
     def n_candidates(self) -> int:
         return len(self.run_ptr) - 1

@@ -1,0 +1,170 @@
+"""Face classes: faces seen by exactly the same candidates, merged (a lossless reduction).
+
+Whether a face is covered depends only on which candidates see it, so faces with the same
+candidate set are covered together by every plan: one class of their summed area. The
+selection's bounds and programs (:mod:`planner.selection.lower_bound`,
+:mod:`planner.selection.optimal`) work on classes: the 9.7 M-face office has 808,000.
+
+Array letters: C candidates, F faces, K classes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from planner.visibility.coverage import CoverageTable
+
+
+@dataclass(frozen=True)
+class _Merged:
+    cover: sp.csr_matrix  # (C, K) float32 0/1
+    area_m2: NDArray[np.float64]  # (K,)
+    first_face: NDArray[np.int32]  # (K,) each class's lowest face index
+
+
+def merged_classes(table: CoverageTable, faces: NDArray[np.bool_]
+                   ) -> tuple[sp.csr_matrix, NDArray[np.float64]]:
+    """Faces with identical candidate sets merged into classes, from the table's runs.
+
+    Each face's candidate set is hashed twice: the sum (wrapping) of a random 64-bit word
+    per candidate, added over each run of the candidate's faces by a difference array (a
+    pass over the runs and the faces: no copy of the pairs). Two different sets share
+    128 random bits with probability 2^-128 a pair of faces (below 1e-24 for 10 M faces);
+    the words come from a fixed seed, so the same table always gives the same classes.
+    The merge is made in two steps that hold a few bytes a face: neighbouring faces in the
+    table's order with the same count and hashes first (the pieces of one file face mostly
+    are), then those runs by sorting their (count, hashes). ``faces`` (F,) bool: the faces
+    to merge (those of no candidate are left out).
+
+    Returns
+    -------
+    cover : (C, K) CSR float32 0/1, which candidate covers which class (by candidate: 8
+        bytes a pair, and no second copy by class)
+    area_m2 : (K,) float64, the area of each class
+    """
+    merged = _merge(table, faces)
+    return merged.cover, merged.area_m2
+
+
+@dataclass(frozen=True)
+class ClassTable:
+    """A coverage table whose "faces" are face classes, numbered by their first face.
+
+    ``table`` covers the same area with every plan as the face table it came from (its
+    faces' areas are the classes' areas), in fewer pairs: the whole selection can run on it.
+    ``first_face`` (K,) int32 names a face of each class (its centroid places the class).
+    """
+
+    table: CoverageTable
+    first_face: NDArray[np.int32]
+
+    @property
+    def n_classes(self) -> int:
+        return self.table.n_faces
+
+
+def class_table(table: CoverageTable, faces: NDArray[np.bool_]) -> ClassTable:
+    """The classes of ``faces`` (F,) bool as a :class:`ClassTable` (faces of no candidate
+    left out). Classes are numbered in the order of their first face, so the pieces of one
+    part of the building keep neighbouring numbers (runs in the table)."""
+    merged = _merge(table, faces)
+    order = np.argsort(merged.first_face, kind="stable")
+    number = np.empty(len(order), np.int32)
+    number[order] = np.arange(len(order), dtype=np.int32)
+    cover = merged.cover
+    pattern = sp.csr_matrix((cover.data, number[cover.indices], cover.indptr),
+                            shape=cover.shape)
+    pattern.sort_indices()
+    return ClassTable(CoverageTable.from_csr(pattern, merged.area_m2[order]),
+                      merged.first_face[order])
+
+
+def _merge(table: CoverageTable, faces: NDArray[np.bool_]) -> _Merged:
+    """:func:`merged_classes` and each class's first face (see there)."""
+    chosen = np.flatnonzero(faces & table.achievable)
+    n, n_candidates = len(chosen), table.n_candidates
+    if n == 0:
+        return _Merged(sp.csr_matrix((n_candidates, 0), dtype=np.float32), np.zeros(0),
+                       np.zeros(0, np.int32))
+    rng = np.random.default_rng(20240601)
+    words = rng.integers(0, np.iinfo(np.uint64).max, size=(2, n_candidates),
+                         dtype=np.uint64, endpoint=True)
+    count = table.candidates_per_face[chosen]
+
+    def face_hashes(word: NDArray[np.uint64]) -> NDArray[np.uint64]:
+        """(F',) each chosen face's hash under the candidates' ``word``."""
+        return table.sum_per_face(word)[chosen]
+
+    # step 1: a run starts where a face's count or hashes differ from the face before (one
+    # hash at a time: a few bytes a face)
+    starts = np.ones(n, bool)
+    starts[1:] = count[1:] != count[:-1]
+    for word in words:
+        hashes = face_hashes(word)
+        starts[1:] |= hashes[1:] != hashes[:-1]
+        del hashes
+    first = np.flatnonzero(starts)  # (R,) each run's first face, in chosen's order
+    del starts
+    # step 2: runs with the same (count, hashes) are one class (the hashes made again and
+    # kept at the runs' first faces only)
+    run_keys = (face_hashes(words[1])[first], face_hashes(words[0])[first], count[first])
+    order = np.lexsort(run_keys)
+    new = np.zeros(len(first), bool)
+    new[0] = True
+    for key in run_keys:
+        new[1:] |= key[order][1:] != key[order][:-1]
+    class_of_run = np.empty(len(first), np.int32)
+    class_of_run[order] = np.cumsum(new) - 1
+    n_classes = int(new.sum())
+    del order, new, run_keys
+    # each class's first face: its first run's (the runs are in face order)
+    first_face = chosen[first[np.unique(class_of_run, return_index=True)[1]]].astype(np.int32)
+    class_of = np.full(table.n_faces, -1, np.int32)
+    class_of[chosen] = np.repeat(class_of_run, np.diff(np.append(first, n)))
+    del class_of_run
+    area = np.bincount(class_of[chosen], weights=table.face_area_m2[chosen],
+                       minlength=n_classes).astype(np.float64)
+    # which classes each candidate covers: a pass over its runs, each class once
+    indptr = np.zeros(n_candidates + 1, np.int64)
+    last = np.full(n_classes, -1, np.int64)
+    _classes_per_candidate(table.run_ptr, table.run_start, table.run_length, class_of,
+                           last, indptr, np.zeros(0, np.int32), False)
+    indptr = np.cumsum(indptr)
+    indices = np.empty(int(indptr[-1]), np.int32)
+    last[:] = -1
+    _classes_per_candidate(table.run_ptr, table.run_start, table.run_length, class_of,
+                           last, indptr, indices, True)
+    # float32 ones: 8 bytes a pair (the problem sets its own data type)
+    cover = sp.csr_matrix((np.ones(len(indices), np.float32), indices, indptr),
+                          shape=(n_candidates, n_classes))
+    cover.sort_indices()
+    return _Merged(cover, area, first_face)
+
+
+
+@numba.njit(nogil=True, cache=True)
+def _classes_per_candidate(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
+                           run_length: NDArray[np.int32], class_of: NDArray[np.int32],
+                           last: NDArray[np.int64], indptr: NDArray[np.int64],
+                           indices: NDArray[np.int32], fill: bool) -> None:  # compiled
+    """Each candidate's classes, each once (``last[k]``: the last candidate that met class
+    k). Without ``fill``: their count into ``indptr[c + 1]``; with it, into ``indices``
+    from ``indptr[c]`` on (``indptr`` then the cumulative counts)."""
+    for c in range(len(run_ptr) - 1):
+        at = indptr[c]
+        for r in range(run_ptr[c], run_ptr[c + 1]):
+            for f in range(run_start[r], run_start[r] + run_length[r]):
+                k = class_of[f]
+                if k < 0 or last[k] == c:
+                    continue
+                last[k] = c
+                if fill:
+                    indices[at] = k
+                    at += 1
+                else:
+                    indptr[c + 1] += 1
