@@ -53,6 +53,8 @@ class Program:
     row_lower: NDArray[np.float64]
     row_upper: NDArray[np.float64]
     start: NDArray[np.float64] | None = None  # (V,) a feasible solution to start from
+    # branch-and-bound nodes HiGHS may explore (work, the same on any machine); None: no limit
+    node_limit: int | None = None
 
 
 @dataclass(frozen=True)
@@ -73,6 +75,8 @@ def solve(program: Program, time_limit_s: float) -> Answer:
     highs = highspy.Highs()  # type: ignore[no-untyped-call]
     highs.setOptionValue("output_flag", False)
     highs.setOptionValue("time_limit", max(float(time_limit_s), 0.01))
+    if program.node_limit is not None:
+        highs.setOptionValue("mip_max_nodes", int(program.node_limit))
     rows = program.rows
     lp = highspy.HighsLp()
     lp.num_col_, lp.num_row_ = len(program.cost), rows.shape[0]

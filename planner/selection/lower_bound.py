@@ -165,16 +165,18 @@ def _row_sums(indptr: NDArray[np.int32], indices: NDArray[np.int32],
 
 
 def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: int,
-                        fixed: tuple[int, ...] = (), iterations: int | None = None
-                        ) -> StationBound:
+                        fixed: tuple[int, ...] = (), iterations: int | None = None,
+                        work_pairs: int = PARTIAL_WORK_PAIRS,
+                        max_iterations: int = ITERATIONS) -> StationBound:
     """The fewest stations any plan needs to cover ``need_m2`` (fixed stations included).
 
     ``need_m2``: the area to cover, fixed stations' faces included (goal * max achievable
     - slack); ``upper_stations``: the stations of a known plan (the steps aim at it; the
     search stops early once the bound meets it). ``fixed`` stations are in every plan:
     their faces count as covered. ``iterations``: of the volume algorithm (partial cover,
-    default: ITERATIONS within PARTIAL_WORK_PAIRS) or of PDHG per round of rows (full
-    cover, default PDHG_ITERATIONS).
+    default: as many as ``work_pairs`` (pair-iterations) allows, at least MIN_ITERATIONS
+    and at most ``max_iterations``) or of PDHG per round of rows (full cover, default
+    PDHG_ITERATIONS).
     """
     n_fixed = len(fixed)
     covered = table.covered_by(fixed)
@@ -211,7 +213,7 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
         cover, area, must = cover[:, must], area[must], must[must]
     if iterations is None:
         iterations = PDHG_ITERATIONS if full else min(
-            ITERATIONS, max(MIN_ITERATIONS, PARTIAL_WORK_PAIRS // max(1, cover.nnz)))
+            max_iterations, max(MIN_ITERATIONS, work_pairs // max(1, cover.nnz)))
     problem = _Lagrangian(cover, area, need, must, full)
     del cover  # the problem keeps it by candidate
     target = max(1.0, float(upper_stations - base))

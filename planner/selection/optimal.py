@@ -3,12 +3,18 @@
 The selection stage (:func:`choose_stations`) runs both greedy heuristics, and for
 ``optimal`` (or the goals of ``curve_goals``) :func:`solve_optimal`:
 
-1. the best heuristic plan (fewest stations; greedy on a tie) is the first incumbent;
+1. the best heuristic plan (fewest stations; greedy on a tie) is the first incumbent; from
+   here on everything runs on the face classes of what the fixed stations leave
+   (:func:`planner.selection.classes.class_table`: faces seen by the same candidates are
+   covered together by every plan, so merging them loses nothing);
 2. a local search improves it: drop a station made redundant by later ones, replace two
    stations by one, and (partial goals) swap one for another where that covers more, which
    may let a later drop succeed. So even a plan stopped at the time limit is as good as it
    cheaply gets;
-3. HiGHS, in a child process killed at the deadline (:mod:`planner.selection.highs_worker`):
+3. when the lower bound does not meet it, a neighbourhood search
+   (:mod:`planner.selection.neighbourhoods`) asks HiGHS, part of the building at a time,
+   for fewer stations or as many covering more: small exact programs, limited by work;
+4. HiGHS, in a child process killed at the deadline (:mod:`planner.selection.highs_worker`):
 
    - goal 100 %: the set cover ``min sum x_c  s.t.  sum_{c covers k} x_c >= 1`` over face
      classes (faces seen by exactly the same candidates merge into one row). Most rows are
@@ -63,12 +69,20 @@ from planner.selection.connectivity import Connectivity, OverlapGraph, add_flow
 from planner.selection.greedy import GOAL_SLACK_M2, Selection, greedy, replay
 from planner.selection.highs_worker import Answer, HighsProcess
 from planner.selection.lower_bound import station_lower_bound
+from planner.selection.neighbourhoods import neighbourhood_search
 from planner.selection.program import ProgramBuilder
 from planner.visibility.coverage import CoverageTable
 
 # Above this many nonzeros HiGHS's presolve alone outlasts any sensible time limit (hall-full:
 # 10.5 M); face classes are then merged per voxel into a relaxation (see relaxed_classes).
 MAX_NONZEROS = 1_500_000
+# the volume algorithm's work in ``optimal``: pair-iterations per second of the time limit
+# (about a fifth of the limit on a 2-core machine), and at most this many iterations. Its
+# bound keeps rising long after the heuristic plans' 600 M pair-iterations: the 9.7 M-face
+# office at 80 % (21 M class pairs), 160 after 28 iterations, 176 after 100, 190 after 300,
+# 192 after 600 and after 1,200
+BOUND_PAIRS_PER_LIMIT_S = 40_000_000
+BOUND_MAX_ITERATIONS = 1500
 # set cover rows in the first round, and at most this many added per round
 SET_COVER_ROWS_PER_ROUND = 1000
 # a swap must cover this much more area to count as an improvement (m^2; stops cycling)
@@ -79,7 +93,7 @@ SWAP_MIN_GAIN_M2 = 1e-6
 class Move:
     """One change of the local search: ``removed`` stations replaced by ``added`` ones."""
 
-    kind: str  # "drop", "two_for_one" or "swap"
+    kind: str  # "drop", "two_for_one", "swap" or "neighbourhood"
     removed: tuple[int, ...]
     added: tuple[int, ...]
 
@@ -107,6 +121,7 @@ class OptimalResult:
     heuristic_stations: int
     local_search: tuple[Move, ...]
     local_search_stations: int
+    neighbourhoods: int = 0  # programs of the neighbourhood search
     seconds: dict[str, float] = field(default_factory=dict, compare=False)
 
     def to_dict(self) -> dict[str, object]:
@@ -189,8 +204,9 @@ class _CoverState:
         self.table = table
         self.keep = keep
         self.area = table.face_area_m2
-        by_face = table.by_face
-        # (C, F) 0/1 pattern sharing the table's index arrays (the values are LPDs)
+        # made here, not kept by the table: it goes with the search
+        by_face = table.by_candidate.tocsc()
+        # (C, F) 0/1 float32, sharing by_face's index arrays
         self.pattern = sp.csc_matrix(
             (np.ones(len(by_face.indices), np.float32), by_face.indices, by_face.indptr),
             shape=by_face.shape)
@@ -200,10 +216,13 @@ class _CoverState:
         self.count = np.zeros(table.n_faces, np.int32)
         for s in self.stations:
             self.count[table.faces_of(s)] += 1
+        self._covered_m2: float | None = None  # summed again after each move
 
     @property
     def covered_m2(self) -> float:
-        return float(self.area[self.count > 0].sum())
+        if self._covered_m2 is None:
+            self._covered_m2 = float(self.area[self.count > 0].sum())
+        return self._covered_m2
 
     def _gain(self, faces: NDArray[np.int64]) -> NDArray[np.float64]:
         """(C,) float64: area of ``faces`` each candidate qualifies for."""
@@ -212,6 +231,7 @@ class _CoverState:
         return np.asarray(self.pattern[:, faces] @ self.area[faces], np.float64).reshape(-1)
 
     def _apply(self, removed: tuple[int, ...], added: tuple[int, ...]) -> None:
+        self._covered_m2 = None
         for s in removed:
             self.count[self.table.faces_of(s)] -= 1
             self.stations.remove(s)
@@ -421,17 +441,26 @@ def solve_optimal(
                                swaps=goal < 1.0, keep=keep)
     seconds = {"local_search": time.monotonic() - start}
     after_search = len(best)
+    # the local search stops by the clock: a plan it left early may differ between runs
+    late = time.monotonic() >= stop
 
     everything = np.ones(classes.n_classes, bool)
     lower = n_fixed + _counting_bound(search, need_rest, everything)
     status = "the plan meets the area bound (fewest candidates whose areas add up to the goal)"
     n_classes = 0
+    neighbourhoods = 0
+    dual_method = "area bound"
     if len(best) > lower and need_rest > 0:
         t_bound = time.monotonic()
-        dual = station_lower_bound(search, need_rest, len(best) - n_fixed)
+        # the bound's work grows with the time asked for, counted in pairs, not seconds
+        dual = station_lower_bound(
+            search, need_rest, len(best) - n_fixed,
+            work_pairs=int(BOUND_PAIRS_PER_LIMIT_S * time_limit_s),
+            max_iterations=BOUND_MAX_ITERATIONS)
         seconds["lower_bound"] = time.monotonic() - t_bound
         if n_fixed + dual.stations > lower:
             lower = n_fixed + dual.stations
+            dual_method = dual.method
             status = f"the plan meets the {dual.method}"
     t_milp = time.monotonic()
     reached = graph is None or bool(
@@ -444,11 +473,28 @@ def solve_optimal(
     elif len(best) > lower and need_rest > 0:
         with HighsProcess(tick) as highs:
             highs.start()
-            solver = _set_cover if goal >= 1.0 else _partial_cover
-            best, lower, status, n_classes = solver(
-                _Problem(search, centroids[classes.first_face], everything, need_rest,
-                         fixed, constraint_hooks, stop, highs, graph), best, lower)
-    seconds["milp"] = time.monotonic() - t_milp
+            stopped = False
+            if not constraint_hooks:  # the neighbourhoods' programs know no hook's rows
+                searched = neighbourhood_search(
+                    search, centroids[classes.first_face], best, need_rest, n_fixed,
+                    lambda program: highs.solve(program, stop), full=goal >= 1.0, keep=keep,
+                    floor=lower)
+                best, stopped = searched.stations, searched.stopped
+                neighbourhoods = searched.programs
+                moves += [Move("neighbourhood", removed, added)
+                          for removed, added in searched.moves]
+                seconds["neighbourhoods"] = time.monotonic() - t_milp
+                if stopped:
+                    status = (f"time limit reached in the neighbourhood search "
+                              f"({neighbourhoods} programs)")
+                elif len(best) <= lower:
+                    status = f"the neighbourhood search's plan meets the {dual_method}"
+            if len(best) > lower and not stopped:
+                solver = _set_cover if goal >= 1.0 else _partial_cover
+                best, lower, status, n_classes = solver(
+                    _Problem(search, centroids[classes.first_face], everything, need_rest,
+                             fixed, constraint_hooks, stop, highs, graph), best, lower)
+    seconds["milp"] = time.monotonic() - t_milp - seconds.get("neighbourhoods", 0.0)
     # the classes hold only what the fixed stations leave
     stations = list(fixed) + _order_by_gain(search, [s for s in best if s not in fixed],
                                             np.zeros(classes.n_classes, bool))
@@ -461,6 +507,8 @@ def solve_optimal(
             selection, moves = fallback, []
     found = len(selection.stations)
     lower = min(lower, found)
+    if late:
+        status = f"time limit reached in the local search; {status}"
     return OptimalResult(
         goal=goal,
         selection=selection,
@@ -473,6 +521,7 @@ def solve_optimal(
         heuristic_stations=len(heuristic),
         local_search=tuple(moves),
         local_search_stations=after_search,
+        neighbourhoods=neighbourhoods,
         seconds=seconds,
     )
 
@@ -726,6 +775,7 @@ def _selection_report(table: CoverageTable, selections: Mapping[str, Selection],
         search: dict[str, Any] | None = {
             "stations_before": optimal.heuristic_stations,
             "stations_after": optimal.local_search_stations,
+            "neighbourhood_programs": optimal.neighbourhoods,
             "moves": [m.to_dict() for m in optimal.local_search],
         }
     else:
