@@ -85,6 +85,9 @@ BOUND_PAIRS_PER_LIMIT_S = 40_000_000
 BOUND_MAX_ITERATIONS = 1500
 # set cover rows in the first round, and at most this many added per round
 SET_COVER_ROWS_PER_ROUND = 1000
+# how much less than a station's unique area a candidate may cover and still be tried in its
+# place (m^2: far above the float sums' rounding, so the pruning never drops a real move)
+PRUNE_TOLERANCE_M2 = 1e-6
 # a swap must cover this much more area to count as an improvement (m^2; stops cycling)
 SWAP_MIN_GAIN_M2 = 1e-6
 
@@ -171,17 +174,25 @@ def relaxed_classes(
     classes to those faces; returns cover (C, K), area (K,) and whether the classes are
     exact.
     """
-    cover, area = face_classes(table, faces)
-    if cover.nnz <= max_nonzeros:
-        return cover, area, True
     mask = table.achievable if faces is None else faces & table.achievable
+    classes = class_table(table, mask).table
+    if classes.n_pairs <= max_nonzeros:
+        return classes.by_face.astype(np.float64), classes.face_area_m2, True
+    del classes  # (the exact classes are too many: only their count was needed)
     achievable = np.flatnonzero(mask)
-    pattern = (table.by_face[:, achievable] != 0).astype(np.float64)
+    by_face = table.by_candidate.tocsc()
+    if not mask.all():
+        by_face = by_face[:, achievable]
+    # (C, F') 0/1 float32 sharing by_face's index arrays
+    pattern = sp.csc_matrix((np.ones(by_face.nnz, np.float32), by_face.indices,
+                             by_face.indptr), shape=by_face.shape)
+    del by_face
     cell_m = 0.25
     while True:
         cell = np.floor(centroids[achievable] / cell_m).astype(np.int64)
         voxel = np.unique(cell, axis=0, return_inverse=True)[1].reshape(-1)
-        members = sp.csr_matrix((np.ones(len(voxel)), (np.arange(len(voxel)), voxel)))
+        members = sp.csr_matrix((np.ones(len(voxel), np.float32),
+                                 (np.arange(len(voxel)), voxel)))
         merged = ((pattern @ members) != 0).astype(np.float64).tocsc()
         if merged.nnz <= max_nonzeros or merged.shape[1] <= 1:
             area = np.bincount(voxel, weights=table.face_area_m2[achievable])
@@ -269,16 +280,8 @@ class _CoverState:
         unique_gain = {s: self._gain(unique[s]) for s in free}
         unique_area = {s: float(self.area[unique[s]].sum()) for s in free}
         shared = self._shared_by_two(free)
-        pairs = []
-        for i, a in enumerate(free):
-            for b in free[i + 1:]:
-                key = (min(a, b), max(a, b))
-                lost = unique_area[a] + unique_area[b]
-                if key in shared:
-                    lost += float(self.area[shared[key]].sum())
-                pairs.append((lost, key))
-        pairs.sort()
-        for lost, (a, b) in pairs:
+        for lost, (a, b) in self._hopeful_pairs(free, unique_gain, unique_area, shared,
+                                                covered - self.need_m2):
             gain = unique_gain[a] + unique_gain[b]
             if (a, b) in shared:
                 gain = gain + self._gain(shared[(a, b)])
@@ -298,6 +301,32 @@ class _CoverState:
             self._apply(move.removed, move.added)
             return move
         return None
+
+    def _hopeful_pairs(self, free: list[int], unique_gain: dict[int, NDArray[np.float64]],
+                       unique_area: dict[int, float],
+                       shared: dict[tuple[int, int], NDArray[np.int64]], slack_m2: float
+                       ) -> list[tuple[float, tuple[int, int]]]:
+        """(lost area, (a, b)) of the pairs of free stations one candidate may replace,
+        least lost area first (then the lower stations).
+
+        A candidate replacing a and b must win back all but ``slack_m2`` (the area covered
+        beyond the need) of what only they cover, so at least as much of a's unique area and
+        of b's alone: pairs without such a candidate in common cannot succeed and are left
+        out (a plan of 2,500 stations has 3 M pairs, a handful of them hopeful).
+        """
+        near = [unique_gain[s] >= unique_area[s] - slack_m2 - PRUNE_TOLERANCE_M2 for s in free]
+        able = sp.csr_matrix(np.stack(near).astype(np.float32))  # (S, C)
+        common = sp.triu(able @ able.T, k=1).tocoo()  # (S, S) pairs with such a candidate
+        pairs = []
+        for i, j in zip(common.row.tolist(), common.col.tolist(), strict=True):
+            a, b = free[i], free[j]
+            key = (min(a, b), max(a, b))
+            lost = unique_area[a] + unique_area[b]
+            if key in shared:
+                lost += float(self.area[shared[key]].sum())
+            pairs.append((lost, key))
+        pairs.sort()
+        return pairs
 
     def _shared_by_two(self, free: list[int]) -> dict[tuple[int, int], NDArray[np.int64]]:
         """Faces seen by exactly two chosen stations, both free: (a, b) -> faces."""
