@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -307,3 +308,34 @@ def test_a_plan_stopped_by_its_time_limit_says_its_bytes_may_differ(scenes_dir: 
     assert proven["proven_optimal"] and proven["stopped_at_time_limit"] is False
     greedy = hall_plan(scenes_dir, "hall-small").selection_report
     assert "stopped_at_time_limit" not in greedy  # no MILP, nothing stopped
+
+
+def _optimal_plan(path: Path, goal: float) -> dict[str, Any]:
+    spec = PlanSpec(method="optimal", coverage_goal=goal, optimal_time_limit_s=240)
+    scene = read_scene(path, max_edge_m=spec.max_edge_m, split_faces="as_needed")
+    document: dict[str, Any] = plan_document(plan(scene, spec))
+    return document
+
+
+def test_a_real_house_at_the_papers_goal_is_proven(scenes_dir: Path) -> None:
+    """ArchiCAD's Jasmin-Sun house at 80 %: the local search takes two stations off the
+    greedy plan, and the lower bound proves that no plan needs fewer."""
+    selection = _optimal_plan(scenes_dir / "buildings" / "AC90R1-Jasmin-Sun-105-2x3.ifc",
+                              0.8)["selection"]
+    assert selection["stations"] < min(selection["heuristics"].values())
+    assert selection["proven_optimal"] and selection["gap"] == 0
+    assert selection["lower_bound"] == selection["stations"]
+    assert not selection["stopped_at_time_limit"]
+
+
+def test_the_neighbourhood_search_finds_what_the_local_search_cannot(scenes_dir: Path
+                                                                     ) -> None:
+    """The FZK house at 100 %: HiGHS, a part of the plan at a time, takes a station off
+    the local search's plan, and the set-cover bound proves the result."""
+    document = _optimal_plan(scenes_dir / "AC20-FZK-Haus.ifc", 1.0)
+    selection = document["selection"]
+    search = selection["local_search"]
+    assert selection["stations"] < search["stations_after"] < search["stations_before"]
+    assert any(move["move"] == "neighbourhood" for move in search["moves"])
+    assert search["neighbourhood_programs"] > 0
+    assert selection["proven_optimal"] and document["goal_reached"]
