@@ -66,12 +66,14 @@ def _table(name: str) -> tuple[object, np.ndarray, dict[str, object]]:
 def _program(table: object, centroids: np.ndarray, goal: float, start: list[int]
              ) -> tuple[sp.csr_matrix, np.ndarray, float]:
     """(C, K) class cover, (K,) areas and the area to cover: ``_partial_cover``'s program."""
+    from planner.selection.classes import class_table
     from planner.selection.greedy import GOAL_SLACK_M2
     from planner.selection.optimal import MAX_NONZEROS, relaxed_classes
 
     need = goal * table.max_achievable_area_m2 - GOAL_SLACK_M2  # type: ignore[attr-defined]
-    cover, area, _ = relaxed_classes(table, centroids, MAX_NONZEROS,  # type: ignore[arg-type]
-                                     table.achievable)  # type: ignore[attr-defined]
+    classes = class_table(table, table.achievable)  # type: ignore[arg-type, attr-defined]
+    cover, area, _ = relaxed_classes(classes.table, centroids[classes.first_face],
+                                     MAX_NONZEROS)
     return sp.csr_matrix(cover), area, need
 
 

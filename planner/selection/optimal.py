@@ -165,9 +165,12 @@ def relaxed_classes(
     table: CoverageTable, centroids: np.ndarray, max_nonzeros: int,
     faces: NDArray[np.bool_] | None = None,
 ) -> tuple[sp.csc_matrix, np.ndarray, bool]:
-    """Face classes small enough for HiGHS: exact when they fit, else merged by voxel.
+    """Classes small enough for HiGHS: ``table``'s own faces when they fit, else merged by
+    voxel.
 
-    Merging the faces of a voxel into one class covered by the union of their candidates
+    ``table`` is a table of face classes (:func:`planner.selection.classes.class_table`,
+    as :func:`solve_optimal` has it; a table of faces works too, with a larger program).
+    Merging the classes of a voxel into one covered by the union of their candidates
     over-estimates what any stations cover: the program becomes a relaxation, still good
     for proofs (no k stations reach the goal) but not for accepting a plan, which is then
     checked on the exact table. ``centroids`` is (F, 3); ``faces`` (F,) bool limits the
@@ -175,10 +178,9 @@ def relaxed_classes(
     exact.
     """
     mask = table.achievable if faces is None else faces & table.achievable
-    classes = class_table(table, mask).table
-    if classes.n_pairs <= max_nonzeros:
-        return classes.by_face.astype(np.float64), classes.face_area_m2, True
-    del classes  # (the exact classes are too many: only their count was needed)
+    if table.n_pairs <= max_nonzeros:
+        cover = table.by_candidate.tocsc()[:, np.flatnonzero(mask)].astype(np.float64)
+        return cover, table.face_area_m2[mask], True
     achievable = np.flatnonzero(mask)
     by_face = table.by_candidate.tocsc()
     if not mask.all():
@@ -592,8 +594,8 @@ class _Problem:
 def _set_cover(problem: _Problem, best: list[int], lower: int
                ) -> tuple[list[int], int, str, int]:
     """Goal 100 %: set cover with lazily generated rows (see the module docstring)."""
-    cover, _ = face_classes(problem.table, problem.rest)
-    rows = cover.T.tocsr()  # (K, C)
+    # (K, C): the problem's table holds classes already
+    rows = problem.table.by_candidate.T.tocsr()[np.flatnonzero(problem.rest)].astype(np.float64)
     n_class = rows.shape[0]
     size = np.diff(rows.indptr)
     by_size = np.lexsort((np.arange(n_class), size))  # fewest candidates first
