@@ -53,6 +53,7 @@ too.
 
 from __future__ import annotations
 
+import heapq
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -699,22 +700,31 @@ def _counting_bound(table: CoverageTable, need_m2: float, faces: NDArray[np.bool
 
 def _order_by_gain(table: CoverageTable, chosen: Sequence[int],
                    already: NDArray[np.bool_]) -> list[int]:
-    """The chosen stations in greedy order among themselves (most new area first).
+    """The chosen stations in greedy order among themselves (most new area first, the
+    earlier in ``chosen`` among equals).
 
-    ``already`` (F,) bool: faces covered before them (by fixed stations).
+    ``already`` (F,) bool: faces covered before them (by fixed stations). A station's new
+    area only shrinks as others come first, so the gains are evaluated lazily: a heap of
+    the last known gains, and the top is taken once its gain, made again, still tops it
+    (2,500 stations in seconds, where evaluating every gain for every place took a minute).
     """
-    remaining = [int(c) for c in chosen]
     uncovered = ~already
+
+    def gain(c: int) -> float:
+        faces = table.faces_of(c)
+        return float(table.face_area_m2[faces[uncovered[faces]]].sum())
+
+    heap = [(-gain(int(c)), place, int(c)) for place, c in enumerate(chosen)]
+    heapq.heapify(heap)
     order: list[int] = []
-    while remaining:
-        gains = []
-        for c in remaining:
-            faces = table.faces_of(c)
-            gains.append(float(table.face_area_m2[faces[uncovered[faces]]].sum()))
-        best = remaining[int(np.argmax(gains))]
-        order.append(best)
-        remaining.remove(best)
-        uncovered[table.faces_of(best)] = False
+    while heap:
+        _, place, c = heapq.heappop(heap)
+        fresh = (-gain(c), place, c)
+        if heap and fresh > heap[0]:
+            heapq.heappush(heap, fresh)  # another may be better now
+            continue
+        order.append(c)
+        uncovered[table.faces_of(c)] = False
     return order
 
 
