@@ -146,7 +146,6 @@ def _merge(table: CoverageTable, faces: NDArray[np.bool_]) -> _Merged:
     return _Merged(cover, area, first_face)
 
 
-
 @numba.njit(nogil=True, cache=True)
 def _classes_per_candidate(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
                            run_length: NDArray[np.int32], class_of: NDArray[np.int32],

@@ -78,7 +78,7 @@ def neighbourhood_search(table: CoverageTable, class_xyz: NDArray[np.float64],
     early when the plan has ``floor`` stations (a lower bound: it cannot get better).
     """
     search = _Search(table, list(stations), n_fixed, need_m2, full, keep, class_xyz)
-    result = SearchResult(stations=search.stations)
+    result = SearchResult(stations=search.stations)  # the search's list, changed in place
     for _ in range(PASSES):
         improved = False
         for seed in list(search.stations[n_fixed:]):
@@ -93,7 +93,6 @@ def neighbourhood_search(table: CoverageTable, class_xyz: NDArray[np.float64],
             result.programs += 1
             if answer is None:
                 result.stopped = True
-                result.stations = search.stations
                 return result
             if answer.x is None:
                 continue
@@ -104,7 +103,6 @@ def neighbourhood_search(table: CoverageTable, class_xyz: NDArray[np.float64],
                 improved = True
         if not improved:
             break
-    result.stations = search.stations
     return result
 
 
@@ -114,10 +112,7 @@ class _Search:
     def __init__(self, table: CoverageTable, stations: list[int], n_fixed: int,
                  need_m2: float, full: bool, keep: Keep | None,
                  class_xyz: NDArray[np.float64]) -> None:
-        rows = table.by_candidate
-        self.pattern = sp.csr_matrix(  # (C, K) 0/1 float32, sharing rows's index arrays
-            (np.ones(rows.nnz, np.float32), rows.indices, rows.indptr), shape=rows.shape)
-        del rows
+        self.pattern = table.pattern(np.float32)  # (C, K) 0/1
         self.area = table.face_area_m2
         # (C, 3) the area centroid of what each candidate covers: where it looks
         seen = np.asarray(self.pattern @ self.area).reshape(-1)
@@ -130,6 +125,7 @@ class _Search:
         self.full = full
         self.keep = keep
         self.count = self._counts(stations)
+        self.covered_m2 = float(self.area[self.count > 0].sum())
 
     def _counts(self, stations: Sequence[int]) -> NDArray[np.int32]:
         """(K,) how many of ``stations`` cover each class."""
@@ -151,8 +147,7 @@ class _Search:
         inside = self._counts(before)
         only = (inside > 0) & (inside == self.count)  # (K,) covered by the neighbourhood alone
         open_ = only | (self.count == 0) if not self.full else only
-        covered = float(self.area[self.count > 0].sum())
-        need = self.need_m2 - (covered - float(self.area[only].sum()))
+        need = self.need_m2 - (self.covered_m2 - float(self.area[only].sum()))
         score = np.asarray(self.pattern @ np.where(open_, self.area, 0.0)).reshape(-1)
         score[before] = np.inf  # the neighbourhood is always in its pool
         ranked = np.lexsort((np.arange(len(score)), -score))
@@ -196,18 +191,17 @@ class _Search:
         added = tuple(sorted(set(after) - set(before)))
         if not removed and not added:
             return None
-        count = self.count - self._counts(removed) + self._counts(added) if added else \
-            self.count - self._counts(removed)
+        count = self.count - self._counts(removed) + self._counts(added)
         covered = float(self.area[count > 0].sum())
         if covered < self.need_m2:
             return None
         if len(added) >= len(removed) and (
-                len(added) > len(removed) or
-                covered <= float(self.area[self.count > 0].sum()) + MIN_GAIN_M2):
+                len(added) > len(removed) or covered <= self.covered_m2 + MIN_GAIN_M2):
             return None
         plan = [s for s in self.stations if s not in removed] + list(added)
         if self.keep is not None and not self.keep(plan):
             return None
         self.stations[:] = plan
         self.count = count
+        self.covered_m2 = covered
         return removed, added

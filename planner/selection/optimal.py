@@ -145,23 +145,6 @@ ConstraintHook = Callable[[ProgramBuilder], None]
 Keep = Callable[[Sequence[int]], bool]
 
 
-def face_classes(table: CoverageTable, faces: NDArray[np.bool_] | None = None
-                 ) -> tuple[sp.csc_matrix, np.ndarray]:
-    """Merge faces with identical candidate sets (:mod:`planner.selection.classes`).
-
-    ``faces`` (F,) bool limits the classes to those faces (default: all achievable ones).
-
-    Returns
-    -------
-    cover : (C, K) CSC float64 0/1, which candidate covers which class, the classes in
-        the order of their first face
-    area : (K,) float64, the area of each class
-    """
-    classes = class_table(table, table.achievable if faces is None else faces)
-    cover = classes.table.by_face.astype(np.float64)
-    return cover, classes.table.face_area_m2
-
-
 def relaxed_classes(
     table: CoverageTable, centroids: np.ndarray, max_nonzeros: int,
     faces: NDArray[np.bool_] | None = None,
@@ -179,17 +162,12 @@ def relaxed_classes(
     exact.
     """
     mask = table.achievable if faces is None else faces & table.achievable
-    if table.n_pairs <= max_nonzeros:
-        cover = table.by_candidate.tocsc()[:, np.flatnonzero(mask)].astype(np.float64)
-        return cover, table.face_area_m2[mask], True
     achievable = np.flatnonzero(mask)
-    by_face = table.by_candidate.tocsc()
+    if table.n_pairs <= max_nonzeros:
+        return table.pattern(np.float64).tocsc()[:, achievable], table.face_area_m2[mask], True
+    pattern = table.pattern(np.float32).tocsc()  # (C, F) 0/1
     if not mask.all():
-        by_face = by_face[:, achievable]
-    # (C, F') 0/1 float32 sharing by_face's index arrays
-    pattern = sp.csc_matrix((np.ones(by_face.nnz, np.float32), by_face.indices,
-                             by_face.indptr), shape=by_face.shape)
-    del by_face
+        pattern = pattern[:, achievable]
     cell_m = 0.25
     while True:
         cell = np.floor(centroids[achievable] / cell_m).astype(np.int64)
@@ -218,12 +196,8 @@ class _CoverState:
         self.table = table
         self.keep = keep
         self.area = table.face_area_m2
-        # made here, not kept by the table: it goes with the search
-        by_face = table.by_candidate.tocsc()
-        # (C, F) 0/1 float32, sharing by_face's index arrays
-        self.pattern = sp.csc_matrix(
-            (np.ones(len(by_face.indices), np.float32), by_face.indices, by_face.indptr),
-            shape=by_face.shape)
+        # (C, F) 0/1 by face, made here, not kept by the table: it goes with the search
+        self.pattern = table.pattern(np.float32).tocsc()
         self.stations = list(stations)
         self.n_fixed = n_fixed
         self.need_m2 = need_m2
@@ -476,8 +450,7 @@ def solve_optimal(
     # the local search stops by the clock: a plan it left early may differ between runs
     late = time.monotonic() >= stop
 
-    everything = np.ones(classes.n_classes, bool)
-    lower = n_fixed + _counting_bound(search, need_rest, everything)
+    lower = n_fixed + _counting_bound(search, need_rest, search.achievable)
     status = "the plan meets the area bound (fewest candidates whose areas add up to the goal)"
     n_classes = 0
     neighbourhoods = 0
@@ -524,8 +497,8 @@ def solve_optimal(
             if len(best) > lower and not stopped:
                 solver = _set_cover if goal >= 1.0 else _partial_cover
                 best, lower, status, n_classes = solver(
-                    _Problem(search, centroids[classes.first_face], everything, need_rest,
-                             fixed, constraint_hooks, stop, highs, graph), best, lower)
+                    _Problem(search, centroids[classes.first_face], need_rest, fixed,
+                             constraint_hooks, stop, highs, graph), best, lower)
     seconds["milp"] = time.monotonic() - t_milp - seconds.get("neighbourhoods", 0.0)
     # the classes hold only what the fixed stations leave
     stations = list(fixed) + _order_by_gain(search, [s for s in best if s not in fixed],
@@ -562,10 +535,9 @@ def solve_optimal(
 class _Problem:
     """What is still missing after the fixed stations, and how to solve it."""
 
-    table: CoverageTable
+    table: CoverageTable  # the classes of what the fixed stations leave
     centroids: np.ndarray
-    rest: NDArray[np.bool_]  # (F,) achievable faces the fixed stations do not cover
-    need_m2: float  # area of ``rest`` to cover
+    need_m2: float  # area of ``table`` to cover
     fixed: tuple[int, ...]
     hooks: Sequence[ConstraintHook]
     deadline: float
@@ -595,8 +567,7 @@ class _Problem:
 def _set_cover(problem: _Problem, best: list[int], lower: int
                ) -> tuple[list[int], int, str, int]:
     """Goal 100 %: set cover with lazily generated rows (see the module docstring)."""
-    # (K, C): the problem's table holds classes already
-    rows = problem.table.by_candidate.T.tocsr()[np.flatnonzero(problem.rest)].astype(np.float64)
+    rows = problem.table.pattern(np.float64).T.tocsr()  # (K, C): the table holds classes
     n_class = rows.shape[0]
     size = np.diff(rows.indptr)
     by_size = np.lexsort((np.arange(n_class), size))  # fewest candidates first
@@ -655,7 +626,7 @@ def _partial_cover(problem: _Problem, best: list[int], lower: int
     dual bound is a lower bound whenever it stops.
     """
     table = problem.table
-    cover, area, exact = relaxed_classes(table, problem.centroids, MAX_NONZEROS, problem.rest)
+    cover, area, exact = relaxed_classes(table, problem.centroids, MAX_NONZEROS)
     n_cand, n_class = cover.shape
     n_fixed = len(problem.fixed)
     builder = problem.builder()

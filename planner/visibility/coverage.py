@@ -120,9 +120,7 @@ class CoverageTable:
             del block
             if not len(face):
                 continue
-            new = np.ones(len(face), bool)  # (P,) the pair starts a run
-            new[1:] = (face[1:] != face[:-1] + 1) | (candidate[1:] != candidate[:-1])
-            first = np.flatnonzero(new)
+            first = _run_firsts(candidate, face)
             pairs += np.bincount(candidate, minlength=n_candidates)
             runs += np.bincount(candidate[first], minlength=n_candidates)
             run_start.append(face[first])
@@ -141,9 +139,7 @@ class CoverageTable:
         pairs = np.diff(pattern.indptr).astype(np.int64)
         candidate = np.repeat(np.arange(pattern.shape[0], dtype=np.int32), pairs)
         face = pattern.indices.astype(np.int32, copy=False)
-        new = np.ones(len(face), bool)  # (P,) the pair starts a run
-        new[1:] = (face[1:] != face[:-1] + 1) | (candidate[1:] != candidate[:-1])
-        first = np.flatnonzero(new)
+        first = _run_firsts(candidate, face)
         run_ptr = np.zeros(pattern.shape[0] + 1, np.int64)
         np.cumsum(np.bincount(candidate[first], minlength=pattern.shape[0]), out=run_ptr[1:])
         return cls(run_ptr=run_ptr, run_start=face[first].copy(),
@@ -193,8 +189,13 @@ class CoverageTable:
     @property
     def by_candidate(self) -> sp.csr_matrix:
         """(C, F) CSR bool, the table as a sparse matrix (made for the call, 5 bytes a pair)."""
+        return self.pattern(np.bool_)
+
+    def pattern(self, dtype: type[np.generic]) -> sp.csr_matrix:
+        """(C, F) CSR of ones in ``dtype`` (float32 for products with areas: 8 bytes a
+        pair), made for the call."""
         faces = self._faces_of_candidates(0, self.n_candidates)
-        matrix = sp.csr_matrix((np.ones(self.n_pairs, bool), faces, self.pair_ptr),
+        matrix = sp.csr_matrix((np.ones(self.n_pairs, dtype), faces, self.pair_ptr),
                                shape=(self.n_candidates, self.n_faces))
         matrix.has_sorted_indices = True
         return matrix
@@ -268,6 +269,14 @@ class CoverageTable:
             rows = np.repeat(np.arange(last - first), np.diff(self.pair_ptr[first:last + 1]))
             sums[first:last] = np.bincount(rows, weights=per_face[faces], minlength=last - first)
         return sums
+
+
+def _run_firsts(candidate: NDArray[np.int32], face: NDArray[np.int32]) -> NDArray[np.int64]:
+    """(R,) the pairs that start a run: each candidate's first pair, and every pair whose
+    face does not follow the one before (pairs sorted by candidate, then face)."""
+    new = np.ones(len(face), bool)
+    new[1:] = (face[1:] != face[:-1] + 1) | (candidate[1:] != candidate[:-1])
+    return np.flatnonzero(new)
 
 
 @numba.njit(nogil=True, cache=True)

@@ -16,9 +16,10 @@ from scipy.optimize import linprog
 
 from planner.outputs.report import plan_document
 from planner.pipeline import PlanResult
+from planner.selection.classes import class_table, merged_classes
 from planner.selection.greedy import GOAL_SLACK_M2, greedy
-from planner.selection.lower_bound import merged_classes, station_lower_bound
-from planner.selection.optimal import _counting_bound, face_classes
+from planner.selection.lower_bound import station_lower_bound
+from planner.selection.optimal import _counting_bound
 from planner.visibility.coverage import CoverageTable
 from tests.planner.test_optimal import hall_plan
 from tests.property.test_optimal_exact import fewest_by_enumeration, instance, table_of
@@ -41,7 +42,8 @@ def cover_lp(table: CoverageTable, goal: float) -> float:
     A class larger than all a plan may leave uncovered is covered by every plan: its
     ``y`` is 1 (the bound knows that too).
     """
-    cover, area = face_classes(table)
+    classes = class_table(table, table.achievable).table
+    cover, area = classes.pattern(np.float64).tocsc(), classes.face_area_m2
     must = area > area.sum() - need_of(table, goal)
     n_cand, n_class = cover.shape
     if goal >= 1.0:
@@ -138,9 +140,15 @@ def test_the_merged_classes_are_the_face_classes(halls: dict[str, PlanResult]) -
     want = sorted((key, round(area, 9)) for key, area in expected.items())
     cover, area = merged_classes(table, np.ones(table.n_faces, bool))
     assert classes(cover.tocsc(), area) == want
-    # and as the optimal method's programs take them, in the order of their first face
-    by_class, class_area = face_classes(table)
-    assert classes(by_class, class_area) == want
+    # and as the optimal method's table of classes, in the order of their first face
+    table_of_classes = class_table(table, table.achievable)
+    by_class = table_of_classes.table.pattern(np.float64).tocsc()
+    assert classes(by_class, table_of_classes.table.face_area_m2) == want
+    first = table_of_classes.first_face
+    assert (np.diff(first) > 0).all()
+    assert all(by_face.indices[by_face.indptr[f]:by_face.indptr[f + 1]].tolist() ==
+               by_class.indices[by_class.indptr[k]:by_class.indptr[k + 1]].tolist()
+               for k, f in enumerate(first))
 
 
 # small tables: enumeration gives the true minimum and HiGHS the LP
