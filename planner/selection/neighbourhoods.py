@@ -44,7 +44,6 @@ PASSES = 3
 NODE_LIMIT = 500
 # an answer with as many stations must cover this much more area (m^2; stops cycling)
 MIN_GAIN_M2 = 1e-6
-PREFER = 1.0
 
 # a program -> HiGHS's answer, or None when the deadline came first
 Solve = Callable[[Program], "Answer | None"]
@@ -162,7 +161,7 @@ class _Search:
         keys, merged = np.unique(dense, axis=0, return_inverse=True)
         merged = merged.reshape(-1)
         cover = sp.csr_matrix(np.unpackbits(keys, axis=1, count=len(pool)).T.astype(np.float64))
-        class_area = np.bincount(merged, weights=area, minlength=len(keys))
+        class_area = np.bincount(merged, weights=area, minlength=len(keys)).astype(np.float64)
         builder = ProgramBuilder(len(pool))
         builder.set_cost(0, np.ones(len(pool)))
         start = np.isin(pool, before).astype(np.float64)
@@ -171,17 +170,12 @@ class _Search:
             builder.add_rows(cover[:, must].T, 1.0, np.inf)
             builder.start = start
         else:
-            # y_k <= sum x over the pool's cover of class k; the area of y reaches the need;
             # a little for each m^2 of y prefers, among the fewest stations, the most area
-            prefer = PREFER * 0.5 / max(float(class_area.sum()), 1e-12)
-            n_class = len(keys)
-            builder.add_variables(np.asarray(-prefer * class_area, np.float64), integer=False,
-                                  lower=0.0, upper=1.0)
-            builder.add_rows(sp.hstack([-cover.T, sp.identity(n_class)], format="csr"),
-                             -np.inf, 0.0)
-            builder.add_rows(sp.hstack([sp.csr_matrix((1, len(pool))),
-                                        sp.csr_matrix(class_area[None, :])]), need, np.inf)
-            builder.start = np.concatenate([start, np.minimum(1.0, cover.T @ start)])
+            # (all of it together is worth half a station)
+            prefer = 0.5 / max(float(class_area.sum()), 1e-12)
+            builder.add_partial_cover(cover, class_area, need,
+                                      y_cost=np.asarray(-prefer * class_area, np.float64),
+                                      x_start=start)
         return dataclasses.replace(builder.build(), node_limit=NODE_LIMIT), pool, before
 
     def replace(self, before: list[int], after: list[int]

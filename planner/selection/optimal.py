@@ -631,14 +631,9 @@ def _partial_cover(problem: _Problem, best: list[int], lower: int
     n_fixed = len(problem.fixed)
     builder = problem.builder()
     builder.set_cost(0, np.ones(n_cand))
-    builder.add_variables(np.zeros(n_class), integer=False, lower=0.0, upper=1.0)
-    # y_k - sum_c cover[c, k] x_c <= 0
-    builder.add_rows(sp.hstack([-cover.T, sp.identity(n_class)], format="csr"), -np.inf, 0.0)
-    builder.add_rows(sp.hstack([sp.csr_matrix((1, n_cand)), sp.csr_matrix(area[None, :])]),
-                     problem.need_m2, np.inf)
     x0 = np.zeros(n_cand)
     x0[[c for c in best if c not in problem.fixed]] = 1.0
-    builder.start = np.concatenate([x0, np.minimum(1.0, cover.T @ x0)])
+    builder.add_partial_cover(cover, area, problem.need_m2, x_start=x0)
     answer = problem.solve(builder, len(best))
     if answer is None:
         return best, lower, f"time limit reached before HiGHS answered ({n_class} face classes)", \

@@ -60,6 +60,27 @@ class ProgramBuilder:
         self._rows.append((rows, np.broadcast_to(np.asarray(lower, np.float64), (n,)).copy(),
                            np.broadcast_to(np.asarray(upper, np.float64), (n,)).copy()))
 
+    def add_partial_cover(self, cover: sp.spmatrix, area_m2: NDArray[np.float64],
+                          need_m2: float, *, y_cost: NDArray[np.float64] | None = None,
+                          x_start: NDArray[np.float64] | None = None) -> None:
+        """The partial cover over the candidates' ``x``: a ``y_k`` in [0, 1] for each class
+        of ``cover`` (C, K) 0/1, ``y_k <= sum_{c covers k} x_c`` and ``area_m2 . y >=
+        need_m2`` (continuous ``y`` is exact with integer ``x``: a covered class may take
+        y = 1). ``y_cost`` (K,): the cost of ``y`` (default 0); ``x_start`` (C,): a plan to
+        start from (its ``y``: the classes it covers). The ``y`` come right after ``x``.
+        """
+        n_cand, n_class = cover.shape
+        if self.n_variables != n_cand:
+            raise ValueError("the partial cover's y must follow the candidates' x")
+        self.add_variables(np.zeros(n_class) if y_cost is None else y_cost, integer=False,
+                           lower=0.0, upper=1.0)
+        # y_k - sum_c cover[c, k] x_c <= 0
+        self.add_rows(sp.hstack([-cover.T, sp.identity(n_class)], format="csr"), -np.inf, 0.0)
+        self.add_rows(sp.hstack([sp.csr_matrix((1, n_cand)), sp.csr_matrix(area_m2[None, :])]),
+                      need_m2, np.inf)
+        if x_start is not None:
+            self.start = np.concatenate([x_start, np.minimum(1.0, cover.T @ x_start)])
+
     def build(self) -> Program:
         width = self.n_variables
         blocks = [sp.csr_matrix((r.data, r.indices, r.indptr), shape=(r.shape[0], width))
