@@ -127,6 +127,11 @@ class PlanSpec:
     # a surface counts for registration at this density: 25 mm x 25 mm, the data density of
     # Level of Detail 2 in GSA BIM Guide Series 03, 3D Imaging (U.S. GSA, 2009)
     overlap_density_pts_m2: float = 1600.0
+    # the registration overlap measured on the file's faces split to pieces of at most this
+    # edge, coarser than max_edge_m: faster on large models, but an edge's constraint
+    # moves with the pieces, so a few edges near its threshold flip (docs: performance);
+    # null: on the coverage's own pieces
+    overlap_max_edge_m: float | None = None
     route_start: tuple[float, float, float] | None = None  # null: the route chooses
     setup_time_s: float | None = None  # per station; null: the preset's, else 60 s
     walking_speed_m_s: float = 0.8
@@ -300,6 +305,8 @@ RANGES: dict[str, Range] = {
     "clearance_m": Range(ge=0, le=1_000),
     "min_overlap_m2": Range(gt=0, le=1e9, hint="or null for no overlap constraint"),
     "overlap_density_pts_m2": Range(gt=0, le=1e9),
+    "overlap_max_edge_m": Range(gt=0, le=10_000,
+                                hint="or null to measure the overlap on the coverage's pieces"),
     "setup_time_s": Range(ge=0, le=86_400, hint="or null for the preset's"),
     "walking_speed_m_s": Range(gt=0, le=100, hint="0.8 is a slow walk with a tripod"),
     "samples_per_face": Range(ge=1, le=256, hint="a square number; use 16"),
@@ -346,7 +353,7 @@ GROUP_RANGES: dict[str, Range] = {
 _NULLABLE = {"max_edge_m", "candidates", "area_of_interest", "storeys", "rooms",
              "curve_goals", "fixed_stations", "scanner", "min_overlap_m2", "route_start",
              "setup_time_s", "up_axis", "scanner_heights_m", "placement_tolerance_m",
-             "max_stations"}
+             "max_stations", "overlap_max_edge_m"}
 _FLOATS = {
     f.name
     for f in fields(PlanSpec)

@@ -105,6 +105,8 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
     new_stage(progress, "candidates")
     candidates, fixed = plan_candidates(scene, spec, sight.caster)
     stats.seconds["candidates"] = time.perf_counter() - t0
+    # the file's faces as the candidates saw them, for the overlap's coarser pieces
+    whole = sight if spec.overlap_max_edge_m is not None else None
     if scene.split_max_edge_m is not None:
         t_split = time.perf_counter()
         release_freed_memory()  # the candidate stage's scratch, before the pieces are made
@@ -114,8 +116,15 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
     table = coverage_table(sight, candidates.positions, stats, progress=progress,
                            threads=threads, fanout=fanout)
     new_stage(progress, "selection")
+    overlap = sight  # the pieces the registration overlap is measured on
+    if whole is not None:  # coarser pieces of the same faces (made after the visibility,
+        # whose peak they would add to)
+        t_split = time.perf_counter()
+        overlap = whole.overlap_sight(candidates.positions) or sight
+        del whole
+        stats.seconds["overlap_split"] = time.perf_counter() - t_split
     choice = choose(sight, table, candidates.positions, fixed, stats, progress=progress,
-                    threads=threads, fanout=fanout)
+                    threads=threads, fanout=fanout, overlap=overlap)
     chosen, station_overlap = choice.chosen, choice.station_overlap
     stations_xyz = candidates.positions[list(chosen.stations)]  # (S, 3)
     release_freed_memory()
@@ -125,7 +134,7 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
     if spec.tolerance_radius_m > 0:
         tolerance, station_overlap = plan_tolerance(
             sight, table, chosen, stations_xyz, station_overlap, stats, threads=threads,
-            fanout=fanout)
+            fanout=fanout, overlap=overlap)
     # the threads' freed scratch (the overlap rows', the tolerance's: on the office 320 MB),
     # still in their arenas, before the densities and the per-face results make the next peak
     release_freed_memory()
@@ -141,7 +150,7 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
                          threads=threads, fanout=fanout,
                          density_margins=None if margins is None else margins.tolist(),
                          places=places_of(sight.scene, candidates, list(chosen.stations)),
-                         walk_area_xy=walk_area(candidates.positions))
+                         walk_area_xy=walk_area(candidates.positions), overlap=overlap)
     forget_bundles(sight.scene)
     new_stage(progress, "report")
     stats.cpu_seconds["plan"] = time.process_time() - cpu0

@@ -216,6 +216,9 @@ class PlanParameters(BaseModel):
         "min_overlap_m2", "least shared area for a registration edge, m²; null: no constraint")
     overlap_density_pts_m2: Number = _d(
         "overlap_density_pts_m2", "density at which a surface counts for registration, pts/m²")
+    overlap_max_edge_m: Number | None = _d(
+        "overlap_max_edge_m", "largest edge of the pieces the registration overlap is "
+        "measured on, m; null: the coverage's pieces")
     route_start: Point3 | None = _d("route_start",
                                     "walking route start [x, y, z]; null: chosen")
     setup_time_s: Number | None = _d("setup_time_s",

@@ -47,10 +47,13 @@ class Choice:
 
 def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tuple[int, ...],
            stats: Stats, *, progress: ProgressCallback | None = None,
-           threads: int | None = None, fanout: RowsFanout | None = None) -> Choice:
+           threads: int | None = None, fanout: RowsFanout | None = None,
+           overlap: Sight | None = None) -> Choice:
     """The stations of the plan under ``sight.spec`` (method, goal, overlap); the overlap
-    rows are computed by ``fanout`` when given (a cluster)."""
-    scene, spec = sight.scene, sight.spec
+    rows are measured on the pieces of ``overlap`` (default: the coverage's, ``sight``) and
+    computed by ``fanout`` when given (a cluster)."""
+    spec = sight.spec
+    pieces = sight if overlap is None else overlap
     started = time.perf_counter()
     rows = None
     connectivity = None
@@ -58,23 +61,23 @@ def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tup
     if min_overlap_m2 is not None:
         # the overlap rows (faces each candidate qualifies for at the overlap density) are
         # computed when a method first needs them: the connected greedy asks for a few
-        rows = OverlapRows(scene, positions, sight.limits, sight.occlusion,
+        rows = OverlapRows(pieces.scene, positions, pieces.limits, pieces.occlusion,
                            spec.overlap_density_pts_m2, threads=threads,
-                           file_faces=sight.file_faces, fanout=fanout)
+                           file_faces=pieces.file_faces, fanout=fanout)
         if spec.method == "optimal" and not fixed:
             # optimal keeps the overlap graph connected: a flow MILP from connected greedy,
             # on the graph of every candidate's row
             t_graph = time.perf_counter()
             top_goal = max((spec.coverage_goal, *(spec.curve_goals or ())))
             connectivity = Connectivity(
-                overlap_graph(rows.matrix(range(len(rows))), scene, min_overlap_m2),
-                *(connected_greedy(table, rows, scene, positions,
+                overlap_graph(rows.matrix(range(len(rows))), rows.scene, min_overlap_m2),
+                *(connected_greedy(table, rows, rows.scene, positions,
                                    min_overlap_m2, weighted=w, goal=top_goal)
                   for w in (False, True)))
             stats.seconds["overlap_graph"] = time.perf_counter() - t_graph - rows.seconds
     outcome = choose_stations(
         table, method=spec.method, goal=spec.coverage_goal,
-        time_limit_s=spec.optimal_time_limit_s, centroids=scene.centroids, fixed=fixed,
+        time_limit_s=spec.optimal_time_limit_s, centroids=sight.scene.centroids, fixed=fixed,
         curve_goals=spec.curve_goals,
         progress=lambda fraction: notify(progress, "selection", fraction),
         connectivity=connectivity)
@@ -85,7 +88,7 @@ def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tup
     if rows is not None and min_overlap_m2 is not None and spec.method != "optimal":
         # registration constraint: every station after the first overlaps a chosen one
         order = connected_greedy(
-            table, rows, scene, positions, min_overlap_m2,
+            table, rows, rows.scene, positions, min_overlap_m2,
             weighted=spec.method == "weighted_greedy",
             goal=spec.coverage_goal if budget is None else 1.0)
         chosen = order.truncated(spec.coverage_goal)

@@ -32,7 +32,9 @@ from planner.survey.route import (
     parts_may_join_outside,
     plan_route,
 )
+from planner.visibility.bundles import forget_bundles
 from planner.visibility.overlap import OverlapRows, RowsFanout, shared_faces_only
+from planner.visibility.qualify import Sight
 from planner.walkgraph import MeshDoors, build_walk_graph, door_faces, found_doors
 
 DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the scanner gives one
@@ -204,7 +206,8 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
            station_overlap: sp.csr_matrix | None = None,
            threads: int | None = None, density_margins: list[float] | None = None,
            fanout: RowsFanout | None = None, places: Places | None = None,
-           walk_area_xy: NDArray[np.float64] | None = None) -> Survey:
+           walk_area_xy: NDArray[np.float64] | None = None,
+           overlap: Sight | None = None) -> Survey:
     """Registration, route and field time of the (S, 3) stations, in selection order.
 
     ``station_overlap``: the stations' (S, F) overlap rows when the selection already made
@@ -212,22 +215,29 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     :func:`scans_of`; ``seconds`` gains the stages "overlap" and "walk graph";
     ``places``: what the reasons of unreachable stations name (:func:`places_of`);
     ``walk_area_xy``: (2, 2), the ground the route walks (:func:`planner.walkgraph.walk_area`
-    of the plan's candidates; None: the model's whole footprint).
+    of the plan's candidates; None: the model's whole footprint); ``overlap``: the pieces
+    the overlap rows are of (:meth:`planner.visibility.qualify.Sight.overlap_sight`; None:
+    ``scene`` with ``limits`` and ``occlusion``, the coverage's).
     """
     t0 = time.perf_counter()
     # only what two stations share counts: the rows are cut to it before the registration's
     # sums and the walk graph (10.7 M faces, 496 stations: 240 MB), and the rows the
     # survey computes itself are cut as they are, never made into one whole matrix
+    pieces = scene if overlap is None else overlap.scene
     if station_overlap is None:
-        shared = OverlapRows(scene, stations_xyz, limits, occlusion,
+        shared = OverlapRows(pieces, stations_xyz,
+                             limits if overlap is None else overlap.limits,
+                             occlusion if overlap is None else overlap.occlusion,
                              spec.overlap_density_pts_m2, threads=threads,
                              file_faces=spec.occluders == "file", fanout=fanout
                              ).shared_matrix(range(len(stations_xyz)))
     else:
         shared = shared_faces_only(station_overlap)
     del station_overlap
+    if overlap is not None:
+        forget_bundles(overlap.scene)  # the overlap rows' own: nothing else reads them
     release_freed_memory()  # the whole rows: hundreds of mid-sized arrays, freed in the heap
-    registration = station_registration(scene, shared, spec.min_overlap_m2,
+    registration = station_registration(pieces, shared, spec.min_overlap_m2,
                                         spec.overlap_density_pts_m2)
     del shared
     t1 = time.perf_counter()

@@ -117,13 +117,16 @@ def placement_tolerance(
     station_overlap: sp.csr_matrix, min_overlap_m2: float | None,
     overlap_density_pts_m2: float, occlusion: Occlusion, file_faces: bool,
     threads: int | None = None, seconds: dict[str, float] | None = None,
+    overlap: Sight | None = None,
 ) -> Tolerance:
     """The tolerance report of the chosen ``stations`` (candidate indices into ``table``),
     at their ``displaced`` setups (N = S), with ``qualify`` the plan's coverage model.
 
     ``covered_area_m2`` is the plan's covered area and ``goal_area_m2`` the area the goal
-    asks for; ``station_overlap`` the stations' (S, F) overlap rows (as the survey has them).
-    ``seconds`` gets the wall time of the worst-case network (``tolerance_network``).
+    asks for; ``station_overlap`` the stations' overlap rows (as the survey has them), over
+    the pieces of ``overlap`` (its scene, limits and occlusion; default: ``scene``,
+    ``limits`` and ``occlusion``, the coverage's). ``seconds`` gets the wall time of the
+    worst-case network (``tolerance_network``).
     """
     rows = [table.faces_of(c) for c in stations]
     holders = np.zeros(scene.n_faces, np.int32)  # (F,) chosen stations covering each face
@@ -159,6 +162,8 @@ def placement_tolerance(
     worst_case_m2 = float(scene.areas[surely].sum())
     del rows, holders, surely  # (F,) arrays and every station's faces: not held below
     started = time.perf_counter()
+    if overlap is not None:
+        scene, limits, occlusion = overlap.scene, overlap.limits, overlap.occlusion
     components = _worst_case_network(
         scene, displaced, limits, station_overlap, min_overlap_m2, overlap_density_pts_m2,
         occlusion, file_faces, threads)
@@ -485,22 +490,25 @@ def _strongest_forest(registration: Registration, n: int) -> list[tuple[int, int
 def plan_tolerance(sight: Sight, table: CoverageTable, chosen: Selection,
                    stations_xyz: NDArray[np.float64], station_overlap: sp.csr_matrix | None,
                    stats: Stats, *, threads: int | None = None,
-                   fanout: RowsFanout | None = None) -> tuple[Tolerance, sp.csr_matrix]:
+                   fanout: RowsFanout | None = None, overlap: Sight | None = None
+                   ) -> tuple[Tolerance, sp.csr_matrix]:
     """The tolerance report of the plan's ``chosen`` stations at (S, 3) ``stations_xyz``,
     and the stations' overlap rows it was judged with (``station_overlap`` when the
     selection made them; otherwise made here, cut to the faces two stations share as the
-    survey cuts them, so the survey reuses them)."""
+    survey cuts them, so the survey reuses them), over the pieces of ``overlap`` (default:
+    the coverage's, ``sight``)."""
     scene, spec = sight.scene, sight.spec
+    pieces = sight if overlap is None else overlap
     if station_overlap is None:  # the survey's rows, made once for both (its "overlap"),
         # cut to the faces two stations share as the survey cuts them (no whole matrix)
         t_rows = time.perf_counter()
         station_overlap = OverlapRows(
-            scene, stations_xyz, sight.limits, sight.occlusion,
+            pieces.scene, stations_xyz, pieces.limits, pieces.occlusion,
             spec.overlap_density_pts_m2, threads=threads,
-            file_faces=sight.file_faces, fanout=fanout
+            file_faces=pieces.file_faces, fanout=fanout
         ).shared_matrix(range(len(chosen.stations)))
         stats.seconds["overlap"] = time.perf_counter() - t_rows
-    forget_bundles(scene)  # only the overlap rows reach far enough to use them
+    forget_bundles(pieces.scene)  # only the overlap rows reach far enough to use them
     # the overlap rows' scratch, still in their threads' heaps, and then the setups' (the
     # file's corners, the clearance test's faces), before the setups' rays make the peak
     release_freed_memory()
@@ -517,7 +525,8 @@ def plan_tolerance(sight: Sight, table: CoverageTable, chosen: Selection,
         goal_area_m2=spec.coverage_goal * table.max_achievable_area_m2,
         station_overlap=station_overlap, min_overlap_m2=spec.min_overlap_m2,
         overlap_density_pts_m2=spec.overlap_density_pts_m2, occlusion=sight.occlusion,
-        file_faces=sight.file_faces, threads=threads, seconds=stats.seconds)
+        file_faces=sight.file_faces, threads=threads, seconds=stats.seconds,
+        overlap=overlap)
     stats.seconds["tolerance"] = time.perf_counter() - t_tolerance
     stats.cpu_seconds["tolerance"] = time.process_time() - cpu_tolerance
     return tolerance, station_overlap

@@ -19,7 +19,7 @@ from planner.outputs.report import plan_document, stations_csv
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
 from planner.rays import make_occlusion, make_ray_caster
-from planner.scene import Scene, build_scene
+from planner.scene import Scene, build_scene, remesh
 from planner.selection import connectivity
 from planner.selection.connected import MIN_CONSTRAINT
 from planner.survey.fieldwork import survey
@@ -175,6 +175,33 @@ def test_edge_overlap_is_the_area_of_the_faces_both_stations_qualify_for(
         ratio = np.linalg.eigvalsh(scatter)[0] / np.trace(scatter)
         assert edge["constraint"] == pytest.approx(ratio, abs=1e-5)
         assert edge["ok"] == (edge["overlap_m2"] >= 2.0 and ratio >= MIN_CONSTRAINT)
+
+
+def test_overlap_on_coarser_pieces_is_the_area_both_stations_qualify_for_on_them() -> None:
+    # the rooms split as needed into 0.25 m pieces for the coverage; the overlap measured
+    # on pieces of at most 1 m: the same stations and coverage, and every edge is the area
+    # of the 1 m pieces both stations qualify for (an independent split of every face)
+    scene = two_rooms().replaced(split_max_edge_m=0.25)
+    spec = PlanSpec(candidates=two_room_candidates(), max_edge_m=0.25)
+    fine = plan(scene, spec)
+    coarse = plan(scene, spec.with_changes(overlap_max_edge_m=1.0))
+    assert coarse.chosen.stations == fine.chosen.stations
+    assert np.array_equal(coarse.faces["covered"], fine.faces["covered"])
+    pieces = remesh(two_rooms(), 1.0)
+    assert pieces.n_faces < fine.scene.n_faces / 2
+    limits = FaceLimits.from_spec(spec, pieces)
+    positions = coarse.candidates.positions[list(coarse.chosen.stations)]
+    rows = overlap_matrix(pieces, positions, limits,
+                          make_occlusion(pieces, limits.occludes, "embree", file_faces=True),
+                          1600.0)
+    edges = plan_document(coarse)["registration"]["edges"]
+    fine_edges = plan_document(fine)["registration"]["edges"]
+    assert [(e["a"], e["b"]) for e in edges] == [(e["a"], e["b"]) for e in fine_edges]
+    for edge in edges:
+        shared = np.intersect1d(rows[edge["a"] - 1].indices, rows[edge["b"] - 1].indices)
+        assert edge["overlap_m2"] == pytest.approx(pieces.areas[shared].sum(), abs=1e-6)
+    # measured on other pieces than the coverage's: the areas differ at the limits' edges
+    assert [e["overlap_m2"] for e in edges] != [e["overlap_m2"] for e in fine_edges]
 
 
 # stations of the eager connected greedy (every candidate's overlap row computed up front,
