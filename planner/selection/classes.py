@@ -38,13 +38,15 @@ def merged_classes(table: CoverageTable, faces: NDArray[np.bool_]
     the words come from a fixed seed, so the same table always gives the same classes.
     The merge is made in two steps that hold a few bytes a face: neighbouring faces in the
     table's order with the same count and hashes first (the pieces of one file face mostly
-    are), then those runs by sorting their (count, hashes). ``faces`` (F,) bool: the faces
+    are), then those runs by sorting one hash (checked against the other and the count).
+    Classes are numbered in the order of their first face. ``faces`` (F,) bool: the faces
     to merge (those of no candidate are left out).
 
     Returns
     -------
     cover : (C, K) CSR float32 0/1, which candidate covers which class (by candidate: 8
-        bytes a pair, and no second copy by class)
+        bytes a pair, and no second copy by class; a row's classes in the order its faces
+        meet them, not sorted)
     area_m2 : (K,) float64, the area of each class
     """
     merged = _merge(table, faces)
@@ -72,16 +74,10 @@ def class_table(table: CoverageTable, faces: NDArray[np.bool_]) -> ClassTable:
     """The classes of ``faces`` (F,) bool as a :class:`ClassTable` (faces of no candidate
     left out). Classes are numbered in the order of their first face, so the pieces of one
     part of the building keep neighbouring numbers (runs in the table)."""
-    merged = _merge(table, faces)
-    order = np.argsort(merged.first_face, kind="stable")
-    number = np.empty(len(order), np.int32)
-    number[order] = np.arange(len(order), dtype=np.int32)
-    cover = merged.cover
-    pattern = sp.csr_matrix((cover.data, number[cover.indices], cover.indptr),
-                            shape=cover.shape)
+    merged = _merge(table, faces)  # numbered by first face
+    pattern = merged.cover
     pattern.sort_indices()
-    return ClassTable(CoverageTable.from_csr(pattern, merged.area_m2[order]),
-                      merged.first_face[order])
+    return ClassTable(CoverageTable.from_csr(pattern, merged.area_m2), merged.first_face)
 
 
 def _merge(table: CoverageTable, faces: NDArray[np.bool_]) -> _Merged:
@@ -111,19 +107,31 @@ def _merge(table: CoverageTable, faces: NDArray[np.bool_]) -> _Merged:
     first = np.flatnonzero(starts)  # (R,) each run's first face, in chosen's order
     del starts
     # step 2: runs with the same (count, hashes) are one class (the hashes made again and
-    # kept at the runs' first faces only)
-    run_keys = (face_hashes(words[1])[first], face_hashes(words[0])[first], count[first])
-    order = np.lexsort(run_keys)
-    new = np.zeros(len(first), bool)
-    new[0] = True
-    for key in run_keys:
-        new[1:] |= key[order][1:] != key[order][:-1]
+    # kept at the runs' first faces only). Grouped by one hash (a plain sort of 64-bit
+    # words); the groups are checked against the other hash and the count, and sorted by
+    # all three in the rare case (2^-64 a pair of runs) that one group mixes them
+    h1, h0, c = face_hashes(words[1])[first], face_hashes(words[0])[first], count[first]
+    order = np.argsort(h1)
+    same = h1[order][1:] == h1[order][:-1]
+    if (same & ((h0[order][1:] != h0[order][:-1]) | (c[order][1:] != c[order][:-1]))).any():
+        order = np.lexsort((h1, h0, c))
+        same = ((h1[order][1:] == h1[order][:-1]) & (h0[order][1:] == h0[order][:-1])
+                & (c[order][1:] == c[order][:-1]))
+    del h1, h0, c
+    group_starts = np.flatnonzero(np.concatenate(([True], ~same)))
+    del same
+    # classes numbered in the order of their first run, so of their first face (the runs
+    # are in face order)
+    first_run = np.minimum.reduceat(order, group_starts)  # (K,)
+    rank = np.argsort(first_run)
+    n_classes = len(group_starts)
+    class_of_group = np.empty(n_classes, np.int32)
+    class_of_group[rank] = np.arange(n_classes, dtype=np.int32)
     class_of_run = np.empty(len(first), np.int32)
-    class_of_run[order] = np.cumsum(new) - 1
-    n_classes = int(new.sum())
-    del order, new, run_keys
-    # each class's first face: its first run's (the runs are in face order)
-    first_face = chosen[first[np.unique(class_of_run, return_index=True)[1]]].astype(np.int32)
+    class_of_run[order] = np.repeat(class_of_group, np.diff(np.append(group_starts,
+                                                                      len(first))))
+    first_face = chosen[first[first_run[rank]]].astype(np.int32)
+    del order, group_starts, first_run, rank, class_of_group
     class_of = np.full(table.n_faces, -1, np.int32)
     class_of[chosen] = np.repeat(class_of_run, np.diff(np.append(first, n)))
     del class_of_run
@@ -139,10 +147,10 @@ def _merge(table: CoverageTable, faces: NDArray[np.bool_]) -> _Merged:
     last[:] = -1
     _classes_per_candidate(table.run_ptr, table.run_start, table.run_length, class_of,
                            last, indptr, indices, True)
-    # float32 ones: 8 bytes a pair (the problem sets its own data type)
+    # float32 ones: 8 bytes a pair (the problem sets its own data type); each candidate's
+    # classes in the order its faces meet them (class_table sorts them)
     cover = sp.csr_matrix((np.ones(len(indices), np.float32), indices, indptr),
                           shape=(n_candidates, n_classes))
-    cover.sort_indices()
     return _Merged(cover, area, first_face)
 
 

@@ -459,10 +459,68 @@ def _knapsack(u: NDArray[np.float64], area: NDArray[np.float64], must: NDArray[n
     free = np.flatnonzero(~must)
     if rest <= 0 or len(free) == 0:
         return y
-    order = free[np.argsort(u[free] / area[free], kind="stable")]
-    reach = np.cumsum(area[order])
-    last = min(int(np.searchsorted(reach, rest)), len(order) - 1)
-    y[order[:last]] = 1.0
-    before = float(reach[last - 1]) if last > 0 else 0.0
-    y[order[last]] = min(1.0, max(0.0, (rest - before) / float(area[order[last]])))
+    y[free] = _cheapest_first(u[free] / area[free], area[free], rest)
+    return y
+
+
+# a band of the knapsack's ratios is cut into this many buckets, until it holds at most
+# BAND_SORTED classes, which are sorted
+BUCKETS = 1024
+BAND_SORTED = 4096
+
+
+@numba.njit(nogil=True, cache=True)
+def _cheapest_first(ratio: NDArray[np.float64], area: NDArray[np.float64], rest: float
+                    ) -> NDArray[np.float64]:  # compiled
+    """(n,) y: 1 for the items of least ``ratio`` while their ``area`` stays under ``rest``,
+    the fraction of the next that reaches it, 0 after; ties to the lowest index.
+
+    A full sort of 808,000 ratios took 78 ms an iteration of the volume algorithm; only the
+    items around the threshold need an order. The band that holds it is cut into
+    :data:`BUCKETS` buckets by value (monotone: an item of less ratio never lands in a later
+    bucket), the buckets before the threshold's are taken whole, and so on in that bucket
+    until it is small or all one value; then it is sorted (stable: by index on ties).
+    """
+    n = len(ratio)
+    y = np.zeros(n)
+    band = np.arange(n)
+    base = 0.0  # the area taken before the band
+    while len(band) > BAND_SORTED:
+        lo, hi = ratio[band[0]], ratio[band[0]]
+        for i in band:
+            lo = min(lo, ratio[i])
+            hi = max(hi, ratio[i])
+        if not hi > lo:
+            break
+        scale = BUCKETS / (hi - lo)
+        bucket = np.empty(len(band), np.int64)
+        filled = np.zeros(BUCKETS)
+        for j in range(len(band)):
+            b = min(BUCKETS - 1, int((ratio[band[j]] - lo) * scale))
+            bucket[j] = b
+            filled[b] += area[band[j]]
+        crossing = BUCKETS  # none: the band does not reach ``rest``, all of it is taken
+        taken = base
+        for b in range(BUCKETS):
+            if taken + filled[b] >= rest:
+                crossing = b
+                break
+            taken += filled[b]
+        kept = 0
+        for j in range(len(band)):
+            if bucket[j] < crossing:
+                y[band[j]] = 1.0
+            elif bucket[j] == crossing:
+                band[kept] = band[j]
+                kept += 1
+        band = band[:kept].copy()
+        base = taken
+    order = band[np.argsort(ratio[band], kind="mergesort")]
+    running = base
+    for i in order:
+        if running + area[i] >= rest:
+            y[i] = min(1.0, max(0.0, (rest - running) / area[i]))
+            break
+        y[i] = 1.0
+        running += area[i]
     return y

@@ -260,14 +260,12 @@ class CoverageTable:
         """(C,) float64: the sum of (F,) ``per_face`` over the faces each candidate qualifies for.
 
         Summed entry by entry in (candidate, face) order, as a sparse product with the
-        table's pattern would, in blocks of whole candidates: the temporaries stay at
-        ``_SUM_BLOCK_PAIRS`` pairs however large the table.
+        table's pattern would, by a compiled pass over the runs (no pairs expanded: on the
+        9.7 M-face office's 128 M pairs 1.8 s by blocks of expanded faces before).
         """
         sums = np.zeros(self.n_candidates, np.float64)
-        for first, last in self._candidate_blocks():
-            faces = self._faces_of_candidates(first, last)
-            rows = np.repeat(np.arange(last - first), np.diff(self.pair_ptr[first:last + 1]))
-            sums[first:last] = np.bincount(rows, weights=per_face[faces], minlength=last - first)
+        _sum_over_runs(self.run_ptr, self.run_start, self.run_length,
+                       np.asarray(per_face, np.float64), sums)
         return sums
 
 
@@ -277,6 +275,20 @@ def _run_firsts(candidate: NDArray[np.int32], face: NDArray[np.int32]) -> NDArra
     new = np.ones(len(face), bool)
     new[1:] = (face[1:] != face[:-1] + 1) | (candidate[1:] != candidate[:-1])
     return np.flatnonzero(new)
+
+
+@numba.njit(nogil=True, cache=True)
+def _sum_over_runs(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
+                   run_length: NDArray[np.int32], per_face: NDArray[np.float64],
+                   sums: NDArray[np.float64]) -> None:  # compiled
+    """``sums[c]``: ``per_face`` summed over candidate c's faces, one after the other in
+    face order (the order of a sparse product's row)."""
+    for c in range(len(run_ptr) - 1):
+        total = 0.0
+        for r in range(run_ptr[c], run_ptr[c + 1]):
+            for f in range(run_start[r], run_start[r] + run_length[r]):
+                total += per_face[f]
+        sums[c] = total
 
 
 @numba.njit(nogil=True, cache=True)

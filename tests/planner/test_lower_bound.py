@@ -18,7 +18,7 @@ from planner.outputs.report import plan_document
 from planner.pipeline import PlanResult
 from planner.selection.classes import class_table, merged_classes
 from planner.selection.greedy import GOAL_SLACK_M2, greedy
-from planner.selection.lower_bound import station_lower_bound
+from planner.selection.lower_bound import BAND_SORTED, _cheapest_first, station_lower_bound
 from planner.selection.optimal import _counting_bound
 from planner.visibility.coverage import CoverageTable
 from tests.planner.test_optimal import hall_plan
@@ -251,3 +251,35 @@ def test_a_table_too_large_keeps_the_fixed_stations(monkeypatch: pytest.MonkeyPa
     monkeypatch.setattr(lower_bound, "MAX_PAIRS", 0)  # any class over the fixed stations
     bound = station_lower_bound(table, need_of(table, 1.0), 23, fixed=(0, 1))
     assert bound.stations == 2 and "pairs" in bound.method
+
+
+def knapsack_by_sort(ratio: np.ndarray, area: np.ndarray, rest: float) -> np.ndarray:
+    """The fractional knapsack by one stable sort of every ratio (ties to the lowest index)."""
+    order = np.argsort(ratio, kind="stable")
+    reach = np.cumsum(area[order])
+    last = min(int(np.searchsorted(reach, rest)), len(order) - 1)
+    y = np.zeros(len(ratio))
+    y[order[:last]] = 1.0
+    before = float(reach[last - 1]) if last > 0 else 0.0
+    y[order[last]] = min(1.0, max(0.0, (rest - before) / float(area[order[last]])))
+    return y
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(1, 3 * BAND_SORTED), seed=st.integers(0, 2**32 - 1),
+       values=st.sampled_from(["spread", "few", "equal", "heavy tail"]),
+       share=st.floats(0.0, 1.2))
+def test_knapsack_by_buckets_is_the_knapsack_of_a_full_sort(
+        n: int, seed: int, values: str, share: float) -> None:
+    # the volume algorithm's knapsack takes the cheapest classes per area until the goal's
+    # area: by buckets around the threshold instead of sorting all, the same y (to float
+    # rounding), ties included, and all of them when the area does not reach it
+    rng = np.random.default_rng(seed)
+    ratio = {"spread": rng.random(n), "few": rng.integers(0, 4, n).astype(np.float64),
+             "equal": np.full(n, 0.5), "heavy tail": rng.lognormal(0.0, 6.0, n)}[values]
+    area = rng.random(n) + 1e-3
+    rest = share * float(area.sum())
+    if rest <= 0:
+        return
+    assert np.allclose(_cheapest_first(ratio, area, rest), knapsack_by_sort(ratio, area, rest),
+                       rtol=0, atol=1e-9)
