@@ -11,6 +11,7 @@ Array letters: C candidates, F faces, K classes.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numba
 import numpy as np
@@ -110,14 +111,14 @@ def _merge(table: CoverageTable, faces: NDArray[np.bool_]) -> _Merged:
     # kept at the runs' first faces only). Grouped by one hash (a plain sort of 64-bit
     # words); the groups are checked against the other hash and the count, and sorted by
     # all three in the rare case (2^-64 a pair of runs) that one group mixes them
-    h1, h0, c = face_hashes(words[1])[first], face_hashes(words[0])[first], count[first]
-    order = np.argsort(h1)
-    same = h1[order][1:] == h1[order][:-1]
-    if (same & ((h0[order][1:] != h0[order][:-1]) | (c[order][1:] != c[order][:-1]))).any():
-        order = np.lexsort((h1, h0, c))
-        same = ((h1[order][1:] == h1[order][:-1]) & (h0[order][1:] == h0[order][:-1])
-                & (c[order][1:] == c[order][:-1]))
-    del h1, h0, c
+    keys = (face_hashes(words[1])[first], face_hashes(words[0])[first], count[first])
+    order = np.argsort(keys[0])
+    same = ~_changes(keys[0], order)
+    if (same & (_changes(keys[1], order) | _changes(keys[2], order))).any():
+        order = np.lexsort(keys)
+        same = ~(_changes(keys[0], order) | _changes(keys[1], order)
+                 | _changes(keys[2], order))
+    del keys
     group_starts = np.flatnonzero(np.concatenate(([True], ~same)))
     del same
     # classes numbered in the order of their first run, so of their first face (the runs
@@ -152,6 +153,13 @@ def _merge(table: CoverageTable, faces: NDArray[np.bool_]) -> _Merged:
     cover = sp.csr_matrix((np.ones(len(indices), np.float32), indices, indptr),
                           shape=(n_candidates, n_classes))
     return _Merged(cover, area, first_face)
+
+
+def _changes(key: NDArray[Any], order: NDArray[np.intp]) -> NDArray[np.bool_]:
+    """(R - 1,) where ``key`` (R,), taken in ``order``, differs from the one before."""
+    ordered = key[order]
+    changed: NDArray[np.bool_] = ordered[1:] != ordered[:-1]
+    return changed
 
 
 @numba.njit(nogil=True, cache=True)

@@ -198,8 +198,9 @@ class _CoverState:
         self.table = table
         self.keep = keep
         self.area = table.face_area_m2
-        # (C, F) 0/1 by face, made here, not kept by the table: it goes with the search
-        self.pattern = table.pattern(np.float32).tocsc()
+        # (C, F) by face, made here, not kept by the table: it goes with the search (only
+        # its indices are read: bool, 1 byte a pair of data)
+        self.pattern = table.pattern(np.bool_).tocsc()
         self.stations = list(stations)
         self.n_fixed = n_fixed
         self.need_m2 = need_m2

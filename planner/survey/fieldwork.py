@@ -223,11 +223,10 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     # only what two stations share counts: the rows are cut to it before the registration's
     # sums and the walk graph (10.7 M faces, 496 stations: 240 MB), and the rows the
     # survey computes itself are cut as they are, never made into one whole matrix
-    pieces = scene if overlap is None else overlap.scene
+    pieces, pieces_limits, pieces_occlusion = (scene, limits, occlusion) if overlap is None \
+        else (overlap.scene, overlap.limits, overlap.occlusion)
     if station_overlap is None:
-        shared = OverlapRows(pieces, stations_xyz,
-                             limits if overlap is None else overlap.limits,
-                             occlusion if overlap is None else overlap.occlusion,
+        shared = OverlapRows(pieces, stations_xyz, pieces_limits, pieces_occlusion,
                              spec.overlap_density_pts_m2, threads=threads,
                              file_faces=spec.occluders == "file", fanout=fanout
                              ).shared_matrix(range(len(stations_xyz)))

@@ -54,7 +54,7 @@ class QualifiedPairs:
         return cls(*merged)
 
 
-# pairs expanded, summed or counted at a time by CoverageTable (~16 MB of temporaries)
+# pairs expanded at a time by CoverageTable's blocks (~16 MB of temporaries)
 _SUM_BLOCK_PAIRS = 1 << 20
 
 
