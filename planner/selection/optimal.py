@@ -79,12 +79,12 @@ from planner.visibility.coverage import CoverageTable
 # 10.5 M); face classes are then merged per voxel into a relaxation (see relaxed_classes).
 MAX_NONZEROS = 1_500_000
 # the volume algorithm's work in ``optimal``: pair-iterations per second of the time limit
-# (about a third of the limit on a 2-core machine, 65 ms an iteration over 21 M pairs),
+# (about a third of the limit on a 2-core machine, 27 ms an iteration over 21 M pairs),
 # and at most this many iterations. Its bound keeps rising long after the heuristic
 # plans' 600 M pair-iterations: the 9.7 M-face office at 80 % (21 M class pairs), 160 after
-# 28 iterations, 176 after 100, 190 after 300, 192 after 600 and after 1,200; at the
-# default 60 s, 285 iterations (189) in 20.5 s
-BOUND_PAIRS_PER_LIMIT_S = 100_000_000
+# 28 iterations, 176 after 100, 189 after 285, 192 after 600 and after 1,200; at the
+# default 60 s, 714 iterations (192) in 19.5 s
+BOUND_PAIRS_PER_LIMIT_S = 250_000_000
 BOUND_MAX_ITERATIONS = 1500
 # set cover rows in the first round, and at most this many added per round
 SET_COVER_ROWS_PER_ROUND = 1000

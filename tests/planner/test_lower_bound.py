@@ -18,7 +18,13 @@ from planner.outputs.report import plan_document
 from planner.pipeline import PlanResult
 from planner.selection.classes import class_table, merged_classes
 from planner.selection.greedy import GOAL_SLACK_M2, greedy
-from planner.selection.lower_bound import BAND_SORTED, _cheapest_first, station_lower_bound
+from planner.selection.lower_bound import (
+    BAND_SORTED,
+    THREADED_PAIRS,
+    _cheapest_first,
+    pattern_product,
+    station_lower_bound,
+)
 from planner.selection.optimal import _counting_bound
 from planner.visibility.coverage import CoverageTable
 from tests.planner.test_optimal import hall_plan
@@ -283,3 +289,20 @@ def test_knapsack_by_buckets_is_the_knapsack_of_a_full_sort(
         return
     assert np.allclose(_cheapest_first(ratio, area, rest), knapsack_by_sort(ratio, area, rest),
                        rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("pairs", [1_000, 3 * THREADED_PAIRS])
+def test_the_bounds_products_are_scipys_to_the_bit(dtype: type, pairs: int) -> None:
+    # the volume algorithm's reduced costs read the class matrix's pattern only, in row
+    # ranges on several threads (above THREADED_PAIRS): every sum must be the one scipy
+    # gives, bit for bit, so that the bound's iterations and value do not change
+    rng = np.random.default_rng(pairs)
+    n_rows, n_cols = 257, 50_000
+    rows = sp.random(n_rows, n_cols, density=pairs / (n_rows * n_cols), format="csr",
+                     random_state=rng, dtype=dtype)
+    rows.data[:] = 1.0
+    values = (rng.random(n_cols) * rng.lognormal(0.0, 4.0, n_cols)).astype(dtype)
+    product = pattern_product(rows, values)
+    assert product.dtype == dtype
+    assert np.array_equal(product, rows @ values)

@@ -330,9 +330,9 @@ def test_a_real_house_at_the_papers_goal_is_proven(scenes_dir: Path) -> None:
 
 def test_the_neighbourhood_search_finds_what_the_local_search_cannot(scenes_dir: Path
                                                                      ) -> None:
-    """The FZK house at 100 %: HiGHS, a part of the plan at a time, takes a station off
-    the local search's plan, and the set-cover bound proves the result."""
-    document = _optimal_plan(scenes_dir / "AC20-FZK-Haus.ifc", 1.0)
+    """ArchiCAD's Jasmin-Sun house at 100 %: HiGHS, a part of the plan at a time, takes
+    stations off the local search's plan, and the set-cover bound proves the result."""
+    document = _optimal_plan(scenes_dir / "buildings" / "AC90R1-Jasmin-Sun-105-2x3.ifc", 1.0)
     selection = document["selection"]
     search = selection["local_search"]
     assert selection["stations"] < search["stations_after"] < search["stations_before"]
