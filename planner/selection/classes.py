@@ -23,7 +23,7 @@ from planner.visibility.coverage import CoverageTable
 
 @dataclass(frozen=True)
 class _Merged:
-    cover: sp.csr_matrix  # (C, K) float32 0/1
+    cover: sp.csr_matrix  # (C, K) bool
     area_m2: NDArray[np.float64]  # (K,)
     first_face: NDArray[np.int32]  # (K,) each class's lowest face index
 
@@ -45,9 +45,9 @@ def merged_classes(table: CoverageTable, faces: NDArray[np.bool_]
 
     Returns
     -------
-    cover : (C, K) CSR float32 0/1, which candidate covers which class (by candidate: 8
-        bytes a pair, and no second copy by class; a row's classes in the order its faces
-        meet them, not sorted)
+    cover : (C, K) CSR bool, which candidate covers which class (by candidate: 5 bytes a
+        pair, and no second copy by class; a row's classes in the order its faces meet
+        them, not sorted)
     area_m2 : (K,) float64, the area of each class
     """
     merged = _merge(table, faces)
@@ -83,42 +83,48 @@ def class_table(table: CoverageTable, faces: NDArray[np.bool_]) -> ClassTable:
 
 def _merge(table: CoverageTable, faces: NDArray[np.bool_]) -> _Merged:
     """:func:`merged_classes` and each class's first face (see there)."""
-    chosen = np.flatnonzero(faces & table.achievable)
+    # int32 face indices: 4 bytes a face less in the arrays the merge holds at its peak
+    chosen = np.flatnonzero(faces & table.achievable).astype(np.int32)
     n, n_candidates = len(chosen), table.n_candidates
     if n == 0:
-        return _Merged(sp.csr_matrix((n_candidates, 0), dtype=np.float32), np.zeros(0),
+        return _Merged(sp.csr_matrix((n_candidates, 0), dtype=bool), np.zeros(0),
                        np.zeros(0, np.int32))
     rng = np.random.default_rng(20240601)
     words = rng.integers(0, np.iinfo(np.uint64).max, size=(2, n_candidates),
                          dtype=np.uint64, endpoint=True)
-    count = table.candidates_per_face[chosen]
+    count = table.candidates_per_face
 
-    def face_hashes(word: NDArray[np.uint64]) -> NDArray[np.uint64]:
-        """(F',) each chosen face's hash under the candidates' ``word``."""
-        return table.sum_per_face(word)[chosen]
+    def face_hashes(word: NDArray[np.uint64], at: NDArray[np.int32]) -> NDArray[np.uint64]:
+        """Each of the faces ``at``'s hash under the candidates' ``word``."""
+        return table.sum_per_face(word)[at]
 
-    # step 1: a run starts where a face's count or hashes differ from the face before (one
-    # hash at a time: a few bytes a face)
-    starts = np.ones(n, bool)
-    starts[1:] = count[1:] != count[:-1]
+    # step 1: a run starts where a face's count or hashes differ from the chosen face
+    # before (one (F,) value at a time, compared in place: a few bytes a face)
+    starts = np.zeros(n, bool)
+    starts[0] = True
+    _mark_changes(count, chosen, starts)
     for word in words:
-        hashes = face_hashes(word)
-        starts[1:] |= hashes[1:] != hashes[:-1]
-        del hashes
-    first = np.flatnonzero(starts)  # (R,) each run's first face, in chosen's order
+        _mark_changes(table.sum_per_face(word), chosen, starts)
+    first = np.flatnonzero(starts).astype(np.int32)  # (R,) each run's first, in chosen
     del starts
+    first_chosen = chosen[first]  # (R,) the runs' first faces
+    run_length = np.diff(first, append=np.int32(n))  # (R,)
+    del first
     # step 2: runs with the same (count, hashes) are one class (the hashes made again and
     # kept at the runs' first faces only). Grouped by one hash (a plain sort of 64-bit
-    # words); the groups are checked against the other hash and the count, and sorted by
-    # all three in the rare case (2^-64 a pair of runs) that one group mixes them
-    keys = (face_hashes(words[1])[first], face_hashes(words[0])[first], count[first])
-    order = np.argsort(keys[0])
-    same = ~_changes(keys[0], order)
-    if (same & (_changes(keys[1], order) | _changes(keys[2], order))).any():
+    # words); the groups are checked against the other hash and the count in one compiled
+    # pass (no gathered copies), and sorted by all three in the rare case (2^-64 a pair of
+    # runs) that one group mixes them
+    hashes = (face_hashes(words[1], first_chosen), face_hashes(words[0], first_chosen))
+    order = np.argsort(hashes[0])
+    same = np.empty(max(len(order) - 1, 0), bool)
+    if _same_in_order(order, hashes[0], hashes[1], count, first_chosen, same):
+        keys = (*hashes, count[first_chosen])
         order = np.lexsort(keys)
         same = ~(_changes(keys[0], order) | _changes(keys[1], order)
                  | _changes(keys[2], order))
-    del keys
+        del keys
+    del hashes
     group_starts = np.flatnonzero(np.concatenate(([True], ~same)))
     del same
     # classes numbered in the order of their first run, so of their first face (the runs
@@ -128,16 +134,16 @@ def _merge(table: CoverageTable, faces: NDArray[np.bool_]) -> _Merged:
     n_classes = len(group_starts)
     class_of_group = np.empty(n_classes, np.int32)
     class_of_group[rank] = np.arange(n_classes, dtype=np.int32)
-    class_of_run = np.empty(len(first), np.int32)
+    class_of_run = np.empty(len(first_chosen), np.int32)
     class_of_run[order] = np.repeat(class_of_group, np.diff(np.append(group_starts,
-                                                                      len(first))))
-    first_face = chosen[first[first_run[rank]]].astype(np.int32)
-    del order, group_starts, first_run, rank, class_of_group
+                                                                      len(first_chosen))))
+    first_face = first_chosen[first_run[rank]]
+    del order, group_starts, first_run, rank, class_of_group, first_chosen
     class_of = np.full(table.n_faces, -1, np.int32)
-    class_of[chosen] = np.repeat(class_of_run, np.diff(np.append(first, n)))
-    del class_of_run
-    area = np.bincount(class_of[chosen], weights=table.face_area_m2[chosen],
-                       minlength=n_classes).astype(np.float64)
+    class_of[chosen] = np.repeat(class_of_run, run_length)
+    del class_of_run, run_length, chosen
+    area = np.zeros(n_classes)
+    _class_areas(class_of, table.face_area_m2, area)
     # which classes each candidate covers: a pass over its runs, each class once
     indptr = np.zeros(n_candidates + 1, np.int64)
     last = np.full(n_classes, -1, np.int64)
@@ -148,9 +154,10 @@ def _merge(table: CoverageTable, faces: NDArray[np.bool_]) -> _Merged:
     last[:] = -1
     _classes_per_candidate(table.run_ptr, table.run_start, table.run_length, class_of,
                            last, indptr, indices, True)
-    # float32 ones: 8 bytes a pair (the problem sets its own data type); each candidate's
-    # classes in the order its faces meet them (class_table sorts them)
-    cover = sp.csr_matrix((np.ones(len(indices), np.float32), indices, indptr),
+    # bool ones: 5 bytes a pair (the bound's products read the pattern only; PDHG sets its
+    # own float64 data); each candidate's classes in the order its faces meet them
+    # (class_table sorts them)
+    cover = sp.csr_matrix((np.ones(len(indices), bool), indices, indptr),
                           shape=(n_candidates, n_classes))
     return _Merged(cover, area, first_face)
 
@@ -160,6 +167,44 @@ def _changes(key: NDArray[Any], order: NDArray[np.intp]) -> NDArray[np.bool_]:
     ordered = key[order]
     changed: NDArray[np.bool_] = ordered[1:] != ordered[:-1]
     return changed
+
+
+@numba.njit(nogil=True, cache=True)
+def _same_in_order(order: NDArray[np.intp], hash0: NDArray[np.uint64],
+                   hash1: NDArray[np.uint64], count: NDArray[np.int32],
+                   at: NDArray[np.int32], same: NDArray[np.bool_]) -> bool:  # compiled
+    """``same[i]``: the runs ``order[i]`` and ``order[i + 1]`` have one ``hash0`` (R,);
+    True when such a pair differs in ``hash1`` (R,) or in ``count`` (F,) at its faces
+    ``at`` (R,)."""
+    mixed = False
+    for i in range(len(order) - 1):
+        a, b = order[i], order[i + 1]
+        equal = hash0[b] == hash0[a]
+        same[i] = equal
+        if equal and (hash1[b] != hash1[a] or count[at[b]] != count[at[a]]):
+            mixed = True
+    return mixed
+
+
+@numba.njit(nogil=True, cache=True)
+def _mark_changes(value: NDArray[Any], at: NDArray[np.int32], starts: NDArray[np.bool_]
+                  ) -> None:  # compiled
+    """``starts[j]`` set where ``value`` (F,) at face ``at[j]`` differs from at ``at[j - 1]``
+    (no gathered (F',) copy of the values)."""
+    for j in range(1, len(at)):
+        if value[at[j]] != value[at[j - 1]]:
+            starts[j] = True
+
+
+@numba.njit(nogil=True, cache=True)
+def _class_areas(class_of: NDArray[np.int32], area_m2: NDArray[np.float64],
+                 out: NDArray[np.float64]) -> None:  # compiled
+    """``out[k]``: the areas of the faces of class k (``class_of`` (F,), -1: none), added in
+    face order (as ``np.bincount`` of the chosen faces adds them: the same sums)."""
+    for f in range(len(class_of)):
+        k = class_of[f]
+        if k >= 0:
+            out[k] += area_m2[f]
 
 
 @numba.njit(nogil=True, cache=True)

@@ -103,8 +103,8 @@ MAX_STEP = 2.0
 AVERAGE = 0.02
 RED_STEPS = 5
 # tables whose face classes have more (candidate, class) pairs get no Lagrangian bound
-# (only the fixed stations): its matrix takes 8 bytes a pair, and a product with it as much
-# again (the 9.7 M-face office: 808,000 classes, within it)
+# (only the fixed stations): its matrix takes 5 bytes a pair, 9 in a full cover's PDHG
+# (the 9.7 M-face office: 808,000 classes, within it)
 MAX_PAIRS = 60_000_000
 # a goal whose must-cover classes (see station_lower_bound) leave out at most this share of
 # the area is bound as a full cover of them (faces of 1e-10 m^2 at 100 % are not a
@@ -180,6 +180,21 @@ def pattern_product(rows: sp.csr_matrix, values: NDArray[Any]) -> NDArray[Any]:
     return sums
 
 
+def class_sizes(rows: sp.csr_matrix) -> NDArray[np.int64]:
+    """(K,) how many rows of the 0/1 matrix ``rows`` (C, K) hold each column, counted in
+    place (``np.bincount`` of the indices made an int64 copy of them: 168 MB on the
+    office's 21 M class pairs)."""
+    sizes = np.zeros(rows.shape[1], np.int64)
+    _count_columns(rows.indices, sizes)
+    return sizes
+
+
+@numba.njit(nogil=True, cache=True)
+def _count_columns(indices: NDArray[np.int32], sizes: NDArray[np.int64]) -> None:  # compiled
+    for k in indices:
+        sizes[k] += 1
+
+
 @numba.njit(nogil=True, cache=True)
 def _row_sums(indptr: NDArray[np.int32], indices: NDArray[np.int32], values: NDArray[Any],
               sums: NDArray[Any], first: int, last: int) -> None:  # compiled
@@ -221,14 +236,16 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
     # classes a plan may not leave out: larger than all it may leave uncovered
     allowance = float(area.sum()) - need
     must = area > allowance
-    size = np.bincount(cover.indices, minlength=cover.shape[1])  # (K,) candidates a class
+    size = class_sizes(cover)  # (K,) candidates a class
     # the candidates alone in covering a must class: the rows of those classes' entries
     alone = np.flatnonzero((must & (size == 1))[cover.indices])
     forced = np.unique(np.searchsorted(cover.indptr, alone, "right") - 1)
     if len(forced):
-        hit = np.zeros(table.n_candidates)
-        hit[forced] = 1.0
-        taken = np.asarray(cover.T @ hit).reshape(-1) > 0
+        hit = np.zeros(table.n_candidates, bool)
+        hit[forced] = True
+        counts = np.zeros(cover.shape[1])
+        _count_covers(cover.indptr, cover.indices, hit, counts)
+        taken = counts > 0
         need -= float(area[taken].sum())
         cover, area, must = cover[:, ~taken], area[~taken], must[~taken]
     base = n_fixed + len(forced)
@@ -269,9 +286,9 @@ class _Lagrangian:
     def __init__(self, cover: sp.csr_matrix, area: NDArray[np.float64], need: float,
                  must: NDArray[np.bool_], full: bool) -> None:
         self.rows = cover.tocsr()  # (C, K)
-        # PDHG in float64; the volume algorithm sums in float32 (its best multipliers are
-        # evaluated again in float64)
-        self.rows.data = np.ones(self.rows.nnz, np.float64 if full else np.float32)
+        if full:  # PDHG's products are scipy's, in float64; the volume algorithm's read
+            # the pattern only (pattern_product), so its matrix keeps the merge's bool data
+            self.rows.data = np.ones(self.rows.nnz, np.float64)
         self.area = area
         self.need = need
         self.must = must
@@ -293,7 +310,7 @@ class _Lagrangian:
             self.class_comp = np.zeros(n_class, np.int64)
         self.best = np.full(self.n_components, -np.inf)
         # the start (CFT): each class at its cheapest candidate's price per area
-        cand_area = self.rows @ area  # (C,)
+        cand_area = pattern_product(self.rows, area)  # (C,)
         price = np.zeros(n_cand)
         np.divide(1.0, cand_area, out=price, where=cand_area > 0)
         cheapest = np.full(n_class, np.inf)
@@ -314,7 +331,7 @@ class _Lagrangian:
         n_class = self.rows.shape[1]
         if not self.full:
             return self._volume(target, iterations)
-        size = np.bincount(self.rows.indices, minlength=n_class)
+        size = class_sizes(self.rows)
         by_size = np.lexsort((np.arange(n_class), size))
         active = np.zeros(n_class, bool)
         active[by_size[:ROWS_PER_ROUND]] = True
