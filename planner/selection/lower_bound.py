@@ -165,7 +165,7 @@ def pattern_product(rows: sp.csr_matrix, values: NDArray[Any]) -> NDArray[Any]:
     or float64: each row's sum in the values' precision, in index order, so the same bits
     as scipy's product of a matrix of ones of that dtype. The rows are summed in ranges of
     about equal pairs on a few threads; the pattern alone is read (4 bytes a pair instead
-    of scipy's 8 or 12): hall-full's 10.5 M class pairs in some 3 instead of 10 ms."""
+    of scipy's 8 or 12): hall-full's 10.5 M class pairs in some 5.5 instead of 9.4 ms."""
     n = rows.shape[0]
     sums = np.zeros(n, values.dtype)
     indptr, indices = rows.indptr, rows.indices
@@ -191,6 +191,7 @@ def class_sizes(rows: sp.csr_matrix) -> NDArray[np.int64]:
 
 @numba.njit(nogil=True, cache=True)
 def _count_columns(indices: NDArray[np.int32], sizes: NDArray[np.int64]) -> None:  # compiled
+    """``sizes[k]`` += how many of ``indices`` are k."""
     for k in indices:
         sizes[k] += 1
 
