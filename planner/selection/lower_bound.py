@@ -185,15 +185,8 @@ def class_sizes(rows: sp.csr_matrix) -> NDArray[np.int64]:
     place (``np.bincount`` of the indices made an int64 copy of them: 168 MB on the
     office's 21 M class pairs)."""
     sizes = np.zeros(rows.shape[1], np.int64)
-    _count_columns(rows.indices, sizes)
+    _count_covers(rows.indptr, rows.indices, np.ones(rows.shape[0], np.bool_), sizes)
     return sizes
-
-
-@numba.njit(nogil=True, cache=True)
-def _count_columns(indices: NDArray[np.int32], sizes: NDArray[np.int64]) -> None:  # compiled
-    """``sizes[k]`` += how many of ``indices`` are k."""
-    for k in indices:
-        sizes[k] += 1
 
 
 @numba.njit(nogil=True, cache=True)
@@ -295,9 +288,9 @@ class _Lagrangian:
         self.must = must
         self.full = full
         # the knapsack's classes other than the must ones, and the area left for them
-        self._free = np.flatnonzero(~must)
-        self._all_free = len(self._free) == len(must)
-        self._free_area = area[self._free]
+        # (None: every class, read without gathers)
+        self._free = np.flatnonzero(~must) if must.any() else None
+        self._free_area = area if self._free is None else area[self._free]
         self._rest = need - float(area[must].sum())
         n_cand, n_class = self.rows.shape
         if full:
@@ -466,11 +459,11 @@ class _Lagrangian:
     def _knapsack(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
         """(K,) y in [0, 1] of least ``u . y`` with ``area . y >= need`` and ``y = 1`` on the
         must classes: the others cheapest per area first, ties to the lowest index."""
-        y = self.must.astype(np.float64)
-        if self._rest <= 0 or len(self._free) == 0:
-            return y
-        if self._all_free:  # no gathers of (K,) arrays an iteration
+        if self._rest <= 0 or len(self._free_area) == 0:
+            return self.must.astype(np.float64)
+        if self._free is None:  # no gathers of (K,) arrays an iteration
             return _cheapest_first(u / self.area, self.area, self._rest)
+        y = self.must.astype(np.float64)
         y[self._free] = _cheapest_first(u[self._free] / self._free_area, self._free_area,
                                         self._rest)
         return y
@@ -546,12 +539,13 @@ def _average(new: NDArray[np.float64], running: NDArray[np.float64], weight: flo
 
 @numba.njit(nogil=True, cache=True)
 def _count_covers(indptr: NDArray[np.int32], indices: NDArray[np.int32],
-                  chosen: NDArray[np.bool_], counts: NDArray[np.float64]) -> None:  # compiled
-    """``counts[k]`` += how many of the ``chosen`` (C,) rows hold class k."""
+                  chosen: NDArray[np.bool_], counts: NDArray[Any]) -> None:  # compiled
+    """``counts[k]`` += how many of the ``chosen`` (C,) rows hold class k (float64 or
+    integer counts)."""
     for c in range(len(chosen)):
         if chosen[c]:
             for j in range(indptr[c], indptr[c + 1]):
-                counts[indices[j]] += 1.0
+                counts[indices[j]] += 1
 
 
 # a band of the knapsack's ratios is cut into this many buckets, until it holds at most
