@@ -70,7 +70,7 @@ from planner.selection.classes import class_table
 from planner.selection.connectivity import Connectivity, OverlapGraph, add_flow
 from planner.selection.greedy import GOAL_SLACK_M2, Selection, greedy, replay
 from planner.selection.highs_worker import Answer, HighsProcess
-from planner.selection.lower_bound import station_lower_bound
+from planner.selection.lower_bound import pattern_product, station_lower_bound
 from planner.selection.neighbourhoods import neighbourhood_search
 from planner.selection.program import ProgramBuilder
 from planner.visibility.coverage import CoverageTable
@@ -166,7 +166,10 @@ def relaxed_classes(
     mask = table.achievable if faces is None else faces & table.achievable
     achievable = np.flatnonzero(mask)
     if table.n_pairs <= max_nonzeros:
-        return table.pattern(np.float64).tocsc()[:, achievable], table.face_area_m2[mask], True
+        exact = table.pattern(np.float64).tocsc()
+        if not mask.all():  # a class table's classes all are (no copy of every entry)
+            exact = exact[:, achievable]
+        return exact, table.face_area_m2[mask], True
     pattern = table.pattern(np.float32).tocsc()  # (C, F) 0/1
     if not mask.all():
         pattern = pattern[:, achievable]
@@ -194,13 +197,14 @@ class _CoverState:
     """
 
     def __init__(self, table: CoverageTable, stations: list[int], n_fixed: int,
-                 need_m2: float, keep: Keep | None = None) -> None:
+                 need_m2: float, keep: Keep | None = None,
+                 by_face: sp.csc_matrix | None = None) -> None:
         self.table = table
         self.keep = keep
         self.area = table.face_area_m2
         # (C, F) by face, made here, not kept by the table: it goes with the search (only
-        # its indices are read: bool, 1 byte a pair of data)
-        self.pattern = table.pattern(np.bool_).tocsc()
+        # its indices are read: bool, 1 byte a pair of data); ``by_face``: the caller's
+        self.pattern = table.pattern(np.bool_).tocsc() if by_face is None else by_face
         self.stations = list(stations)
         self.n_fixed = n_fixed
         self.need_m2 = need_m2
@@ -402,15 +406,16 @@ def _two_holders(indptr: NDArray[np.int32], indices: NDArray[np.int32],
 
 
 def local_search(table: CoverageTable, stations: Sequence[int], need_m2: float,
-                 n_fixed: int, deadline: float, *, swaps: bool, keep: Keep | None = None
-                 ) -> tuple[list[int], list[Move]]:
+                 n_fixed: int, deadline: float, *, swaps: bool, keep: Keep | None = None,
+                 by_face: sp.csc_matrix | None = None) -> tuple[list[int], list[Move]]:
     """Improve a plan that reaches ``need_m2``: drops, two-for-one, then (``swaps``) swaps.
 
     The first ``n_fixed`` stations stay; every move keeps ``keep`` true (a side constraint
     such as registration connectivity). Returns the stations (fixed first) and the moves;
     the plan is the input again when replay does not confirm the goal (float order).
+    ``by_face``: the table's (C, F) pattern by face, when the caller holds it already.
     """
-    state = _CoverState(table, list(stations), n_fixed, need_m2, keep)
+    state = _CoverState(table, list(stations), n_fixed, need_m2, keep, by_face)
     moves = state.drop_pass()
     swaps_left = 2 * len(stations) if swaps else 0
     while time.monotonic() < deadline:
@@ -430,18 +435,19 @@ def local_search(table: CoverageTable, stations: Sequence[int], need_m2: float,
 
 
 def _repair(table: CoverageTable, stations: list[int], need_m2: float, n_fixed: int,
-            deadline: float, keep: Keep | None = None) -> list[int]:
+            deadline: float, keep: Keep | None = None,
+            by_face: sp.csc_matrix | None = None) -> list[int]:
     """A plan from stations that may miss the goal: greedy completion, then local search.
 
     Empty when it misses the goal or (greedy completion knows no side constraint) fails
-    ``keep``.
+    ``keep``. ``by_face``: as for :func:`local_search`.
     """
-    state = _CoverState(table, stations, n_fixed, need_m2)
+    state = _CoverState(table, stations, n_fixed, need_m2, by_face=by_face)
     state.complete()
     if state.covered_m2 < need_m2 or (keep is not None and not keep(state.stations)):
         return []
     return local_search(table, state.stations, need_m2, n_fixed, deadline, swaps=False,
-                        keep=keep)[0]
+                        keep=keep, by_face=state.pattern)[0]
 
 
 # --- the solver ------------------------------------------------------------------------
@@ -607,7 +613,8 @@ class _Problem:
 def _set_cover(problem: _Problem, best: list[int], lower: int
                ) -> tuple[list[int], int, str, int]:
     """Goal 100 %: set cover with lazily generated rows (see the module docstring)."""
-    rows = problem.table.pattern(np.float64).T.tocsr()  # (K, C): the table holds classes
+    # (K, C) bool: the table holds classes (5 bytes a pair; a round's rows are made float)
+    rows = problem.table.pattern(np.bool_).T.tocsr()
     n_class = rows.shape[0]
     size = np.diff(rows.indptr)
     by_size = np.lexsort((np.arange(n_class), size))  # fewest candidates first
@@ -618,7 +625,7 @@ def _set_cover(problem: _Problem, best: list[int], lower: int
     while True:
         builder = problem.builder()
         builder.set_cost(0, np.ones(problem.table.n_candidates))
-        builder.add_rows(rows[np.flatnonzero(active)], 1.0, np.inf)
+        builder.add_rows(rows[np.flatnonzero(active)].astype(np.float64), 1.0, np.inf)
         builder.start = np.zeros(problem.table.n_candidates)
         builder.start[[c for c in best if c not in problem.fixed]] = 1.0
         answer = problem.solve(builder, len(best))
@@ -631,7 +638,7 @@ def _set_cover(problem: _Problem, best: list[int], lower: int
             status = f"HiGHS: {answer.message}"
             break
         x = answer.x[:problem.table.n_candidates] > 0.5
-        missed = np.flatnonzero(rows @ x.astype(np.float64) < 0.5)
+        missed = np.flatnonzero(pattern_product(rows, x.astype(np.float64)) < 0.5)
         plan = problem.plan_of(answer.x)
         if len(missed) == 0:
             if len(plan) < len(best):
@@ -641,7 +648,7 @@ def _set_cover(problem: _Problem, best: list[int], lower: int
                       f"time limit reached in the set cover ({answer.message})")
             break
         repaired = _repair(problem.table, plan, problem.need_m2, n_fixed, problem.deadline,
-                           problem.keep)
+                           problem.keep, by_face=rows.T)  # rows by class: the pattern by face
         if repaired and len(repaired) < len(best):
             best = repaired
         if len(best) <= lower:
@@ -674,6 +681,7 @@ def _partial_cover(problem: _Problem, best: list[int], lower: int
     x0 = np.zeros(n_cand)
     x0[[c for c in best if c not in problem.fixed]] = 1.0
     builder.add_partial_cover(cover, area, problem.need_m2, x_start=x0)
+    del cover  # the builder holds the program's rows; the pattern is not needed again
     answer = problem.solve(builder, len(best))
     if answer is None:
         return best, lower, f"time limit reached before HiGHS answered ({n_class} face classes)", \

@@ -134,7 +134,7 @@ def test_hall_small_reaches_the_cover_lp(halls: dict[str, PlanResult]) -> None:
 def test_the_merged_classes_are_the_face_classes(halls: dict[str, PlanResult]) -> None:
     table = halls["hall-small"].table
     # the classes by hand: each achievable face's set of candidates, areas summed
-    by_face = table.by_face
+    by_face = table.by_candidate.tocsc()
     expected: dict[bytes, float] = {}
     for f in np.flatnonzero(table.achievable):
         key = by_face.indices[by_face.indptr[f]:by_face.indptr[f + 1]].tobytes()
