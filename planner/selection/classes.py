@@ -144,22 +144,28 @@ def _merge(table: CoverageTable, faces: NDArray[np.bool_]) -> _Merged:
     del class_of_run, run_length, chosen
     area = np.zeros(n_classes)
     _class_areas(class_of, table.face_area_m2, area)
-    # which classes each candidate covers: a pass over its runs, each class once
-    indptr = np.zeros(n_candidates + 1, np.int64)
-    last = np.full(n_classes, -1, np.int64)
-    _classes_per_candidate(table.run_ptr, table.run_start, table.run_length, class_of,
-                           last, indptr, np.zeros(0, np.int32), False)
+    # which classes each candidate covers (bool: the bound's products read the pattern
+    # only; PDHG sets its own float64 data; class_table sorts each row)
+    return _Merged(labels_per_candidate(table, class_of, n_classes), area, first_face)
+
+
+def labels_per_candidate(table: CoverageTable, label_of: NDArray[np.int32], n_labels: int
+                         ) -> sp.csr_matrix:
+    """(C, L) CSR bool: the labels of each candidate's faces, each once, in the order its
+    faces meet them (not sorted). ``label_of`` (F,) int32 labels every face (a class, a
+    voxel; -1: none). Two compiled passes over the table's runs, counting then writing: no
+    pattern of the pairs is made (5 bytes a label and candidate)."""
+    indptr = np.zeros(table.n_candidates + 1, np.int64)
+    last = np.full(n_labels, -1, np.int64)
+    _labels_per_candidate(table.run_ptr, table.run_start, table.run_length, label_of,
+                          last, indptr, np.zeros(0, np.int32), False)
     indptr = np.cumsum(indptr)
     indices = np.empty(int(indptr[-1]), np.int32)
     last[:] = -1
-    _classes_per_candidate(table.run_ptr, table.run_start, table.run_length, class_of,
-                           last, indptr, indices, True)
-    # bool ones: 5 bytes a pair (the bound's products read the pattern only; PDHG sets its
-    # own float64 data); each candidate's classes in the order its faces meet them
-    # (class_table sorts them)
-    cover = sp.csr_matrix((np.ones(len(indices), bool), indices, indptr),
-                          shape=(n_candidates, n_classes))
-    return _Merged(cover, area, first_face)
+    _labels_per_candidate(table.run_ptr, table.run_start, table.run_length, label_of,
+                          last, indptr, indices, True)
+    return sp.csr_matrix((np.ones(len(indices), bool), indices, indptr),
+                         shape=(table.n_candidates, n_labels))
 
 
 def _changes(key: NDArray[Any], order: NDArray[np.intp]) -> NDArray[np.bool_]:
@@ -208,13 +214,13 @@ def _class_areas(class_of: NDArray[np.int32], area_m2: NDArray[np.float64],
 
 
 @numba.njit(nogil=True, cache=True)
-def _classes_per_candidate(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
-                           run_length: NDArray[np.int32], class_of: NDArray[np.int32],
-                           last: NDArray[np.int64], indptr: NDArray[np.int64],
-                           indices: NDArray[np.int32], fill: bool) -> None:  # compiled
-    """Each candidate's classes, each once (``last[k]``: the last candidate that met class
-    k). Without ``fill``: their count into ``indptr[c + 1]``; with it, into ``indices``
-    from ``indptr[c]`` on (``indptr`` then the cumulative counts)."""
+def _labels_per_candidate(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
+                          run_length: NDArray[np.int32], class_of: NDArray[np.int32],
+                          last: NDArray[np.int64], indptr: NDArray[np.int64],
+                          indices: NDArray[np.int32], fill: bool) -> None:  # compiled
+    """Each candidate's labels ``class_of`` (F,), each once (``last[k]``: the last
+    candidate that met label k). Without ``fill``: their count into ``indptr[c + 1]``; with
+    it, into ``indices`` from ``indptr[c]`` on (``indptr`` then the cumulative counts)."""
     for c in range(len(run_ptr) - 1):
         at = indptr[c]
         for r in range(run_ptr[c], run_ptr[c + 1]):

@@ -66,7 +66,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from planner.selection.classes import class_table
+from planner.selection.classes import class_table, labels_per_candidate
 from planner.selection.connectivity import Connectivity, OverlapGraph, add_flow
 from planner.selection.greedy import GOAL_SLACK_M2, Selection, greedy, replay
 from planner.selection.highs_worker import Answer, HighsProcess
@@ -170,52 +170,20 @@ def relaxed_classes(
         if not mask.all():  # a class table's classes all are (no copy of every entry)
             exact = exact[:, achievable]
         return exact, table.face_area_m2[mask], True
-    # (C, F) by candidate, bool (5 bytes a pair): each row's voxels are marked in a compiled
-    # pass, where a product with a (F, V) membership matrix held float copies of it
-    pattern = table.pattern(np.bool_)
-    if not mask.all():
-        pattern = pattern[:, achievable]
+    # each candidate's voxels read off the table's runs (labels_per_candidate): no pattern
+    # of the pairs, where a product with a (F, V) membership matrix held float copies of it
     cell_m = 0.25
+    voxel_of = np.full(table.n_faces, -1, np.int32)  # (F,) each achievable face's voxel
     while True:
         cell = np.floor(centroids[achievable] / cell_m).astype(np.int64)
-        voxel = np.unique(cell, axis=0, return_inverse=True)[1].reshape(-1).astype(np.int32)
+        voxel = np.unique(cell, axis=0, return_inverse=True)[1].reshape(-1)
+        voxel_of[achievable] = voxel
         n_voxels = int(voxel.max()) + 1 if len(voxel) else 0
-        indptr = np.zeros(pattern.shape[0] + 1, np.int64)
-        last = np.full(n_voxels, -1, np.int64)
-        _voxels_per_row(pattern.indptr, pattern.indices, voxel, last, indptr,
-                        np.zeros(0, np.int32), False)
-        np.cumsum(indptr, out=indptr)
-        indices = np.empty(int(indptr[-1]), np.int32)
-        last[:] = -1
-        _voxels_per_row(pattern.indptr, pattern.indices, voxel, last, indptr, indices, True)
-        merged = sp.csr_matrix((np.ones(len(indices)), indices, indptr),
-                               shape=(pattern.shape[0], n_voxels)).tocsc()  # sorted
+        merged = labels_per_candidate(table, voxel_of, n_voxels).astype(np.float64).tocsc()
         if merged.nnz <= max_nonzeros or merged.shape[1] <= 1:
             area = np.bincount(voxel, weights=table.face_area_m2[achievable])
             return merged, area, False
         cell_m *= 2
-
-
-@numba.njit(nogil=True, cache=True)
-def _voxels_per_row(indptr: NDArray[np.int32], indices: NDArray[np.int32],
-                    voxel: NDArray[np.int32], last: NDArray[np.int64],
-                    row_ptr: NDArray[np.int64], out: NDArray[np.int32],
-                    fill: bool) -> None:  # compiled
-    """Each row's voxels (``voxel`` (F,) of its columns), each once (``last[v]``: the last
-    row that met voxel v). Without ``fill``: their count into ``row_ptr[r + 1]``; with
-    it, into ``out`` from ``row_ptr[r]`` on (``row_ptr`` then the cumulative counts)."""
-    for r in range(len(indptr) - 1):
-        at = row_ptr[r]
-        for j in range(indptr[r], indptr[r + 1]):
-            v = voxel[indices[j]]
-            if last[v] == r:
-                continue
-            last[v] = r
-            if fill:
-                out[at] = v
-                at += 1
-            else:
-                row_ptr[r + 1] += 1
 
 
 # --- local search ----------------------------------------------------------------------

@@ -102,8 +102,8 @@ def _cover_rows(cover: sp.csc_matrix) -> sp.csr_matrix:
     Written straight from the columns of ``cover`` (C, K): a stack of ``-cover.T`` and an
     identity went through two coordinate copies of every entry (making the rows of Lantern
     Hollow's relaxed program, 1.2 M entries, peaked at 68 MiB; now at 40)."""
-    cover = cover.copy() if not cover.has_sorted_indices else cover
-    cover.sort_indices()
+    if not cover.has_sorted_indices:
+        cover = cover.sorted_indices()  # a copy: the caller's matrix stays as it is
     n_cand, n_class = cover.shape
     per_row = np.diff(cover.indptr)  # (K,)
     indptr = np.zeros(n_class + 1, np.int64)
