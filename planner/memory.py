@@ -90,11 +90,15 @@ class GrowingArray:
         self.n = 0
 
     def append(self, values: NDArray[Any]) -> None:
-        if self.n + len(values) > len(self.array):
-            self.array.resize(max(self.n + len(values), len(self.array) * 3 // 2),
-                              refcheck=False)
-        self.array[self.n:self.n + len(values)] = values
-        self.n += len(values)
+        self.extend(len(values))[:] = values
+
+    def extend(self, count: int) -> NDArray[Any]:
+        """Append ``count`` places and return them, not yet filled, for the caller to write
+        (a view: fill it before the next ``append`` or ``extend``, which may move it)."""
+        if self.n + count > len(self.array):
+            self.array.resize(max(self.n + count, len(self.array) * 3 // 2), refcheck=False)
+        self.n += count
+        return self.array[self.n - count:self.n]
 
     def done(self) -> NDArray[Any]:
         """The array of what was appended (the object is used up)."""

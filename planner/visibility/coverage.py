@@ -56,6 +56,8 @@ class QualifiedPairs:
 
 # pairs expanded at a time by CoverageTable's blocks (~16 MB of temporaries)
 _SUM_BLOCK_PAIRS = 1 << 20
+# the run arrays _csr_runs's counting pass is given (it writes none)
+_NO_RUNS = np.zeros(0, np.int32)
 
 
 def _expand_runs(start: NDArray[np.int32], length: NDArray[np.int32]) -> NDArray[np.int32]:
@@ -132,11 +134,18 @@ class CoverageTable:
             del block
             if not len(face):
                 continue
-            first = _run_firsts(candidate, face)
-            pairs += np.bincount(candidate, minlength=n_candidates)
-            runs += np.bincount(candidate[first], minlength=n_candidates)
-            run_start.append(face[first])
-            run_length.append(np.diff(first, append=len(face)))
+            # the block's candidates as the rows of a CSR over its faces, their runs found
+            # and written by from_csr's compiled passes (no (P,) temporaries of the block)
+            low, high = int(candidate[0]), int(candidate[-1]) + 1
+            indptr = np.searchsorted(candidate, np.arange(low, high + 1)).astype(np.int64)
+            block_runs = np.zeros(high - low + 1, np.int64)  # (c + 1,) then cumulative
+            _csr_runs(indptr, face, block_runs, _NO_RUNS, _NO_RUNS, False)
+            np.cumsum(block_runs, out=block_runs)
+            n_runs = int(block_runs[-1])
+            _csr_runs(indptr, face, block_runs, run_start.extend(n_runs),
+                      run_length.extend(n_runs), True)
+            pairs[low:high] += np.diff(indptr)
+            runs[low:high] += np.diff(block_runs)
         run_ptr = np.zeros(n_candidates + 1, np.int64)
         np.cumsum(runs, out=run_ptr[1:])
         pair_ptr = np.zeros(n_candidates + 1, np.int64)
@@ -157,8 +166,7 @@ class CoverageTable:
         indptr = pattern.indptr.astype(np.int64)
         indices = pattern.indices.astype(np.int32, copy=False)
         run_ptr = np.zeros(n_rows + 1, np.int64)
-        _csr_runs(indptr, indices, run_ptr, np.zeros(0, np.int32), np.zeros(0, np.int32),
-                  False)
+        _csr_runs(indptr, indices, run_ptr, _NO_RUNS, _NO_RUNS, False)
         np.cumsum(run_ptr, out=run_ptr)
         run_start = np.empty(int(run_ptr[-1]), np.int32)
         run_length = np.empty(int(run_ptr[-1]), np.int32)
@@ -277,14 +285,6 @@ class CoverageTable:
         _sum_over_runs(self.run_ptr, self.run_start, self.run_length,
                        np.asarray(per_face, np.float64), sums)
         return sums
-
-
-def _run_firsts(candidate: NDArray[np.int32], face: NDArray[np.int32]) -> NDArray[np.int64]:
-    """(R,) the pairs that start a run: each candidate's first pair, and every pair whose
-    face does not follow the one before (pairs sorted by candidate, then face)."""
-    new = np.ones(len(face), bool)
-    new[1:] = (face[1:] != face[:-1] + 1) | (candidate[1:] != candidate[:-1])
-    return np.flatnonzero(new)
 
 
 @numba.njit(nogil=True, cache=True)

@@ -140,6 +140,21 @@ def test_a_bundle_whose_corner_rays_miss_is_not_ruled_out() -> None:
     assert occlusion.bundles_hidden(origin, past).tolist() == [False]  # type: ignore[attr-defined]
 
 
+def test_a_bundle_with_a_corner_at_the_origin_is_not_ruled_out_and_the_others_are() -> None:
+    """A corner where the rays start gives no direction: that bundle keeps its pieces' own
+    rays, and the bundles beside it in the same call are still decided by theirs."""
+    vertices = np.array([[-3.0, 0.0, -3.0], [3.0, 0.0, -3.0], [3.0, 0.0, 3.0], [-3.0, 0.0, 3.0]])
+    scene = build_scene(vertices, np.array([[0, 1, 2], [0, 2, 3]]))
+    occlusion = make_occlusion(scene, np.ones(2, bool), "embree")
+    origin = np.array([[0.1, -3.0, 0.2]] * 3)
+    behind = np.array([[-0.5, 3.0, -0.5], [0.5, 3.0, -0.5], [0.5, 3.0, 0.5], [-0.5, 3.0, 0.5]])
+    at_origin = behind.copy()
+    at_origin[2] = origin[0].astype(np.float32)  # where the float32 rays start
+    corners = np.stack([behind, at_origin, behind + np.array([0.2, 1.0, 0.1])])
+    assert occlusion.bundles_hidden(origin, corners).tolist() == [  # type: ignore[attr-defined]
+        True, False, True]
+
+
 def test_quads_are_the_convex_halves_of_one_plane() -> None:
     """A rectangle's two halves make a quad; two triangles that share their longest edge
     but bend at it, or fold onto the same side of it, do not."""
