@@ -31,7 +31,7 @@ from planner.scene import Scene, remesh
 from planner.selection.choose import choose
 from planner.selection.greedy import Selection, coverage_state
 from planner.selection.optimal import OptimalResult
-from planner.survey.fieldwork import Survey, places_of, survey
+from planner.survey.fieldwork import Survey, places_of, survey, with_settings
 from planner.survey.tolerance import Tolerance, plan_tolerance
 from planner.visibility.bundles import forget_bundles
 from planner.visibility.coverage import CoverageTable
@@ -136,22 +136,26 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
             sight, table, chosen, stations_xyz, station_overlap, stats, threads=threads,
             fanout=fanout, overlap=overlap)
     # the threads' freed scratch (the overlap rows', the tolerance's: on the office 320 MB),
-    # still in their arenas, before the densities and the per-face results make the next peak
+    # still in their arenas, before the survey makes the next peak
     release_freed_memory()
-    # with a scanner, each station's least density margin over the faces it is credited
-    # with chooses its setting (planner.scanners)
+    plan_survey = survey(sight.scene, spec, stations_xyz, sight.limits, sight.occlusion,
+                         sight.caster, stats.seconds, station_overlap=station_overlap,
+                         threads=threads, fanout=fanout,
+                         places=places_of(sight.scene, candidates, list(chosen.stations)),
+                         walk_area_xy=walk_area(candidates.positions), overlap=overlap)
+    forget_bundles(sight.scene)
+    release_freed_memory()  # the overlap rows' pair search, before the per-face results
+    # the per-face results after the survey, which does not read them: on the 9.7 M-face
+    # office they were 127 MB under the overlap rows' peak. With a scanner, each station's
+    # least density margin over the faces it is credited with chooses its setting
+    # (planner.scanners)
     faces = coverage_state(
         table, chosen.stations,
         station_densities(sight, table, chosen.stations, stations_xyz, stats, threads=threads),
         None if spec.scanner is None else sight.limits.min_density_pts_m2)
     margins = faces.pop("density_margin", None)
-    plan_survey = survey(sight.scene, spec, stations_xyz, sight.limits, sight.occlusion,
-                         sight.caster, stats.seconds, station_overlap=station_overlap,
-                         threads=threads, fanout=fanout,
-                         density_margins=None if margins is None else margins.tolist(),
-                         places=places_of(sight.scene, candidates, list(chosen.stations)),
-                         walk_area_xy=walk_area(candidates.positions), overlap=overlap)
-    forget_bundles(sight.scene)
+    if margins is not None:
+        plan_survey = with_settings(plan_survey, spec, margins.tolist())
     new_stage(progress, "report")
     stats.cpu_seconds["plan"] = time.process_time() - cpu0
     outcome = choice.outcome

@@ -204,15 +204,16 @@ def _door_frame(xy: NDArray[np.float64]) -> tuple[float, float, float, float, fl
 def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceLimits,
            occlusion: Occlusion, caster: RayCaster, seconds: dict[str, float],
            station_overlap: sp.csr_matrix | None = None,
-           threads: int | None = None, density_margins: list[float] | None = None,
+           threads: int | None = None,
            fanout: RowsFanout | None = None, places: Places | None = None,
            walk_area_xy: NDArray[np.float64] | None = None,
            overlap: Sight | None = None) -> Survey:
-    """Registration, route and field time of the (S, 3) stations, in selection order.
+    """Registration, route and field time of the (S, 3) stations, in selection order, each
+    station scanned at the plan's step (:func:`with_settings` chooses a scanner's settings).
 
     ``station_overlap``: the stations' (S, F) overlap rows when the selection already made
-    them (else made here, by ``fanout`` when given); ``density_margins``: see
-    :func:`scans_of`; ``seconds`` gains the stages "overlap" and "walk graph";
+    them (else made here, by ``fanout`` when given); ``seconds`` gains the stages "overlap"
+    and "walk graph";
     ``places``: what the reasons of unreachable stations name (:func:`places_of`);
     ``walk_area_xy``: (2, 2), the ground the route walks (:func:`planner.walkgraph.walk_area`
     of the plan's candidates; None: the model's whole footprint); ``overlap``: the pieces
@@ -263,5 +264,15 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     if doors is not None:  # a plain mesh: the legs through doors that may be fixed windows
         route = dataclasses.replace(route, door_checks=door_checks(scene, route, doors))
     seconds["walk graph"] = time.perf_counter() - t1
-    scans = scans_of(spec, density_margins, len(stations_xyz))
+    scans = scans_of(spec, None, len(stations_xyz))
     return Survey(registration, route, field_time(spec, len(stations_xyz), route, scans), scans)
+
+
+def with_settings(found: Survey, spec: PlanSpec, density_margins: list[float]) -> Survey:
+    """``found`` with each station's scanner setting, scan time and the field time chosen
+    by its ``density_margins`` (:func:`scans_of`; :func:`survey` gives every station the
+    plan's step). The margins come from the per-face results, made after the survey."""
+    n_stations = len(density_margins)
+    scans = scans_of(spec, density_margins, n_stations)
+    return dataclasses.replace(found, scans=scans,
+                               field_time=field_time(spec, n_stations, found.route, scans))
