@@ -683,18 +683,15 @@ def _bundle_rays(  # compiled
     for p in range(origins.shape[0]):
         ox, oy, oz = (np.float64(np.float32(origins[p, 0])), np.float64(np.float32(origins[p, 1])),
                       np.float64(np.float32(origins[p, 2])))
+        # the rays go to places 4n .. 4n + 3, kept only when all four corners lie away
+        # (else the next bundle writes over them)
         away = True
         for k in range(4):
             dx, dy, dz = corners[p, k, 0] - ox, corners[p, k, 1] - oy, corners[p, k, 2] - oz
-            if not np.sqrt((dx * dx + dy * dy) + dz * dz) > 0.0:
-                away = False
-        reaches[p] = away
-        if not away:
-            continue
-        start[n, 0], start[n, 1], start[n, 2] = ox, oy, oz
-        for k in range(4):
-            dx, dy, dz = corners[p, k, 0] - ox, corners[p, k, 1] - oy, corners[p, k, 2] - oz
             distance = np.sqrt((dx * dx + dy * dy) + dz * dz)
+            if not distance > 0.0:
+                away = False
+                break
             ray = 4 * n + k
             ray_origins32[ray, 0] = np.float32(ox)
             ray_origins32[ray, 1] = np.float32(oy)
@@ -703,7 +700,10 @@ def _bundle_rays(  # compiled
             directions32[ray, 1] = np.float32(dy / distance)
             directions32[ray, 2] = np.float32(dz / distance)
             far32[ray] = np.float32(distance) * far_factor
-        n += 1
+        reaches[p] = away
+        if away:
+            start[n, 0], start[n, 1], start[n, 2] = ox, oy, oz
+            n += 1
     return n
 
 

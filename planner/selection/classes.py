@@ -215,17 +215,17 @@ def _class_areas(class_of: NDArray[np.int32], area_m2: NDArray[np.float64],
 
 @numba.njit(nogil=True, cache=True)
 def _labels_per_candidate(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
-                          run_length: NDArray[np.int32], class_of: NDArray[np.int32],
+                          run_length: NDArray[np.int32], label_of: NDArray[np.int32],
                           last: NDArray[np.int64], indptr: NDArray[np.int64],
                           indices: NDArray[np.int32], fill: bool) -> None:  # compiled
-    """Each candidate's labels ``class_of`` (F,), each once (``last[k]``: the last
+    """Each candidate's labels ``label_of`` (F,), each once (``last[k]``: the last
     candidate that met label k). Without ``fill``: their count into ``indptr[c + 1]``; with
     it, into ``indices`` from ``indptr[c]`` on (``indptr`` then the cumulative counts)."""
     for c in range(len(run_ptr) - 1):
         at = indptr[c]
         for r in range(run_ptr[c], run_ptr[c + 1]):
             for f in range(run_start[r], run_start[r] + run_length[r]):
-                k = class_of[f]
+                k = label_of[f]
                 if k < 0 or last[k] == c:
                     continue
                 last[k] = c

@@ -211,8 +211,8 @@ def _receive(stream: IO[bytes], deadline: float | None,
              tick: Callable[[], None] | None = None) -> Any:
     (size,) = _HEADER.unpack(_read_exactly(stream, _HEADER.size, deadline, tick))
     (n_buffers,) = _HEADER.unpack(_read_exactly(stream, _HEADER.size, deadline))
-    sizes = [_HEADER.unpack(_read_exactly(stream, _HEADER.size, deadline))[0]
-             for _ in range(n_buffers)]
+    sizes = [n for (n,) in _HEADER.iter_unpack(
+        _read_exactly(stream, n_buffers * _HEADER.size, deadline))]
     data = _read_exactly(stream, size, deadline)
     buffers = [_read_exactly(stream, n, deadline) for n in sizes]
     return pickle.loads(data, buffers=buffers)  # our own child's bytes

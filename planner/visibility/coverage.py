@@ -137,7 +137,8 @@ class CoverageTable:
             # the block's candidates as the rows of a CSR over its faces, their runs found
             # and written by from_csr's compiled passes (no (P,) temporaries of the block)
             low, high = int(candidate[0]), int(candidate[-1]) + 1
-            indptr = np.searchsorted(candidate, np.arange(low, high + 1)).astype(np.int64)
+            indptr = np.searchsorted(candidate, np.arange(low, high + 1)).astype(
+                np.int64, copy=False)
             block_runs = np.zeros(high - low + 1, np.int64)  # (c + 1,) then cumulative
             _csr_runs(indptr, face, block_runs, _NO_RUNS, _NO_RUNS, False)
             np.cumsum(block_runs, out=block_runs)
