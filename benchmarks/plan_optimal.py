@@ -48,7 +48,7 @@ def main() -> int:
             started = time.perf_counter()
             outcome = choose_stations(result.table, method="optimal", goal=goal,
                                       time_limit_s=args.time_limit,
-                                      centroids=scene.centroids)
+                                      centroids_of=scene.centroids_of)
             seconds = time.perf_counter() - started
             report = outcome.report
             print(f"{name:<11} {goal:>5.2f} {report['heuristics']['greedy']:>6} "

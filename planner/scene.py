@@ -47,24 +47,45 @@ def _frozen(array: NDArray[Any]) -> NDArray[Any]:
 
 
 def face_values(vertices: FloatArray, faces: IndexArray, *, normals: bool = True
-                ) -> tuple[FloatArray, FloatArray | None, FloatArray]:
-    """(F, 3) centroids, (F, 3) unit normals (zero for a face of no area; None without
-    ``normals``) and (F,) areas of the (F, 3) ``faces`` over ``vertices``, float64, a
-    block at a time on a few threads (numpy releases the GIL), each into its own rows."""
+                ) -> tuple[FloatArray | None, FloatArray]:
+    """(F, 3) unit normals (zero for a face of no area; None without ``normals``) and (F,)
+    areas of the (F, 3) ``faces`` over ``vertices``, float64, a block at a time on a few
+    threads (numpy releases the GIL), each into its own rows."""
     n = len(faces)
-    centroids, areas = np.empty((n, 3)), np.empty(n)
+    areas = np.empty(n)
     unit = np.zeros((n, 3)) if normals else None
 
     def derive(start: int) -> None:
         block = slice(start, start + _DERIVE_BLOCK_FACES)
-        triangles, cross, doubled = _cross_products(vertices, faces[block])
+        _, cross, doubled = _cross_products(vertices, faces[block])
         if unit is not None:
             np.divide(cross, doubled[:, None], out=unit[block], where=doubled[:, None] > 0)
-        centroids[block] = triangles.mean(axis=1)
         areas[block] = doubled / 2.0
 
     list(in_block_order(derive, range(0, n, _DERIVE_BLOCK_FACES)))
-    return centroids, unit, areas
+    return unit, areas
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def face_centroid(vertices: FloatArray, faces: IndexArray, f: int
+                  ) -> tuple[float, float, float]:
+    """The centroid of face ``f`` of the (F, 3) ``faces`` over the (V, 3) ``vertices``:
+    per axis (a + b + c) / 3, added left to right, the same bits as numpy's
+    ``vertices[faces].mean(axis=1)`` (a sum over an axis of three, then one division).
+    Kernels compute it where they read it: a 9.7 M-piece model's stored centroids were
+    234 MB under every stage."""
+    a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+    return ((vertices[a, 0] + vertices[b, 0] + vertices[c, 0]) / 3.0,
+            (vertices[a, 1] + vertices[b, 1] + vertices[c, 1]) / 3.0,
+            (vertices[a, 2] + vertices[b, 2] + vertices[c, 2]) / 3.0)
+
+
+@numba.njit(nogil=True, cache=True)
+def _centroids_into(vertices: FloatArray, faces: IndexArray, which: NDArray[np.int64],
+                    out: FloatArray) -> None:
+    """The centroids of the faces ``which`` (k,) into the (k, 3) ``out``."""
+    for i in range(which.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2] = face_centroid(vertices, faces, which[i])
 
 
 def unit_normals(vertices: FloatArray, faces: IndexArray) -> FloatArray:
@@ -131,9 +152,11 @@ class Scene:
     ``source_face`` when asked. So are the unit normals (``file_normals``; a piece lies in
     its file face's plane): :meth:`normals_of` looks them up, 24 bytes a piece less.
 
-    Derived: ``centroids`` (F, 3) and ``areas`` (F,) float64 of every face, and
-    ``file_normals`` (F0, 3) float64, each file face's unit normal (zero for a face of no
-    area; a scene never remeshed: each face's, (F, 3)).
+    Derived: ``areas`` (F,) float64 of every face, and ``file_normals`` (F0, 3) float64,
+    each file face's unit normal (zero for a face of no area; a scene never remeshed: each
+    face's, (F, 3)). The centroids are not kept: :meth:`centroids_of` computes those of
+    some faces, compiled kernels compute each where they read it
+    (:func:`face_centroid`), the same bits either way.
     """
 
     vertices: FloatArray
@@ -148,7 +171,6 @@ class Scene:
     file_faces: IndexArray | None = None
     split_max_edge_m: float | None = None
     # derived, filled in __post_init__
-    centroids: FloatArray = field(init=False, repr=False)
     file_normals: FloatArray = field(init=False, repr=False)
     areas: FloatArray = field(init=False, repr=False)
 
@@ -157,23 +179,21 @@ class Scene:
         # a remeshed scene's normals are its file faces': a piece lies in its face's plane,
         # and its own cross product would only repeat that plane, less well conditioned
         remeshed = self.file_faces is not None
-        centroids, normals, areas = face_values(self.vertices, self.faces,
-                                                normals=not remeshed)
+        normals, areas = face_values(self.vertices, self.faces, normals=not remeshed)
         if normals is None:
             normals = unit_normals(*self.file_mesh)
-        object.__setattr__(self, "centroids", _frozen(centroids))
         object.__setattr__(self, "file_normals", _frozen(normals))
         object.__setattr__(self, "areas", _frozen(areas))
 
     @classmethod
-    def with_face_values(cls, centroids: FloatArray | None, file_normals: FloatArray | None,
-                         areas: FloatArray | None, **fields: Any) -> Scene:
-        """The scene of ``fields`` (the constructor's) whose (F, 3) ``centroids``, (F0, 3)
-        ``file_normals`` (one a file face, (F, 3) when the scene has no file mesh) and (F,)
-        ``areas`` are given rather than derived from its vertices: a part of a scene keeps
-        the scene's own float64 values, and the arithmetic that would only be thrown away
-        is skipped (a tile of a few million faces: seconds). None leaves them out: only for
-        a part on its way to where they are derived again (a tile in a task,
+    def with_face_values(cls, file_normals: FloatArray | None, areas: FloatArray | None,
+                         **fields: Any) -> Scene:
+        """The scene of ``fields`` (the constructor's) whose (F0, 3) ``file_normals`` (one
+        a file face, (F, 3) when the scene has no file mesh) and (F,) ``areas`` are given
+        rather than derived from its vertices: a part of a scene keeps the scene's own
+        float64 values, and the arithmetic that would only be thrown away is skipped (a
+        tile of a few million faces: seconds). None leaves them out: only for a part on its
+        way to where they are derived again (a tile in a task,
         :meth:`planner.visibility.tiles.Tile.detached`)."""
         scene = cls.__new__(cls)
         for spec in dataclasses.fields(cls):
@@ -193,8 +213,7 @@ class Scene:
         scene._check()
         n = len(scene.faces)
         n_file = len(scene.file_mesh[1])
-        for name, values, shape in (("centroids", centroids, (n, 3)),
-                                    ("file_normals", file_normals, (n_file, 3)),
+        for name, values, shape in (("file_normals", file_normals, (n_file, 3)),
                                     ("areas", areas, (n,))):
             if values is None:
                 object.__setattr__(scene, name, None)
@@ -207,11 +226,11 @@ class Scene:
 
     def replaced(self, **changes: Any) -> Scene:
         """``dataclasses.replace`` for fields other than ``vertices`` and ``faces``: the
-        faces' centroids, normals and areas are the same, so they are kept rather than
-        derived again (a million faces: 0.35 CPU s)."""
+        faces' normals and areas are the same, so they are kept rather than derived again
+        (a million faces: 0.35 CPU s)."""
         if {"vertices", "faces"} & changes.keys():
             raise ValueError("replaced keeps the vertices and faces; build a new Scene")
-        return Scene.with_face_values(self.centroids, self.file_normals, self.areas,
+        return Scene.with_face_values(self.file_normals, self.areas,
                                       **{**self._init_fields(), **changes})
 
     def over_file_mesh(self, file_vertices: FloatArray, file_faces: IndexArray,
@@ -219,10 +238,10 @@ class Scene:
         """The scene over the file mesh of (V0, 3) ``file_vertices`` and (F0, 3)
         ``file_faces`` (the same arrays, not copies), whose (F0, 3) unit normals are given
         (``file_normals``: a worker derives them once for all its tiles); its faces'
-        centroids and areas derived from its vertices. For a part that travelled without
+        areas derived from its vertices. For a part that travelled without
         them (:meth:`planner.visibility.tiles.Tile.detached`)."""
-        centroids, _, areas = face_values(self.vertices, self.faces, normals=False)
-        return Scene.with_face_values(centroids, file_normals, areas, **{
+        _, areas = face_values(self.vertices, self.faces, normals=False)
+        return Scene.with_face_values(file_normals, areas, **{
             **self._init_fields(), "file_vertices": file_vertices, "file_faces": file_faces})
 
     def _init_fields(self) -> dict[str, Any]:
@@ -299,6 +318,22 @@ class Scene:
         if self.file_faces is None:
             return self.file_normals[faces]
         return self.file_normals[self.source_face[faces]]
+
+    def centroids_of(self, faces: NDArray[np.integer[Any]] | slice) -> FloatArray:
+        """(k, 3) float64, the centroids of ``faces`` ((k,) face indices or a slice),
+        computed now (:func:`face_centroid`: the same bits as the compiled kernels)."""
+        which = (np.arange(*faces.indices(self.n_faces)) if isinstance(faces, slice)
+                 else faces)
+        which = np.ascontiguousarray(which, np.int64).reshape(-1)
+        out = np.empty((len(which), 3))
+        _centroids_into(self.vertices, self.faces, which, out)
+        return out
+
+    @property
+    def centroids(self) -> FloatArray:
+        """(F, 3) float64, the centroid of every face: a new array each time (24 bytes a
+        face; read it once, or take :meth:`centroids_of` for some faces)."""
+        return self.centroids_of(slice(None))
 
     @property
     def triangles(self) -> FloatArray:

@@ -189,7 +189,7 @@ def _uncoverable(result: PlanResult) -> list[tuple[dict[str, Any], tuple[
             continue
         faces = face_element == index[row["global_id"]]
         weights = scene.areas[faces]
-        centre = (scene.centroids[faces] * weights[:, None]).sum(axis=0) / max(
+        centre = (scene.centroids_of(np.flatnonzero(faces)) * weights[:, None]).sum(axis=0) / max(
             float(weights.sum()), 1e-12)
         eye = candidates[int(np.argmin(np.linalg.norm(candidates - centre, axis=1)))]
         direction = centre - eye

@@ -44,6 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.outputs.canonical import canonical_json
+from planner.scene import face_centroid
 from planner.threads import in_block_order
 
 if TYPE_CHECKING:
@@ -179,7 +180,8 @@ def face_reasons(result: PlanResult, faces: NDArray[np.int64]) -> NDArray[np.int
 
     def block(start: int) -> int:
         chunk = slice(start, start + step)
-        _reason_codes(faces[chunk], result.scene.centroids, result.scene.file_normals,
+        _reason_codes(faces[chunk], result.scene.vertices, result.scene.faces,
+                      result.scene.file_normals,
                       result.scene.source_face, positions,
                       lim.min_incidence_deg, lim.min_density_pts_m2, lim.dof_min_m,
                       lim.dof_max_m, lim.elevation_min_deg, lim.elevation_max_deg,
@@ -193,14 +195,16 @@ def face_reasons(result: PlanResult, faces: NDArray[np.int64]) -> NDArray[np.int
 
 @numba.njit(nogil=True, cache=True)
 def _reason_codes(  # compiled; compared with the numpy formulation in tests/planner/test_ifc.py
-    faces: NDArray[np.int64], centroids: NDArray[np.float64], normals: NDArray[np.float64],
+    faces: NDArray[np.int64], vertices: NDArray[np.float64], corners: NDArray[np.int32],
+    normals: NDArray[np.float64],
     source: NDArray[np.int32], positions: NDArray[np.float64],
     min_incidence_deg: NDArray[np.float64], min_density: NDArray[np.float64],
     dof_min_m: float, dof_max_m: float,
     elevation_min_deg: float, elevation_max_deg: float, angular_step_rad: float,
     out: NDArray[np.int64],
 ) -> None:
-    """Write the reason code of each of the n ``faces`` into (n,) ``out``.
+    """Write the reason code of each of the n ``faces`` (of ``vertices``, ``corners``)
+    into (n,) ``out``.
 
     Per (candidate, face) pair, the four checks of ``REASONS[1:]`` with the same float64
     formulas as the analytic limits (distance, elevation and incidence in degrees, head-on
@@ -217,7 +221,7 @@ def _reason_codes(  # compiled; compared with the numpy formulation in tests/pla
     sin_elevation_max = np.sin(np.radians(elevation_max_deg))
     for i in range(faces.shape[0]):
         f = faces[i]
-        cx, cy, cz = centroids[f, 0], centroids[f, 1], centroids[f, 2]
+        cx, cy, cz = face_centroid(vertices, corners, f)
         g = source[f]  # the normal is the file face's
         nx, ny, nz = normals[g, 0], normals[g, 1], normals[g, 2]
         density = min_density[f]

@@ -326,11 +326,11 @@ def level_extent(result: PlanResult, level: Level) -> tuple[float, float, float,
     time, rather than gathered: (F, 3, 2) corners of a 10 M-face model would be 460 MB.
     """
     scene = result.scene
-    cz = scene.centroids[:, 2]
     corner = np.zeros(len(scene.vertices), bool)
     for start in range(0, scene.n_faces, CHUNK_FACES):
         block = slice(start, start + CHUNK_FACES)
-        inside = (cz[block] >= level.floor_z - 0.2) & (cz[block] <= level.top_z)
+        cz = scene.centroids_of(block)[:, 2]
+        inside = (cz >= level.floor_z - 0.2) & (cz <= level.top_z)
         corner[scene.faces[block][inside].ravel()] = True
     xy = result.candidates.positions[level.candidates, :2]
     lo, hi = xy.min(axis=0), xy.max(axis=0)
@@ -412,15 +412,15 @@ def floor_faces(result: PlanResult, level: Level) -> NDArray[np.int64]:
     """(T,) faces of ``level`` seen from above under its section, lowest first (the order
     they are painted in)."""
     scene = result.scene
-    cz = scene.centroids[:, 2]
     picked = []
     for start in range(0, scene.n_faces, CHUNK_FACES):
         block = slice(start, start + CHUNK_FACES)
         up = scene.normals_of(block)[:, 2] >= _UP_NZ
+        cz = scene.centroids_of(block)[:, 2]
         picked.append(start + np.flatnonzero(
-            up & (cz[block] >= level.floor_z - 0.2) & (cz[block] <= level.section_z)))
+            up & (cz >= level.floor_z - 0.2) & (cz <= level.section_z)))
     below = np.concatenate(picked)
-    return below[np.argsort(cz[below], kind="stable")]
+    return below[np.argsort(scene.centroids_of(below)[:, 2], kind="stable")]
 
 
 @dataclass(frozen=True)
@@ -480,7 +480,7 @@ def floor_of(result: PlanResult, level: Level) -> Floor:
         return made
     below = floor_faces(result, level)
     rgb = face_rgb(result.faces, limits.target, limits.min_density_pts_m2, below)
-    height_m = scene.centroids[below, 2]
+    height_m = scene.centroids_of(below)[:, 2]
     if scene.file_faces is None or len(below) == 0:
         return Floor(scene.vertices, scene.faces[below], rgb, height_m)
     floor = _grouped_floor(scene, below, rgb, height_m)

@@ -77,7 +77,7 @@ def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tup
             stats.seconds["overlap_graph"] = time.perf_counter() - t_graph - rows.seconds
     outcome = choose_stations(
         table, method=spec.method, goal=spec.coverage_goal,
-        time_limit_s=spec.optimal_time_limit_s, centroids=sight.scene.centroids, fixed=fixed,
+        time_limit_s=spec.optimal_time_limit_s, centroids_of=sight.scene.centroids_of, fixed=fixed,
         curve_goals=spec.curve_goals,
         progress=lambda fraction: notify(progress, "selection", fraction),
         connectivity=connectivity)

@@ -145,6 +145,8 @@ class OptimalResult:
 ConstraintHook = Callable[[ProgramBuilder], None]
 # stations (candidate indices) -> whether a plan satisfies a side constraint
 Keep = Callable[[Sequence[int]], bool]
+# (k,) face indices -> their (k, 3) centroids (the scene's ``centroids_of``)
+CentroidsOf = Callable[[NDArray[Any]], NDArray[np.float64]]
 
 
 def relaxed_classes(
@@ -455,7 +457,7 @@ def _repair(table: CoverageTable, stations: list[int], need_m2: float, n_fixed: 
 
 def solve_optimal(
     table: CoverageTable, goal: float, time_limit_s: float,
-    incumbents: Sequence[Selection], centroids: np.ndarray, *,
+    incumbents: Sequence[Selection], centroids_of: CentroidsOf, *,
     fixed: tuple[int, ...] = (), deadline: float | None = None,
     constraint_hooks: Sequence[ConstraintHook] = (), tick: Callable[[], None] | None = None,
     graph: OverlapGraph | None = None,
@@ -463,8 +465,9 @@ def solve_optimal(
     """The fewest stations reaching ``goal`` of the achievable area (see module docstring).
 
     ``incumbents`` are heuristic plans (greedy, weighted greedy; their first stations are
-    ``fixed``): the answer is never worse than the best of them. ``centroids`` (F, 3) place
-    the faces for the relaxation of programs too large to solve. Stops by ``time_limit_s``
+    ``fixed``): the answer is never worse than the best of them. ``centroids_of`` gives the
+    (k, 3) centroids of (k,) faces: they place the faces for the relaxation of programs
+    too large to solve. Stops by ``time_limit_s``
     (or the earlier ``deadline``, ``time.monotonic()`` seconds). ``tick`` is called about
     twice a second while HiGHS works and may raise to cancel.
 
@@ -527,7 +530,7 @@ def solve_optimal(
             stopped = False
             if not constraint_hooks:  # the neighbourhoods' programs know no hook's rows
                 searched = neighbourhood_search(
-                    search, centroids[classes.first_face], best, need_rest, n_fixed,
+                    search, centroids_of(classes.first_face), best, need_rest, n_fixed,
                     lambda program: highs.solve(program, stop), full=goal >= 1.0, keep=keep,
                     floor=lower)
                 best, stopped = searched.stations, searched.stopped
@@ -543,7 +546,7 @@ def solve_optimal(
             if len(best) > lower and not stopped:
                 solver = _set_cover if goal >= 1.0 else _partial_cover
                 best, lower, status, n_classes = solver(
-                    _Problem(search, centroids[classes.first_face], need_rest, fixed,
+                    _Problem(search, centroids_of(classes.first_face), need_rest, fixed,
                              constraint_hooks, stop, highs, graph), best, lower)
     seconds["milp"] = time.monotonic() - t_milp - seconds.get("neighbourhoods", 0.0)
     # the classes hold only what the fixed stations leave
@@ -582,7 +585,7 @@ class _Problem:
     """What is still missing after the fixed stations, and how to solve it."""
 
     table: CoverageTable  # the classes of what the fixed stations leave
-    centroids: np.ndarray
+    centroids: np.ndarray  # (K, 3) a face of each class
     need_m2: float  # area of ``table`` to cover
     fixed: tuple[int, ...]
     hooks: Sequence[ConstraintHook]
@@ -763,7 +766,7 @@ class SelectionOutcome:
 
 
 def choose_stations(table: CoverageTable, *, method: str, goal: float, time_limit_s: float,
-                    centroids: np.ndarray, fixed: tuple[int, ...] = (),
+                    centroids_of: CentroidsOf, fixed: tuple[int, ...] = (),
                     curve_goals: tuple[float, ...] | None = None,
                     constraint_hooks: Sequence[ConstraintHook] = (),
                     progress: Callable[[float], None] | None = None,
@@ -799,7 +802,7 @@ def choose_stations(table: CoverageTable, *, method: str, goal: float, time_limi
         share = (deadline - time.monotonic()) / (len(todo) - i)
         solved[g] = solve_optimal(
             table, g, max(share, 0.0), [heuristics["greedy"], heuristics["weighted_greedy"]],
-            centroids, fixed=fixed, deadline=deadline, constraint_hooks=constraint_hooks,
+            centroids_of, fixed=fixed, deadline=deadline, constraint_hooks=constraint_hooks,
             tick=None if progress is None else lambda: progress(
                 min(1.0, (time.monotonic() - start) / time_limit_s)),
             graph=None if connectivity is None else connectivity.graph)

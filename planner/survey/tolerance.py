@@ -214,7 +214,7 @@ def _worst_case_network(
         finder = PairFinder(scene, cut)
         for start, stop in finder.blocks(positions, most_tests=NETWORK_TESTS_PER_BLOCK):
             pairs, _ = finder.find(positions[start:stop], start, ordered=False)
-            visible = visible_pairs(occlusion, pairs, positions, scene.centroids)
+            visible = visible_pairs(occlusion, pairs, positions, scene)
             yield QualifiedPairs(pairs.candidate[visible], pairs.face[visible],
                                  pairs.lpd_pts_m2[visible])
 

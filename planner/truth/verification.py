@@ -150,9 +150,9 @@ def _meets_incidence(scene: Scene, limits: FaceLimits,
     """(S, F) bool: station s sees face f at its min_incidence_deg or more (centroid ray)."""
     usable = np.zeros((len(stations_xyz), scene.n_faces), bool)
     min_sin = np.sin(np.radians(limits.min_incidence_deg))
-    normals = scene.normals
+    normals, centroids = scene.normals, scene.centroids
     for s, position in enumerate(stations_xyz):
-        ray = scene.centroids - position
+        ray = centroids - position
         length = np.linalg.norm(ray, axis=1)
         facing = np.abs(np.einsum("ij,ij->i", ray, normals))
         usable[s] = facing >= min_sin * length

@@ -50,7 +50,7 @@ from numpy.typing import NDArray
 
 from planner.scene import Scene
 from planner.threads import in_block_order
-from planner.visibility.cells import PointGrid, pairs_in_reach
+from planner.visibility.cells import PointGrid, Points, pairs_in_reach
 from planner.visibility.solids import ClosedShells, closed_shells
 
 # sides of the bundles' squares in their face's plane, coarse to fine: a 2 m square of a
@@ -163,7 +163,7 @@ def _piece_uv(scene: Scene, axes: tuple[NDArray[np.float64], NDArray[np.float64]
     """(b, 2) the plane coordinates of a block of faces' centroids, and their file face."""
     origin, u_axis, v_axis, _ = axes
     source = scene.source_face[block]
-    offset = scene.centroids[block] - origin[source]
+    offset = scene.centroids_of(block) - origin[source]
     uv = np.stack([np.einsum("ij,ij->i", offset, u_axis[source]),
                    np.einsum("ij,ij->i", offset, v_axis[source])], axis=1)
     return uv, source
@@ -370,7 +370,7 @@ class _LevelSearch:
             members = eligible[radius_class == c]
             centre = np.ascontiguousarray(level.centre[members])
             radius_m = level.radius_m[members]
-            grid = PointGrid.of(centre, np.arange(len(members), dtype=np.int32),
+            grid = PointGrid.of(Points.rows(centre), np.arange(len(members), dtype=np.int32),
                                 reach_m + float(radius_m.max()))
             classes.append(_RadiusClass(members, centre, radius_m, grid))
         return cls(tuple(classes), reach_m)

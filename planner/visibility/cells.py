@@ -4,15 +4,59 @@ Cubes of side ``cell_m``: with cells at least the reach wide, whatever lies with
 of a point is in the 3 x 3 x 3 cells around the point's own (:func:`cells_around`, used by
 the bundles, :mod:`planner.visibility.bundles`); the pair search (:mod:`planner.visibility.pairs`)
 makes cells a fraction of the reach and keeps those that come within reach.
+
+The points are given as :class:`Points`: rows of coordinates, or the centroids of a
+scene's faces, computed where a kernel reads them (a model's centroids are not kept).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
+
+from planner.scene import Scene, face_centroid
+
+_NO_CORNERS = np.zeros((0, 3), np.int32)
+
+
+@dataclass(frozen=True)
+class Points:
+    """(N, 3) points: the rows of ``xyz`` when ``corners`` is empty, else the centroids
+    of the (N, 3) ``corners`` (a scene's faces) over the vertices ``xyz``."""
+
+    xyz: NDArray[np.float64]
+    corners: NDArray[np.int32]
+
+    @classmethod
+    def rows(cls, xyz: NDArray[np.float64]) -> Points:
+        return cls(np.ascontiguousarray(xyz, np.float64), _NO_CORNERS)
+
+    @classmethod
+    def face_centroids(cls, scene: Scene) -> Points:
+        return cls(scene.vertices, scene.faces)
+
+    def at(self, which: NDArray[np.integer[Any]]) -> NDArray[np.float64]:
+        """(k, 3) float64, the points ``which`` (k,)."""
+        index = np.ascontiguousarray(which, np.int64)
+        if len(self.corners) == 0:
+            rows: NDArray[np.float64] = self.xyz[index]
+            return rows
+        out = np.empty((len(index), 3))
+        _points_into(self.xyz, self.corners, index, out)
+        return out
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def point_xyz(xyz: NDArray[np.float64], corners: NDArray[np.int32], i: int
+              ) -> tuple[float, float, float]:
+    """Point ``i`` of :class:`Points` (``xyz``, ``corners``)."""
+    if corners.shape[0] == 0:
+        return xyz[i, 0], xyz[i, 1], xyz[i, 2]
+    return face_centroid(xyz, corners, i)
 
 
 @numba.njit(nogil=True, cache=True)
@@ -118,30 +162,40 @@ def _runs(start: NDArray[np.int64], members: NDArray[np.int32], group: NDArray[n
 
 
 @numba.njit(nogil=True, cache=True)
-def _bounds(points: NDArray[np.float64], subset: NDArray[np.int32],
+def _points_into(xyz: NDArray[np.float64], corners: NDArray[np.int32],
+                 which: NDArray[np.int64], out: NDArray[np.float64]) -> None:
+    """The points ``which`` (k,) of :class:`Points` (``xyz``, ``corners``) into ``out``."""
+    for i in range(which.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2] = point_xyz(xyz, corners, which[i])
+
+@numba.njit(nogil=True, cache=True)
+def _bounds(xyz: NDArray[np.float64], corners: NDArray[np.int32], subset: NDArray[np.int32],
             low: NDArray[np.float64], high: NDArray[np.float64]) -> None:
-    """The lowest and highest coordinate of the (n,) ``subset`` of the (N, 3) points, per
-    axis, into the (3,) ``low`` and ``high`` (one pass, no (n, 3) gathered copy)."""
-    for axis in range(3):
-        low[axis] = points[subset[0], axis]
-        high[axis] = points[subset[0], axis]
+    """The lowest and highest coordinate of the (n,) ``subset`` of the points (``xyz``,
+    ``corners``: :class:`Points`), per axis, into the (3,) ``low`` and ``high`` (one
+    pass, no (n, 3) gathered copy)."""
+    low[0], low[1], low[2] = point_xyz(xyz, corners, subset[0])
+    high[:] = low
     for i in range(subset.shape[0]):
-        for axis in range(3):
-            value = points[subset[i], axis]
-            low[axis] = min(low[axis], value)
-            high[axis] = max(high[axis], value)
+        x, y, z = point_xyz(xyz, corners, subset[i])
+        low[0], high[0] = min(low[0], x), max(high[0], x)
+        low[1], high[1] = min(low[1], y), max(high[1], y)
+        low[2], high[2] = min(low[2], z), max(high[2], z)
 
 
 @numba.njit(nogil=True, cache=True)
-def _cells_of(points: NDArray[np.float64], subset: NDArray[np.int32],
-              low: NDArray[np.float64], cell_m: float, grid_dims: NDArray[np.int64],
-              out: NDArray[np.int32]) -> None:
-    """The cell of each point of the (n,) ``subset`` into ``out``: along each axis
-    floor((x - low) / cell_m), at most the last cell."""
+def _cells_of(xyz: NDArray[np.float64], corners: NDArray[np.int32],
+              subset: NDArray[np.int32], low: NDArray[np.float64], cell_m: float,
+              grid_dims: NDArray[np.int64], out: NDArray[np.int32]) -> None:
+    """The cell of each point of the (n,) ``subset`` (of :class:`Points` ``xyz``,
+    ``corners``) into ``out``: along each axis floor((x - low) / cell_m), at most the
+    last cell."""
+    point = np.empty(3)
     for i in range(subset.shape[0]):
+        point[0], point[1], point[2] = point_xyz(xyz, corners, subset[i])
         cell = 0
         for axis in range(3):
-            index = min(int(np.floor((points[subset[i], axis] - low[axis]) / cell_m)),
+            index = min(int(np.floor((point[axis] - low[axis]) / cell_m)),
                         grid_dims[axis] - 1)
             cell = cell * grid_dims[axis] + index
         out[i] = cell
@@ -166,16 +220,16 @@ class PointGrid:
     members: NDArray[np.int32]  # (n,) positions in ``subset``
 
     @classmethod
-    def of(cls, face_xyz: NDArray[np.float64], faces: NDArray[np.int32], reach_m: float,
+    def of(cls, points: Points, subset: NDArray[np.int32], reach_m: float,
            cells_per_reach: int = 1) -> PointGrid:
-        """The grid of ``face_xyz[faces]`` (``faces``: the (n,) subset) for ``reach_m``:
+        """The grid of the (n,) ``subset`` of ``points`` for ``reach_m``:
         cubes a ``cells_per_reach``-th of it wide (or wider, to stay within
         :data:`MAX_CELLS`); with more than one, look them up by the distance to each
         cell, as the pair search does."""
-        if len(faces) == 0:
+        if len(subset) == 0:
             return cls(np.zeros(3), 1.0, np.ones(3, np.int64), np.zeros(2, np.int64),
                        np.zeros(0, np.int32))
-        low, cell_m, dims, cell_of = _layout(face_xyz, faces, reach_m, cells_per_reach)
+        low, cell_m, dims, cell_of = _layout(points, subset, reach_m, cells_per_reach)
         start, members = cell_members(cell_of, int(np.prod(dims)))
         return cls(low, cell_m, dims, start, members)
 
@@ -195,42 +249,45 @@ class RunGrid(PointGrid):
     run_box: NDArray[np.float32]
 
     @classmethod
-    def grouped(cls, face_xyz: NDArray[np.float64], faces: NDArray[np.int32], reach_m: float,
+    def grouped(cls, points: Points, subset: NDArray[np.int32], reach_m: float,
                 cells_per_reach: int, group: NDArray[np.int32] | None) -> RunGrid:
         """:meth:`PointGrid.of` with the (N,) ``group`` of every point (-1: none; None: no
         point is in a group)."""
-        subset_group = (np.full(len(faces), -1, np.int32) if group is None
-                        else np.ascontiguousarray(group[faces], np.int32))
-        n_groups = int(subset_group.max()) + 1 if len(faces) else 0
-        if len(faces) == 0:
+        subset_group = (np.full(len(subset), -1, np.int32) if group is None
+                        else np.ascontiguousarray(group[subset], np.int32))
+        n_groups = int(subset_group.max()) + 1 if len(subset) else 0
+        if len(subset) == 0:
             return cls(np.zeros(3), 1.0, np.ones(3, np.int64), np.zeros(2, np.int64),
                        np.zeros(0, np.int32), np.zeros(2, np.int64), np.zeros(1, np.int64),
                        np.zeros(0, np.int32), np.zeros((0, 6), np.float32))
-        low, cell_m, dims, cell_of = _layout(face_xyz, faces, reach_m, cells_per_reach)
+        low, cell_m, dims, cell_of = _layout(points, subset, reach_m, cells_per_reach)
         start, members, cell_runs, run_first, run_group = grouped_members(
             cell_of, subset_group, n_groups, int(np.prod(dims)), MOST_PER_RUN)
         run_box = np.empty((len(run_group), 6), np.float32)
-        _run_boxes(face_xyz, faces, members, run_first, run_box)
+        _run_boxes(points.xyz, points.corners, subset, members, run_first, run_box)
         return cls(low, cell_m, dims, start, members, cell_runs, run_first, run_group,
                    run_box)
 
 
 @numba.njit(nogil=True, cache=True)
-def _run_boxes(points: NDArray[np.float64], subset: NDArray[np.int32],
-               members: NDArray[np.int32], run_first: NDArray[np.int64],
-               out: NDArray[np.float32]) -> None:
+def _run_boxes(xyz: NDArray[np.float64], corners: NDArray[np.int32],
+               subset: NDArray[np.int32], members: NDArray[np.int32],
+               run_first: NDArray[np.int64], out: NDArray[np.float32]) -> None:
     """Each run's box into the (R, 6) ``out``: the lowest and highest coordinate of its
-    points ``points[subset[members[run]]]`` per axis, rounded outward to float32
-    (:func:`float32_outward`), so the box holds every point exactly."""
+    points ``subset[members[run]]`` (of :class:`Points` ``xyz``, ``corners``) per axis,
+    rounded outward to float32 (:func:`float32_outward`), so the box holds every point
+    exactly."""
+    low, high = np.empty(3), np.empty(3)
     for r in range(run_first.shape[0] - 1):
+        low[0], low[1], low[2] = point_xyz(xyz, corners, subset[members[run_first[r]]])
+        high[:] = low
+        for m in range(run_first[r], run_first[r + 1]):
+            x, y, z = point_xyz(xyz, corners, subset[members[m]])
+            low[0], high[0] = min(low[0], x), max(high[0], x)
+            low[1], high[1] = min(low[1], y), max(high[1], y)
+            low[2], high[2] = min(low[2], z), max(high[2], z)
         for axis in range(3):
-            low = points[subset[members[run_first[r]]], axis]
-            high = low
-            for m in range(run_first[r], run_first[r + 1]):
-                value = points[subset[members[m]], axis]
-                low = min(low, value)
-                high = max(high, value)
-            out[r, axis], out[r, axis + 3] = float32_outward(low, high)
+            out[r, axis], out[r, axis + 3] = float32_outward(low[axis], high[axis])
 
 
 @numba.njit(nogil=True, cache=True)
@@ -245,21 +302,21 @@ def float32_outward(low: float, high: float) -> tuple[np.float32, np.float32]:
     return low32, high32
 
 
-def _layout(face_xyz: NDArray[np.float64], faces: NDArray[np.int32], reach_m: float,
+def _layout(points: Points, subset: NDArray[np.int32], reach_m: float,
             cells_per_reach: int) -> tuple[NDArray[np.float64], float, NDArray[np.int64],
                                            NDArray[np.int32]]:
-    """The grid of :meth:`PointGrid.of` for the (n,) non-empty ``faces``: its (3,) lowest
+    """The grid of :meth:`PointGrid.of` for the (n,) non-empty ``subset``: its (3,) lowest
     corner, cell side, (3,) cells along each axis and (n,) cell of each point."""
     low, high = np.empty(3), np.empty(3)
-    _bounds(face_xyz, faces, low, high)
+    _bounds(points.xyz, points.corners, subset, low, high)
     extent = np.maximum(high - low, 1e-9)
     # wider than the reach by far more than rounding, so no face in reach is missed
     cell_m = max(reach_m * (1.0 + 1e-6) / cells_per_reach, float(extent.max()) * 1e-6)
     while np.prod(np.floor(extent / cell_m) + 1) > MAX_CELLS:
         cell_m *= 2.0
     dims = (np.floor(extent / cell_m) + 1).astype(np.int64)
-    cell_of = np.empty(len(faces), np.int32)
-    _cells_of(face_xyz, faces, low, cell_m, dims, cell_of)
+    cell_of = np.empty(len(subset), np.int32)
+    _cells_of(points.xyz, points.corners, subset, low, cell_m, dims, cell_of)
     return low, cell_m, dims, cell_of
 
 

@@ -82,7 +82,6 @@ class OverlapRows:
         self._fanout = fanout
         self.n_faces = scene.n_faces
         self._positions = np.asarray(positions, np.float64)  # (C, 3)
-        self._centroids = scene.centroids  # (F, 3), for the float64 rays
         self._occlusion = occlusion
         self._limits = overlap_limits(limits, overlap_density_pts_m2)
         # the pair search and the bundles of the rows computed here, made with the first
@@ -116,8 +115,8 @@ class OverlapRows:
 
     def _row(self, candidate: int) -> tuple[NDArray[np.int32], int]:
         finder, culler = self._local_search()
-        return overlap_row(finder, culler, self._occlusion, self._positions,
-                           self._centroids, candidate)
+        return overlap_row(finder, culler, self._occlusion, self._positions, self._scene,
+                           candidate)
 
     @property
     def scene(self) -> Scene:
@@ -201,10 +200,10 @@ class OverlapRows:
 
 
 def overlap_row(finder: PairFinder, culler: BundleCuller | None, occlusion: Occlusion,
-                positions: NDArray[np.float64], centroids: NDArray[np.float64],
+                positions: NDArray[np.float64], scene: Scene,
                 candidate: int) -> tuple[NDArray[np.int32], int]:
-    """The faces candidate ``candidate`` of the (C, 3) ``positions`` qualifies for under
-    ``finder``'s limits (ascending) and the rays cast for them."""
+    """The faces of ``scene`` candidate ``candidate`` of the (C, 3) ``positions``
+    qualifies for under ``finder``'s limits (ascending) and the rays cast for them."""
     point = positions[candidate:candidate + 1]
     hidden, rays = (None, 0) if culler is None else culler.hidden(point)
     # a part of the row at a time, found and cast: a hall's row is a million pairs, and
@@ -213,7 +212,7 @@ def overlap_row(finder: PairFinder, culler: BundleCuller | None, occlusion: Occl
     # else is cast with it
     seen: list[NDArray[np.int32]] = []
     for pairs in finder.parts(point, candidate, hidden, most_tests=RAYS_PER_CAST):
-        seen.append(pairs.face[visible_pairs(occlusion, pairs, positions, centroids)])
+        seen.append(pairs.face[visible_pairs(occlusion, pairs, positions, scene)])
         rays += len(pairs)
     row = np.concatenate(seen) if seen else np.zeros(0, np.int32)
     return np.sort(row), rays

@@ -28,9 +28,9 @@ from numpy.typing import NDArray
 
 from planner.limits import FaceLimits
 from planner.rays import ExactRays, Occlusion
-from planner.scene import Scene
+from planner.scene import Scene, face_centroid
 from planner.visibility.bundles import HiddenBundles
-from planner.visibility.cells import RunGrid, float32_outward
+from planner.visibility.cells import MOST_PER_RUN, Points, RunGrid, float32_outward
 from planner.visibility.solids import ClosedShells
 
 
@@ -64,13 +64,13 @@ class Pairs:
     def subset(self, keep: NDArray[np.bool_] | NDArray[np.intp] | slice) -> Pairs:
         return Pairs(*(getattr(self, name)[keep] for name in _PAIR_COLUMNS))
 
-    def exact_rays(self, positions_xyz: NDArray[np.float64], face_xyz: NDArray[np.float64]
-                   ) -> ExactRays:
+    def exact_rays(self, positions_xyz: NDArray[np.float64], scene: Scene) -> ExactRays:
         """The float64 rays of any of these pairs, from the (C, 3) candidate positions the
-        pairs were found for to the (F, 3) face centroids (see :class:`ExactRays`)."""
+        pairs were found for to the centroids of ``scene``'s faces (see
+        :class:`ExactRays`)."""
         def rays(index: NDArray[np.int64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
             origins = np.asarray(positions_xyz, np.float64)[self.candidate[index]]
-            offset = face_xyz[self.face[index]] - origins
+            offset = scene.centroids_of(self.face[index]) - origins
             return origins, offset / np.linalg.norm(offset, axis=1)[:, None]
         return rays
 
@@ -82,12 +82,12 @@ RAYS_PER_CAST = 1 << 17
 
 
 def visible_pairs(occlusion: Occlusion, pairs: Pairs, positions_xyz: NDArray[np.float64],
-                  face_xyz: NDArray[np.float64]) -> NDArray[np.bool_]:
+                  scene: Scene) -> NDArray[np.bool_]:
     """(P,) whether each of ``pairs`` (found for the (C, 3) ``positions_xyz``) reaches its
-    face, cast :data:`RAYS_PER_CAST` at a time: each ray's verdict is its own, whatever
-    else is cast with it (the float64 rays of :meth:`Pairs.exact_rays`, to the (F, 3)
-    ``face_xyz``, decide where the casts disagree)."""
-    exact_rays = pairs.exact_rays(positions_xyz, face_xyz)
+    face of ``scene``, cast :data:`RAYS_PER_CAST` at a time: each ray's verdict is its
+    own, whatever else is cast with it (the float64 rays of :meth:`Pairs.exact_rays`
+    decide where the casts disagree)."""
+    exact_rays = pairs.exact_rays(positions_xyz, scene)
     visible = np.empty(len(pairs), bool)
     for first in range(0, len(pairs), RAYS_PER_CAST):
         part = slice(first, first + RAYS_PER_CAST)
@@ -181,7 +181,8 @@ def _cell_keys(
 @numba.njit(nogil=True, cache=True)
 def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     points: NDArray[np.float64], keys: NDArray[np.int64], first_index: int,
-    faces: NDArray[np.int32], face_xyz: NDArray[np.float64],
+    faces: NDArray[np.int32], vertex_xyz: NDArray[np.float64],
+    face_corners: NDArray[np.int32],
     face_normal: NDArray[np.float64], face_source: NDArray[np.int32],
     face_class: NDArray[np.integer[Any]], min_sin_incidence: NDArray[np.float64],
     min_density: NDArray[np.float64],
@@ -199,9 +200,11 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     """Write the pairs of (B, 3) ``points`` x the candidate faces that pass every limit;
     returns how many.
 
-    ``face_xyz`` is the scene's (F, 3) centroids, read through the f face indices
-    ``faces``, and ``face_normal`` its (F0, 3) file faces' normals, read through the (F,)
-    ``face_source`` (no per-plan copy: 48 bytes a face saved);
+    The f face indices ``faces`` are faces of the scene's (V, 3) ``vertex_xyz`` and (F, 3)
+    ``face_corners``, whose centroids (:func:`planner.scene.face_centroid`) are computed
+    a run at a time, when a point first reaches the run; ``face_normal`` is its (F0, 3)
+    file faces' normals, read through the (F,) ``face_source`` (no per-plan copy: 48
+    bytes a face saved);
     ``face_class`` (f,) picks each face's thresholds from the (K,) ``min_sin_incidence``
     and ``min_density`` (K: the distinct pairs of them, 1 without group requirements).
     Each point tests the faces of the cells its ``keys`` name (:func:`_cell_keys`), run by
@@ -239,6 +242,7 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     n_keys = keys.shape[0]
     least_sin_incidence = min_sin_incidence.min()
     least_density_step2 = min_density.min() * angular_step_rad * angular_step_rad
+    run_xyz = np.empty((MOST_PER_RUN, 3))  # the centroids of a run's faces
     first = 0
     while first < n_keys:  # one cell: its points are keys[first:last]
         cell = keys[first] // n_points
@@ -248,6 +252,8 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
         low, high = every_runs if cell == every_cell else (cell_runs[cell], cell_runs[cell + 1])
         for r in range(low, high):
             bundle = run_group[r] if bundled else -1
+            run_start = run_first[r]
+            centred = False
             for key in keys[first:last]:
                 b = key - cell * n_points
                 if bundle >= 0 and hidden[b, bundle]:
@@ -273,10 +279,17 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
                             or apart < least_density_step2 * near * near * near):
                         continue
                 shelled = sided and outside[b]
-                for m in range(run_first[r], run_first[r + 1]):
+                if not centred:
+                    for m in range(run_start, run_first[r + 1]):
+                        j = m - run_start
+                        run_xyz[j, 0], run_xyz[j, 1], run_xyz[j, 2] = face_centroid(
+                            vertex_xyz, face_corners, faces[members[m]])
+                    centred = True
+                for m in range(run_start, run_first[r + 1]):
                     i = members[m]
                     f = faces[i]
-                    fx, fy, fz = face_xyz[f, 0], face_xyz[f, 1], face_xyz[f, 2]
+                    j = m - run_start
+                    fx, fy, fz = run_xyz[j, 0], run_xyz[j, 1], run_xyz[j, 2]
                     ox, oy, oz = fx - px, fy - py, fz - pz
                     d2 = ox * ox + oy * oy + oz * oz
                     if d2 > reach2:
@@ -317,13 +330,15 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
 
 
 @numba.njit(nogil=True, cache=True)
-def _run_planes(faces: NDArray[np.int32], face_xyz: NDArray[np.float64],
-                face_source: NDArray[np.int32], face_normal: NDArray[np.float64],
+def _run_planes(faces: NDArray[np.int32], vertex_xyz: NDArray[np.float64],
+                face_corners: NDArray[np.int32], face_source: NDArray[np.int32],
+                face_normal: NDArray[np.float64],
                 members: NDArray[np.int32], run_first: NDArray[np.int64],
                 out_face: NDArray[np.int32], out_plane: NDArray[np.float32]) -> None:
     """Each run's plane into the (R,) ``out_face`` and (R, 2) ``out_plane``: the file face
     all its faces ``faces[members[run]]`` are pieces of (-1 where they are not of one), and
-    the least and greatest offset n . c of their centroids along its normal n, rounded
+    the least and greatest offset n . c of their centroids c (faces of ``vertex_xyz``,
+    ``face_corners``, as in :func:`_pass_limits`) along its normal n, rounded
     outward to float32 (:func:`planner.visibility.cells.float32_outward`)."""
     for r in range(run_first.shape[0] - 1):
         g = face_source[faces[members[run_first[r]]]]
@@ -333,8 +348,8 @@ def _run_planes(faces: NDArray[np.int32], face_xyz: NDArray[np.float64],
             if face_source[f] != g:
                 g = -1
                 break
-            offset = (face_xyz[f, 0] * face_normal[g, 0] + face_xyz[f, 1] * face_normal[g, 1]
-                      + face_xyz[f, 2] * face_normal[g, 2])
+            cx, cy, cz = face_centroid(vertex_xyz, face_corners, f)
+            offset = cx * face_normal[g, 0] + cy * face_normal[g, 1] + cz * face_normal[g, 2]
             low = min(low, offset)
             high = max(high, offset)
         out_face[r] = g
@@ -352,14 +367,15 @@ def lpd_of_faces(scene: Scene, limits: FaceLimits, point_xyz: NDArray[np.float64
     point is known to qualify for, such as a station's row of the coverage table."""
     out = np.empty(len(faces), np.float32)
     _face_lpd(np.ascontiguousarray(point_xyz, np.float64), np.asarray(faces, np.int32),
-              scene.centroids, scene.file_normals, scene.source_face,
+              scene.vertices, scene.faces, scene.file_normals, scene.source_face,
               limits.angular_step_rad, out)
     return out
 
 
 @numba.njit(nogil=True, cache=True)
 def _face_lpd(point: NDArray[np.float64], faces: NDArray[np.int32],
-              face_xyz: NDArray[np.float64], face_normal: NDArray[np.float64],
+              vertex_xyz: NDArray[np.float64], face_corners: NDArray[np.int32],
+              face_normal: NDArray[np.float64],
               face_source: NDArray[np.int32], angular_step_rad: float,
               out: NDArray[np.float32]
               ) -> None:  # compiled; compared with the limits kernel in test_limits
@@ -367,7 +383,8 @@ def _face_lpd(point: NDArray[np.float64], faces: NDArray[np.int32],
     px, py, pz = point[0], point[1], point[2]
     for i in range(faces.shape[0]):
         f = faces[i]
-        ox, oy, oz = face_xyz[f, 0] - px, face_xyz[f, 1] - py, face_xyz[f, 2] - pz
+        cx, cy, cz = face_centroid(vertex_xyz, face_corners, f)
+        ox, oy, oz = cx - px, cy - py, cz - pz
         d = np.sqrt(ox * ox + oy * oy + oz * oz)
         uz = oz / d
         ux, uy = ox / d, oy / d
@@ -443,8 +460,8 @@ class PairFinder:
         # does, whatever the densities of its own targets
         self.reach_m = search_reach_m(limits) if reach_m is None else reach_m
         self._faces = np.flatnonzero(limits.target).astype(np.int32)  # (f,) the targets
-        # the scene's own (F, 3) arrays, read through self._faces: no (f, 3) copies
-        self._face_xyz = scene.centroids
+        # the scene's own arrays, read through self._faces: no (f, 3) copies
+        self._points = Points.face_centroids(scene)
         self._face_normal = scene.file_normals  # (F0, 3), through source_face
         self._face_source = scene.source_face
         # (f,) class of each target's thresholds, (K,) incidence in degrees and density
@@ -457,13 +474,14 @@ class PairFinder:
         # only the faces within reach of a candidate are tested (on a 10 M-face building
         # a candidate reaches some thousandths of them): the cells around it
         self._bundle_of = bundle_of
-        self._grid = RunGrid.grouped(self._face_xyz, self._faces, self.reach_m,
+        self._grid = RunGrid.grouped(self._points, self._faces, self.reach_m,
                                      _CELLS_PER_REACH, bundle_of)
         # each run's plane, where its faces share one (those of a bundle always do)
         n_runs = len(self._grid.run_group)
         self._run_plane_face = np.empty(n_runs, np.int32)  # (R,) file face, -1: none
         self._run_plane = np.empty((n_runs, 2), np.float32)  # (R, 2) least, greatest n . c
-        _run_planes(self._faces, self._face_xyz, self._face_source, self._face_normal,
+        _run_planes(self._faces, self._points.xyz, self._points.corners, self._face_source,
+                    self._face_normal,
                     self._grid.members, self._grid.run_first, self._run_plane_face,
                     self._run_plane)
 
@@ -549,7 +567,7 @@ class PairFinder:
                       np.empty((tested, 3), np.float32), np.empty((tested, 3), np.float32),
                       np.empty(tested, np.float32), np.empty(tested, np.float32))
         n = _pass_limits(
-            points, keys, first_index, self._faces, self._face_xyz,
+            points, keys, first_index, self._faces, self._points.xyz, self._points.corners,
             self._face_normal, self._face_source, self._face_class, self._min_sin_incidence,
             self._min_density, lim.dof_min_m, lim.dof_max_m, self._min_sin_elevation,
             self._max_sin_elevation, self.reach_m, lim.angular_step_rad, grid.cell_runs,

@@ -323,7 +323,7 @@ def qualify_pairs(
         hidden, bundle_rays = (None, 0) if culler is None else culler.hidden(points)
         # unordered: sorting the visible pairs afterwards costs a fraction of sorting all
         pairs, tested = finder.find(points, start, hidden, ordered=False)
-        visible = np.flatnonzero(visible_pairs(occlusion, pairs, positions, scene.centroids))
+        visible = np.flatnonzero(visible_pairs(occlusion, pairs, positions, scene))
         candidate, face = pairs.candidate[visible], pairs.face[visible]
         order = sorted_by_face(candidate, face)
         qualified = QualifiedPairs(candidate[order], face[order],

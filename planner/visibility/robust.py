@@ -102,7 +102,7 @@ def disc_limits_hold(scene: Scene, limits: FaceLimits, position: NDArray[np.floa
 
     The occlusion ray cannot be bounded this way: it is tested at the setups only.
     """
-    offset = scene.centroids[faces] - position  # (f, 3)
+    offset = scene.centroids_of(faces) - position  # (f, 3)
     dz = offset[:, 2]
     horizontal = np.hypot(offset[:, 0], offset[:, 1])
     distance = np.linalg.norm(offset, axis=1)

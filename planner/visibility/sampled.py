@@ -92,8 +92,8 @@ def relaxed_limits(scene: Scene, limits: FaceLimits) -> FaceLimits:
     """
     target = limits.target
     corners = scene.vertices[scene.faces[target]]  # (T, 3, 3); not every face's corners
-    radius_m = float(np.linalg.norm(corners - scene.centroids[target][:, None], axis=2).max()
-                     ) if target.any() else 0.0
+    centre = scene.centroids_of(np.flatnonzero(target))[:, None]  # (T, 1, 3)
+    radius_m = float(np.linalg.norm(corners - centre, axis=2).max()) if target.any() else 0.0
     pad_deg = 90.0 if radius_m >= limits.dof_min_m else math.degrees(
         math.asin(radius_m / limits.dof_min_m)) if limits.dof_min_m > 0 else 90.0
     return replace(

@@ -50,7 +50,7 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
 from planner.candidates.winding import coordinate_ranks, triangle_solid_angle
-from planner.scene import Scene, longest_edges_m
+from planner.scene import Scene, face_centroid, longest_edges_m
 from planner.threads import in_block_order
 
 if TYPE_CHECKING:  # Embree is imported where a BVH is made
@@ -159,7 +159,7 @@ def _closed_shells(scene: Scene, bvh: BvhFaces) -> ClosedShells | None:
         on_shell = row >= 0
         pieces, own_row = block[on_shell], row[on_shell]
         shell = shell_of_row[own_row]
-        _far_from_shell(scene.centroids, pieces, own_row, shell, flips[shell], starts,
+        _far_from_shell(scene.vertices, scene.faces, pieces, own_row, shell, flips[shell], starts,
                         triangles, margin_m, side)
         return first
 
@@ -327,12 +327,14 @@ def _point_triangle_distance(px: float, py: float, pz: float,
 
 
 @numba.njit(nogil=True, cache=True)
-def _far_from_shell(centroids: NDArray[np.float64], pieces: NDArray[np.int64],
+def _far_from_shell(vertices: NDArray[np.float64], corners: NDArray[np.int32],
+                    pieces: NDArray[np.int64],
                     own_row: NDArray[np.int64], shell: NDArray[np.int64],
                     flip: NDArray[np.int8], starts: NDArray[np.int64],
                     triangles: NDArray[np.float64], margin_m: float,
                     side: NDArray[np.int8]) -> None:
-    """``side[pieces[i]] = flip[i]`` where the piece's centroid lies farther than
+    """``side[pieces[i]] = flip[i]`` where the piece's centroid (a face of ``vertices``,
+    ``corners``: :func:`planner.scene.face_centroid`) lies farther than
     ``margin_m`` from every face of its shell but its own (row ``own_row[i]`` of
     ``triangles``); compiled.
 
@@ -362,8 +364,8 @@ def _far_from_shell(centroids: NDArray[np.float64], pieces: NDArray[np.int64],
             k += 1
         for j in range(i, stop):
             f = pieces[j]
-            if _far_from_rows(centroids[f, 0], centroids[f, 1], centroids[f, 2], near[:k],
-                              triangles, margin_m):
+            cx, cy, cz = face_centroid(vertices, corners, f)
+            if _far_from_rows(cx, cy, cz, near[:k], triangles, margin_m):
                 side[f] = flip[j]
         i = stop
 

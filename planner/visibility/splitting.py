@@ -58,7 +58,7 @@ def faces_to_split(scene: Scene, positions_xyz: NDArray[np.float64], limits: Fac
     reach = np.minimum(limits.dof_max_m, [density_range_m(float(x), limits.angular_step_rad)
                                           for x in density])  # (f,) head-on, no incidence
     min_sin = np.sin(np.radians(limits.min_incidence_deg[faces]))  # (f,)
-    centre = scene.centroids[faces]
+    centre = scene.centroids_of(faces)
     radius = np.linalg.norm(triangles - centre[:, None, :], axis=2).max(axis=1)  # (f,)
     tree = cKDTree(positions_xyz)
     step2 = limits.angular_step_rad ** 2

@@ -8,8 +8,9 @@ pair search of reach ``reach_m`` needs:
 - the *targets*: every target face whose centroid lies within ``reach_m`` of one of the
   tile's candidates. The limits kernel rejects every pair farther than the reach before
   any other test (:mod:`planner.visibility.pairs`), so no other face can qualify. Faces
-  keep the model's order (a tile's faces are the model's, ascending) and the model's
-  float64 centroids, normals and areas, so the kernel makes the same tests;
+  keep the model's order (a tile's faces are the model's, ascending), their corners'
+  float64 coordinates (so their centroids) and the model's normals and areas, so the
+  kernel makes the same tests;
 - the *occluders*: the faces the rays are tested against, whole. With ``occluders``
   "file" (the default) on a split model these are the file's faces, as read, before the
   split: a small part of the model (the 9.7 M-face office is split from far fewer). On an
@@ -60,7 +61,7 @@ from planner.memory import release_freed_memory
 from planner.rays.embree import BvhFaces, BvhPart, EmbreeBvh, EmbreeOcclusion
 from planner.scene import Scene, compact_indices, unit_normals
 from planner.visibility.bundles import bundle_culler
-from planner.visibility.cells import PointGrid
+from planner.visibility.cells import PointGrid, Points, point_xyz
 from planner.visibility.coverage import QualifiedPairs
 from planner.visibility.overlap import overlap_row
 from planner.visibility.pairs import PairFinder
@@ -103,21 +104,21 @@ class Tile:
 
     def detached(self) -> Tile:
         """The tile without the file's mesh and which of its faces occlude (what
-        :meth:`TileCutter.occluders` holds), and without its faces' centroids, normals and
-        areas (what its vertices give again, the same bits: each face's arithmetic is the
-        model's, whatever faces stand beside it): what travels in a task, 56 bytes a face
-        less, valid again once :meth:`attached` to the occluders on the worker."""
+        :meth:`TileCutter.occluders` holds), and without its faces' areas and normals
+        (what its vertices give again, the same bits: each face's arithmetic is the
+        model's, whatever faces stand beside it): what travels in a task, valid again once
+        :meth:`attached` to the occluders on the worker."""
         if self.scene.file_faces is None or self.bvh.bvh_occludes is None:
             return self
         scene = copy.copy(self.scene)
-        for name in ("file_vertices", "file_faces", "centroids", "file_normals", "areas"):
+        for name in ("file_vertices", "file_faces", "file_normals", "areas"):
             object.__setattr__(scene, name, None)
         return dataclasses.replace(self, scene=scene,
                                    bvh=dataclasses.replace(self.bvh, bvh_occludes=None))
 
     def attached(self, occluders: Occluders) -> Tile:
         """The :meth:`detached` tile with the file's mesh of ``occluders`` (the same arrays,
-        not copies), its faces' centroids and areas derived again and its file faces'
+        not copies), its faces' areas derived again and its file faces'
         normals the occluders' (derived once on a worker)."""
         scene = self.scene.over_file_mesh(occluders.vertices, occluders.faces,
                                           occluders.normals())
@@ -129,7 +130,7 @@ class Tile:
         scene = self.scene
         arrays: list[NDArray[Any] | None] = [
             scene.vertices, scene.faces, scene.source_face, scene.file_face_group,
-            scene.file_face_element, scene.centroids, scene.file_normals, scene.areas,
+            scene.file_face_element, scene.file_normals, scene.areas,
             scene.file_vertices, scene.file_faces, self.faces, self.positions,
             self.candidates, self.limits.target, self.limits.occludes,
             self.limits.min_density_pts_m2, self.limits.min_incidence_deg,
@@ -206,7 +207,8 @@ class TileCutter:
         self.reach_m = reach_m
         self.bvh: BvhFaces = occlusion.bvh_faces()
         self._targets = np.flatnonzero(limits.target).astype(np.int32)
-        self._target_grid = PointGrid.of(scene.centroids, self._targets, reach_m)
+        self._centroids = Points.face_centroids(scene)
+        self._target_grid = PointGrid.of(self._centroids, self._targets, reach_m)
         # the rays meet the file's faces: the part holds the file's whole mesh, and which
         # of its faces occlude (the pieces of the part do not say it for the others)
         self._file_bvh = self.bvh.file_faces and scene.file_faces is not None
@@ -261,7 +263,7 @@ class TileCutter:
         # the targets within reach (with a hair of slack: the kernel decides the rest)
         reach = self.reach_m * (1 + 1e-6) + 1e-9
         near = self._targets[_in_box(self._target_grid, low - reach, high + reach)]
-        return np.sort(near[_within(self.scene.centroids, near, positions, low, high, reach)]
+        return np.sort(near[_within(self._centroids, near, positions, low, high, reach)]
                        ).astype(np.int64)
 
     def _cut(self, candidates: NDArray[np.int64], positions: NDArray[np.float64],
@@ -370,17 +372,17 @@ def _part_scene(scene: Scene, faces: NDArray[np.int64], *, keep_file_mesh: bool,
     # the model's own float64 values, whatever the part's arithmetic would give (and so
     # none of it is done)
     if not face_values:
-        return Scene.with_face_values(None, None, None, vertices=vertices, faces=triangles,
+        return Scene.with_face_values(None, None, vertices=vertices, faces=triangles,
                                       groups=scene.groups, **fields)
     return Scene.with_face_values(
-        scene.centroids[faces], file_normals, scene.areas[faces],
+        file_normals, scene.areas[faces],
         vertices=vertices, faces=triangles, groups=scene.groups, **fields)
 
 
-def _within(xyz: NDArray[np.float64], points: NDArray[np.integer[Any]],
+def _within(xyz: Points, points: NDArray[np.integer[Any]],
             positions: NDArray[np.float64], low: NDArray[np.float64],
             high: NDArray[np.float64], reach: float) -> NDArray[np.bool_]:
-    """(k,) bool: which of the (k,) ``points`` (rows of the (N, 3) ``xyz``) lie within
+    """(k,) bool: which of the (k,) ``points`` (of ``xyz``) lie within
     ``reach`` of one of the (n, 3) ``positions`` (``low`` and ``high``: their box), as a
     k-d tree of the positions finds them. Only the points the cheap bounds leave in doubt
     are looked up in the tree: those clearly within reach of the position nearest the box's
@@ -389,12 +391,13 @@ def _within(xyz: NDArray[np.float64], points: NDArray[np.integer[Any]],
     both the same)."""
     middle = positions[np.argmin(((positions - (low + high) / 2) ** 2).sum(axis=1))]
     verdict = np.empty(len(points), np.int8)
-    _bounds_verdict(xyz, points, middle, low, high, (reach * (1 - 1e-9)) ** 2,
+    _bounds_verdict(xyz.xyz, xyz.corners, points, middle, low, high,
+                    (reach * (1 - 1e-9)) ** 2,
                     (reach * (1 + 1e-9)) ** 2, verdict)
     sure: NDArray[np.bool_] = verdict == _IN
     doubt = np.flatnonzero(verdict == _DOUBT)
     if len(doubt):
-        distance, _ = cKDTree(positions).query(xyz[points[doubt]],
+        distance, _ = cKDTree(positions).query(xyz.at(points[doubt]),
                                                distance_upper_bound=reach)
         sure[doubt] = np.isfinite(distance)
     return sure
@@ -404,19 +407,22 @@ _OUT, _IN, _DOUBT = 0, 1, 2
 
 
 @numba.njit(nogil=True, cache=True)
-def _bounds_verdict(xyz: NDArray[np.float64], points: NDArray[np.integer[Any]],
+def _bounds_verdict(xyz: NDArray[np.float64], corners: NDArray[np.int32],
+                    points: NDArray[np.integer[Any]],
                     middle: NDArray[np.float64], low: NDArray[np.float64],
                     high: NDArray[np.float64], inside2: float, outside2: float,
                     verdict: NDArray[np.int8]) -> None:  # compiled; see test_distributed
     """Each point's verdict (into ``verdict``): :data:`_IN` within ``inside2`` (squared)
     of ``middle``, :data:`_OUT` farther than ``outside2`` (squared) from the box from
-    ``low`` to ``high``, :data:`_DOUBT` else."""
+    ``low`` to ``high``, :data:`_DOUBT` else (points of
+    :class:`~planner.visibility.cells.Points` ``xyz``, ``corners``)."""
+    point = np.empty(3)
     for i in range(len(points)):
-        p = points[i]
+        point[0], point[1], point[2] = point_xyz(xyz, corners, points[i])
         to_middle = 0.0
         to_box = 0.0
         for axis in range(3):
-            value = xyz[p, axis]
+            value = point[axis]
             d = value - middle[axis]
             to_middle += d * d
             if value < low[axis]:
@@ -479,8 +485,8 @@ def _rows(tile: Tile, occlusion: EmbreeOcclusion) -> tuple[list[NDArray[np.int32
                         bundle_of=None if culler is None else culler.bundles.bundle_of)
     rows, rays = [], 0
     for index in range(len(tile.positions)):
-        faces, cast = overlap_row(finder, culler, occlusion, tile.positions,
-                                  tile.scene.centroids, index)
+        faces, cast = overlap_row(finder, culler, occlusion, tile.positions, tile.scene,
+                                  index)
         rows.append(tile.faces[faces])
         rays += cast
     return rows, rays

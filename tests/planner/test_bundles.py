@@ -274,7 +274,7 @@ def test_the_culler_searches_the_bundles_that_can_get_rays_in_radius_classes(
     pieces has none), searched in classes of radius: the same (point, bundle) pairs, in
     the same order, as one search over them with a grid for the largest radius."""
     from planner.visibility import bundles as module
-    from planner.visibility.cells import PointGrid, pairs_in_reach
+    from planner.visibility.cells import PointGrid, Points, pairs_in_reach
 
     bundles = bundles_of(office)
     assert bundles is not None
@@ -295,7 +295,7 @@ def test_the_culler_searches_the_bundles_that_can_get_rays_in_radius_classes(
         search = module._LevelSearch.of(level, side, reach_m)
         classes = max(classes, len(search.classes))
         eligible = np.flatnonzero(level.pieces >= module.MIN_BUNDLE_PIECES).astype(np.int32)
-        grid = PointGrid.of(level.centre, np.arange(len(level), dtype=np.int32),
+        grid = PointGrid.of(Points.rows(level.centre), np.arange(len(level), dtype=np.int32),
                             reach_m + float(level.radius_m.max()))
         point, bundle = pairs_in_reach(points, level.centre, level.radius_m, reach_m, grid)
         keep = np.isin(bundle, eligible)
@@ -309,7 +309,7 @@ def test_the_grid_keeps_each_cells_pieces_in_runs_of_one_bundle() -> None:
     """The pair search's grid orders each cell's points by group (a bundle; -1 first),
     then by index, and cuts them into runs of one group of at most the longest run: the
     same points per cell as a plain grid, every run one group."""
-    from planner.visibility.cells import MOST_PER_RUN, PointGrid, RunGrid
+    from planner.visibility.cells import MOST_PER_RUN, PointGrid, Points, RunGrid
 
     rng = np.random.default_rng(11)
     xyz = rng.uniform(0, 10, size=(20_000, 3))
@@ -317,8 +317,8 @@ def test_the_grid_keeps_each_cells_pieces_in_runs_of_one_bundle() -> None:
     group[:2_000] = -1  # in one cell, more points in no group than a run holds
     xyz[:2_000] = rng.uniform(0.1, 0.9, size=(2_000, 3))
     subset = np.arange(0, len(xyz), 2, dtype=np.int32)
-    plain = PointGrid.of(xyz, subset, 4.0, cells_per_reach=2)
-    grid = RunGrid.grouped(xyz, subset, 4.0, 2, group)
+    plain = PointGrid.of(Points.rows(xyz), subset, 4.0, cells_per_reach=2)
+    grid = RunGrid.grouped(Points.rows(xyz), subset, 4.0, 2, group)
     assert np.array_equal(plain.start, grid.start)
     n_runs = len(grid.run_group)
     assert grid.run_first[0] == 0 and grid.run_first[-1] == len(subset)
@@ -342,6 +342,26 @@ def test_the_grid_keeps_each_cells_pieces_in_runs_of_one_bundle() -> None:
         assert grid.run_box.dtype == np.float32
         assert (grid.run_box[r, :3].astype(np.float64) <= points.min(axis=0)).all()
         assert (grid.run_box[r, 3:].astype(np.float64) >= points.max(axis=0)).all()
+
+
+def test_the_grid_of_face_centroids_computes_them_with_numpys_bits(office: Scene) -> None:
+    """The scene keeps no centroids: the kernels compute each where they read it. They
+    must be the bits numpy's mean of the corners gives (what the plans were made with): the
+    same centroids, grid, runs and run boxes as over the centroids as rows."""
+    from planner.visibility.cells import Points, RunGrid
+
+    numpy_centroids = office.vertices[office.faces].mean(axis=1)
+    assert np.array_equal(office.centroids.view(np.int64), numpy_centroids.view(np.int64))
+    some = np.arange(0, office.n_faces, 7)
+    assert np.array_equal(office.centroids_of(some), numpy_centroids[some])
+    faces = Points.face_centroids(office)
+    assert np.array_equal(faces.at(some), numpy_centroids[some])
+    subset = np.arange(1, office.n_faces, 3, dtype=np.int32)
+    group = (np.arange(office.n_faces) // 50).astype(np.int32)
+    computed = RunGrid.grouped(faces, subset, 6.0, 2, group)
+    as_rows = RunGrid.grouped(Points.rows(numpy_centroids), subset, 6.0, 2, group)
+    for name in ("origin", "start", "members", "cell_runs", "run_first", "run_box"):
+        assert np.array_equal(getattr(computed, name), getattr(as_rows, name)), name
 
 
 def _limits_passed(scene: Scene, limits: FaceLimits, point: np.ndarray, reach_m: float

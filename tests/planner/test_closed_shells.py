@@ -35,7 +35,7 @@ def _left_out_and_cast(scene: Scene, positions: np.ndarray, limits: FaceLimits
     assert np.isin(key_kept, key_every).all()  # the shells only ever leave pairs out
     left_out = ~np.isin(key_every, key_kept)
     visible = occlusion.visible(every.origin, every.direction, every.distance_m, every.face,
-                                exact_rays=every.exact_rays(positions, scene.centroids))
+                                exact_rays=every.exact_rays(positions, scene))
     return len(every), left_out, visible
 
 

@@ -191,7 +191,7 @@ def test_tiles_travel_without_the_file_mesh(house_tiles: HouseTiles) -> None:
         ids = np.arange(start, min(start + 8, len(candidates.positions)))
         tile = cutter.cut(ids, candidates.positions[ids])
         sent = tile.detached()
-        assert sent.scene.file_faces is None and sent.scene.centroids is None
+        assert sent.scene.file_faces is None and sent.scene.areas is None
         bare = cutter.cut(ids, candidates.positions[ids], detached=True)  # as a task's
         assert bare.nbytes == sent.nbytes
         assert np.array_equal(bare.faces, sent.faces)
@@ -243,6 +243,7 @@ def test_tile_cut_bounds_decide_as_the_k_d_tree() -> None:
     from scipy.spatial import cKDTree
 
     from planner.scene import compact_indices
+    from planner.visibility.cells import Points
     from planner.visibility.tiles import _within
 
     rng = np.random.default_rng(7)
@@ -251,7 +252,7 @@ def test_tile_cut_bounds_decide_as_the_k_d_tree() -> None:
         xyz = rng.uniform(-40.0, 50.0, (20_000, 3))
         points = np.sort(rng.choice(len(xyz), 10_000, replace=False)).astype(np.int32)
         distance, _ = cKDTree(positions).query(xyz[points], distance_upper_bound=25.0)
-        within = _within(xyz, points, positions, positions.min(axis=0),
+        within = _within(Points.rows(xyz), points, positions, positions.min(axis=0),
                          positions.max(axis=0), 25.0)
         assert np.array_equal(within, np.isfinite(distance))
         indices = rng.integers(0, 5_000, (3_000, 3)).astype(np.int32)

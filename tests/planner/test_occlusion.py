@@ -36,7 +36,7 @@ def test_leaving_out_the_fast_cast_on_clear_hits_changes_no_verdict(
                               for y in np.linspace(low[1], high[1], 5)[1:-1]])
     pairs, _ = PairFinder(scene, limits).find(positions, 0)
     rays = (pairs.origin, pairs.direction, pairs.distance_m, pairs.face)
-    exact = pairs.exact_rays(positions, scene.centroids)
+    exact = pairs.exact_rays(positions, scene)
     skipped = _embree.EmbreeOcclusion._clear_hits
 
     def counted(self: _embree.EmbreeOcclusion, *args: np.ndarray) -> np.ndarray:
@@ -68,8 +68,7 @@ def test_one_cast_differs_from_the_exact_verdicts_only_on_grazing_rays(scenes_di
     exact = make_occlusion(scene, limits.occludes, "embree", exact=True)
     assert not one_cast.exact and exact.exact
     default_verdicts = one_cast.visible(*rays)
-    exact_verdicts = exact.visible(*rays, exact_rays=pairs.exact_rays(positions,
-                                                                      scene.centroids))
+    exact_verdicts = exact.visible(*rays, exact_rays=pairs.exact_rays(positions, scene))
     differ = np.flatnonzero(default_verdicts != exact_verdicts)
     assert 0 < len(differ) < len(pairs) * 1e-4
     assert isinstance(exact, _embree.EmbreeOcclusion)
