@@ -62,6 +62,7 @@ Layout
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import math
@@ -417,7 +418,8 @@ class _Features:
 def lpd_bands(ratio: NDArray[np.float64], classes: NDArray[np.uint8]) -> NDArray[np.uint8]:
     """(F,) uint8 each face's LPD band: 0 for a face that is not covered, else 0 to
     ``LPD_BANDS - 1`` as its best LPD is 1-2, 2-4, ... times its requirement or more
-    (``ratio``: (F,) best LPD over the requirement, :func:`_lpd_ratio`)."""
+    (``ratio``: (F,) best LPD over the requirement, :func:`_lpd_ratio`; any block of faces
+    gives its own faces' bands)."""
     bands = np.zeros(len(classes), np.uint8)
     covered = classes == COVERED
     doublings = np.floor(np.log2(np.maximum(ratio[covered], 1.0)))
@@ -425,12 +427,36 @@ def lpd_bands(ratio: NDArray[np.float64], classes: NDArray[np.uint8]) -> NDArray
     return bands
 
 
-def _lpd_ratio(result: PlanResult) -> NDArray[np.float64]:
-    """(F,) each face's best LPD over its requirement (inf where it requires none)."""
-    best = np.asarray(result.faces["best_lpd_pts_m2"], np.float64)
+def _best_and_required(result: PlanResult
+                       ) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
+    """(F,) each face's best LPD (float32, as the plan holds it) and (F,) its requirement
+    (float64; a read-only broadcast view where the plan has one requirement)."""
+    best = np.asarray(result.faces["best_lpd_pts_m2"], np.float32)
     required = np.broadcast_to(np.asarray(result.limits.min_density_pts_m2, np.float64),
                                best.shape)
-    return np.divide(best, required, out=np.full_like(best, np.inf), where=required > 0)
+    return best, required
+
+
+def _lpd_ratio(best: NDArray[np.float32], required: NDArray[np.float64]
+               ) -> NDArray[np.float64]:
+    """Each face's best LPD over its requirement (inf where it requires none), of the
+    faces of (k,) ``best`` and ``required`` (:func:`_best_and_required`, or a block of
+    them); the same division as :func:`_first_least` makes."""
+    ratio = np.asarray(best, np.float64)
+    return np.divide(ratio, required, out=np.full_like(ratio, np.inf), where=required > 0)
+
+
+def _states(classes: NDArray[np.uint8], best: NDArray[np.float32],
+            required: NDArray[np.float64]) -> NDArray[np.uint8]:
+    """(F,) uint8 each face's state within its file face, class then LPD band
+    (``classes * LPD_BANDS + band``), ``_CHUNK_VERTICES`` faces at a time: no (F,) float64
+    ratios and their temporaries (some 250 MB on the 9.7 M-piece office)."""
+    state = np.empty(len(classes), np.uint8)
+    for start in range(0, len(classes), _CHUNK_VERTICES):
+        block = slice(start, start + _CHUNK_VERTICES)
+        ratio = _lpd_ratio(best[block], required[block])
+        state[block] = classes[block] * LPD_BANDS + lpd_bands(ratio, classes[block])
+    return state
 
 
 def _features(result: PlanResult, classes: NDArray[np.uint8]) -> _Features:
@@ -443,9 +469,8 @@ def _features(result: PlanResult, classes: NDArray[np.uint8]) -> _Features:
                          worst=every.astype(np.int64), classes=classes,
                          corners=scene.faces, triangle_feature=None)
     source = scene.source_face
-    ratio = _lpd_ratio(result)
-    # each face's state within its file face: class, then LPD band
-    state = (classes * LPD_BANDS + lpd_bands(ratio, classes)).astype(np.uint8)
+    best, required = _best_and_required(result)
+    state = _states(classes, best, required)
     n_states = len(CLASS_NAMES) * LPD_BANDS
     # the faces by (file face, state), stably: a split scene keeps each file face's
     # pieces together in file order, so a counting sort of each file face's run of pieces
@@ -467,8 +492,7 @@ def _features(result: PlanResult, classes: NDArray[np.uint8]) -> _Features:
         del sorted_key
         offsets = np.concatenate([[0] if n else [], changes, [n]]).astype(np.int64)
     del state
-    worst = _first_least(ratio, rows, offsets)
-    del ratio
+    worst = _first_least(best, required, rows, offsets)
     corners, made = group_triangles(scene, rows, offsets)
     return _Features(rows=rows, offsets=offsets, worst=worst,
                      classes=classes[rows[offsets[:-1]]], corners=corners,
@@ -515,19 +539,30 @@ def _features_by_face(source: NDArray[np.int32], state: NDArray[np.uint8], n_sta
 
 
 @numba.njit(nogil=True, cache=True)
-def _first_least(values: NDArray[np.float64], rows: NDArray[np.int32],
-                 offsets: NDArray[np.int64]) -> NDArray[np.int64]:
+def _first_least(best: NDArray[np.float32], required: NDArray[np.float64],
+                 rows: NDArray[np.int32], offsets: NDArray[np.int64]) -> NDArray[np.int64]:
     """(N,) of each group ``rows[offsets[n]:offsets[n + 1]]`` (rows ascending) the row of
-    the least of ``values`` (the first such row; NaN above all, as a sort puts it)."""
+    the least ratio of ``best`` over ``required`` (each (F,); inf where nothing is
+    required: :func:`_lpd_ratio`'s values, computed here a row at a time); the first such
+    row, NaN above all, as a sort puts it."""
     least = np.empty(len(offsets) - 1, np.int64)
     for n in range(len(offsets) - 1):
-        best = rows[offsets[n]]
+        worst = rows[offsets[n]]
+        worst_value = _ratio(best, required, worst)
         for j in range(offsets[n] + 1, offsets[n + 1]):
-            value = values[rows[j]]
-            if value < values[best] or (np.isnan(values[best]) and not np.isnan(value)):
-                best = rows[j]
-        least[n] = best
+            value = _ratio(best, required, rows[j])
+            if value < worst_value or (np.isnan(worst_value) and not np.isnan(value)):
+                worst, worst_value = rows[j], value
+        least[n] = worst
     return least
+
+
+@numba.njit(nogil=True, cache=True, inline="always")
+def _ratio(best: NDArray[np.float32], required: NDArray[np.float64], row: int) -> float:
+    """Row ``row``'s best LPD over its requirement, inf where it requires none."""
+    if required[row] > 0:
+        return float(np.float64(best[row]) / required[row])
+    return np.inf
 
 
 def _grid_vertices(scene: Scene, quantizer: _Quantizer) -> NDArray[np.uint16]:
@@ -585,6 +620,8 @@ def _document(result: PlanResult, builder: _Builder) -> dict[str, Any]:
     # in the file stays after the meshes
     packed_columns = (list(_property_columns(builder, result, classes, features))
                       if builder.compress else None)
+    if packed_columns is not None:  # the meshes read no rows: let them go (4 bytes a face)
+        features = dataclasses.replace(features, rows=np.zeros(0, np.int32))
     # quantize the vertices once, then gather corners: (T, 3, 3) uint16 per class is a
     # quarter of the float64 corners a 10 M-face scene would otherwise copy
     grid_vertices = _grid_vertices(scene, quantizer)

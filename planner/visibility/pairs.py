@@ -242,7 +242,8 @@ def _pass_limits(  # compiled; its cases are in tests/planner/test_limits.py
     n_keys = keys.shape[0]
     least_sin_incidence = min_sin_incidence.min()
     least_density_step2 = min_density.min() * angular_step_rad * angular_step_rad
-    run_xyz = np.empty((MOST_PER_RUN, 3))  # the centroids of a run's faces
+    # the centroids of a run's faces (a RunGrid's runs hold at most MOST_PER_RUN)
+    run_xyz = np.empty((MOST_PER_RUN, 3))
     first = 0
     while first < n_keys:  # one cell: its points are keys[first:last]
         cell = keys[first] // n_points
