@@ -399,6 +399,17 @@ class Scene:
         faces, first = np.unique(self.source_face, return_index=True)
         return faces, first.astype(np.int64)
 
+    def pieces_per_file_face(self) -> NDArray[np.int64]:
+        """(F0,) int64, how many pieces each file face has (no (F,) int64 copy of
+        ``source_face``, as ``np.bincount`` makes, where the pieces are in file order)."""
+        n_file = len(self.file_mesh[1])
+        if not self._pieces_in_file_order():
+            counts: NDArray[np.int64] = np.bincount(self.source_face, minlength=n_file)
+            return counts
+        ids = np.arange(n_file, dtype=self.source_face.dtype)
+        return (np.searchsorted(self.source_face, ids, side="right")
+                - np.searchsorted(self.source_face, ids, side="left")).astype(np.int64)
+
     def _pieces_in_file_order(self) -> bool:
         """``source_face`` never decreases (checked a block at a time, no (F,) scratch)."""
         previous = -1

@@ -50,7 +50,7 @@ def group_triangles(scene: Scene, rows: NDArray[np.int32], offsets: NDArray[np.i
     first = rows[offsets[:-1]]
     file_face = source[first].astype(np.int64)
     counts = np.diff(offsets)
-    whole = counts == np.bincount(source, minlength=len(scene.file_mesh[1]))[file_face]
+    whole = counts == scene.pieces_per_file_face()[file_face]
     triangle_group, triangles, to_merge = _outlined(
         scene, rows, offsets, first, np.flatnonzero(~whole & (counts > 1)))
     merged = [triangles]

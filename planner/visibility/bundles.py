@@ -182,8 +182,7 @@ def _make_bundles(scene: Scene) -> Bundles | None:
     # interior's props (a million file faces of one piece each) then cost no bundles: a
     # 1.06 M-face one kept 3.2 M of them over the three levels (their arrays some 450 MB)
     # for the 2,382 that get rays
-    bundled = usable & (np.bincount(scene.source_face, minlength=len(usable))
-                        >= MIN_BUNDLE_PIECES)
+    bundled = usable & (scene.pieces_per_file_face() >= MIN_BUNDLE_PIECES)
 
     def keyed(block: slice) -> tuple[NDArray[np.int64], NDArray[np.int64],
                                      NDArray[np.float64], NDArray[np.float64]]:

@@ -140,3 +140,21 @@ def test_long_edges_are_those_trimesh_measures_bit_for_bit() -> None:
     for max_edge_m in (0.2, 1.0, 50.0, *length_m[:50, 2]):
         assert np.array_equal(_long_edges(vertices, faces, float(max_edge_m)),
                               length_m > max_edge_m)
+
+
+def test_pieces_per_file_face_counts_each_file_faces_pieces() -> None:
+    """The count of pieces per file face, read off the pieces in file order without an
+    (F,) copy, is the count numpy's bincount gives, and so when the pieces are not in
+    file order."""
+    boxes = _file_scene(room_shell(0.0, 4.0, 0.0, 3.0))
+    scene = remesh(boxes, 0.4, split=np.arange(boxes.n_faces) % 3 > 0)
+    expected = np.bincount(scene.source_face, minlength=len(scene.file_mesh[1]))
+    assert (expected > 1).any() and (expected == 1).any()
+    assert np.array_equal(scene.pieces_per_file_face(), expected)
+    shuffled = np.random.default_rng(5).permutation(scene.n_faces)
+    unordered = Scene(vertices=scene.vertices, faces=scene.faces[shuffled],
+                      file_face_group=scene.file_face_group, groups=scene.groups,
+                      source_face=scene.source_face[shuffled],
+                      file_face_element=scene.file_face_element,
+                      file_vertices=scene.file_vertices, file_faces=scene.file_faces)
+    assert np.array_equal(unordered.pieces_per_file_face(), expected)
