@@ -284,10 +284,12 @@ class _Quantizer:
         extent = float(np.max(bounds[1] - bounds[0]))
         self.step_m = extent / 65535.0 if extent > 0 else 1.0
 
-    def __call__(self, points: NDArray[np.float64]) -> NDArray[np.uint16]:
-        """(N, 3) points -> (N, 3) grid steps, ``_CHUNK_VERTICES`` at a time (no (N, 3)
-        float64 temporaries)."""
-        out = np.empty(points.shape, np.uint16)
+    def __call__(self, points: NDArray[np.float64], out: NDArray[np.uint16] | None = None
+                 ) -> NDArray[np.uint16]:
+        """(N, 3) points -> (N, 3) grid steps (into ``out`` when given),
+        ``_CHUNK_VERTICES`` at a time (no (N, 3) float64 temporaries)."""
+        if out is None:
+            out = np.empty(points.shape, np.uint16)
         for start in range(0, len(points), _CHUNK_VERTICES):
             block = slice(start, start + _CHUNK_VERTICES)
             steps = np.rint((points[block] - self.origin) / self.step_m)
@@ -568,10 +570,13 @@ def _ratio(best: NDArray[np.float32], required: NDArray[np.float64], row: int) -
 def _grid_vertices(scene: Scene, quantizer: _Quantizer) -> NDArray[np.uint16]:
     """(V + V0, 3) uint16 grid steps of the scene's vertices, then the file's (V0 only when
     the scene was split): the vertices :attr:`_Features.corners` index."""
-    grid = quantizer(scene.vertices)
     if scene.file_vertices is None:
-        return grid
-    return np.concatenate([grid, quantizer(scene.file_vertices)])
+        return quantizer(scene.vertices)
+    n = len(scene.vertices)
+    grid = np.empty((n + len(scene.file_vertices), 3), np.uint16)  # no concatenated copy
+    quantizer(scene.vertices, grid[:n])
+    quantizer(scene.file_vertices, grid[n:])
+    return grid
 
 
 def coverage_glb(result: PlanResult, *, compress: bool | None = None) -> bytes:
