@@ -168,6 +168,7 @@ def _points_into(xyz: NDArray[np.float64], corners: NDArray[np.int32],
     for i in range(which.shape[0]):
         out[i, 0], out[i, 1], out[i, 2] = point_xyz(xyz, corners, which[i])
 
+
 @numba.njit(nogil=True, cache=True)
 def _bounds(xyz: NDArray[np.float64], corners: NDArray[np.int32], subset: NDArray[np.int32],
             low: NDArray[np.float64], high: NDArray[np.float64]) -> None:
