@@ -82,9 +82,10 @@ def face_centroid(vertices: FloatArray, faces: IndexArray, f: int
 
 
 @numba.njit(nogil=True, cache=True)
-def _centroids_into(vertices: FloatArray, faces: IndexArray, which: NDArray[np.int64],
-                    out: FloatArray) -> None:
-    """The centroids of the faces ``which`` (k,) into the (k, 3) ``out``."""
+def centroids_into(vertices: FloatArray, faces: IndexArray, which: NDArray[np.int64],
+                   out: FloatArray) -> None:
+    """The centroids (:func:`face_centroid`) of the faces ``which`` (k,) of the (F, 3)
+    ``faces`` over ``vertices`` into the (k, 3) ``out``."""
     for i in range(which.shape[0]):
         out[i, 0], out[i, 1], out[i, 2] = face_centroid(vertices, faces, which[i])
 
@@ -327,7 +328,7 @@ class Scene:
                  else faces)
         which = np.ascontiguousarray(which, np.int64).reshape(-1)
         out = np.empty((len(which), 3))
-        _centroids_into(self.vertices, self.faces, which, out)
+        centroids_into(self.vertices, self.faces, which, out)
         return out
 
     @property

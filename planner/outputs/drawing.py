@@ -411,6 +411,12 @@ def section_at(vertices: NDArray[np.float64], faces: NDArray[np.integer[Any]], z
 def floor_faces(result: PlanResult, level: Level) -> NDArray[np.int64]:
     """(T,) faces of ``level`` seen from above under its section, lowest first (the order
     they are painted in)."""
+    return _floor_faces(result, level)[0]
+
+
+def _floor_faces(result: PlanResult, level: Level
+                 ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """:func:`floor_faces` and (T,) the height of each one's centroid."""
     scene = result.scene
     picked = []
     for start in range(0, scene.n_faces, CHUNK_FACES):
@@ -420,7 +426,9 @@ def floor_faces(result: PlanResult, level: Level) -> NDArray[np.int64]:
         picked.append(start + np.flatnonzero(
             up & (cz >= level.floor_z - 0.2) & (cz <= level.section_z)))
     below = np.concatenate(picked)
-    return below[np.argsort(scene.centroids_of(below)[:, 2], kind="stable")]
+    height_m = scene.centroids_of(below)[:, 2]
+    order = np.argsort(height_m, kind="stable")
+    return below[order], height_m[order]
 
 
 @dataclass(frozen=True)
@@ -478,9 +486,8 @@ def floor_of(result: PlanResult, level: Level) -> Floor:
         made = _FLOORS.get(result, {}).get(key)
     if made is not None:
         return made
-    below = floor_faces(result, level)
+    below, height_m = _floor_faces(result, level)
     rgb = face_rgb(result.faces, limits.target, limits.min_density_pts_m2, below)
-    height_m = scene.centroids_of(below)[:, 2]
     if scene.file_faces is None or len(below) == 0:
         return Floor(scene.vertices, scene.faces[below], rgb, height_m)
     floor = _grouped_floor(scene, below, rgb, height_m)

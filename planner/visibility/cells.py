@@ -18,7 +18,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from planner.scene import Scene, face_centroid
+from planner.scene import Scene, centroids_into, face_centroid
 
 _NO_CORNERS = np.zeros((0, 3), np.int32)
 
@@ -46,7 +46,7 @@ class Points:
             rows: NDArray[np.float64] = self.xyz[index]
             return rows
         out = np.empty((len(index), 3))
-        _points_into(self.xyz, self.corners, index, out)
+        centroids_into(self.xyz, self.corners, index, out)
         return out
 
 
@@ -159,14 +159,6 @@ def _runs(start: NDArray[np.int64], members: NDArray[np.int32], group: NDArray[n
         cell_runs[n_cells] = r
         run_first[r] = members.shape[0]
     return r
-
-
-@numba.njit(nogil=True, cache=True)
-def _points_into(xyz: NDArray[np.float64], corners: NDArray[np.int32],
-                 which: NDArray[np.int64], out: NDArray[np.float64]) -> None:
-    """The points ``which`` (k,) of :class:`Points` (``xyz``, ``corners``) into ``out``."""
-    for i in range(which.shape[0]):
-        out[i, 0], out[i, 1], out[i, 2] = point_xyz(xyz, corners, which[i])
 
 
 @numba.njit(nogil=True, cache=True)
