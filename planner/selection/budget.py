@@ -7,7 +7,11 @@ submodular function of the stations, so greedy reaches at least 1 - 1/e of the b
 maximizing submodular set functions", Math. Programming 14, 1978); the report gives the
 sharper bound that the same submodularity gives from the plan itself: no ``k`` stations
 cover more than the plan's area plus the ``k`` largest areas a single station would add to
-it (ibid., and Minoux's accelerated greedy, 1978).
+it (ibid., and Minoux's accelerated greedy, 1978). Both are loose where stations overlap
+much: the report also gives the Lagrangian dual of the maximum-coverage LP
+(:func:`planner.selection.lower_bound.coverage_upper_bound`), and the least of the three
+is the bound. The Amersfoort sports hall, 30 stations: greedy covers 1,349 m², the
+submodular bound says at most 1,660, the LP's 1,458.
 
 Array letters: C candidates, F faces.
 """
@@ -20,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from planner.selection.greedy import GAIN_QUANTUM_M2, Selection
+from planner.selection.lower_bound import coverage_upper_bound
 from planner.visibility.coverage import CoverageTable
 
 
@@ -30,23 +35,34 @@ def first_stations(order: Selection, max_stations: int) -> Selection:
                      order.covered_area_m2[:n], order.max_achievable_area_m2, order.fixed)
 
 
-def budget_report(table: CoverageTable, order: Selection, max_stations: int
-                  ) -> dict[str, Any]:
+def budget_report(table: CoverageTable, order: Selection, max_stations: int,
+                  others: tuple[Selection, ...] = ()) -> dict[str, Any]:
     """plan.json's ``selection.budget``: what the budget's plan covers, a bound on what any
-    ``max_stations`` stations could, and what one station more would add."""
+    ``max_stations`` stations could, and what one station more would add.
+
+    ``others``: orders of other methods with the same fixed stations; the LP's bound starts
+    from the most any of the ``max_stations``-prefixes covers (the closer to the best, the
+    tighter: hall-small, 2 stations, 95.5 m² from greedy's 89.9 m², 100.1 from weighted
+    greedy's).
+    """
     plan = first_stations(order, max_stations)
     covered = plan.covered_area_m2[-1] if plan.stations else 0.0
     uncovered = ~table.covered_by(plan.stations)
     gains = table.sum_per_candidate(table.face_area_m2 * uncovered)  # (C,) beyond the plan
     top = np.sort(gains)[::-1][:max_stations]
     achievable = table.max_achievable_area_m2
-    bound = min(achievable, covered + float(top.sum()))
+    submodular = min(achievable, covered + float(top.sum()))
     if order.method == "greedy" and not order.fixed and plan.stations:
         # greedy on area, from nothing: at least 1 - 1/e of the best k stations' area (its
         # gains are whole units of GAIN_QUANTUM_M2 a face: add their rounding, half a unit
         # a face, to stay a bound)
         rounding_m2 = 0.5 * GAIN_QUANTUM_M2 * table.n_faces
-        bound = min(bound, (covered + rounding_m2) / (1.0 - 1.0 / math.e))
+        submodular = min(submodular, (covered + rounding_m2) / (1.0 - 1.0 / math.e))
+    reached = max([covered, *(first_stations(other, max_stations).covered_area_m2[-1]
+                              for other in others if other.stations)])
+    lagrangian = coverage_upper_bound(table, max_stations, reached,
+                                      fixed=plan.stations[:plan.fixed])
+    bound = min(submodular, lagrangian.area_m2)
     n = len(plan.stations)
     return {
         "max_stations": max_stations,
@@ -55,9 +71,11 @@ def budget_report(table: CoverageTable, order: Selection, max_stations: int
         "coverage_fraction": round(covered / achievable, 6) if achievable else 0.0,
         "upper_bound_area_m2": round(bound, 3),
         "upper_bound_fraction": round(bound / achievable, 6) if achievable else 0.0,
-        "bound": "no max_stations stations cover more than the plan's area plus the "
-                 "max_stations largest areas one station adds to it, nor (greedy from no "
-                 "fixed station) more than its area / (1 - 1/e): coverage is submodular",
+        "bound": "the least of: the plan's area plus the max_stations largest areas one "
+                 "station adds to it, (greedy from no fixed station) its area / (1 - 1/e), "
+                 "and the lagrangian dual of the maximum-coverage LP",
+        "bounds": {"submodular_area_m2": round(submodular, 3),
+                   "lagrangian": lagrangian.to_dict()},
         "next_station_gain_m2": round(order.new_area_m2[n], 3) if n < len(order.stations)
         else 0.0,
     }

@@ -97,7 +97,8 @@ def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tup
         chosen = first_stations(order, budget)
         report = outcome.report
         n, lower = len(chosen.stations), int(report["lower_bound"])
-        report["budget"] = {**budget_report(table, order, budget),
+        others = tuple(s for s in outcome.selections.values() if s is not order)
+        report["budget"] = {**budget_report(table, order, budget, others),
                             "goal_needs_at_least": lower}
         report["stations"] = n
         report["gap"] = round(max(0.0, (n - lower) / n), 6) if n else 0.0
