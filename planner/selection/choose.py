@@ -17,7 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from planner.progress import ProgressCallback, Stats, notify
-from planner.selection.budget import budget_report, first_stations
+from planner.selection.budget import best_in_budget, budget_report
 from planner.selection.connected import connected_greedy, overlap_graph
 from planner.selection.connectivity import Connectivity
 from planner.selection.greedy import Selection
@@ -94,11 +94,13 @@ def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tup
         chosen = order.truncated(spec.coverage_goal)
     if budget is not None and order is not None:
         # a budget: the most coverage in that many stations, the goal reached or not
-        chosen = first_stations(order, budget)
+        # swaps would not keep a registrable plan connected
+        chosen, swaps = best_in_budget(table, order, budget, swaps=rows is None)
         report = outcome.report
         n, lower = len(chosen.stations), int(report["lower_bound"])
         others = tuple(s for s in outcome.selections.values() if s is not order)
-        report["budget"] = {**budget_report(table, order, budget, others),
+        report["budget"] = {**budget_report(table, chosen, order, budget, others,
+                                            tuple(swaps)),
                             "goal_needs_at_least": lower}
         report["stations"] = n
         report["gap"] = round(max(0.0, (n - lower) / n), 6) if n else 0.0

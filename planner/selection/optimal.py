@@ -436,6 +436,30 @@ def local_search(table: CoverageTable, stations: Sequence[int], need_m2: float,
     return state.stations, moves
 
 
+def most_coverage(table: CoverageTable, stations: Sequence[int], n_fixed: int
+                  ) -> tuple[list[int], list[Move]]:
+    """As many stations covering more: swaps of one free station for the candidate that
+    adds the most in its place, while a swap adds more than SWAP_MIN_GAIN_M2, at most two a
+    free station (no clock: the same plan on any machine). Runs on the face classes.
+
+    Returns the stations (the first ``n_fixed`` first, the others in greedy order among
+    themselves) and the swaps; the input when no swap helps.
+    """
+    classes = class_table(table, table.achievable)
+    state = _CoverState(classes.table, list(stations), n_fixed, need_m2=0.0)
+    moves: list[Move] = []
+    for _ in range(2 * (len(stations) - n_fixed)):
+        move = state.best_swap()
+        if move is None:
+            break
+        moves.append(move)
+    if not moves:
+        return list(stations), []
+    fixed = list(stations[:n_fixed])
+    kept = state.stations[n_fixed:]  # the swaps touch free stations only
+    return fixed + _order_by_gain(table, kept, table.covered_by(fixed)), moves
+
+
 def _repair(table: CoverageTable, stations: list[int], need_m2: float, n_fixed: int,
             deadline: float, keep: Keep | None = None,
             by_face: sp.csc_matrix | None = None) -> list[int]:
