@@ -945,15 +945,19 @@ def station_rows(result: PlanResult, orders: Iterable[int], *, visit: bool = Fal
 
 def _stations_title(result: PlanResult) -> str:
     """The station table's title: how many stations, and how many the goal needs at least
-    (``selection.lower_bound``) where that is fewer: what no plan can go below."""
+    (``selection.lower_bound``) where that is fewer: what no plan can go below. A budget's
+    plan: the most any plan of as many stations could cover (the share it covers is in the
+    figure's subtitle). Short enough for the side panel at 8 pt (about 44 characters)."""
     n = len(result.chosen.stations)
+    title = f"{n} station{'' if n == 1 else 's'}"
+    budget = result.selection_report.get("budget")
     lower = result.selection_report.get("lower_bound")
-    needed = ""
-    if lower is not None and int(lower) < n:
-        # a budget's plan may stop short of the goal: the bound is the goal's
-        needed = f", the goal needs at least {lower}" if "budget" in result.selection_report \
-            else f", at least {lower} needed"
-    return f"{n} station{'' if n == 1 else 's'}{needed} (model coordinates, m)"
+    if budget is not None:
+        verb = "covers" if n == 1 else "cover"
+        title += f"; any {n} {verb} at most {100 * budget['upper_bound_fraction']:.1f} %"
+    elif lower is not None and int(lower) < n:
+        title += f", at least {lower} needed"
+    return title
 
 
 def _station_table(fig: Figure, result: PlanResult, top: float) -> None:
@@ -963,6 +967,7 @@ def _station_table(fig: Figure, result: PlanResult, top: float) -> None:
     scans = () if result.survey is None else result.survey.scans
     if len(chosen.stations) > limit:
         rows.append(f"  ... {len(chosen.stations) - limit} more in stations.csv")
+    rows.append("  x, y, z: model coordinates, m")
     fig.text(0.755, top, _stations_title(result), fontsize=8, fontweight="bold",
              va="bottom")
     # the two scan columns take a smaller type to stay on the page

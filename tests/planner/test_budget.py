@@ -13,6 +13,7 @@ import scipy.sparse as sp
 from planner.candidates.grid import read_candidates_csv
 from planner.errors import ParameterError
 from planner.io.readers import read_scene
+from planner.outputs.drawing import _stations_title
 from planner.outputs.report import plan_document
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
@@ -113,6 +114,10 @@ def test_the_lagrangian_bound_is_exact_where_the_lp_is() -> None:
 def test_a_budget_above_what_the_goal_needs_adds_coverage(unlimited: PlanResult) -> None:
     at_goal = _hall()  # 80 %: two stations
     more = _hall(max_stations=4)
+    # the preview's station table says the most any plan of four stations could cover
+    budget = plan_document(more)["selection"]["budget"]
+    assert _stations_title(more) == \
+        f"4 stations; any 4 cover at most {100 * budget['upper_bound_fraction']:.1f} %"
     assert len(at_goal.chosen.stations) < 4 == len(more.chosen.stations)
     assert more.chosen.covered_area_m2[-1] >= \
         unlimited.selections["greedy"].covered_area_m2[3] - 1e-9
