@@ -311,4 +311,5 @@ def test_preview_lists_each_stations_setting_and_scan_time(hall_full: PlanResult
     n = len(hall_full.chosen.stations)
     lower = hall_full.selection_report["lower_bound"]
     title = f"{n} stations, at least {lower} needed" if lower < n else f"{n} stations"
-    assert f"{title} (model coordinates, m)" in texts
+    assert title in texts.splitlines()
+    assert table[-1].strip() == "x, y, z: model coordinates, m"
