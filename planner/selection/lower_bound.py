@@ -257,8 +257,8 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
     if full and not must.all():
         cover, area, must = cover[:, must], area[must], must[must]
     if iterations is None:
-        iterations = PDHG_ITERATIONS if full else min(
-            max_iterations, max(MIN_ITERATIONS, work_pairs // max(1, cover.nnz)))
+        iterations = PDHG_ITERATIONS if full else _volume_iterations(
+            cover.nnz, work_pairs, max_iterations)
     problem = _Lagrangian(cover, area, need, must, full)
     del cover  # the problem keeps it by candidate
     target = max(1.0, float(upper_stations - base))
@@ -267,6 +267,13 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
                         lp_value=base + float(problem.best.sum()), iterations=done,
                         forced=len(forced), classes=classes, components=problem.n_components,
                         method=FULL_METHOD if full else PARTIAL_METHOD)
+
+
+def _volume_iterations(pairs: int, work_pairs: int, max_iterations: int) -> int:
+    """Iterations of the volume algorithm over a class matrix of ``pairs`` pairs: as many as
+    ``work_pairs`` pair-iterations allow, at least MIN_ITERATIONS and at most
+    ``max_iterations`` (fixed work, no clock: the same table gives the same bound)."""
+    return min(max_iterations, max(MIN_ITERATIONS, work_pairs // max(1, pairs)))
 
 
 @dataclass(frozen=True)
@@ -326,7 +333,7 @@ def coverage_upper_bound(table: CoverageTable, stations: int, reached_m2: float,
     # the multipliers of the fewest stations covering what the known plan covers: their
     # knapsack's threshold is the plan's, near the maximum coverage LP's optimum
     need = min(max(reached_m2 - fixed_m2, ROUND_TOLERANCE * total), total)
-    iterations = min(ITERATIONS, max(MIN_ITERATIONS, work_pairs // max(1, cover.nnz)))
+    iterations = _volume_iterations(cover.nnz, work_pairs, ITERATIONS)
     problem = _Lagrangian(cover, area, need, area > total - need, full=False)
     # aimed one station above the plan's: the search never stops early, the plan reaching
     # ``need`` with ``free`` stations
