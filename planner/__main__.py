@@ -10,13 +10,14 @@ group ``scanplan.commands``: a callable that takes the argparse subparsers objec
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import os
 import sys
 import time
 from importlib.metadata import entry_points
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, NoReturn, TextIO
 
 from planner.errors import PlannerError
 from planner.parameters import PlanSpec
@@ -278,5 +279,17 @@ def main(argv: list[str] | None = None) -> int:
     return code
 
 
+def run() -> NoReturn:
+    """The ``scanplan`` command: :func:`main`, then exit without the interpreter's last
+    collections. At exit CPython collects every object the run made, over and over as it
+    tears the modules down (hall-full: about 1 s of an 11 s plan, the office more); the
+    process is ending, so every object is frozen out of those collections
+    (:func:`gc.freeze`) and its memory goes back with the process. Files are closed and
+    atexit handlers run as before."""
+    code = main()
+    gc.freeze()
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()

@@ -184,10 +184,11 @@ def sheets(result: PlanResult) -> list[Sheet]:
     """The sheets of the set, storey by storey (lowest first), tiles row by row."""
     out: list[Sheet] = []
     positions = result.candidates.positions
-    for index, level in enumerate(drawing.levels(result)):
+    all_levels = drawing.levels(result)
+    extents = drawing.level_extents(result, all_levels)
+    for index, (level, extent) in enumerate(zip(all_levels, extents, strict=True)):
         members = np.asarray(sorted(set(level.candidates.tolist())
                                     .intersection(result.chosen.stations)), np.int64)
-        extent = drawing.level_extent(result, level)
         scale = storey_scale(extent, min_spacing_m(positions[members]))
         tiles = tuple(_tiles(extent, scale))
         out += [Sheet(level=level, level_index=index, scale=scale, view=view, tile=name,

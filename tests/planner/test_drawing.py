@@ -155,6 +155,24 @@ def test_one_panel_per_level(result: PlanResult) -> None:
     assert len(drawing.draw_preview(two).axes) == 2
 
 
+def test_levels_extents_in_one_pass_are_each_levels_own(result: PlanResult) -> None:
+    """The preview and the print set find every level's extent in one pass over the faces
+    and keep it with the plan: the extents are those each level gives alone, and each holds
+    its level's candidates."""
+    upper = result.candidates.positions + np.array([0.0, 0.0, 3.0])
+    both = CandidateSet(positions=np.concatenate([result.candidates.positions, upper]),
+                        source="explicit", considered=2 * len(upper))
+    two = dataclasses.replace(result, candidates=both)
+    levels = drawing.levels(two)
+    together = drawing.level_extents(two, levels)
+    alone = [drawing.level_extents(dataclasses.replace(two), [level])[0] for level in levels]
+    assert together == alone
+    assert drawing.level_extents(two, levels[::-1]) == together[::-1]  # kept, in any order
+    for level, (x0, y0, x1, y1) in zip(levels, together, strict=True):
+        xy = two.candidates.positions[level.candidates, :2]
+        assert (xy >= (x0, y0)).all() and (xy <= (x1, y1)).all()
+
+
 def test_registered_outputs(result: PlanResult, tmp_path: Path) -> None:
     assert {"preview.png", "curve.png", "coverage.glb"} <= set(OUTPUTS)
     written = write_outputs(result, tmp_path, names=("preview.png", "curve.png"))
