@@ -35,7 +35,7 @@ import threading
 import weakref
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, overload
+from typing import Any, Generic, TypeVar, overload
 
 import numpy as np
 import shapely
@@ -317,12 +317,35 @@ def _level_key(level: Level) -> tuple[str, float, float, float]:
     return (level.name, level.floor_z, level.section_z, level.top_z)
 
 
+_Key = TypeVar("_Key")
+_Value = TypeVar("_Value")
+
+
+class _PerPlan(Generic[_Key, _Value]):
+    """What the drawings made of a plan, by key, kept as long as the plan (weak keys) so
+    that the print set reads what the preview made; thread-safe (the pictures render on
+    background threads). Made outside the lock: two threads asking at once may both make
+    a value, the same one."""
+
+    def __init__(self) -> None:
+        self._made: weakref.WeakKeyDictionary[PlanResult, dict[_Key, _Value]] = (
+            weakref.WeakKeyDictionary())
+        self._lock = threading.Lock()
+
+    def made(self, result: PlanResult) -> dict[_Key, _Value]:
+        """A copy of what was made of ``result`` so far."""
+        with self._lock:
+            return dict(self._made.get(result, {}))
+
+    def keep(self, result: PlanResult, values: Mapping[_Key, _Value]) -> None:
+        with self._lock:
+            self._made.setdefault(result, {}).update(values)
+
+
 # each level's extent, found once for the preview and the print set (the 9.7 M-piece
 # office: 1.6 s a drawing, three passes over every piece's centroid)
-_EXTENTS: weakref.WeakKeyDictionary[
-    PlanResult, dict[tuple[str, float, float, float], tuple[float, float, float, float]]] = (
-    weakref.WeakKeyDictionary())
-_EXTENTS_LOCK = threading.Lock()
+_EXTENTS: _PerPlan[tuple[str, float, float, float], tuple[float, float, float, float]] = (
+    _PerPlan())
 
 
 def level_extents(result: PlanResult, levels: Sequence[Level]
@@ -340,14 +363,12 @@ def level_extents(result: PlanResult, levels: Sequence[Level]
     levels not yet found share one pass over the faces; a level's extent is kept with the
     result, so the print set reads the preview's.
     """
-    with _EXTENTS_LOCK:
-        known = dict(_EXTENTS.get(result, {}))
+    known = _EXTENTS.made(result)
     missing = list({_level_key(lv): lv for lv in levels
                     if _level_key(lv) not in known}.values())
     if missing:
         found = _extents(result, missing)
-        with _EXTENTS_LOCK:
-            _EXTENTS.setdefault(result, {}).update(found)
+        _EXTENTS.keep(result, found)
         known.update(found)
     return [known[_level_key(lv)] for lv in levels]
 
@@ -363,6 +384,7 @@ def _extents(result: PlanResult, levels: Sequence[Level]
         for level, corner in zip(levels, corners, strict=True):
             inside = (cz >= level.floor_z - 0.2) & (cz <= level.top_z)
             corner[scene.faces[block][inside].ravel()] = True
+    reach = result.limits.reach_m
     out = {}
     for level, corner in zip(levels, corners, strict=True):
         xy = result.candidates.positions[level.candidates, :2]
@@ -373,7 +395,6 @@ def _extents(result: PlanResult, levels: Sequence[Level]
             if len(points):
                 lo = np.minimum(lo, points.min(axis=0))
                 hi = np.maximum(hi, points.max(axis=0))
-        reach = result.limits.reach_m
         if len(xy) and reach > 0:  # no farther than a station reaches from the candidates
             lo = np.maximum(lo, xy.min(axis=0) - reach)
             hi = np.minimum(hi, xy.max(axis=0) + reach)
@@ -501,9 +522,7 @@ class Floor:
 _GROUPED_LEAST_PIECES = 32
 # the grouped floors of a split plan, made once for the preview and once for the print set
 # (one thread draws both, one after the other; Lantern Hollow's plain mesh: 5 s a time)
-_FLOORS: weakref.WeakKeyDictionary[PlanResult, dict[tuple[float, float], Floor]] = (
-    weakref.WeakKeyDictionary())
-_FLOORS_LOCK = threading.Lock()
+_FLOORS: _PerPlan[tuple[float, float], Floor] = _PerPlan()
 
 
 def floor_of(result: PlanResult, level: Level) -> Floor:
@@ -517,8 +536,7 @@ def floor_of(result: PlanResult, level: Level) -> Floor:
     edge, partly covered by two colours, may take the other one."""
     scene, limits = result.scene, result.limits
     key = (level.floor_z, level.section_z)
-    with _FLOORS_LOCK:
-        made = _FLOORS.get(result, {}).get(key)
+    made = _FLOORS.made(result).get(key)
     if made is not None:
         return made
     below, height_m = _floor_faces(result, level)
@@ -526,8 +544,7 @@ def floor_of(result: PlanResult, level: Level) -> Floor:
     if scene.file_faces is None or len(below) == 0:
         return Floor(scene.vertices, scene.faces[below], rgb, height_m)
     floor = _grouped_floor(scene, below, rgb, height_m)
-    with _FLOORS_LOCK:
-        _FLOORS.setdefault(result, {})[key] = floor
+    _FLOORS.keep(result, {key: floor})
     return floor
 
 

@@ -15,7 +15,6 @@ import itertools
 import json
 import math
 import struct
-import weakref
 from pathlib import Path
 from typing import Any
 
@@ -363,7 +362,7 @@ def test_split_floor_is_drawn_by_group_in_each_piece_s_colour(
                        height_m: np.ndarray) -> drawing.Floor:
         return drawing.Floor(scene.vertices, scene.faces[below], rgb, height_m)
 
-    monkeypatch.setattr(drawing, "_FLOORS", weakref.WeakKeyDictionary())
+    monkeypatch.setattr(drawing, "_FLOORS", drawing._PerPlan())  # nothing made yet
     monkeypatch.setattr(drawing, "_grouped_floor", piece_by_piece)
     pieces_image = decode(drawing.preview_png(result))
     assert np.any(grouped != pieces_image, axis=2).mean() < 0.02

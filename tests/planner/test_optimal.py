@@ -139,8 +139,9 @@ def check_optimal(result: PlanResult, row: optimal.OptimalResult) -> None:
 
 def test_hall_small_every_goal(scenes_dir: Path) -> None:
     goals = [0.8, 0.9, 0.95, 1.0]
-    # the plan's goal is solved first, with a quarter of the limit (its proof takes about
-    # 1.5 s of a slow 2-core machine beside another test process: 1.5 s was too tight)
+    # the plan's goal is solved first, with a quarter of the limit: its proof needs about
+    # 1.5 s on a slow 2-core machine beside another test process, which a 6 s limit (1.5 s
+    # for it) did not always leave
     result = hall_plan(scenes_dir, "hall-small", method="optimal", coverage_goal=1.0,
                        curve_goals=goals, optimal_time_limit_s=16)
     assert [row.goal for row in result.optimal_curve] == goals
