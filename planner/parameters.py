@@ -26,9 +26,11 @@ from planner.scanners import (
     ScannerProfile,
     ScanSetting,
     fallback_step,
+    missing_duration_reason,
     plan_defaults,
     preset,
     resolve,
+    station_scans,
 )
 
 Method = Literal["greedy", "weighted_greedy", "optimal"]
@@ -43,6 +45,8 @@ CoverageModel = Literal["centroid", "sampled"]
 COVERAGE_MODELS: tuple[CoverageModel, ...] = ("centroid", "sampled")
 Occluders = Literal["file", "remeshed"]
 OCCLUDERS: tuple[Occluders, ...] = ("file", "remeshed")
+# seconds to set up one station when neither the plan nor its scanner gives a figure
+DEFAULT_SETUP_TIME_S = 60.0
 # the radius a robust plan holds its faces within when no placement_tolerance_m is given: a
 # tripod centred over a mark by eye, without a plummet, lands within some 0.25 m of it
 ROBUST_TOLERANCE_M = 0.25
@@ -88,6 +92,11 @@ class PlanSpec:
     # greedy, maximum coverage), whether or not it reaches the goal; null: the fewest
     # stations that reach the goal
     max_stations: int | None = None
+    # a budget of hours in the field (setup, scans at the plan's step and the walk between
+    # stations, as plan.json's field_time counts them): the plan with the most coverage a
+    # crew can survey in that time (greedy or weighted greedy, with a scanner whose scan
+    # times are known); null: no time budget
+    max_field_time_h: float | None = None
     optimal_time_limit_s: float = 60.0
     curve_goals: tuple[float, ...] | None = None  # goals of the curve's optimal row
     fixed_stations: tuple[tuple[float, float, float], ...] | None = None  # re-scan
@@ -187,6 +196,16 @@ class PlanSpec:
     def angular_step_rad(self) -> float:
         """SPS: the scanner's angular step, point spacing over its reference distance."""
         return self.point_spacing_m / self.reference_distance_m
+
+    @property
+    def setup_per_station_s(self) -> float:
+        """Seconds to set up one station: ``setup_time_s``, else the scanner's, else
+        :data:`DEFAULT_SETUP_TIME_S`."""
+        if self.setup_time_s is not None:
+            return self.setup_time_s
+        profile = self.scanner_profile
+        return DEFAULT_SETUP_TIME_S if profile is None or profile.setup_time_s is None \
+            else profile.setup_time_s
 
     def requirement_for(self, group: str) -> GroupRequirement:
         """The overrides for ``group`` (all defaults when it has none)."""
@@ -311,6 +330,7 @@ RANGES: dict[str, Range] = {
     "walking_speed_m_s": Range(gt=0, le=100, hint="0.8 is a slow walk with a tripod"),
     "samples_per_face": Range(ge=1, le=256, hint="a square number; use 16"),
     "max_stations": Range(ge=1, le=100_000, hint="a budget of stations; null: no budget"),
+    "max_field_time_h": Range(gt=0, le=10_000, hint="hours in the field; null: no budget"),
     "min_sampled_fraction": Range(gt=0, le=1, hint="1 means the whole face"),
 }
 # each coordinate of candidates, fixed_stations, area_of_interest and route_start, in model
@@ -353,7 +373,7 @@ GROUP_RANGES: dict[str, Range] = {
 _NULLABLE = {"max_edge_m", "candidates", "area_of_interest", "storeys", "rooms",
              "curve_goals", "fixed_stations", "scanner", "min_overlap_m2", "route_start",
              "setup_time_s", "up_axis", "scanner_heights_m", "placement_tolerance_m",
-             "max_stations", "overlap_max_edge_m"}
+             "max_stations", "overlap_max_edge_m", "max_field_time_h"}
 _FLOATS = {
     f.name
     for f in fields(PlanSpec)
@@ -591,6 +611,29 @@ def _check_scanner(spec: PlanSpec) -> None:
                "then keeps 0.01 m at 10 m, or the finest setting when none is that fine)")
 
 
+def _check_time_budget(spec: PlanSpec) -> None:
+    """A field-time budget: a greedy method, and a scanner whose scan at the plan's step
+    has a known duration (the budget counts it for every station)."""
+    _check(spec.method != "optimal", "max_field_time_h",
+           "plans a budget with greedy or weighted_greedy (the most coverage in that much "
+           "field time); optimal finds the fewest stations for the goal: drop one of them")
+    profile = spec.scanner_profile
+    _check(profile is not None, "max_field_time_h",
+           "needs a scanner (a preset id or a profile with measurement_rate_pts_s): the "
+           "budget counts each station's scan time")
+    assert profile is not None
+    scan = station_scans(profile, spec.angular_step_rad, spec.elevation_min_deg,
+                         spec.elevation_max_deg, [1.0])[0]
+    _check(scan.scan_s is not None, "max_field_time_h",
+           "needs each station's scan time, which is unknown: "
+           + missing_duration_reason(profile, (scan,)))
+    assert scan.scan_s is not None
+    one_s = spec.setup_per_station_s + scan.scan_s
+    _check(spec.max_field_time_h is None or spec.max_field_time_h * 3600.0 >= one_s,
+           "max_field_time_h", f"{spec.max_field_time_h:g} h is less than one station's "
+           f"setup and scan ({one_s / 60.0:.1f} min with {profile.name}); raise it")
+
+
 def _check(ok: bool, name: str, message: str) -> None:
     if not ok:
         raise ParameterError(name, message)
@@ -668,6 +711,8 @@ def _validate(spec: PlanSpec) -> None:
         _check(spec.fixed_stations is None or spec.max_stations >= len(spec.fixed_stations),
                "max_stations", "is below the number of fixed_stations, which every plan "
                "keeps; raise it or drop stations from fixed_stations")
+    if spec.max_field_time_h is not None:
+        _check_time_budget(spec)
     _check(not spec.robust or spec.tolerance_radius_m > 0, "robust",
            "needs placement_tolerance_m greater than 0 or null (the radius a setup may be "
            f"off; null: {ROBUST_TOLERANCE_M} m)")

@@ -31,7 +31,7 @@ from planner.scene import Scene, remesh
 from planner.selection.choose import choose
 from planner.selection.greedy import Selection, coverage_state
 from planner.selection.optimal import OptimalResult
-from planner.survey.fieldwork import Survey, places_of, survey, with_settings
+from planner.survey.fieldwork import FieldClock, Survey, places_of, survey, with_settings
 from planner.survey.tolerance import Tolerance, plan_tolerance
 from planner.visibility.bundles import forget_bundles
 from planner.visibility.coverage import CoverageTable
@@ -123,8 +123,14 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
         overlap = whole.overlap_sight(candidates.positions) or sight
         del whole
         stats.seconds["overlap_split"] = time.perf_counter() - t_split
+    # a budget of hours: the routes of the sets of stations it weighs are walked on one
+    # graph, which the plan's survey walks too
+    area_xy = walk_area(candidates.positions)
+    clock = None if spec.max_field_time_h is None else FieldClock(
+        sight.scene, spec, sight.limits, sight.caster, candidates.positions, area_xy,
+        stats.seconds)
     choice = choose(sight, table, candidates.positions, fixed, stats, progress=progress,
-                    threads=threads, fanout=fanout, overlap=overlap)
+                    threads=threads, fanout=fanout, overlap=overlap, clock=clock)
     chosen, station_overlap = choice.chosen, choice.station_overlap
     stations_xyz = candidates.positions[list(chosen.stations)]  # (S, 3)
     release_freed_memory()
@@ -142,7 +148,8 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
                          sight.caster, stats.seconds, station_overlap=station_overlap,
                          threads=threads, fanout=fanout,
                          places=places_of(sight.scene, candidates, list(chosen.stations)),
-                         walk_area_xy=walk_area(candidates.positions), overlap=overlap)
+                         walk_area_xy=area_xy, overlap=overlap,
+                         network=None if clock is None else clock.network)
     forget_bundles(sight.scene)
     release_freed_memory()  # the overlap rows' pair search, before the per-face results
     # the per-face results after the survey, which does not read them: on the 9.7 M-face

@@ -168,6 +168,10 @@ class PlanParameters(BaseModel):
     max_stations: Annotated[int, Strict()] | None = _d(
         "max_stations", "a budget: the most coverage in this many stations (greedy or "
         "weighted_greedy), the goal reached or not; null: the fewest stations for the goal")
+    max_field_time_h: Number | None = _d(
+        "max_field_time_h", "a budget of hours in the field: the most coverage a crew can "
+        "set up, scan (at the plan's step) and walk in this time (greedy or weighted_greedy; "
+        "needs a scanner whose scan times are known); null: no time budget")
     optimal_time_limit_s: Number = _d("optimal_time_limit_s", "MILP time limit, seconds")
     curve_goals: list[Goal] | None = _d(
         "curve_goals", "goals in (0, 1] of the curve's optimal row; null: the plan's goal "

@@ -999,12 +999,16 @@ def _stations_title(result: PlanResult) -> str:
     """The station table's title: how many stations, and how many the goal needs at least
     (``selection.lower_bound``) where that is fewer: what no plan can go below. A budget's
     plan: the most any plan of as many stations could cover (the share it covers is in the
-    figure's subtitle). Short enough for the side panel at 8 pt (about 44 characters)."""
+    figure's subtitle); a budget of hours: the most any plan in those hours could cover.
+    Short enough for the side panel at 8 pt (about 44 characters)."""
     n = len(result.chosen.stations)
     title = f"{n} station{'' if n == 1 else 's'}"
     budget = result.selection_report.get("budget")
     lower = result.selection_report.get("lower_bound")
-    if budget is not None:
+    if budget is not None and "field_time" in budget:  # a budget of hours
+        hours = budget["field_time"]["max_field_time_h"]
+        title += f"; in {hours:g} h at most {100 * budget['upper_bound_fraction']:.1f} %"
+    elif budget is not None:
         verb = "covers" if n == 1 else "cover"
         title += f"; any {n} {verb} at most {100 * budget['upper_bound_fraction']:.1f} %"
     elif lower is not None and int(lower) < n:

@@ -15,16 +15,24 @@ also gives the Lagrangian dual of the maximum-coverage LP
 is the bound. The Amersfoort sports hall, 20 stations: the plan covers 1,205 m², the
 submodular bound says at most 1,616, the LP's 1,223.
 
+A budget of hours (``max_field_time_h``) is a budget of stations too: no plan in it has more
+stations than the hours hold setups and scans (the walk only adds), so the bound is the one
+of that many stations, and the plan is the longest prefix of the order whose field time,
+walk included, fits (:func:`best_in_time`).
+
 Array letters: C candidates, F faces.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 
+from planner.errors import ParameterError
 from planner.selection.greedy import GAIN_QUANTUM_M2, Selection, replay
 from planner.selection.lower_bound import coverage_upper_bound
 from planner.selection.optimal import Move, most_coverage
@@ -52,6 +60,105 @@ def best_in_budget(table: CoverageTable, order: Selection, max_stations: int, *,
     if swapped.covered_area_m2[-1] <= prefix.covered_area_m2[-1]:  # the classes' sums only
         return prefix, []
     return swapped, moves
+
+
+class FieldClock(Protocol):
+    """The field time of a set of stations (:class:`planner.survey.fieldwork.FieldClock`)."""
+
+    per_station_s: float  # the setup and scan of one station: what every station costs
+
+    def seconds(self, stations: list[int]) -> float:
+        """Setup, scans and the walk between the candidates ``stations``, seconds."""
+        ...
+
+
+@dataclass(frozen=True)
+class TimeBudget:
+    """How a budget of hours was spent: the plan's field time, the most stations the
+    hours could hold, and what one station more (the order's next) would take."""
+
+    max_s: float  # the budget
+    plan_s: float  # the plan's field time (every station at the plan's step)
+    at_most_stations: int  # setups and scans alone fill the budget beyond this
+    per_station_s: float
+    next_station_s: float | None  # the order's next prefix; None: no station left
+
+    def to_dict(self) -> dict[str, Any]:
+        def h(seconds: float | None) -> float | None:
+            return None if seconds is None else round(seconds / 3600.0, 4)
+
+        return {
+            "max_field_time_h": h(self.max_s),
+            "plan_field_time_h": h(self.plan_s),
+            "within": self.plan_s <= self.max_s,
+            "station_setup_and_scan_s": round(self.per_station_s, 1),
+            "at_most_stations": self.at_most_stations,
+            "one_station_more_field_time_h": h(self.next_station_s),
+            "counts": "each station's setup and its scan at the plan's step, and the route's "
+                      "walk; a station whose faces allow a coarser setting scans faster, so "
+                      "field_time.total_s is at most plan_field_time_h",
+        }
+
+
+def longest_prefix_in_time(order: Selection, cap: int, max_s: float,
+                           seconds_of: Callable[[list[int]], float]
+                           ) -> tuple[int, float, float | None]:
+    """How many of ``order``'s first stations (at most ``cap``, at least its fixed ones) fit
+    in ``max_s`` seconds of field time (``seconds_of``): a binary search, the field time
+    growing with the stations; the count, its seconds, and those of one station more (None
+    when the order has none). The cap's set is asked about first."""
+    known: dict[int, float] = {}
+
+    def fits(k: int) -> bool:
+        if k not in known:
+            known[k] = seconds_of(list(order.stations[:k]))
+        return known[k] <= max_s
+
+    high = min(cap, len(order.stations))
+    low = min(order.fixed, high)
+    if fits(high):
+        low = high
+    elif fits(low):  # the fixed stations fit, the cap does not: fits(low), not fits(high)
+        while high - low > 1:
+            middle = (low + high) // 2
+            if fits(middle):
+                low = middle
+            else:
+                high = middle
+    nxt = low + 1
+    if nxt <= len(order.stations):
+        fits(nxt)
+    return low, known[low], known.get(nxt)
+
+
+def best_in_time(table: CoverageTable, order: Selection, max_stations: int | None,
+                 max_s: float, clock: FieldClock, *, swaps: bool = True
+                 ) -> tuple[Selection, list[Move], TimeBudget]:
+    """The plan with the most coverage in ``max_s`` seconds of field time (and at most
+    ``max_stations``): the longest prefix of ``order`` that fits, improved by swaps
+    (``swaps``) when the swapped stations still fit; the plan, the swaps made, and how the
+    time was spent. The fixed stations are always kept (``within`` is false when they alone
+    take longer); a budget whose first station's walk from the route's start does not fit
+    raises :class:`~planner.errors.ParameterError`."""
+    at_most = int(max_s // clock.per_station_s) if clock.per_station_s > 0 else len(
+        order.stations)
+    cap = at_most if max_stations is None else min(max_stations, at_most)
+    count, plan_s, next_s = longest_prefix_in_time(order, max(cap, order.fixed), max_s,
+                                                   clock.seconds)
+    if count == 0 and next_s is not None:  # one setup and scan fit: the walk to it does not
+        raise ParameterError(
+            "max_field_time_h", f"{max_s / 3600:g} h holds no station: the first takes "
+            f"{next_s / 3600:.3f} h with the walk to it from route_start; raise it or move "
+            "route_start")
+    chosen, moves = best_in_budget(table, order, count, swaps=swaps)
+    if moves:
+        swapped_s = clock.seconds(list(chosen.stations))
+        if swapped_s <= max_s:
+            plan_s = swapped_s
+        else:  # the swapped stations are farther apart: the prefix's walk fits, theirs not
+            chosen, moves = first_stations(order, count), []
+    return chosen, moves, TimeBudget(max_s, plan_s, max(cap, order.fixed),
+                                     clock.per_station_s, next_s)
 
 
 def budget_report(table: CoverageTable, plan: Selection, order: Selection,

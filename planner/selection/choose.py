@@ -17,7 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from planner.progress import ProgressCallback, Stats, notify
-from planner.selection.budget import best_in_budget, budget_report
+from planner.selection.budget import FieldClock, best_in_budget, best_in_time, budget_report
 from planner.selection.connected import connected_greedy, overlap_graph
 from planner.selection.connectivity import Connectivity
 from planner.selection.greedy import Selection
@@ -48,10 +48,11 @@ class Choice:
 def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tuple[int, ...],
            stats: Stats, *, progress: ProgressCallback | None = None,
            threads: int | None = None, fanout: RowsFanout | None = None,
-           overlap: Sight | None = None) -> Choice:
-    """The stations of the plan under ``sight.spec`` (method, goal, overlap); the overlap
-    rows are measured on the pieces of ``overlap`` (default: the coverage's, ``sight``) and
-    computed by ``fanout`` when given (a cluster)."""
+           overlap: Sight | None = None, clock: FieldClock | None = None) -> Choice:
+    """The stations of the plan under ``sight.spec`` (method, goal, overlap, budget); the
+    overlap rows are measured on the pieces of ``overlap`` (default: the coverage's,
+    ``sight``) and computed by ``fanout`` when given (a cluster); ``clock``: the field time
+    of a set of stations, for a budget of hours (``max_field_time_h``)."""
     spec = sight.spec
     pieces = sight if overlap is None else overlap
     started = time.perf_counter()
@@ -83,6 +84,10 @@ def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tup
         connectivity=connectivity)
     chosen = outcome.chosen
     budget = spec.max_stations
+    hours = spec.max_field_time_h
+    if hours is not None and clock is None:
+        raise ValueError("a budget of hours needs the field clock (planner.pipeline)")
+    budgeted = budget is not None or hours is not None
     order = outcome.selections.get(spec.method)
     station_overlap = None
     if rows is not None and min_overlap_m2 is not None and spec.method != "optimal":
@@ -90,18 +95,27 @@ def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tup
         order = connected_greedy(
             table, rows, rows.scene, positions, min_overlap_m2,
             weighted=spec.method == "weighted_greedy",
-            goal=spec.coverage_goal if budget is None else 1.0)
+            goal=1.0 if budgeted else spec.coverage_goal)
         chosen = order.truncated(spec.coverage_goal)
-    if budget is not None and order is not None:
-        # a budget: the most coverage in that many stations, the goal reached or not
-        # swaps would not keep a registrable plan connected
-        chosen, swaps = best_in_budget(table, order, budget, swaps=rows is None)
+    if budgeted and order is not None:
+        # a budget: the most coverage in that many stations (or hours), the goal reached or
+        # not; swaps would not keep a registrable plan connected
+        spent = None
+        if hours is not None and clock is not None:
+            chosen, swaps, spent = best_in_time(table, order, budget, hours * 3600.0, clock,
+                                                swaps=rows is None)
+            budget = spent.at_most_stations  # what the bound is over
+        else:
+            assert budget is not None
+            chosen, swaps = best_in_budget(table, order, budget, swaps=rows is None)
         report = outcome.report
         n, lower = len(chosen.stations), int(report["lower_bound"])
         others = tuple(s for s in outcome.selections.values() if s is not order)
         report["budget"] = {**budget_report(table, chosen, order, budget, others,
                                             tuple(swaps)),
                             "goal_needs_at_least": lower}
+        if spent is not None:
+            report["budget"]["field_time"] = spent.to_dict()
         report["stations"] = n
         report["gap"] = round(max(0.0, (n - lower) / n), 6) if n else 0.0
         report["proven_optimal"] = False
@@ -110,8 +124,9 @@ def choose(sight: Sight, table: CoverageTable, positions: np.ndarray, fixed: tup
         stats.seconds["overlap"] = rows.seconds
         stats.overlap_rows = rows.n_computed
         rows = None  # its cached rows (and bundles) are not needed any more
-    # selection without the overlap rows computed in it
-    stats.seconds["selection"] = time.perf_counter() - started - stats.seconds.get("overlap", 0.0)
+    # selection without the overlap rows and the field-time budget's routes computed in it
+    stats.seconds["selection"] = time.perf_counter() - started - stats.seconds.get(
+        "overlap", 0.0) - stats.seconds.get("walk graph", 0.0)
     for step, seconds in outcome.seconds.items():
         stats.seconds[f"selection_{step}"] = seconds
     return Choice(outcome, chosen, station_overlap)

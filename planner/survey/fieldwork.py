@@ -35,9 +35,7 @@ from planner.survey.route import (
 from planner.visibility.bundles import forget_bundles
 from planner.visibility.overlap import OverlapRows, RowsFanout, shared_faces_only
 from planner.visibility.qualify import Sight
-from planner.walkgraph import MeshDoors, build_walk_graph, door_faces, found_doors
-
-DEFAULT_SETUP_TIME_S = 60.0  # per station when neither the plan nor the scanner gives one
+from planner.walkgraph import MeshDoors, WalkGraph, build_walk_graph, door_faces, found_doors
 
 
 @dataclass(frozen=True)
@@ -92,10 +90,7 @@ def field_time(spec: PlanSpec, n_stations: int, route: Route,
                scans: tuple[StationScan, ...] = ()) -> FieldTime:
     """Setup, scan and walk time; ``scans`` are the stations' (empty without a scanner)."""
     profile = spec.scanner_profile
-    setup_one_s = spec.setup_time_s
-    if setup_one_s is None:
-        setup_one_s = DEFAULT_SETUP_TIME_S if profile is None or profile.setup_time_s is None \
-            else profile.setup_time_s
+    setup_one_s = spec.setup_per_station_s
     scan_s: float | None = None
     reason: str | None = None
     if profile is not None:
@@ -201,13 +196,96 @@ def _door_frame(xy: NDArray[np.float64]) -> tuple[float, float, float, float, fl
             float(np.ptp(along)) / 2, float(np.ptp(across)) / 2)
 
 
+@dataclass(frozen=True, eq=False)
+class WalkNetwork:
+    """Where a crew walks: the walk graph, the rays it is walked with (every face blocks but
+    doors), the found doors of a plain mesh (None for an IFC model) and the route's start
+    in the plan frame (None: the route chooses)."""
+
+    graph: WalkGraph
+    caster: RayCaster
+    doors: MeshDoors | None
+    start: tuple[float, float, float] | None
+
+    def route(self, stations_xyz: NDArray[np.float64], places: Places | None = None) -> Route:
+        """The route over the (S, 3) stations (:func:`planner.survey.route.plan_route`)."""
+        return plan_route(self.graph, self.caster, stations_xyz, self.start, places)
+
+
+def walk_network(scene: Scene, spec: PlanSpec, limits: FaceLimits, caster: RayCaster,
+                 stations_xyz: NDArray[np.float64],
+                 walk_area_xy: NDArray[np.float64] | None = None) -> WalkNetwork:
+    """The :class:`WalkNetwork` for routes over the (S, 3) ``stations_xyz`` (and the
+    ``route_start``): the graph of the ground in ``walk_area_xy`` ((2, 2); None: the
+    model's whole footprint), or of the whole footprint when two parts that hold some of
+    the stations both reach the area's edge (they may be joined outside it)."""
+    start = spec.route_start
+    if start is not None:  # given in model coordinates, like every position (up_axis)
+        x, y, z = to_plan(scene_rotation(scene.metadata), np.asarray([start], np.float64))[0]
+        start = (float(x), float(y), float(z))
+        if walk_area_xy is not None:  # the crew's start is walked ground too
+            walk_area_xy = np.stack([np.minimum(walk_area_xy[0], (x, y)),
+                                     np.maximum(walk_area_xy[1], (x, y))])
+    walk_caster, doors = _walk_caster(scene, limits, caster, spec.occluders == "file")
+    if scene.metadata.get("spaces"):  # rooms are floors where the model has no slab
+        from planner.survey.space_floors import with_room_floors
+
+        walk_caster, _ = with_room_floors(scene, walk_caster)
+    graph = build_walk_graph(scene, walk_caster, area_xy=walk_area_xy)
+    points = stations_xyz if start is None else np.vstack([stations_xyz, [start]])
+    if walk_area_xy is not None and parts_may_join_outside(graph, walk_caster, points):
+        # stations on two parts that both reach the edge of the area: the whole site's
+        # ground may join them (a lower lawn reached round the house's far end)
+        graph = build_walk_graph(scene, walk_caster)
+    return WalkNetwork(graph, walk_caster, doors, start)
+
+
+class FieldClock:
+    """The field time of any stations, for a budget of hours (``max_field_time_h``): each
+    station's setup, its scan at the plan's step, and the walk of the route over them at
+    ``walking_speed_m_s``, as :func:`field_time` counts them. A station whose faces allow a
+    coarser setting scans faster (:func:`with_settings`), so the plan's own field time is at
+    most this.
+
+    The :class:`WalkNetwork` is made at the first call, for the stations asked about then
+    (a budget asks about its largest set first), and every later route is walked on it; the
+    plan's survey walks it too (:attr:`network`), so the plan's route is the one measured.
+    """
+
+    def __init__(self, scene: Scene, spec: PlanSpec, limits: FaceLimits, caster: RayCaster,
+                 positions: NDArray[np.float64], walk_area_xy: NDArray[np.float64] | None,
+                 seconds: dict[str, float]) -> None:
+        self._scene, self._spec, self._limits, self._caster = scene, spec, limits, caster
+        self._positions = positions  # (C, 3) the candidates
+        self._walk_area_xy = walk_area_xy
+        self._seconds = seconds  # the plan's stages: "walk graph" gains the time spent here
+        scan_s = scans_of(spec, None, 1)[0].scan_s
+        if scan_s is None:
+            raise ValueError("a field-time budget needs the scanner's scan time "
+                             "(checked with the parameters)")
+        self.per_station_s = spec.setup_per_station_s + scan_s  # setup and scan of one
+        self.network: WalkNetwork | None = None
+
+    def seconds(self, stations: list[int]) -> float:
+        """Field time of the candidates ``stations``: setup, scan and walk, seconds."""
+        t0 = time.perf_counter()
+        xyz = self._positions[stations]
+        if self.network is None:
+            self.network = walk_network(self._scene, self._spec, self._limits, self._caster,
+                                        xyz, self._walk_area_xy)
+        walk_m = self.network.route(xyz).length_m if stations else 0.0
+        self._seconds["walk graph"] = self._seconds.get("walk graph", 0.0) \
+            + time.perf_counter() - t0
+        return self.per_station_s * len(stations) + walk_m / self._spec.walking_speed_m_s
+
+
 def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceLimits,
            occlusion: Occlusion, caster: RayCaster, seconds: dict[str, float],
            station_overlap: sp.csr_matrix | None = None,
            threads: int | None = None,
            fanout: RowsFanout | None = None, places: Places | None = None,
            walk_area_xy: NDArray[np.float64] | None = None,
-           overlap: Sight | None = None) -> Survey:
+           overlap: Sight | None = None, network: WalkNetwork | None = None) -> Survey:
     """Registration, route and field time of the (S, 3) stations, in selection order, each
     station scanned at the plan's step (:func:`with_settings` chooses a scanner's settings).
 
@@ -218,7 +296,9 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     ``walk_area_xy``: (2, 2), the ground the route walks (:func:`planner.walkgraph.walk_area`
     of the plan's candidates; None: the model's whole footprint); ``overlap``: the pieces
     the overlap rows are of (:meth:`planner.visibility.qualify.Sight.overlap_sight`; None:
-    ``scene`` with ``limits`` and ``occlusion``, the coverage's).
+    ``scene`` with ``limits`` and ``occlusion``, the coverage's); ``network``: where the
+    crew walks when a field-time budget already made it (:class:`FieldClock`; None: made
+    here for these stations in ``walk_area_xy``).
     """
     t0 = time.perf_counter()
     # only what two stations share counts: the rows are cut to it before the registration's
@@ -242,28 +322,14 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     del shared
     t1 = time.perf_counter()
     seconds["overlap"] = seconds.get("overlap", 0.0) + t1 - t0
-    start = spec.route_start
-    if start is not None:  # given in model coordinates, like every position (up_axis)
-        x, y, z = to_plan(scene_rotation(scene.metadata), np.asarray([start], np.float64))[0]
-        start = (float(x), float(y), float(z))
-        if walk_area_xy is not None:  # the crew's start is walked ground too
-            walk_area_xy = np.stack([np.minimum(walk_area_xy[0], (x, y)),
-                                     np.maximum(walk_area_xy[1], (x, y))])
-    walk_caster, doors = _walk_caster(scene, limits, caster, spec.occluders == "file")
-    if scene.metadata.get("spaces"):  # rooms are floors where the model has no slab
-        from planner.survey.space_floors import with_room_floors
-
-        walk_caster, _ = with_room_floors(scene, walk_caster)
-    graph = build_walk_graph(scene, walk_caster, area_xy=walk_area_xy)
-    points = stations_xyz if start is None else np.vstack([stations_xyz, [start]])
-    if walk_area_xy is not None and parts_may_join_outside(graph, walk_caster, points):
-        # stations on two parts that both reach the edge of the area: the whole site's
-        # ground may join them (a lower lawn reached round the house's far end)
-        graph = build_walk_graph(scene, walk_caster)
-    route = plan_route(graph, walk_caster, stations_xyz, start, places)
-    if doors is not None:  # a plain mesh: the legs through doors that may be fixed windows
-        route = dataclasses.replace(route, door_checks=door_checks(scene, route, doors))
-    seconds["walk graph"] = time.perf_counter() - t1
+    if network is None:
+        network = walk_network(scene, spec, limits, caster, stations_xyz, walk_area_xy)
+    route = network.route(stations_xyz, places)
+    if network.doors is not None:  # a plain mesh: the legs through doors that may be fixed
+        # windows
+        route = dataclasses.replace(route, door_checks=door_checks(scene, route,
+                                                                   network.doors))
+    seconds["walk graph"] = seconds.get("walk graph", 0.0) + time.perf_counter() - t1
     scans = scans_of(spec, None, len(stations_xyz))
     return Survey(registration, route, field_time(spec, len(stations_xyz), route, scans), scans)
 

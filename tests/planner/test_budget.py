@@ -136,3 +136,80 @@ def test_a_budget_that_cannot_be_planned_names_the_parameter(params: dict[str, o
     with pytest.raises(ParameterError, match="max_stations") as error:
         PlanSpec.from_mapping(params)
     assert says in str(error.value)
+
+
+# --- a budget of hours (max_field_time_h) ----------------------------------------------
+
+# measurement rate and overhead: a scan at the paper's step takes 38.2 s, a station with
+# the default 60 s setup 98.2 s
+CREW_SCANNER = {"name": "crew scanner", "measurement_rate_pts_s": 2e6, "overhead_s": 30.0}
+
+
+def test_a_budget_of_hours_is_the_longest_greedy_start_whose_walk_fits(
+        unlimited: PlanResult) -> None:
+    """Hours for seven setups and scans but only 5 s of walking: the walk decides."""
+    one_station_s = 60.0 + 38.2247
+    max_s = 7 * one_station_s + 5.0
+    result = _hall(scanner=CREW_SCANNER, max_field_time_h=max_s / 3600, coverage_goal=1.0)
+    document = plan_document(result)
+    budget = document["selection"]["budget"]
+    spent = budget["field_time"]
+    n = document["totals"]["stations"]
+    # what the crew is told: the plan's field time fits, one station more would not
+    assert spent["within"] and spent["at_most_stations"] == 7
+    assert spent["station_setup_and_scan_s"] == pytest.approx(one_station_s, abs=0.05)
+    assert document["field_time"]["total_s"] <= max_s
+    assert spent["plan_field_time_h"] * 3600 == pytest.approx(
+        document["field_time"]["total_s"], abs=0.4)  # every station at the plan's step
+    assert 1 <= n < 7  # the walk of seven stations does not fit in 5 s
+    assert spent["one_station_more_field_time_h"] * 3600 > max_s
+    order = unlimited.selections["greedy"]
+    assert budget["covered_area_m2"] >= order.covered_area_m2[n - 1] - 1e-3
+    assert budget["upper_bound_area_m2"] >= budget["covered_area_m2"]
+    assert _stations_title(result) == (
+        f"{n} stations; in {spent['max_field_time_h']:g} h at most "
+        f"{100 * budget['upper_bound_fraction']:.1f} %")
+    # a longer day never covers less
+    longer = plan_document(_hall(scanner=CREW_SCANNER, max_field_time_h=0.5,
+                                 coverage_goal=1.0))
+    assert longer["selection"]["budget"]["covered_area_m2"] >= budget["covered_area_m2"]
+    assert longer["totals"]["stations"] > n
+    assert longer["field_time"]["total_s"] <= 0.5 * 3600
+
+
+def test_no_plan_in_the_hours_covers_more_than_the_bound_every_pair_checked() -> None:
+    """Hours for two setups and scans: the bound is over any two stations, walk or not."""
+    max_s = 2 * (60.0 + 38.2247) + 60.0
+    result = _hall(scanner=CREW_SCANNER, max_field_time_h=max_s / 3600)
+    budget = plan_document(result)["selection"]["budget"]
+    assert budget["field_time"]["at_most_stations"] == budget["max_stations"] == 2
+    table = result.table
+    cover = table.by_candidate.astype(bool).astype(np.float64)  # (C, F)
+    shared = (cover @ sp.diags(table.face_area_m2) @ cover.T).toarray()  # (C, C)
+    single = np.diag(shared)
+    best_pair = float((single[:, None] + single[None, :] - shared).max())
+    assert budget["covered_area_m2"] <= best_pair + 1e-6 <= budget["upper_bound_area_m2"] + 2e-6
+
+
+@pytest.mark.parametrize(("params", "says"), [
+    ({"max_field_time_h": 2}, "needs a scanner"),
+    ({"max_field_time_h": 2, "scanner": {"name": "no rate"}}, "measurement_rate_pts_s"),
+    ({"max_field_time_h": 2, "scanner": CREW_SCANNER, "method": "optimal"}, "optimal"),
+    ({"max_field_time_h": 0.01, "scanner": CREW_SCANNER}, "less than one station's setup"),
+    ({"max_field_time_h": 0}, "in (0, 10000]"),
+    ({"max_field_time_h": "8 h"}, "expected a number"),
+])
+def test_a_budget_of_hours_that_cannot_be_planned_names_the_parameter(
+        params: dict[str, object], says: str) -> None:
+    with pytest.raises(ParameterError, match="max_field_time_h") as error:
+        PlanSpec.from_mapping(params)
+    assert says in str(error.value)
+
+
+def test_hours_that_hold_no_walk_from_the_start_say_so(unlimited: PlanResult) -> None:
+    positions = unlimited.candidates.positions
+    first = positions[unlimited.selections["greedy"].stations[0]]
+    far = positions[int(np.argmax(np.linalg.norm(positions - first, axis=1)))]
+    with pytest.raises(ParameterError, match="max_field_time_h.*route_start"):
+        _hall(scanner=CREW_SCANNER, max_field_time_h=(60.0 + 38.2247 + 1.0) / 3600,
+              route_start=far.tolist())

@@ -169,6 +169,9 @@ def test_oversized_upload(tmp_path: Path, hall_bytes: bytes) -> None:
      "scanner.settings.0.duration_s", "in (0, 86400]"),
     ({"scanner": {"name": "x", "min_range_m": 4, "max_range_m": 2}}, "scanner.min_range_m",
      "less than scanner.max_range_m"),
+    ({"max_field_time_h": 4, "scanner": "leica-rtc360"}, "max_field_time_h",
+     "scan time, which is unknown"),
+    ({"max_field_time_h": -1}, "max_field_time_h", "in (0, 10000]"),
 ])
 def test_bad_parameters(client: TestClient, hall_bytes: bytes, parameters: dict[str, Any],
                         parameter: str, word: str) -> None:
