@@ -210,6 +210,6 @@ def test_hours_that_hold_no_walk_from_the_start_say_so(unlimited: PlanResult) ->
     positions = unlimited.candidates.positions
     first = positions[unlimited.selections["greedy"].stations[0]]
     far = positions[int(np.argmax(np.linalg.norm(positions - first, axis=1)))]
-    with pytest.raises(ParameterError, match="max_field_time_h.*route_start"):
+    with pytest.raises(ParameterError, match=r"max_field_time_h.*route_start"):
         _hall(scanner=CREW_SCANNER, max_field_time_h=(60.0 + 38.2247 + 1.0) / 3600,
               route_start=far.tolist())
