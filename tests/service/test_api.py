@@ -530,3 +530,22 @@ def test_the_version_is_the_package_s_everywhere(client: TestClient) -> None:
     committed = json.loads((Path(__file__).resolve().parents[2] / "openapi" /
                             "openapi.json").read_text())
     assert committed["info"]["version"] == version
+
+
+def test_a_budget_of_hours_through_the_api(client: TestClient, hall_bytes: bytes,
+                                           hall_parameters: dict[str, Any]) -> None:
+    """A crew's morning: the plan's field time fits the hours, one station more would not."""
+    mesh_id = upload(client, hall_bytes).json()["id"]
+    scanner = {"name": "crew scanner", "measurement_rate_pts_s": 2e6, "overhead_s": 30.0}
+    created = submit(client, mesh_id, {**hall_parameters, "scanner": scanner,
+                                       "max_field_time_h": 0.25})
+    assert created.status_code == 201, created.text
+    job_id = created.json()["jobID"]
+    assert client.get(f"/jobs/{job_id}").json()["status"] == "successful"
+    document = client.get(f"/jobs/{job_id}/results").json()["plan"]
+    spent = document["selection"]["budget"]["field_time"]
+    assert spent["within"] and spent["max_field_time_h"] == 0.25
+    assert document["field_time"]["total_s"] <= 0.25 * 3600
+    assert spent["one_station_more_field_time_h"] > 0.25
+    assert document["totals"]["stations"] == len(document["stations"]) <= \
+        spent["at_most_stations"]
