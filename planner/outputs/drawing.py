@@ -57,6 +57,7 @@ from planner.density import density_range_m
 from planner.io.orientation import scene_rotation, to_model
 from planner.memory import release_freed_memory
 from planner.outputs.outline import group_triangles
+from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult
 from planner.scene import Scene, corner_extremes
 from planner.selection.curve import coverage_curve
@@ -862,6 +863,15 @@ def scale_bar(ax: Axes) -> None:
             zorder=11)
 
 
+def _budget_words(spec: PlanSpec) -> str:
+    """The plan's budget as the subtitle names it before the goal ("budget 2 h, "), or ""."""
+    if spec.max_field_time_h is not None:
+        return f"budget {spec.max_field_time_h:g} h, "
+    if spec.max_stations is not None:
+        return f"budget {spec.max_stations} stations, "
+    return ""
+
+
 def _key(fig: Figure, result: PlanResult, scale: int) -> None:
     """Title, north arrow, legend, totals and the station list in the right column."""
     doc_totals = _totals(result)
@@ -870,7 +880,7 @@ def _key(fig: Figure, result: PlanResult, scale: int) -> None:
     fig.text(0.025, 0.928,
              f"{doc_totals['stations']} stations ({result.chosen.method.replace('_', ' ')}), "
              f"{doc_totals['covered']:.1f} m² covered = {doc_totals['fraction'] * 100:.1f} % of "
-             f"the {doc_totals['max']:.1f} m² coverable (goal "
+             f"the {doc_totals['max']:.1f} m² coverable ({_budget_words(result.spec)}goal "
              f"{result.spec.coverage_goal * 100:.0f} %)",
              fontsize=10.5, va="center")
     north_arrow(fig, (0.935, 0.86, 0.05, 0.1))

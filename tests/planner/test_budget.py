@@ -13,7 +13,7 @@ import scipy.sparse as sp
 from planner.candidates.grid import read_candidates_csv
 from planner.errors import ParameterError
 from planner.io.readers import read_scene
-from planner.outputs.drawing import _stations_title
+from planner.outputs.drawing import _budget_words, _stations_title
 from planner.outputs.report import plan_document
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
@@ -213,3 +213,10 @@ def test_hours_that_hold_no_walk_from_the_start_say_so(unlimited: PlanResult) ->
     with pytest.raises(ParameterError, match=r"max_field_time_h.*route_start"):
         _hall(scanner=CREW_SCANNER, max_field_time_h=(60.0 + 38.2247 + 1.0) / 3600,
               route_start=far.tolist())
+
+
+def test_the_previews_subtitle_names_the_budget() -> None:
+    assert _budget_words(PlanSpec()) == ""
+    assert _budget_words(PlanSpec(max_stations=20)) == "budget 20 stations, "
+    assert _budget_words(PlanSpec(scanner=CREW_SCANNER, max_field_time_h=2.5)) == \
+        "budget 2.5 h, "
