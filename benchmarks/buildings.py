@@ -241,7 +241,8 @@ def main() -> None:
                         help=f"comma-separated, of {', '.join(MODELS)}")
     parser.add_argument("--skip-large", action="store_true",
                         help=f"leave out {' and '.join(LARGE)}")
-    parser.add_argument("--forms", default="ifc,obj", help="ifc, obj or both")
+    parser.add_argument("--forms", default="ifc,obj",
+                        help="comma-separated, of ifc and obj (default: both)")
     parser.add_argument("--outputs", choices=("all", "plan"), default="all",
                         help="write every output (as the command line) or plan.json only")
     parser.add_argument("--grid-spacing-m", type=float, default=None)
@@ -259,6 +260,9 @@ def main() -> None:
     if args.skip_large:
         names = [n for n in names if n not in LARGE]
     forms = args.forms.split(",")
+    for form in forms:
+        if form not in ("ifc", "obj"):
+            parser.error(f"unknown form {form!r}: ifc, obj or ifc,obj")
     spec: dict[str, object] = {}
     if args.grid_spacing_m is not None:
         spec["grid_spacing_m"] = args.grid_spacing_m
