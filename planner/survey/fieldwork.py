@@ -28,6 +28,7 @@ from planner.survey.registration import Registration, station_registration
 from planner.survey.route import (
     Places,
     Route,
+    TreeCache,
     door_checks,
     parts_may_join_outside,
     plan_route,
@@ -206,10 +207,13 @@ class WalkNetwork:
     caster: RayCaster
     doors: MeshDoors | None
     start: tuple[float, float, float] | None
+    # the shortest-path trees of the last route's stations, for routes over fewer of them
+    trees: TreeCache = dataclasses.field(default_factory=TreeCache)
 
     def route(self, stations_xyz: NDArray[np.float64], places: Places | None = None) -> Route:
         """The route over the (S, 3) stations (:func:`planner.survey.route.plan_route`)."""
-        return plan_route(self.graph, self.caster, stations_xyz, self.start, places)
+        return plan_route(self.graph, self.caster, stations_xyz, self.start, places,
+                          self.trees)
 
 
 def walk_network(scene: Scene, spec: PlanSpec, limits: FaceLimits, caster: RayCaster,

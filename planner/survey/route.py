@@ -532,9 +532,11 @@ def parts_may_join_outside(graph: WalkGraph, caster: RayCaster,
 
 def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.float64],
                route_start: tuple[float, float, float] | None,
-               places: Places | None = None) -> Route:
+               places: Places | None = None, trees: TreeCache | None = None) -> Route:
     """The route over the (S, 3) stations (ids 1..S in this order); ``places``: what the
-    reasons of unreachable stations name (storeys, rooms, doors)."""
+    reasons of unreachable stations name (storeys, rooms, doors); ``trees``: shortest-path
+    trees kept from earlier routes on this ``graph`` (:class:`TreeCache`), the same route
+    sooner when the stations are among theirs."""
     s = len(stations_xyz)
     points = stations_xyz if route_start is None else np.vstack([stations_xyz, [route_start]])
     nodes, feet = attach(graph, caster, np.asarray(points, np.float64))
@@ -588,7 +590,7 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
             first = int(np.lexsort((points_in, gap_m))[0])
             steps.append(PartStep(None if last == s else last + 1, points_in[first] + 1,
                                   float(gap_m[first]), why.station(points_in[first])))
-        part_visits, part_legs = _tour(graph, nodes, feet, points_in, first, s)
+        part_visits, part_legs = _tour(graph, nodes, feet, points_in, first, s, trees)
         visits += part_visits
         legs += part_legs
         if part_visits:
@@ -607,8 +609,8 @@ def plan_route(graph: WalkGraph, caster: RayCaster, stations_xyz: NDArray[np.flo
 
 
 def _tour(graph: WalkGraph, nodes: NDArray[np.int64], feet: NDArray[np.float64],
-          points_in: list[int], first: int | None, start_index: int
-          ) -> tuple[list[int], list[Leg]]:
+          points_in: list[int], first: int | None, start_index: int,
+          cache: TreeCache | None = None) -> tuple[list[int], list[Leg]]:
     """The shortest open tour over the points ``points_in`` (indices into ``nodes`` and
     ``feet``: stations, and the route's start at ``start_index``) of one part of the
     graph, from ``points_in[first]`` when given: the station ids in walking order (the
@@ -616,7 +618,13 @@ def _tour(graph: WalkGraph, nodes: NDArray[np.int64], feet: NDArray[np.float64],
     if not points_in:
         return [], []
     sources = [int(nodes[i]) for i in points_in]
-    between_m, trees = _shortest_paths(graph, sources)
+    found = None if cache is None else cache.between(sources)
+    if found is None:
+        between_m, trees = _shortest_paths(graph, sources)
+        if cache is not None:
+            cache.keep(sources, between_m, trees)
+    else:
+        between_m, trees = found
     # foot -> node -> ... -> node -> foot; the attaching segments count too
     attach_m = np.linalg.norm(graph.floor_xyz[sources] - (feet[points_in]
                               - [0, 0, KNEE_HEIGHT_M]), axis=1)
@@ -701,6 +709,45 @@ def _shortest_paths(graph: WalkGraph, sources: list[int]
             predecessors.append(tree[on])
         del predecessor
     return between_m, _PathTrees(tuple(nodes), tuple(predecessors))
+
+
+class TreeCache:
+    """Shortest-path trees of one walk graph kept between routes over sets of stations
+    that are subsets of one another (a budget of hours routes every start of an order it
+    tries). Each tree is grown from its source alone, so a source's distances and its
+    paths to a set of targets are those to any subset of it: a route over stations among
+    the kept ones reads them instead of growing the trees again, and is the same."""
+
+    def __init__(self) -> None:
+        # per source node: its targets (ascending nodes), the distances to them, metres,
+        # and its tree cut to the paths to them (_PathTrees' nodes and predecessors)
+        self._kept: dict[int, tuple[NDArray[np.int64], NDArray[np.float64],
+                                    NDArray[np.int32], NDArray[np.int32]]] = {}
+
+    def between(self, sources: list[int]) -> tuple[NDArray[np.float64], _PathTrees] | None:
+        """What :func:`_shortest_paths` gives for ``sources``, when each was kept with a
+        tree that reaches all of them; None otherwise."""
+        wanted = np.asarray(sources, np.int64)
+        between_m = np.empty((len(sources), len(sources)))
+        for i, source in enumerate(sources):
+            kept = self._kept.get(source)
+            if kept is None:
+                return None
+            targets, distance_m = kept[0], kept[1]
+            at = np.minimum(np.searchsorted(targets, wanted), len(targets) - 1)
+            if not np.array_equal(targets[at], wanted):
+                return None
+            between_m[i] = distance_m[at]
+        return between_m, _PathTrees(tuple(self._kept[source][2] for source in sources),
+                                     tuple(self._kept[source][3] for source in sources))
+
+    def keep(self, sources: list[int], between_m: NDArray[np.float64],
+             trees: _PathTrees) -> None:
+        """Keep the trees of ``sources`` (what :func:`_shortest_paths` gave for them)."""
+        targets, first = np.unique(np.asarray(sources, np.int64), return_index=True)
+        for i, source in enumerate(sources):
+            self._kept[source] = (targets, between_m[i, first], trees.nodes[i],
+                                  trees.predecessors[i])
 
 
 _NO_FLOOR = "no floor a person can walk on under it"

@@ -24,7 +24,13 @@ from planner.selection import connectivity
 from planner.selection.connected import MIN_CONSTRAINT
 from planner.survey.fieldwork import survey
 from planner.survey.registration import station_registration
-from planner.survey.route import exact_open_tour, open_tour, parts_may_join_outside, plan_route
+from planner.survey.route import (
+    TreeCache,
+    exact_open_tour,
+    open_tour,
+    parts_may_join_outside,
+    plan_route,
+)
 from planner.visibility.overlap import overlap_matrix, shared_faces_only
 from planner.walkgraph import (
     KNEE_HEIGHT_M,
@@ -291,6 +297,25 @@ def test_route_climbs_the_stairs() -> None:
     _assert_free_at_knee_height(caster, leg["path"])
     # walking is longer than the straight line, which goes through the mezzanine slab
     assert leg["length_m"] > np.linalg.norm(stations[1] - stations[0])
+
+
+def test_routes_over_fewer_stations_from_kept_trees_are_the_routes_walked_afresh(
+        scenes_dir: Path) -> None:
+    """A budget of hours routes every start of an order: the trees of the first, largest
+    route serve the others, which must be the same routes, paths and all."""
+    scene = read_scene(scenes_dir / "hall-full" / "hall.obj", max_edge_m=None)
+    caster = make_ray_caster(scene, np.ones(scene.n_faces, bool))
+    graph = build_walk_graph(scene, caster)
+    positions = read_candidates_csv(scenes_dir / "hall-full" / "candidates.csv")
+    stations = positions[np.random.default_rng(5).choice(len(positions), 24, replace=False)]
+    trees = TreeCache()
+    whole = plan_route(graph, caster, stations, None, trees=trees)
+    assert whole.to_dict() == plan_route(graph, caster, stations, None).to_dict()
+    assert len(whole.visits) >= 20 and len(whole.legs) >= 19
+    for subset in (stations[:7], stations[::3], stations[[4, 1, 9, 17]],
+                   np.vstack([stations[:5], positions[:2]])):  # the last: two not kept
+        assert plan_route(graph, caster, subset, None, trees=trees).to_dict() == \
+            plan_route(graph, caster, subset, None).to_dict()
 
 
 def test_unreachable_station_is_reported_not_joined() -> None:
