@@ -101,12 +101,14 @@ class TimeBudget:
 
 
 def longest_prefix_in_time(order: Selection, cap: int, max_s: float,
-                           seconds_of: Callable[[list[int]], float]
+                           seconds_of: Callable[[list[int]], float], per_station_s: float
                            ) -> tuple[int, float, float | None]:
     """How many of ``order``'s first stations (at most ``cap``, at least its fixed ones) fit
-    in ``max_s`` seconds of field time (``seconds_of``): a binary search, the field time
-    growing with the stations; the count, its seconds, and those of one station more (None
-    when the order has none). The cap's set is asked about first."""
+    in ``max_s`` seconds of field time (``seconds_of``; ``per_station_s`` of it each
+    station's, the rest the walk): a binary search, the field time growing with the
+    stations; the count, its seconds, and those of one station more (None when the order
+    has none). The cap's set is asked about first; a smaller start walks no farther, so
+    the stations its walk leaves room for fit too, and the search starts from them."""
     known: dict[int, float] = {}
 
     def fits(k: int) -> bool:
@@ -118,7 +120,12 @@ def longest_prefix_in_time(order: Selection, cap: int, max_s: float,
     low = min(order.fixed, high)
     if fits(high):
         low = high
-    elif fits(low):  # the fixed stations fit, the cap does not: fits(low), not fits(high)
+    else:
+        walk_s = known[high] - per_station_s * high  # the largest start's walk
+        guess = int((max_s - walk_s) // per_station_s) if per_station_s > 0 else low
+        if low < guess < high and fits(guess):
+            low = guess
+    if low < high and fits(low):  # fits(low), not fits(high)
         while high - low > 1:
             middle = (low + high) // 2
             if fits(middle):
@@ -144,7 +151,7 @@ def best_in_time(table: CoverageTable, order: Selection, max_stations: int | Non
         order.stations)
     cap = at_most if max_stations is None else min(max_stations, at_most)
     count, plan_s, next_s = longest_prefix_in_time(order, max(cap, order.fixed), max_s,
-                                                   clock.seconds)
+                                                   clock.seconds, clock.per_station_s)
     if count == 0 and next_s is not None:  # one setup and scan fit: the walk to it does not
         raise ParameterError(
             "max_field_time_h", f"{max_s / 3600:g} h holds no station: the first takes "

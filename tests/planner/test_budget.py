@@ -17,6 +17,8 @@ from planner.outputs.drawing import _budget_words, _stations_title
 from planner.outputs.report import plan_document
 from planner.parameters import PlanSpec
 from planner.pipeline import PlanResult, plan
+from planner.selection.budget import longest_prefix_in_time
+from planner.selection.greedy import Selection
 from planner.selection.lower_bound import coverage_upper_bound
 from planner.visibility.coverage import CoverageTable
 from tests.data_files import HALL_SMALL
@@ -220,3 +222,37 @@ def test_the_previews_subtitle_names_the_budget() -> None:
     assert _budget_words(PlanSpec(max_stations=20)) == "budget 20 stations, "
     assert _budget_words(PlanSpec(scanner=CREW_SCANNER, max_field_time_h=2.5)) == \
         "budget 2.5 h, "
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_the_longest_start_in_time_is_the_longest_that_fits(seed: int) -> None:
+    """Orders of up to 40 stations whose walk grows with them (a route over more stations
+    is no shorter): the search finds the longest start within the hours, as trying every
+    start would, and says what the next would take."""
+    rng = np.random.default_rng(seed)
+    n, fixed = int(rng.integers(1, 40)), int(rng.integers(0, 3))
+    fixed = min(fixed, n)
+    order = Selection("greedy", tuple(range(n)), (1.0,) * n, tuple(range(1, n + 1)),
+                      float(n), fixed)
+    per_s = float(rng.uniform(60, 300))
+    walk_s = np.concatenate(([0.0], np.cumsum(rng.uniform(0, 200, n))))  # (n + 1,)
+    max_s = float(rng.uniform(per_s, per_s * n * 1.5))
+    cap = int(rng.integers(1, n + 3))
+    asked: list[int] = []
+
+    def seconds_of(stations: list[int]) -> float:
+        asked.append(len(stations))
+        return per_s * len(stations) + float(walk_s[len(stations)])
+
+    count, count_s, next_s = longest_prefix_in_time(order, max(cap, fixed), max_s,
+                                                    seconds_of, per_s)
+    top = min(max(cap, fixed), n)
+    fitting = [k for k in range(fixed, top + 1) if per_s * k + walk_s[k] <= max_s]
+    assert count == (max(fitting) if fitting else fixed)
+    assert count_s == per_s * count + walk_s[count]
+    if count < n:
+        assert next_s == per_s * (count + 1) + walk_s[count + 1]
+        assert count == top or next_s > max_s
+    else:
+        assert next_s is None
+    assert asked[0] == top  # the largest start first: the walk network is made for it
