@@ -149,7 +149,7 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
                          threads=threads, fanout=fanout,
                          places=places_of(sight.scene, candidates, list(chosen.stations)),
                          walk_area_xy=area_xy, overlap=overlap,
-                         network=None if clock is None else clock.network)
+                         network=None if clock is None else clock.hand_over())
     forget_bundles(sight.scene)
     release_freed_memory()  # the overlap rows' pair search, before the per-face results
     # the per-face results after the survey, which does not read them: on the 9.7 M-face

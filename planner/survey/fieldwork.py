@@ -253,7 +253,7 @@ class FieldClock:
 
     The :class:`WalkNetwork` is made at the first call, for the stations asked about then
     (a budget asks about its largest set first), and every later route is walked on it; the
-    plan's survey walks it too (:attr:`network`), so the plan's route is the one measured.
+    plan's survey walks it too (:meth:`hand_over`), so the plan's route is the one measured.
     """
 
     def __init__(self, scene: Scene, spec: PlanSpec, limits: FaceLimits, caster: RayCaster,
@@ -269,6 +269,12 @@ class FieldClock:
                              "(checked with the parameters)")
         self.per_station_s = spec.setup_per_station_s + scan_s  # setup and scan of one
         self.network: WalkNetwork | None = None
+
+    def hand_over(self) -> WalkNetwork | None:
+        """The walk network, which the clock then no longer holds (the survey walks the
+        plan's route on it and lets it go before its own peak)."""
+        network, self.network = self.network, None
+        return network
 
     def seconds(self, stations: list[int]) -> float:
         """Field time of the candidates ``stations``: setup, scan and walk, seconds."""
@@ -301,10 +307,17 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     of the plan's candidates; None: the model's whole footprint); ``overlap``: the pieces
     the overlap rows are of (:meth:`planner.visibility.qualify.Sight.overlap_sight`; None:
     ``scene`` with ``limits`` and ``occlusion``, the coverage's); ``network``: where the
-    crew walks when a field-time budget already made it (:class:`FieldClock`; None: made
-    here for these stations in ``walk_area_xy``).
+    crew walks when a field-time budget already made it (:meth:`FieldClock.hand_over`: its
+    route is walked first and the network let go before the overlap rows; None: made here
+    for these stations in ``walk_area_xy``, after the overlap rows).
     """
     t0 = time.perf_counter()
+    route = None
+    if network is not None:  # the route first: the graph then leaves before the overlap rows
+        route = _walk(scene, network, stations_xyz, places)
+        network = None
+        seconds["walk graph"] = seconds.get("walk graph", 0.0) + time.perf_counter() - t0
+        t0 = time.perf_counter()
     # only what two stations share counts: the rows are cut to it before the registration's
     # sums and the walk graph (10.7 M faces, 496 stations: 240 MB), and the rows the
     # survey computes itself are cut as they are, never made into one whole matrix
@@ -326,16 +339,23 @@ def survey(scene: Scene, spec: PlanSpec, stations_xyz: np.ndarray, limits: FaceL
     del shared
     t1 = time.perf_counter()
     seconds["overlap"] = seconds.get("overlap", 0.0) + t1 - t0
-    if network is None:
-        network = walk_network(scene, spec, limits, caster, stations_xyz, walk_area_xy)
-    route = network.route(stations_xyz, places)
-    if network.doors is not None:  # a plain mesh: the legs through doors that may be fixed
-        # windows
-        route = dataclasses.replace(route, door_checks=door_checks(scene, route,
-                                                                   network.doors))
-    seconds["walk graph"] = seconds.get("walk graph", 0.0) + time.perf_counter() - t1
+    if route is None:
+        route = _walk(scene, walk_network(scene, spec, limits, caster, stations_xyz,
+                                          walk_area_xy), stations_xyz, places)
+        seconds["walk graph"] = seconds.get("walk graph", 0.0) + time.perf_counter() - t1
     scans = scans_of(spec, None, len(stations_xyz))
     return Survey(registration, route, field_time(spec, len(stations_xyz), route, scans), scans)
+
+
+def _walk(scene: Scene, network: WalkNetwork, stations_xyz: NDArray[np.float64],
+          places: Places | None) -> Route:
+    """The route over the (S, 3) stations on ``network``, with a plain mesh's door checks
+    (the legs through found doors that may be fixed windows)."""
+    route = network.route(stations_xyz, places)
+    if network.doors is not None:
+        route = dataclasses.replace(route, door_checks=door_checks(scene, route,
+                                                                   network.doors))
+    return route
 
 
 def with_settings(found: Survey, spec: PlanSpec, density_margins: list[float]) -> Survey:
