@@ -137,9 +137,11 @@ def run_plan(args: argparse.Namespace) -> int:
         )
         for name, reason in absent_outputs(result).items():
             print(f"no {name}: {reason}")
+        from planner.selection.budget import budget_line
         from planner.survey.route import door_checks_line, parts_line
 
-        for line in (parts_line(plan_doc.get("route")),  # a model not joined on foot
+        for line in (budget_line(plan_doc["selection"]),  # the bound beside a budget's plan
+                     parts_line(plan_doc.get("route")),  # a model not joined on foot
                      door_checks_line(plan_doc.get("route"))):  # a plain mesh's glazed doors
             if line:
                 print(line)

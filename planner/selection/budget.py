@@ -215,3 +215,23 @@ def budget_report(table: CoverageTable, plan: Selection, order: Selection,
         "swaps": [{"removed": list(m.removed), "added": list(m.added)} for m in swaps],
         "next_station_gain_m2": round(float(gains.max(initial=0.0)), 3),
     }
+
+
+def budget_line(selection: dict[str, Any]) -> str | None:
+    """What the command line says of a budget's plan, from ``plan.json``'s ``selection``:
+    the bound, and for a budget of hours the plan's field time and one station more's;
+    None without a budget."""
+    budget = selection.get("budget")
+    if budget is None:
+        return None
+    most = f"{100 * budget['upper_bound_fraction']:.1f} %"
+    spent = budget.get("field_time")
+    if spent is None:
+        return f"budget {budget['max_stations']} stations: no plan of as many covers more " \
+               f"than {most}"
+    more = spent["one_station_more_field_time_h"]
+    return (f"budget {spent['max_field_time_h']:g} h: the plan takes "
+            f"{spent['plan_field_time_h']:.2f} h in the field"
+            + ("" if spent["within"] else " (its fixed stations alone take longer)")
+            + ("" if more is None else f", one station more {more:.2f} h")
+            + f"; no plan in {spent['max_field_time_h']:g} h covers more than {most}")

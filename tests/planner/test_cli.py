@@ -161,3 +161,21 @@ def test_an_unknown_example_is_one_line_naming_the_known_ones(tmp_path: Path) ->
     done = scanplan("examples", "no-such-house", "--to", str(tmp_path))
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and "hall-small" in done.stderr
+
+
+def test_a_budget_of_hours_says_its_field_time_and_bound(tmp_path: Path,
+                                                         scenes_dir: Path) -> None:
+    params = tmp_path / "p.json"
+    scanner = {"name": "crew scanner", "measurement_rate_pts_s": 2e6, "overhead_s": 30.0}
+    params.write_text(json.dumps({"max_edge_m": None, "scanner": scanner,
+                                  "max_field_time_h": 0.2}))
+    done = scanplan("plan", str(scenes_dir / "hall-small" / "hall.obj"), "--candidates",
+                    str(scenes_dir / "hall-small" / "candidates.csv"), "--params",
+                    str(params), "--out", str(tmp_path / "out"))
+    assert done.returncode == 0, done.stderr
+    spent = json.loads((tmp_path / "out" / "plan.json").read_text())["selection"]["budget"]
+    line = next(line for line in done.stdout.splitlines() if line.startswith("budget 0.2 h"))
+    assert f"takes {spent['field_time']['plan_field_time_h']:.2f} h" in line
+    assert f"one station more {spent['field_time']['one_station_more_field_time_h']:.2f} h" \
+        in line
+    assert f"covers more than {100 * spent['upper_bound_fraction']:.1f} %" in line
