@@ -2,7 +2,9 @@
 
 :func:`survey` runs after the selection, on the chosen stations only (S of them), so with
 default parameters it adds one overlap pass over S positions and the walk graph to a plan;
-the constrained selection itself lives in :mod:`planner.survey.registration`.
+the constrained selection itself lives in :mod:`planner.survey.registration`. A budget of
+hours times sets of stations before the survey (:class:`FieldClock`) on the walk network
+the survey then walks (:class:`WalkNetwork`).
 """
 
 from __future__ import annotations
