@@ -25,6 +25,7 @@ from planner.scanners import (
     STEP_TOLERANCE,
     ScannerProfile,
     ScanSetting,
+    StationScan,
     fallback_step,
     missing_duration_reason,
     plan_defaults,
@@ -206,6 +207,22 @@ class PlanSpec:
         profile = self.scanner_profile
         return DEFAULT_SETUP_TIME_S if profile is None or profile.setup_time_s is None \
             else profile.setup_time_s
+
+    def plan_step_scan(self) -> StationScan | None:
+        """One station's scan with ``scanner`` at the plan's step, its setting and seconds
+        (None when unknown); None without a scanner."""
+        profile = self.scanner_profile
+        return None if profile is None else station_scans(
+            profile, self.angular_step_rad, self.elevation_min_deg, self.elevation_max_deg,
+            [1.0])[0]
+
+    @property
+    def station_time_s(self) -> float | None:
+        """Seconds to set up one station and scan it at the plan's step: what a budget of
+        hours counts for every station; None without a scanner or its scan time."""
+        scan = self.plan_step_scan()
+        return None if scan is None or scan.scan_s is None \
+            else self.setup_per_station_s + scan.scan_s
 
     def requirement_for(self, group: str) -> GroupRequirement:
         """The overrides for ``group`` (all defaults when it has none)."""
@@ -622,13 +639,12 @@ def _check_time_budget(spec: PlanSpec) -> None:
            "needs a scanner (a preset id or a profile with measurement_rate_pts_s): the "
            "budget counts each station's scan time")
     assert profile is not None
-    scan = station_scans(profile, spec.angular_step_rad, spec.elevation_min_deg,
-                         spec.elevation_max_deg, [1.0])[0]
-    _check(scan.scan_s is not None, "max_field_time_h",
-           "needs each station's scan time, which is unknown: "
-           + missing_duration_reason(profile, (scan,)))
-    assert scan.scan_s is not None
-    one_s = spec.setup_per_station_s + scan.scan_s
+    one_s = spec.station_time_s
+    if one_s is None:
+        scan = spec.plan_step_scan()
+        assert scan is not None
+        raise ParameterError("max_field_time_h", "needs each station's scan time, which is "
+                             "unknown: " + missing_duration_reason(profile, (scan,)))
     _check(spec.max_field_time_h is None or spec.max_field_time_h * 3600.0 >= one_s,
            "max_field_time_h", f"{spec.max_field_time_h:g} h is less than one station's "
            f"setup and scan ({one_s / 60.0:.1f} min with {profile.name}); raise it")

@@ -265,11 +265,11 @@ class FieldClock:
         self._positions = positions  # (C, 3) the candidates
         self._walk_area_xy = walk_area_xy
         self._seconds = seconds  # the plan's stages: "walk graph" gains the time spent here
-        scan_s = scans_of(spec, None, 1)[0].scan_s
-        if scan_s is None:
+        one_s = spec.station_time_s
+        if one_s is None:
             raise ValueError("a field-time budget needs the scanner's scan time "
                              "(checked with the parameters)")
-        self.per_station_s = spec.setup_per_station_s + scan_s  # setup and scan of one
+        self.per_station_s = one_s  # setup and scan of one
         self.network: WalkNetwork | None = None
 
     def hand_over(self) -> WalkNetwork | None:
