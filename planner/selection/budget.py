@@ -65,7 +65,9 @@ def best_in_budget(table: CoverageTable, order: Selection, max_stations: int, *,
 class FieldClock(Protocol):
     """The field time of a set of stations (:class:`planner.survey.fieldwork.FieldClock`)."""
 
-    per_station_s: float  # the setup and scan of one station: what every station costs
+    # the setup and scan of one station, what every station costs: above 0 (a scan takes
+    # its points over the measurement rate, or a setting's duration, both positive)
+    per_station_s: float
 
     def seconds(self, stations: list[int]) -> float:
         """Setup, scans and the walk between the candidates ``stations``, seconds."""
@@ -104,7 +106,7 @@ def longest_prefix_in_time(order: Selection, cap: int, max_s: float,
                            seconds_of: Callable[[list[int]], float], per_station_s: float
                            ) -> tuple[int, float, float | None]:
     """How many of ``order``'s first stations (at most ``cap``, at least its fixed ones) fit
-    in ``max_s`` seconds of field time (``seconds_of``; ``per_station_s`` of it each
+    in ``max_s`` seconds of field time (``seconds_of``; ``per_station_s`` > 0 of it each
     station's, the rest the walk): a binary search, the field time growing with the
     stations; the count, its seconds, and those of one station more (None when the order
     has none). The cap's set is asked about first; a smaller start walks no farther, so
@@ -122,7 +124,7 @@ def longest_prefix_in_time(order: Selection, cap: int, max_s: float,
         low = high
     else:
         walk_s = known[high] - per_station_s * high  # the largest start's walk
-        guess = int((max_s - walk_s) // per_station_s) if per_station_s > 0 else low
+        guess = int((max_s - walk_s) // per_station_s)
         if low < guess < high and fits(guess):
             low = guess
     if low < high and fits(low):  # fits(low), not fits(high)
@@ -147,8 +149,7 @@ def best_in_time(table: CoverageTable, order: Selection, max_stations: int | Non
     time was spent. The fixed stations are always kept (``within`` is false when they alone
     take longer); a budget whose first station's walk from the route's start does not fit
     raises :class:`~planner.errors.ParameterError`."""
-    at_most = int(max_s // clock.per_station_s) if clock.per_station_s > 0 else len(
-        order.stations)
+    at_most = int(max_s // clock.per_station_s)
     cap = at_most if max_stations is None else min(max_stations, at_most)
     count, plan_s, next_s = longest_prefix_in_time(order, max(cap, order.fixed), max_s,
                                                    clock.seconds, clock.per_station_s)
