@@ -171,6 +171,19 @@ def test_levels_extents_in_one_pass_are_each_levels_own(result: PlanResult) -> N
     for level, (x0, y0, x1, y1) in zip(levels, together, strict=True):
         xy = two.candidates.positions[level.candidates, :2]
         assert (xy >= (x0, y0)).all() and (xy <= (x1, y1)).all()
+    # the extent, worked out with numpy from every corner of the level's faces (centroid
+    # from 0.2 m under its floor to its top), cut to the candidates' reach, with the margin
+    scene, reach = two.scene, two.limits.reach_m
+    centroid_z = scene.vertices[scene.faces].mean(axis=1)[:, 2]
+    for level, extent in zip(levels, together, strict=True):
+        inside = (centroid_z >= level.floor_z - 0.2) & (centroid_z <= level.top_z)
+        xy = two.candidates.positions[level.candidates, :2]
+        points = np.concatenate([xy, scene.vertices[scene.faces[inside].ravel(), :2]])
+        least = np.maximum(points.min(axis=0), xy.min(axis=0) - reach)
+        most = np.minimum(points.max(axis=0), xy.max(axis=0) + reach)
+        margin = 0.04 * float(max(most - least)) + 0.3
+        assert extent == (float(least[0]) - margin, float(least[1]) - margin,
+                          float(most[0]) + margin, float(most[1]) + margin)
 
 
 def test_registered_outputs(result: PlanResult, tmp_path: Path) -> None:
