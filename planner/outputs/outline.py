@@ -26,7 +26,6 @@ import shapely
 from numpy.typing import NDArray
 
 from planner.scene import Scene
-from planner.threads import in_block_order
 
 # a merged outline drops a corner this close to the line through its neighbours (pieces
 # are split at edge midpoints, which lie on the edge only to rounding)
@@ -349,7 +348,7 @@ def _outlined(scene: Scene, rows: NDArray[np.int32], offsets: NDArray[np.int64],
     """Triangles covering each of the ``chosen`` features (several faces, not their whole
     file face; ``first``: each feature's first face): its outline (:func:`_outlines`)
     triangulated by GEOS's constrained Delaunay (no new vertices), wound as its file face,
-    ``_OUTLINE_CHUNK_PIECES`` faces' worth of features at a time, a chunk a thread.
+    ``_OUTLINE_CHUNK_PIECES`` faces' worth of features at a time.
 
     Returns (t,) the feature of each triangle (ascending), (t, 3) their vertex indices,
     and the features :func:`_outlines` left to :func:`_merge`. A feature whose triangles do
@@ -360,17 +359,13 @@ def _outlined(scene: Scene, rows: NDArray[np.int32], offsets: NDArray[np.int64],
     main = np.argmax(np.abs(scene.normals_of(first[chosen])), axis=1)
     # the two axes other than the main axis of each feature's normal
     axes = np.stack([(main == 0).astype(np.int64), 2 - (main == 2).astype(np.int64)], axis=1)
-    parts = [part for part in np.split(np.arange(len(chosen)), np.unique(cuts)) if len(part)]
-
-    def outline(part: NDArray[np.int64]
-                ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
-        return _outlined_part(scene, rows, offsets, first, chosen[part], axes[part])
-
-    # the chunks on every core (the compiled outlines and GEOS's triangulation release the
-    # GIL), read back in their order: the same triangles as one chunk after the other
     found: list[tuple[NDArray[np.int64], NDArray[np.int64]]] = []
     to_merge: list[NDArray[np.int64]] = []
-    for features, triangles, left in in_block_order(outline, parts):
+    for part in np.split(np.arange(len(chosen)), np.unique(cuts)):
+        if len(part) == 0:
+            continue
+        features, triangles, left = _outlined_part(scene, rows, offsets, first,
+                                                   chosen[part], axes[part])
         found.append((features, triangles))
         to_merge.append(left)
     if not found:
