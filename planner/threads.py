@@ -20,9 +20,8 @@ _Block = TypeVar("_Block")
 # blocks each thread may finish ahead of the reader: enough that a slow block does not
 # leave the other threads idle, few enough that a slow reader (the per-face results of a
 # plan's stations take a ufunc.at per station) does not hold every block's result at once.
-# Once the rays were cast in packets the threads ran further ahead of their readers: with
-# 4 the 9.7 M-piece office peaked 25 - 45 MiB higher than before (1,322 - 1,340 MiB against
-# 1,288 - 1,308); with 2 it is back (1,300 - 1,309) in the same time
+# Two, not four: with four the threads' finished blocks piled up behind the readers and
+# the 9.7 M-piece office peaked 25 - 45 MiB higher, in the same time
 BLOCKS_AHEAD_PER_THREAD = 2
 
 

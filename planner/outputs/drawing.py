@@ -380,19 +380,16 @@ def _extents(result: PlanResult, levels: Sequence[Level]
              ) -> dict[tuple[str, float, float, float], tuple[float, float, float, float]]:
     """:func:`level_extents` of ``levels``, in one pass over the faces."""
     scene = result.scene
-    lo = np.empty((len(levels), 2))  # (L, 2) the least x, y of each level's extent so far
-    hi = np.empty((len(levels), 2))
-    for index, level in enumerate(levels):
-        xy = result.candidates.positions[level.candidates, :2]
-        lo[index], hi[index] = xy.min(axis=0), xy.max(axis=0)
+    candidates_xy = [result.candidates.positions[level.candidates, :2] for level in levels]
+    # (L, 2) the least and the greatest x, y of each level's extent, from its candidates on
+    lo = np.array([xy.min(axis=0) for xy in candidates_xy])
+    hi = np.array([xy.max(axis=0) for xy in candidates_xy])
     _fold_level_corners(scene.vertices, scene.faces,
                         np.array([level.floor_z - 0.2 for level in levels]),
                         np.array([level.top_z for level in levels]), lo, hi)
     reach = result.limits.reach_m
     out = {}
-    for index, level in enumerate(levels):
-        xy = result.candidates.positions[level.candidates, :2]
-        least, most = lo[index], hi[index]
+    for level, xy, least, most in zip(levels, candidates_xy, lo, hi, strict=True):
         if len(xy) and reach > 0:  # no farther than a station reaches from the candidates
             least = np.maximum(least, xy.min(axis=0) - reach)
             most = np.minimum(most, xy.max(axis=0) + reach)

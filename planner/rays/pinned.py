@@ -243,7 +243,8 @@ def _cast(intersect8: Any, scene: int, origins32: NDArray[np.float32],
     for first in range(0, n, _LANES):
         lanes = min(_LANES, n - first)
         for i in range(_LANES):
-            # an inactive lane (past the last ray) gets ray 0's values: Embree skips it
+            # a lane past the last ray is inactive (Embree skips it); it holds the
+            # packet's first ray
             r = first + i if i < lanes else first
             valid[i] = -1 if i < lanes else 0
             for axis in range(3):

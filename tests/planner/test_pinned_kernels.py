@@ -29,20 +29,27 @@ def test_an_x86_machine_is_pinned_to_a_named_set() -> None:
         assert "default kernels" in KERNELS
 
 
+def _hall_small_rays(scenes_dir: Path) -> tuple[np.ndarray, ...]:
+    """hall-small's occluding mesh and its coverage rays, as Embree takes them: (V, 3)
+    vertices and (B, 3) faces, the rays' (R, 3) origins and directions and (R,) far
+    limits (float32). The candidates are a grid and the faces one, so many rays run through
+    the corners the faces share."""
+    scene = read_scene(scenes_dir / "hall-small/hall.obj", max_edge_m=None)
+    limits = FaceLimits.from_spec(PlanSpec(max_edge_m=None), scene)
+    positions = read_candidates_csv(scenes_dir / "hall-small/candidates.csv")
+    pairs, _ = PairFinder(scene, limits).find(positions, 0)
+    far = np.multiply(pairs.distance_m, FAR_LIMIT_FACTOR, dtype=np.float32)
+    return (scene.vertices.astype(np.float32), scene.faces[limits.occludes].astype(np.int32),
+            pairs.origin.astype(np.float32), pairs.direction.astype(np.float32), far)
+
+
 def test_the_instruction_set_decides_grazing_rays(scenes_dir: Path) -> None:
     """hall-small's coverage rays (a grid of candidates, rays through the corners of a
     grid of faces): kernels of another set than the pinned one decide some of them
     otherwise, the pinned device and an explicit cap at its own set decide all alike."""
     if not X86 or KERNELS != "avx2":
         pytest.fail(f"this test compares x86 kernels on an AVX2 CPU; this one runs {KERNELS}")
-    scene = read_scene(scenes_dir / "hall-small/hall.obj", max_edge_m=None)
-    limits = FaceLimits.from_spec(PlanSpec(max_edge_m=None), scene)
-    positions = read_candidates_csv(scenes_dir / "hall-small/candidates.csv")
-    pairs, _ = PairFinder(scene, limits).find(positions, 0)
-    vertices32 = scene.vertices.astype(np.float32)
-    faces32 = scene.faces[limits.occludes].astype(np.int32)
-    far = np.multiply(pairs.distance_m, FAR_LIMIT_FACTOR, dtype=np.float32)
-    origins32, directions32 = pairs.origin.astype(np.float32), pairs.direction.astype(np.float32)
+    vertices32, faces32, origins32, directions32, far = _hall_small_rays(scenes_dir)
 
     def hits(max_isa: str | None) -> np.ndarray:
         caster = PinnedScene(vertices32, faces32, robust=True, max_isa=max_isa)
@@ -86,14 +93,7 @@ def test_packets_hit_what_single_rays_hit(scenes_dir: Path) -> None:
     hall-small's coverage rays run through the corners of a grid of faces: the rays that
     kernels of another instruction set decide otherwise (the ties between the triangles
     that share a corner) and a sample of the rest, each compared with ``rtcIntersect1``."""
-    scene = read_scene(scenes_dir / "hall-small/hall.obj", max_edge_m=None)
-    limits = FaceLimits.from_spec(PlanSpec(max_edge_m=None), scene)
-    positions = read_candidates_csv(scenes_dir / "hall-small/candidates.csv")
-    pairs, _ = PairFinder(scene, limits).find(positions, 0)
-    vertices32 = scene.vertices.astype(np.float32)
-    faces32 = scene.faces[limits.occludes].astype(np.int32)
-    far = np.multiply(pairs.distance_m, FAR_LIMIT_FACTOR, dtype=np.float32)
-    origins32, directions32 = pairs.origin.astype(np.float32), pairs.direction.astype(np.float32)
+    vertices32, faces32, origins32, directions32, far = _hall_small_rays(scenes_dir)
     caster = PinnedScene(vertices32, faces32, robust=True)
     packets, packet_tfar = caster.first_hits_and_distances(origins32, directions32)
     grazing = np.flatnonzero(packets != PinnedScene(
