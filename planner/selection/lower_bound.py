@@ -81,11 +81,12 @@ from planner.visibility.coverage import CoverageTable
 
 # iterations (fixed: no clock, the same bound for the same table): of the volume algorithm
 # (partial cover: at most ITERATIONS, fewer on large tables so that iterations times the
-# table's pairs stay within PARTIAL_WORK_PAIRS, at least MIN_ITERATIONS) and of PDHG per
-# round of rows (full cover)
+# work of one, the runs of classes and the classes it reads (ClassRuns.work), stay within
+# PARTIAL_WORK, at least MIN_ITERATIONS) and of PDHG per round of rows (full cover)
 ITERATIONS = 250
-# about 0.3 s of a 2-core machine (5 ms an iteration over hall-full's 10.5 M class pairs)
-PARTIAL_WORK_PAIRS = 600_000_000
+# hall-full (0.8 M runs over 54,000 classes): 207 iterations in 0.6 s on a 2-core machine;
+# the 9.7 M-piece office (about 4.5 M runs over 808,000 classes): 113 iterations in 6 s
+PARTIAL_WORK = 600_000_000
 MIN_ITERATIONS = 20
 PDHG_ITERATIONS = 1000
 # PDHG restarts from the average this often; power iterations for the step
@@ -117,10 +118,8 @@ PARTIAL_METHOD = "lagrangian dual of the partial-cover LP (volume algorithm)"
 REDUCTIONS = "fixed stations and the candidates alone in covering a class"
 COVERAGE_METHOD = ("lagrangian dual of the maximum-coverage LP (volume algorithm "
                    "multipliers, scaled)")
-# the maximum-coverage bound's work (see coverage_upper_bound): 2.5 times a plan's bound's;
-# the Amersfoort sports hall (7.2 M class pairs, 208 iterations), 10 stations: 773.74 m^2,
-# greedy's 773.66 (600 M pairs: 797)
-COVERAGE_WORK_PAIRS = 1_500_000_000
+# the maximum-coverage bound's work (see coverage_upper_bound): 2.5 times a plan's bound's
+COVERAGE_WORK = 1_500_000_000
 TOO_LARGE = f"fixed stations only (the face classes have more than {MAX_PAIRS} pairs)"
 
 
@@ -219,6 +218,17 @@ class ClassRuns:
         _fill_runs(rows.indptr, rows.indices, run_ptr, first, end)
         return cls(run_ptr, first, end)
 
+    def work(self, n_columns: int) -> int:
+        """What one product reads: the runs, and the ``n_columns`` prefix sums."""
+        return len(self.first) + n_columns
+
+    def counts(self, chosen: NDArray[np.bool_], n_columns: int) -> NDArray[np.float64]:
+        """(K,) how many of the ``chosen`` (C,) rows hold each of the ``n_columns``
+        columns (whole numbers, exact), from a difference array over the runs."""
+        steps = np.zeros(n_columns + 1)
+        _run_steps(self.run_ptr, self.first, self.end, chosen, steps)
+        return np.cumsum(steps[:-1])
+
     def sums(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
         """(C,) each row's sum of ``values`` (K,) float64."""
         prefix = np.zeros(len(values) + 1)
@@ -255,6 +265,17 @@ def _fill_runs(indptr: NDArray[np.int32], indices: NDArray[np.int32],
 
 
 @numba.njit(nogil=True, cache=True)
+def _run_steps(run_ptr: NDArray[np.int64], first: NDArray[np.int32], end: NDArray[np.int32],
+               chosen: NDArray[np.bool_], steps: NDArray[np.float64]) -> None:  # compiled
+    """``steps``: +1 where each run of a ``chosen`` row starts, -1 one past its end."""
+    for c in range(len(chosen)):
+        if chosen[c]:
+            for r in range(run_ptr[c], run_ptr[c + 1]):
+                steps[first[r]] += 1.0
+                steps[end[r]] -= 1.0
+
+
+@numba.njit(nogil=True, cache=True)
 def _run_sums(run_ptr: NDArray[np.int64], first: NDArray[np.int32], end: NDArray[np.int32],
               prefix: NDArray[np.float64], sums: NDArray[np.float64]) -> None:  # compiled
     """``sums[c]``: the sum over row c's runs of ``prefix[end] - prefix[first]``."""
@@ -288,7 +309,7 @@ def _row_sums(indptr: NDArray[np.int32], indices: NDArray[np.int32], values: NDA
 
 def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: int,
                         fixed: tuple[int, ...] = (), iterations: int | None = None,
-                        work_pairs: int = PARTIAL_WORK_PAIRS,
+                        work: int = PARTIAL_WORK,
                         max_iterations: int = ITERATIONS) -> StationBound:
     """The fewest stations any plan needs to cover ``need_m2`` (fixed stations included).
 
@@ -296,7 +317,7 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
     - slack); ``upper_stations``: the stations of a known plan (the steps aim at it; the
     search stops early once the bound meets it). ``fixed`` stations are in every plan:
     their faces count as covered. ``iterations``: of the volume algorithm (partial cover,
-    default: as many as ``work_pairs`` (pair-iterations) allows, at least MIN_ITERATIONS
+    default: as many as ``work`` allows (:func:`_volume_iterations`), at least MIN_ITERATIONS
     and at most ``max_iterations``) or of PDHG per round of rows (full cover, default
     PDHG_ITERATIONS).
     """
@@ -335,11 +356,11 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
     full = float(area[~must].sum()) <= max(allowance, SLIVER_SHARE * float(area.sum()))
     if full and not must.all():
         cover, area, must = cover[:, must], area[must], must[must]
-    if iterations is None:
-        iterations = PDHG_ITERATIONS if full else _volume_iterations(
-            cover.nnz, work_pairs, max_iterations)
     problem = _Lagrangian(cover, area, need, must, full)
     del cover  # the problem keeps it by candidate
+    if iterations is None:
+        iterations = PDHG_ITERATIONS if full else _volume_iterations(
+            problem.work(), work, max_iterations)
     target = max(1.0, float(upper_stations - base))
     done = problem.solve(target, iterations)
     return StationBound(stations=base + problem.best_stations(),
@@ -348,11 +369,12 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
                         method=FULL_METHOD if full else PARTIAL_METHOD)
 
 
-def _volume_iterations(pairs: int, work_pairs: int, max_iterations: int) -> int:
-    """Iterations of the volume algorithm over a class matrix of ``pairs`` pairs: as many as
-    ``work_pairs`` pair-iterations allow, at least MIN_ITERATIONS and at most
-    ``max_iterations`` (fixed work, no clock: the same table gives the same bound)."""
-    return min(max_iterations, max(MIN_ITERATIONS, work_pairs // max(1, pairs)))
+def _volume_iterations(per_iteration: int, work: int, max_iterations: int) -> int:
+    """Iterations of the volume algorithm whose one iteration reads ``per_iteration`` runs
+    and classes (:meth:`ClassRuns.work`): as many as ``work`` allows, at least
+    MIN_ITERATIONS and at most ``max_iterations`` (fixed work, no clock: the same table
+    gives the same bound)."""
+    return min(max_iterations, max(MIN_ITERATIONS, work // max(1, per_iteration)))
 
 
 @dataclass(frozen=True)
@@ -376,7 +398,7 @@ class CoverageBound:
 
 def coverage_upper_bound(table: CoverageTable, stations: int, reached_m2: float,
                          fixed: tuple[int, ...] = (),
-                         work_pairs: int = COVERAGE_WORK_PAIRS) -> CoverageBound:
+                         work: int = COVERAGE_WORK) -> CoverageBound:
     """The most area any ``stations`` stations (``fixed`` ones included) could cover: the
     Lagrangian dual of the maximum-coverage LP.
 
@@ -389,8 +411,8 @@ def coverage_upper_bound(table: CoverageTable, stations: int, reached_m2: float,
     scaled, are the maximum-coverage LP's; ``t`` is then chosen exactly (the bound is
     convex and piecewise linear in ``t``, least at one of the ratios ``a_k / u_k``).
     The fewest-stations problem is solved for ``reached_m2``, what a known plan of
-    ``stations`` covers (fixed stations included), with ``work_pairs`` pair-iterations
-    (fixed work, no clock: the same table gives the same bound). One such run gives a
+    ``stations`` covers (fixed stations included), with ``work`` (runs and classes read
+    in all; fixed work, no clock: the same table gives the same bound). One such run gives a
     tighter bound than several at other areas for the same work (the Amersfoort sports
     hall, 30 stations: 1,449 m² against 1,491 for three runs bisecting the area).
     """
@@ -412,8 +434,8 @@ def coverage_upper_bound(table: CoverageTable, stations: int, reached_m2: float,
     # the multipliers of the fewest stations covering what the known plan covers: their
     # knapsack's threshold is the plan's, near the maximum coverage LP's optimum
     need = min(max(reached_m2 - fixed_m2, ROUND_TOLERANCE * total), total)
-    iterations = _volume_iterations(cover.nnz, work_pairs, ITERATIONS)
     problem = _Lagrangian(cover, area, need, area > total - need, full=False)
+    iterations = _volume_iterations(problem.work(), work, ITERATIONS)
     # aimed one station above the plan's: the search never stops early, the plan reaching
     # ``need`` with ``free`` stations
     done = problem.solve(free + 1.0, iterations)
@@ -658,9 +680,13 @@ class _Lagrangian:
 
     def _covered(self, x: NDArray[np.bool_]) -> NDArray[np.float64]:
         """(K,) how many of the candidates ``x`` (C,) cover each class."""
-        counts = np.zeros(self.rows.shape[1])
-        _count_covers(self.rows.indptr, self.rows.indices, x, counts)
-        return counts
+        assert self._runs is not None
+        return self._runs.counts(x, self.rows.shape[1])
+
+    def work(self) -> int:
+        """What one iteration of the volume algorithm reads (:meth:`ClassRuns.work`)."""
+        assert self._runs is not None
+        return self._runs.work(self.rows.shape[1])
 
     def _record(self, columns: NDArray[np.int64], value: NDArray[np.float64],
                 u: NDArray[np.float64]) -> None:

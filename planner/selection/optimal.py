@@ -84,7 +84,7 @@ MAX_NONZEROS = 1_500_000
 # plans' 600 M pair-iterations: the 9.7 M-face office at 80 % (21 M class pairs), 160 after
 # 28 iterations, 176 after 100, 189 after 285, 192 after 600 and after 1,200; at the
 # default 60 s, 714 iterations (192) in 19.5 s
-BOUND_PAIRS_PER_LIMIT_S = 250_000_000
+BOUND_WORK_PER_LIMIT_S = 250_000_000
 BOUND_MAX_ITERATIONS = 1500
 # set cover rows in the first round, and at most this many added per round
 SET_COVER_ROWS_PER_ROUND = 1000
@@ -533,7 +533,7 @@ def solve_optimal(
         # the bound's work grows with the time asked for, counted in pairs, not seconds
         dual = station_lower_bound(
             search, need_rest, len(best) - n_fixed,
-            work_pairs=int(BOUND_PAIRS_PER_LIMIT_S * time_limit_s),
+            work=int(BOUND_WORK_PER_LIMIT_S * time_limit_s),
             max_iterations=BOUND_MAX_ITERATIONS)
         seconds["lower_bound"] = time.monotonic() - t_bound
         if n_fixed + dual.stations > lower:
