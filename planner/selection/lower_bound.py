@@ -198,12 +198,14 @@ class ClassRuns:
     again pair by pair (:func:`pattern_product`).
 
     ``run_ptr`` (C + 1,) int64: row c's runs are ``run_ptr[c]`` to ``run_ptr[c + 1] - 1``;
-    ``first`` and ``end`` (R,) int32: each run's first column and one past its last.
+    ``first`` and ``end`` (R,) int32: each run's first column and one past its last;
+    ``n_columns``: K.
     """
 
     run_ptr: NDArray[np.int64]
     first: NDArray[np.int32]
     end: NDArray[np.int32]
+    n_columns: int
 
     @classmethod
     def of(cls, rows: sp.csr_matrix) -> ClassRuns:
@@ -216,16 +218,16 @@ class ClassRuns:
         first = np.empty(int(run_ptr[-1]), np.int32)
         end = np.empty(int(run_ptr[-1]), np.int32)
         _fill_runs(rows.indptr, rows.indices, run_ptr, first, end)
-        return cls(run_ptr, first, end)
+        return cls(run_ptr, first, end, rows.shape[1])
 
-    def work(self, n_columns: int) -> int:
-        """What one product reads: the runs, and the ``n_columns`` prefix sums."""
-        return len(self.first) + n_columns
+    def work(self) -> int:
+        """What one product reads: the runs, and the K prefix sums."""
+        return len(self.first) + self.n_columns
 
-    def counts(self, chosen: NDArray[np.bool_], n_columns: int) -> NDArray[np.float64]:
-        """(K,) how many of the ``chosen`` (C,) rows hold each of the ``n_columns``
-        columns (whole numbers, exact), from a difference array over the runs."""
-        steps = np.zeros(n_columns + 1)
+    def counts(self, chosen: NDArray[np.bool_]) -> NDArray[np.float64]:
+        """(K,) how many of the ``chosen`` (C,) rows hold each column (whole numbers,
+        exact), from a difference array over the runs."""
+        steps = np.zeros(self.n_columns + 1)
         _run_steps(self.run_ptr, self.first, self.end, chosen, steps)
         return np.cumsum(steps[:-1])
 
@@ -681,12 +683,12 @@ class _Lagrangian:
     def _covered(self, x: NDArray[np.bool_]) -> NDArray[np.float64]:
         """(K,) how many of the candidates ``x`` (C,) cover each class."""
         assert self._runs is not None
-        return self._runs.counts(x, self.rows.shape[1])
+        return self._runs.counts(x)
 
     def work(self) -> int:
         """What one iteration of the volume algorithm reads (:meth:`ClassRuns.work`)."""
         assert self._runs is not None
-        return self._runs.work(self.rows.shape[1])
+        return self._runs.work()
 
     def _record(self, columns: NDArray[np.int64], value: NDArray[np.float64],
                 u: NDArray[np.float64]) -> None:

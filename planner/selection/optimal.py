@@ -78,12 +78,12 @@ from planner.visibility.coverage import CoverageTable
 # Above this many nonzeros HiGHS's presolve alone outlasts any sensible time limit (hall-full:
 # 10.5 M); face classes are then merged per voxel into a relaxation (see relaxed_classes).
 MAX_NONZEROS = 1_500_000
-# the volume algorithm's work in ``optimal``: pair-iterations per second of the time limit
-# (about a third of the limit on a 2-core machine, 27 ms an iteration over 21 M pairs),
-# and at most this many iterations. Its bound keeps rising long after the heuristic
-# plans' 600 M pair-iterations: the 9.7 M-face office at 80 % (21 M class pairs), 160 after
-# 28 iterations, 176 after 100, 189 after 285, 192 after 600 and after 1,200; at the
-# default 60 s, 714 iterations (192) in 19.5 s
+# the volume algorithm's work in ``optimal`` per second of the time limit, counted as
+# station_lower_bound counts it (the runs of classes and the classes an iteration reads),
+# and at most this many iterations. Its bound keeps rising long after the heuristic plans'
+# iterations: the 9.7 M-face office at 80 % (808,000 classes; measured when the iterations
+# summed every pair), 160 after 28 iterations, 176 after 100, 189 after 285, 192 after 600
+# and after 1,200
 BOUND_WORK_PER_LIMIT_S = 250_000_000
 BOUND_MAX_ITERATIONS = 1500
 # set cover rows in the first round, and at most this many added per round
@@ -530,7 +530,8 @@ def solve_optimal(
     dual_method = "area bound"
     if len(best) > lower and need_rest > 0:
         t_bound = time.monotonic()
-        # the bound's work grows with the time asked for, counted in pairs, not seconds
+        # the bound's work grows with the time asked for, counted in what its iterations
+        # read, not in seconds
         dual = station_lower_bound(
             search, need_rest, len(best) - n_fixed,
             work=int(BOUND_WORK_PER_LIMIT_S * time_limit_s),

@@ -324,7 +324,7 @@ def test_runs_of_classes_sum_what_their_pairs_sum(halls: dict[str, PlanResult]) 
                        atol=0)
     # and how many chosen rows hold each column, exactly
     chosen = np.array([True, False, True, True])
-    assert runs.counts(chosen, 12).tolist() == (
+    assert runs.counts(chosen).tolist() == (
         chosen.astype(np.float64) @ rows.astype(np.float64)).tolist()
     # hall-full's class matrix: 10.5 M pairs in far fewer runs, the same sums
     table = halls["hall-full"].table
@@ -335,5 +335,5 @@ def test_runs_of_classes_sum_what_their_pairs_sum(halls: dict[str, PlanResult]) 
     assert np.allclose(runs.sums(values), pattern_product(cover, values), rtol=1e-9,
                        atol=1e-9)
     chosen = np.random.default_rng(7).random(cover.shape[0]) < 0.3
-    assert np.array_equal(runs.counts(chosen, cover.shape[1]),
+    assert np.array_equal(runs.counts(chosen),
                           chosen.astype(np.float64) @ cover.astype(np.float64))
