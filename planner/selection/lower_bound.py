@@ -227,17 +227,11 @@ class ClassRuns:
     def counts(self, chosen: NDArray[np.bool_]) -> NDArray[np.float64]:
         """(K,) how many of the ``chosen`` (C,) rows hold each column (whole numbers,
         exact), from a difference array over the runs."""
-        steps = np.zeros(self.n_columns + 1)
-        _run_steps(self.run_ptr, self.first, self.end, chosen, steps)
-        return np.cumsum(steps[:-1])
+        return _run_counts(self.run_ptr, self.first, self.end, chosen, self.n_columns)
 
     def sums(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
         """(C,) each row's sum of ``values`` (K,) float64."""
-        prefix = np.zeros(len(values) + 1)
-        np.cumsum(values, out=prefix[1:])
-        sums = np.empty(len(self.run_ptr) - 1)
-        _run_sums(self.run_ptr, self.first, self.end, prefix, sums)
-        return sums
+        return _runs_sums(self.run_ptr, self.first, self.end, values)
 
 
 @numba.njit(nogil=True, cache=True)
@@ -275,6 +269,27 @@ def _run_steps(run_ptr: NDArray[np.int64], first: NDArray[np.int32], end: NDArra
             for r in range(run_ptr[c], run_ptr[c + 1]):
                 steps[first[r]] += 1.0
                 steps[end[r]] -= 1.0
+
+
+@numba.njit(nogil=True, cache=True)
+def _run_counts(run_ptr: NDArray[np.int64], first: NDArray[np.int32], end: NDArray[np.int32],
+                chosen: NDArray[np.bool_], n_columns: int) -> NDArray[np.float64]:  # compiled
+    """(K,) how many of the ``chosen`` (C,) rows hold each of the ``n_columns`` columns:
+    the running sum of the difference array of the rows' runs."""
+    steps = np.zeros(n_columns + 1)
+    _run_steps(run_ptr, first, end, chosen, steps)
+    return np.cumsum(steps[:-1])
+
+
+@numba.njit(nogil=True, cache=True)
+def _runs_sums(run_ptr: NDArray[np.int64], first: NDArray[np.int32], end: NDArray[np.int32],
+               values: NDArray[np.float64]) -> NDArray[np.float64]:  # compiled
+    """(C,) each row's sum of ``values`` (K,) over its runs, from the values' prefix sums."""
+    prefix = np.zeros(len(values) + 1)
+    prefix[1:] = np.cumsum(values)
+    sums = np.empty(len(run_ptr) - 1)
+    _run_sums(run_ptr, first, end, prefix, sums)
+    return sums
 
 
 @numba.njit(nogil=True, cache=True)
@@ -608,82 +623,33 @@ class _Lagrangian:
         :data:`RED_STEPS` steps without. The reduced costs of the search are sums over
         runs of classes (:class:`ClassRuns`); the best multipliers are evaluated again by
         summing every class of every row, in float64.
+
+        The search is one compiled call (:func:`_volume_search`) that never takes the
+        interpreter's lock: a thread beside it (the command line's imports of the
+        renderers) does not make it wait at every step, as a search of some twenty
+        compiled steps an iteration did (hall-full's bound: 0.6 s alone, 0.9 s beside the
+        imports, 17 s beside a busy Python thread).
         """
-        rows = self.rows
-        u_best = self.best_u.copy()
-        l_best, y, x = self._evaluate(u_best)
-        self._record_partial(l_best, u_best)
-        y_bar = y.copy()
-        seen_bar = self._covered(x)
-        g_bar = np.empty_like(y_bar)
-        factor = START_STEP
-        red = 0
-        done = iterations
-        for it in range(iterations):
-            if self.best_stations() >= target:
-                done = it
-                break
-            _subgradient(y_bar, seen_bar, u_best, g_bar)
-            norm = _dot(g_bar, g_bar)
-            if norm <= 0:
-                done = it
-                break
-            gap = max(target - l_best, 1e-3 * max(1.0, abs(l_best)))
-            u = np.empty_like(u_best)
-            _step(u_best, factor * gap / norm, g_bar, u)
-            value, y, x = self._evaluate(u)
-            self._record_partial(value, u)
-            seen = self._covered(x)
-            _average(y, y_bar, AVERAGE)
-            _average(seen, seen_bar, AVERAGE)
-            if value > l_best:
-                if _dot(y - seen, g_bar) >= 0:  # green: the step could be longer
-                    factor = min(MAX_STEP, factor * 1.1)
-                l_best, u_best = value, u
-                red = 0
-            else:
-                red += 1
-                if red >= RED_STEPS:
-                    factor *= 0.66
-                    red = 0
+        runs = self._runs
+        assert runs is not None
+        every_free = self._free is None
+        free = np.empty(0, np.int64) if self._free is None else self._free
+        self.best_u, self.best[0], done = _volume_search(
+            runs.run_ptr, runs.first, runs.end, self.area, self.must, free,
+            self._free_area, self._rest, every_free, self.best_u.copy(), float(self.best[0]),
+            target, iterations)
         # the bound: the best multipliers, summed again in float64
-        reduced = 1.0 - pattern_product(rows, self.best_u)
+        reduced = 1.0 - pattern_product(self.rows, self.best_u)
         self.best[0] = float(np.minimum(reduced, 0.0).sum()) + _dot(
             self.best_u, self._knapsack(self.best_u))
         return done
 
-    def _evaluate(self, u: NDArray[np.float64]
-                  ) -> tuple[float, NDArray[np.float64], NDArray[np.bool_]]:
-        """L(u) of a partial cover (the rows' sums by :class:`ClassRuns`), the knapsack's
-        y (K,) and x (C,): the candidates of negative reduced cost (the Lagrangian's
-        minimisers)."""
-        assert self._runs is not None
-        reduced = 1.0 - self._runs.sums(u)  # (C,)
-        y = self._knapsack(u)
-        value = float(np.minimum(reduced, 0.0).sum()) + _dot(u, y)
-        return value, y, reduced < 0
-
     def _knapsack(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
         """(K,) y in [0, 1] of least ``u . y`` with ``area . y >= need`` and ``y = 1`` on the
         must classes: the others cheapest per area first, ties to the lowest index."""
-        if self._rest <= 0 or len(self._free_area) == 0:
-            return self.must.astype(np.float64)
-        if self._free is None:  # no gathers of (K,) arrays an iteration
-            return _cheapest_first(u / self.area, self.area, self._rest)
-        y = self.must.astype(np.float64)
-        y[self._free] = _cheapest_first(u[self._free] / self._free_area, self._free_area,
-                                        self._rest)
-        return y
-
-    def _record_partial(self, value: float, u: NDArray[np.float64]) -> None:
-        if value > self.best[0]:
-            self.best[0] = value
-            self.best_u = u
-
-    def _covered(self, x: NDArray[np.bool_]) -> NDArray[np.float64]:
-        """(K,) how many of the candidates ``x`` (C,) cover each class."""
-        assert self._runs is not None
-        return self._runs.counts(x)
+        return _knapsack_y(u, self.area, self.must, np.empty(0, np.int64)
+                           if self._free is None else self._free, self._free_area,
+                           self._rest, self._free is None)
 
     def work(self) -> int:
         """What one iteration of the volume algorithm reads (:meth:`ClassRuns.work`)."""
@@ -714,6 +680,174 @@ def _full_value(u: NDArray[np.float64], reduced: NDArray[np.float64]) -> float:
 def _dot(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
     """``a . b`` without BLAS (whose threads stall on a busy machine for vectors this size)."""
     return float(np.multiply(a, b).sum())
+
+
+@numba.njit(nogil=True, cache=True)
+def _volume_search(run_ptr: NDArray[np.int64], first: NDArray[np.int32], end: NDArray[np.int32],
+                   area: NDArray[np.float64], must: NDArray[np.bool_], free: NDArray[np.int64],
+                   free_area: NDArray[np.float64], rest: float, every_free: bool,
+                   u_start: NDArray[np.float64], recorded: float, target: float,
+                   iterations: int) -> tuple[NDArray[np.float64], float, int]:  # compiled
+    """The volume algorithm's search of :meth:`_Lagrangian._volume` from ``u_start`` (K,):
+    the best multipliers it evaluated (``u_start`` when none beat ``recorded``), their
+    value, and the iterations made. The problem is given as :class:`ClassRuns` arrays and
+    :func:`_knapsack_y`'s; every sum is summed as numpy sums it, so the search takes the
+    same steps as numpy's operations would."""
+    n_class = len(area)
+    u_best = u_start
+    l_best, y, x = _partial_value(run_ptr, first, end, u_best, area, must, free, free_area,
+                                  rest, every_free)
+    best_value, best_u = recorded, u_start
+    if l_best > best_value:
+        best_value, best_u = l_best, u_best
+    y_bar = y.copy()
+    seen_bar = _run_counts(run_ptr, first, end, x, n_class)
+    g_bar = np.empty_like(y_bar)
+    factor = START_STEP
+    red = 0
+    done = iterations
+    for it in range(iterations):
+        if _rounded_up(best_value) >= target:
+            done = it
+            break
+        _subgradient(y_bar, seen_bar, u_best, g_bar)
+        norm = _numpy_sum(g_bar * g_bar)
+        if norm <= 0:
+            done = it
+            break
+        gap = max(target - l_best, 1e-3 * max(1.0, abs(l_best)))
+        u = np.empty_like(u_best)
+        _step(u_best, factor * gap / norm, g_bar, u)
+        value, y, x = _partial_value(run_ptr, first, end, u, area, must, free, free_area,
+                                     rest, every_free)
+        if value > best_value:
+            best_value, best_u = value, u
+        seen = _run_counts(run_ptr, first, end, x, n_class)
+        _average(y, y_bar, AVERAGE)
+        _average(seen, seen_bar, AVERAGE)
+        if value > l_best:
+            if _numpy_sum((y - seen) * g_bar) >= 0:  # green: the step could be longer
+                factor = min(MAX_STEP, factor * 1.1)
+            l_best, u_best = value, u
+            red = 0
+        else:
+            red += 1
+            if red >= RED_STEPS:
+                factor *= 0.66
+                red = 0
+    return best_u, best_value, done
+
+
+@numba.njit(nogil=True, cache=True)
+def _partial_value(run_ptr: NDArray[np.int64], first: NDArray[np.int32],
+                   end: NDArray[np.int32], u: NDArray[np.float64], area: NDArray[np.float64],
+                   must: NDArray[np.bool_], free: NDArray[np.int64],
+                   free_area: NDArray[np.float64], rest: float, every_free: bool
+                   ) -> tuple[float, NDArray[np.float64], NDArray[np.bool_]]:  # compiled
+    """L(u) of a partial cover (the rows' sums over their runs), the knapsack's y (K,) and
+    x (C,): the candidates of negative reduced cost (the Lagrangian's minimisers)."""
+    reduced = 1.0 - _runs_sums(run_ptr, first, end, u)  # (C,)
+    y = _knapsack_y(u, area, must, free, free_area, rest, every_free)
+    value = _numpy_sum(np.minimum(reduced, 0.0)) + _numpy_sum(u * y)
+    return value, y, reduced < 0
+
+
+@numba.njit(nogil=True, cache=True)
+def _knapsack_y(u: NDArray[np.float64], area: NDArray[np.float64], must: NDArray[np.bool_],
+                free: NDArray[np.int64], free_area: NDArray[np.float64], rest: float,
+                every_free: bool) -> NDArray[np.float64]:  # compiled
+    """(K,) y in [0, 1] of least ``u . y`` with ``area . y >= need`` and ``y = 1`` on the
+    ``must`` classes: the ``free`` others (all of them when ``every_free``, read without
+    gathers), of ``free_area``, cheapest per area first until they cover ``rest``."""
+    if rest <= 0 or len(free_area) == 0:
+        return must.astype(np.float64)
+    if every_free:
+        return _cheapest_first(u / area, area, rest)
+    y = must.astype(np.float64)
+    y[free] = _cheapest_first(u[free] / free_area, free_area, rest)
+    return y
+
+
+@numba.njit(nogil=True, cache=True)
+def _rounded_up(value: float) -> float:
+    """:meth:`_Lagrangian.best_stations` of one component of Lagrangian ``value``."""
+    return max(0.0, float(np.ceil(value - ROUND_TOLERANCE * max(1.0, abs(value)))))
+
+
+# numpy's summation order for a float64 vector (pairwise: blocks of at most this many
+# summed by eight running sums, numpy/_core/src/umath/loops_utils.h.src), so compiled sums
+# give numpy's bits
+PAIRWISE_BLOCK = 128
+
+
+@numba.njit(nogil=True, cache=True)
+def _numpy_sum(values: NDArray[np.float64]) -> float:  # compiled
+    """``values.sum()`` with numpy's bits: its pairwise summation, from 0.
+
+    numpy halves a vector longer than :data:`PAIRWISE_BLOCK` (the first half a multiple of
+    eight long) and adds the halves' sums; this walks the same tree with a stack (a
+    recursive function loaded from numba's cache crashed the process)."""
+    n = len(values)
+    if n <= PAIRWISE_BLOCK:
+        return 0.0 + _block_sum(values, 0, n)
+    # pending halves: start, length, whether the left half is summed, and its sum
+    starts = np.empty(128, np.int64)
+    lengths = np.empty(128, np.int64)
+    left_done = np.empty(128, np.bool_)
+    lefts = np.empty(128)
+    depth = 0
+    start, length = 0, n
+    while True:
+        while length > PAIRWISE_BLOCK:  # descend to the leftmost block
+            half = length // 2
+            half -= half % 8
+            starts[depth], lengths[depth], left_done[depth] = start, length, False
+            depth += 1
+            length = half
+        total = _block_sum(values, start, length)
+        while depth > 0:  # a finished half: add it to its left half, or sum the right one
+            depth -= 1
+            half = lengths[depth] // 2
+            half -= half % 8
+            if not left_done[depth]:
+                left_done[depth], lefts[depth] = True, total
+                depth += 1
+                start, length = starts[depth - 1] + half, lengths[depth - 1] - half
+                break
+            total = lefts[depth] + total
+        else:
+            return 0.0 + total
+
+
+@numba.njit(nogil=True, cache=True)
+def _block_sum(values: NDArray[np.float64], start: int, n: int) -> float:  # compiled
+    """numpy's sum of ``values[start:start + n]``, ``n`` at most :data:`PAIRWISE_BLOCK`:
+    one running sum under eight, else eight running sums added as a tree, then the rest."""
+    if n < 8:
+        total = 0.0
+        for i in range(start, start + n):
+            total += values[i]
+        return total
+    r0, r1, r2, r3 = values[start], values[start + 1], values[start + 2], values[start + 3]
+    r4, r5, r6, r7 = values[start + 4], values[start + 5], values[start + 6], values[start + 7]
+    i = 8
+    whole = n - n % 8
+    while i < whole:
+        j = start + i
+        r0 += values[j]
+        r1 += values[j + 1]
+        r2 += values[j + 2]
+        r3 += values[j + 3]
+        r4 += values[j + 4]
+        r5 += values[j + 5]
+        r6 += values[j + 6]
+        r7 += values[j + 7]
+        i += 8
+    total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        total += values[start + i]
+        i += 1
+    return float(total)
 
 
 # The volume algorithm's steps over the (K,) classes, each one compiled pass (numpy took a

@@ -23,6 +23,7 @@ from planner.selection.lower_bound import (
     THREADED_PAIRS,
     ClassRuns,
     _cheapest_first,
+    _numpy_sum,
     pattern_product,
     station_lower_bound,
 )
@@ -337,3 +338,13 @@ def test_runs_of_classes_sum_what_their_pairs_sum(halls: dict[str, PlanResult]) 
     chosen = np.random.default_rng(7).random(cover.shape[0]) < 0.3
     assert np.array_equal(runs.counts(chosen),
                           chosen.astype(np.float64) @ cover.astype(np.float64))
+
+
+def test_the_compiled_search_sums_as_numpy_sums() -> None:
+    # the volume algorithm runs compiled, and decides its steps on sums: summed in numpy's
+    # pairwise order they are numpy's bits, so the bound beside a plan stays what numpy's
+    # operations gave (every length's tree: under 8, one block of 8 running sums, halves)
+    rng = np.random.default_rng(11)
+    for n in [*range(300), 1000, 4097, 8193, 100_003]:
+        values = rng.standard_normal(n) * rng.lognormal(0.0, 4.0, n)
+        assert _numpy_sum(values) == values.sum(), n
