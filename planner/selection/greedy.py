@@ -13,7 +13,6 @@ top, see :class:`GainOrder`).
 
 from __future__ import annotations
 
-import contextlib
 import heapq
 from collections.abc import Generator, Iterable
 from dataclasses import dataclass
@@ -22,6 +21,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from planner.selection.sums import numpy_sum
 from planner.visibility.coverage import CoverageTable, QualifiedPairs
 
 GAIN_QUANTUM_M2 = 1e-9
@@ -165,44 +165,129 @@ def greedy(table: CoverageTable, *, weighted: bool = False,
     they add; greedy then chooses only what is still missing.
 
     Gains are kept as exact integers (face weights in units of GAIN_QUANTUM_M2, held in
-    float64 below 2**53) and ranked lazily (:class:`GainOrder`), so ties are real ties and
-    go to the lowest index.
+    float64 below 2**53) and ranked lazily (as :class:`GainOrder` ranks them), so ties are
+    real ties and go to the lowest index. The order is made in one compiled call
+    (:func:`_greedy_order`) that never takes the interpreter's lock, so greedy and weighted
+    greedy run side by side on two cores (one Python loop each, they had taken turns).
     """
-    area = table.face_area_m2
     units, gains = gain_units(table, weighted=weighted)
-    uncovered = np.ones(table.n_faces, bool)
-    order = GainOrder(table, units, gains, uncovered)
-    del gains
-    stations: list[int] = []
-    new_area: list[float] = []
-    covered: list[float] = []
-    total = 0.0
-    given = list(fixed)
-    while True:
-        if given:
-            candidate = given.pop(0)
-        else:
-            with contextlib.closing(order.ranked()) as ranking:
-                best = next(ranking, None)
-            if best is None:
-                break
-            candidate = best
-        faces = table.faces_of(candidate)
-        fresh = faces[uncovered[faces]]
-        uncovered[fresh] = False
-        added = float(area[fresh].sum())
-        total += added
-        stations.append(candidate)
-        new_area.append(added)
-        covered.append(total)
+    stations, new_area, covered = _greedy_order(
+        table.run_ptr, table.run_start, table.run_length, units, gains, table.face_area_m2,
+        np.asarray(fixed, np.int64))
     return Selection(
         method="weighted_greedy" if weighted else "greedy",
-        stations=tuple(stations),
-        new_area_m2=tuple(new_area),
-        covered_area_m2=tuple(covered),
+        stations=tuple(stations.tolist()),
+        new_area_m2=tuple(new_area.tolist()),
+        covered_area_m2=tuple(covered.tolist()),
         max_achievable_area_m2=table.max_achievable_area_m2,
         fixed=len(fixed),
     )
+
+
+@numba.njit(nogil=True, cache=True)
+def _greedy_order(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
+                  run_length: NDArray[np.int32], units: NDArray[np.float64],
+                  gains: NDArray[np.float64], area: NDArray[np.float64],
+                  fixed: NDArray[np.int64]
+                  ) -> tuple[NDArray[np.int64], NDArray[np.float64],
+                             NDArray[np.float64]]:  # compiled
+    """:func:`greedy`'s order over a :class:`CoverageTable`'s runs: the (S,) stations, the
+    area each adds and the running total (each added area summed as numpy sums
+    ``area[fresh]``, the total one station at a time).
+
+    A heap of (-gain, candidate) holds each candidate's last gain, an upper bound of its
+    gain now; the top's gain is summed again, and it is the next station once it still
+    ranks first (:class:`GainOrder`'s lazy ranking). ``fixed`` come first.
+    """
+    n_faces = len(units)
+    uncovered = np.ones(n_faces, np.bool_)
+    heap_key = np.empty(len(gains))  # -gain
+    heap_id = np.empty(len(gains), np.int64)
+    size = 0
+    for c in range(len(gains)):
+        if gains[c] > 0:
+            heap_key[size], heap_id[size] = -gains[c], c
+            size += 1
+    for i in range(size // 2 - 1, -1, -1):
+        _sift_down(heap_key, heap_id, size, i)
+    stations = np.empty(len(gains) + len(fixed), np.int64)
+    new_area = np.empty(len(gains) + len(fixed))
+    covered = np.empty(len(gains) + len(fixed))
+    fresh = np.empty(n_faces, np.int64)
+    total = 0.0
+    n = 0
+    while True:
+        if n < len(fixed):
+            candidate = fixed[n]
+        else:
+            candidate = -1
+            while size > 0:
+                top = heap_id[0]
+                size -= 1
+                heap_key[0], heap_id[0] = heap_key[size], heap_id[size]
+                _sift_down(heap_key, heap_id, size, 0)
+                gain = _uncovered_units(run_start, run_length, run_ptr[top],
+                                        run_ptr[top + 1], units, uncovered)
+                if gain <= 0:
+                    continue  # gains never rise again
+                key = -gain
+                if size > 0 and (heap_key[0] < key
+                                 or (heap_key[0] == key and heap_id[0] < top)):
+                    # another may rank higher now
+                    heap_key[size], heap_id[size] = key, top
+                    _sift_up(heap_key, heap_id, size)
+                    size += 1
+                    continue
+                candidate = top
+                break
+            if candidate < 0:
+                break
+        n_fresh = 0
+        for run in range(run_ptr[candidate], run_ptr[candidate + 1]):
+            for face in range(run_start[run], run_start[run] + run_length[run]):
+                if uncovered[face]:
+                    uncovered[face] = False
+                    fresh[n_fresh] = face
+                    n_fresh += 1
+        added = numpy_sum(area[fresh[:n_fresh]])
+        total += added
+        stations[n], new_area[n], covered[n] = candidate, added, total
+        n += 1
+    return stations[:n].copy(), new_area[:n].copy(), covered[:n].copy()
+
+
+@numba.njit(nogil=True, cache=True)
+def _before(key_a: float, id_a: int, key_b: float, id_b: int) -> bool:  # compiled
+    """(key_a, id_a) < (key_b, id_b), as tuples compare."""
+    return key_a < key_b or (key_a == key_b and id_a < id_b)
+
+
+@numba.njit(nogil=True, cache=True)
+def _sift_down(key: NDArray[np.float64], ids: NDArray[np.int64], size: int,
+               i: int) -> None:  # compiled
+    """Restore the heap order of the first ``size`` entries below entry ``i``."""
+    while True:
+        least = i
+        for child in (2 * i + 1, 2 * i + 2):
+            if child < size and _before(key[child], ids[child], key[least], ids[least]):
+                least = child
+        if least == i:
+            return
+        key[i], key[least] = key[least], key[i]
+        ids[i], ids[least] = ids[least], ids[i]
+        i = least
+
+
+@numba.njit(nogil=True, cache=True)
+def _sift_up(key: NDArray[np.float64], ids: NDArray[np.int64], i: int) -> None:  # compiled
+    """Restore the heap order above entry ``i`` (just added)."""
+    while i > 0:
+        parent = (i - 1) // 2
+        if not _before(key[i], ids[i], key[parent], ids[parent]):
+            return
+        key[i], key[parent] = key[parent], key[i]
+        ids[i], ids[parent] = ids[parent], ids[i]
+        i = parent
 
 
 def replay(table: CoverageTable, stations: list[int] | tuple[int, ...],

@@ -76,6 +76,7 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
 from planner.selection.classes import merged_classes
+from planner.selection.sums import numpy_sum
 from planner.threads import in_block_order
 from planner.visibility.coverage import CoverageTable
 
@@ -711,7 +712,7 @@ def _volume_search(run_ptr: NDArray[np.int64], first: NDArray[np.int32], end: ND
             done = it
             break
         _subgradient(y_bar, seen_bar, u_best, g_bar)
-        norm = _numpy_sum(g_bar * g_bar)
+        norm = numpy_sum(g_bar * g_bar)
         if norm <= 0:
             done = it
             break
@@ -726,7 +727,7 @@ def _volume_search(run_ptr: NDArray[np.int64], first: NDArray[np.int32], end: ND
         _average(y, y_bar, AVERAGE)
         _average(seen, seen_bar, AVERAGE)
         if value > l_best:
-            if _numpy_sum((y - seen) * g_bar) >= 0:  # green: the step could be longer
+            if numpy_sum((y - seen) * g_bar) >= 0:  # green: the step could be longer
                 factor = min(MAX_STEP, factor * 1.1)
             l_best, u_best = value, u
             red = 0
@@ -748,7 +749,7 @@ def _partial_value(run_ptr: NDArray[np.int64], first: NDArray[np.int32],
     x (C,): the candidates of negative reduced cost (the Lagrangian's minimisers)."""
     reduced = 1.0 - _runs_sums(run_ptr, first, end, u)  # (C,)
     y = _knapsack_y(u, area, must, free, free_area, rest, every_free)
-    value = _numpy_sum(np.minimum(reduced, 0.0)) + _numpy_sum(u * y)
+    value = numpy_sum(np.minimum(reduced, 0.0)) + numpy_sum(u * y)
     return value, y, reduced < 0
 
 
@@ -772,82 +773,6 @@ def _knapsack_y(u: NDArray[np.float64], area: NDArray[np.float64], must: NDArray
 def _rounded_up(value: float) -> float:
     """:meth:`_Lagrangian.best_stations` of one component of Lagrangian ``value``."""
     return max(0.0, float(np.ceil(value - ROUND_TOLERANCE * max(1.0, abs(value)))))
-
-
-# numpy's summation order for a float64 vector (pairwise: blocks of at most this many
-# summed by eight running sums, numpy/_core/src/umath/loops_utils.h.src), so compiled sums
-# give numpy's bits
-PAIRWISE_BLOCK = 128
-
-
-@numba.njit(nogil=True, cache=True)
-def _numpy_sum(values: NDArray[np.float64]) -> float:  # compiled
-    """``values.sum()`` with numpy's bits: its pairwise summation, from 0.
-
-    numpy halves a vector longer than :data:`PAIRWISE_BLOCK` (the first half a multiple of
-    eight long) and adds the halves' sums; this walks the same tree with a stack (a
-    recursive function loaded from numba's cache crashed the process)."""
-    n = len(values)
-    if n <= PAIRWISE_BLOCK:
-        return 0.0 + _block_sum(values, 0, n)
-    # pending halves: start, length, whether the left half is summed, and its sum
-    starts = np.empty(128, np.int64)
-    lengths = np.empty(128, np.int64)
-    left_done = np.empty(128, np.bool_)
-    lefts = np.empty(128)
-    depth = 0
-    start, length = 0, n
-    while True:
-        while length > PAIRWISE_BLOCK:  # descend to the leftmost block
-            half = length // 2
-            half -= half % 8
-            starts[depth], lengths[depth], left_done[depth] = start, length, False
-            depth += 1
-            length = half
-        total = _block_sum(values, start, length)
-        while depth > 0:  # a finished half: add it to its left half, or sum the right one
-            depth -= 1
-            half = lengths[depth] // 2
-            half -= half % 8
-            if not left_done[depth]:
-                left_done[depth], lefts[depth] = True, total
-                depth += 1
-                start, length = starts[depth - 1] + half, lengths[depth - 1] - half
-                break
-            total = lefts[depth] + total
-        else:
-            return 0.0 + total
-
-
-@numba.njit(nogil=True, cache=True)
-def _block_sum(values: NDArray[np.float64], start: int, n: int) -> float:  # compiled
-    """numpy's sum of ``values[start:start + n]``, ``n`` at most :data:`PAIRWISE_BLOCK`:
-    one running sum under eight, else eight running sums added as a tree, then the rest."""
-    if n < 8:
-        total = 0.0
-        for i in range(start, start + n):
-            total += values[i]
-        return total
-    r0, r1, r2, r3 = values[start], values[start + 1], values[start + 2], values[start + 3]
-    r4, r5, r6, r7 = values[start + 4], values[start + 5], values[start + 6], values[start + 7]
-    i = 8
-    whole = n - n % 8
-    while i < whole:
-        j = start + i
-        r0 += values[j]
-        r1 += values[j + 1]
-        r2 += values[j + 2]
-        r3 += values[j + 3]
-        r4 += values[j + 4]
-        r5 += values[j + 5]
-        r6 += values[j + 6]
-        r7 += values[j + 7]
-        i += 8
-    total = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
-    while i < n:
-        total += values[start + i]
-        i += 1
-    return float(total)
 
 
 # The volume algorithm's steps over the (K,) classes, each one compiled pass (numpy took a

@@ -23,11 +23,11 @@ from planner.selection.lower_bound import (
     THREADED_PAIRS,
     ClassRuns,
     _cheapest_first,
-    _numpy_sum,
     pattern_product,
     station_lower_bound,
 )
 from planner.selection.optimal import _counting_bound
+from planner.selection.sums import numpy_sum
 from planner.visibility.coverage import CoverageTable
 from tests.planner.test_optimal import hall_plan
 from tests.property.test_optimal_exact import fewest_by_enumeration, instance, table_of
@@ -347,4 +347,4 @@ def test_the_compiled_search_sums_as_numpy_sums() -> None:
     rng = np.random.default_rng(11)
     for n in [*range(300), 1000, 4097, 8193, 100_003]:
         values = rng.standard_normal(n) * rng.lognormal(0.0, 4.0, n)
-        assert _numpy_sum(values) == values.sum(), n
+        assert numpy_sum(values) == values.sum(), n
