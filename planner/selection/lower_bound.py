@@ -236,6 +236,22 @@ class ClassRuns:
 
 
 @numba.njit(nogil=True, cache=True)
+def _rows_holding(indptr: NDArray[np.int32], indices: NDArray[np.int32],
+                  flagged: NDArray[np.bool_]) -> NDArray[np.int64]:  # compiled
+    """The rows (ascending) of the 0/1 CSR matrix that hold a ``flagged`` (K,) column, in
+    one pass (a (pairs,) gather of the flags took 10 MB and 50 ms on hall-full)."""
+    rows = np.empty(len(indptr) - 1, np.int64)
+    n = 0
+    for c in range(len(indptr) - 1):
+        for j in range(indptr[c], indptr[c + 1]):
+            if flagged[indices[j]]:
+                rows[n] = c
+                n += 1
+                break
+    return rows[:n].copy()
+
+
+@numba.njit(nogil=True, cache=True)
 def _count_runs(indptr: NDArray[np.int32], indices: NDArray[np.int32],
                 counts: NDArray[np.int64]) -> None:  # compiled
     """``counts[c]``: how many runs of consecutive columns row c holds, in its order."""
@@ -355,9 +371,8 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
     allowance = float(area.sum()) - need
     must = area > allowance
     size = class_sizes(cover)  # (K,) candidates a class
-    # the candidates alone in covering a must class: the rows of those classes' entries
-    alone = np.flatnonzero((must & (size == 1))[cover.indices])
-    forced = np.unique(np.searchsorted(cover.indptr, alone, "right") - 1)
+    # the candidates alone in covering a must class
+    forced = _rows_holding(cover.indptr, cover.indices, must & (size == 1))
     if len(forced):
         hit = np.zeros(table.n_candidates, bool)
         hit[forced] = True
