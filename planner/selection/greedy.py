@@ -213,7 +213,14 @@ def _greedy_order(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
     stations = np.empty(len(gains) + len(fixed), np.int64)
     new_area = np.empty(len(gains) + len(fixed))
     covered = np.empty(len(gains) + len(fixed))
-    fresh = np.empty(n_faces, np.int64)
+    # the areas of a station's newly covered faces, in face order (at most its row's faces)
+    longest = 0
+    for c in range(len(gains)):
+        faces = 0
+        for run in range(run_ptr[c], run_ptr[c + 1]):
+            faces += run_length[run]
+        longest = max(longest, faces)
+    fresh = np.empty(longest)
     total = 0.0
     n = 0
     while True:
@@ -247,9 +254,9 @@ def _greedy_order(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
             for face in range(run_start[run], run_start[run] + run_length[run]):
                 if uncovered[face]:
                     uncovered[face] = False
-                    fresh[n_fresh] = face
+                    fresh[n_fresh] = area[face]
                     n_fresh += 1
-        added = numpy_sum(area[fresh[:n_fresh]])
+        added = numpy_sum(fresh[:n_fresh])
         total += added
         stations[n], new_area[n], covered[n] = candidate, added, total
         n += 1
