@@ -238,8 +238,7 @@ def _greedy_order(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
                 if gain <= 0:
                     continue  # gains never rise again
                 key = -gain
-                if size > 0 and (heap_key[0] < key
-                                 or (heap_key[0] == key and heap_id[0] < top)):
+                if size > 0 and _before(heap_key[0], heap_id[0], key, top):
                     # another may rank higher now
                     heap_key[size], heap_id[size] = key, top
                     _sift_up(heap_key, heap_id, size)

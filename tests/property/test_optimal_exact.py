@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from scipy.sparse.csgraph import breadth_first_order
 
 from planner.selection.connectivity import OverlapGraph
-from planner.selection.greedy import GOAL_SLACK_M2, greedy, replay
+from planner.selection.greedy import GAIN_QUANTUM_M2, GOAL_SLACK_M2, greedy, replay
 from planner.selection.optimal import solve_optimal
 from planner.visibility.coverage import CoverageTable, QualifiedPairs
 
@@ -97,3 +97,49 @@ def test_connected_optimal_equals_enumeration(instance: tuple[list[list[int]], l
     assert graph.connected(result.selection.stations)
     assert len(result.selection.stations) == fewest
     assert result.proven_optimal and result.lower_bound == fewest
+
+
+@settings(max_examples=40, deadline=None)
+@given(instance=instance, n_fixed=st.integers(0, 2), weighted=st.booleans())
+def test_greedy_takes_the_largest_gain_each_time(instance: tuple[list[list[int]], list[float]],
+                                                 n_fixed: int, weighted: bool) -> None:
+    # the rule users read in the method: the given stations first, then every time the
+    # candidate that adds the most still-uncovered area (weighted: area over how many
+    # candidates see the face; each face's in whole units of GAIN_QUANTUM_M2, so ties are
+    # exact), ties to the lowest index, until nothing more is added; each station's added
+    # area and the running total as they are summed
+    sets, areas = instance
+    # ties on purpose: a copy of the first candidate's set
+    table = table_of([*sets, sets[0]], areas)
+    fixed = tuple(range(n_fixed))
+    plan = greedy(table, weighted=weighted, fixed=fixed)
+    area = table.face_area_m2
+    seen_by = np.zeros(table.n_faces)
+    for c in range(table.n_candidates):
+        seen_by[table.faces_of(c)] += 1
+    weight = np.divide(area, seen_by, out=np.zeros_like(area), where=seen_by > 0) \
+        if weighted else area
+    units = np.round(weight / GAIN_QUANTUM_M2)
+    uncovered = np.ones(table.n_faces, bool)
+    expected: list[int] = list(fixed)
+    for c in fixed:
+        uncovered[table.faces_of(c)] = False
+    while True:
+        gains = [float(units[f][uncovered[f]].sum())
+                 for f in (table.faces_of(c) for c in range(table.n_candidates))]
+        best = int(np.argmax(gains))  # the first of the largest
+        if gains[best] <= 0:
+            break
+        expected.append(best)
+        uncovered[table.faces_of(best)] = False
+    assert list(plan.stations) == expected
+    total = 0.0
+    covered = np.zeros(table.n_faces, bool)
+    for station, added, running in zip(plan.stations, plan.new_area_m2, plan.covered_area_m2,
+                                       strict=True):
+        faces = table.faces_of(station)
+        fresh = faces[~covered[faces]]
+        covered[fresh] = True
+        total += float(area[fresh].sum())
+        assert added == float(area[fresh].sum())
+        assert running == total
