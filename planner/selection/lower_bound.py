@@ -234,6 +234,14 @@ class ClassRuns:
         """(C,) each row's sum of ``values`` (K,) float64."""
         return _runs_sums(self.run_ptr, self.first, self.end, values)
 
+    def pair_sums(self, values: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(C,) each row's sum of ``values`` (K,) float64 class by class, in the row's
+        order: the bits of :func:`pattern_product` of the matrix the runs were made of,
+        which is not needed for it."""
+        sums = np.zeros(len(self.run_ptr) - 1)
+        _run_pair_sums(self.run_ptr, self.first, self.end, values, sums)
+        return sums
+
 
 @numba.njit(nogil=True, cache=True)
 def _rows_holding(indptr: NDArray[np.int32], indices: NDArray[np.int32],
@@ -307,6 +315,19 @@ def _runs_sums(run_ptr: NDArray[np.int64], first: NDArray[np.int32], end: NDArra
     sums = np.empty(len(run_ptr) - 1)
     _run_sums(run_ptr, first, end, prefix, sums)
     return sums
+
+
+@numba.njit(nogil=True, cache=True)
+def _run_pair_sums(run_ptr: NDArray[np.int64], first: NDArray[np.int32],
+                   end: NDArray[np.int32], values: NDArray[np.float64],
+                   sums: NDArray[np.float64]) -> None:  # compiled
+    """``sums[c]``: row c's ``values`` added one class at a time, run after run."""
+    for c in range(len(sums)):
+        total = 0.0
+        for r in range(run_ptr[c], run_ptr[c + 1]):
+            for k in range(first[r], end[r]):
+                total += values[k]
+        sums[c] = total
 
 
 @numba.njit(nogil=True, cache=True)
@@ -390,7 +411,7 @@ def station_lower_bound(table: CoverageTable, need_m2: float, upper_stations: in
     if full and not must.all():
         cover, area, must = cover[:, must], area[must], must[must]
     problem = _Lagrangian(cover, area, need, must, full)
-    del cover  # the problem keeps it by candidate
+    del cover  # the problem keeps its runs (a partial cover) or the matrix (a full one)
     if iterations is None:
         iterations = PDHG_ITERATIONS if full else _volume_iterations(
             problem.work(), work, max_iterations)
@@ -468,19 +489,20 @@ def coverage_upper_bound(table: CoverageTable, stations: int, reached_m2: float,
     # knapsack's threshold is the plan's, near the maximum coverage LP's optimum
     need = min(max(reached_m2 - fixed_m2, ROUND_TOLERANCE * total), total)
     problem = _Lagrangian(cover, area, need, area > total - need, full=False)
+    del cover  # the problem keeps its runs
     iterations = _volume_iterations(problem.work(), work, ITERATIONS)
     # aimed one station above the plan's: the search never stops early, the plan reaching
     # ``need`` with ``free`` stations
     done = problem.solve(free + 1.0, iterations)
-    best = _max_coverage(problem.rows, area, problem.best_u, free)
+    best = _max_coverage(problem.row_sums(problem.best_u), area, problem.best_u, free)
     return CoverageBound(stations, fixed_m2 + best, done, classes)
 
 
-def _max_coverage(rows: sp.csr_matrix, area: NDArray[np.float64], u: NDArray[np.float64],
-                  k: int) -> float:
+def _max_coverage(sums: NDArray[np.float64], area: NDArray[np.float64],
+                  u: NDArray[np.float64], k: int) -> float:
     """``min over t >= 0`` of the bound of :func:`coverage_upper_bound` for multipliers
-    ``u`` (K,) and ``k`` candidates of ``rows`` (C, K), rounded up to stay a bound."""
-    sums = pattern_product(rows, u)  # (C,)
+    ``u`` (K,) and ``k`` candidates whose sums of ``u`` over their classes are ``sums``
+    (C,), rounded up to stay a bound."""
     top = float(np.sort(-np.partition(-sums, k - 1)[:k]).sum()) if k < len(sums) \
         else float(sums.sum())
     positive = u > 0
@@ -508,11 +530,17 @@ class _Lagrangian:
     ``best`` (components,) holds each component's best value and ``best_u`` (K,) the
     multipliers that gave it (the components' parts of different iterations: the
     Lagrangian separates, so together they give the sum).
+
+    A partial cover keeps ``cover`` as its runs of classes only (:class:`ClassRuns`, which
+    give every product the volume algorithm needs): the matrix, 5 bytes a class pair (105
+    MB on the 9.7 M-piece office), is let go once they are made, when the caller holds no
+    other reference to it.
     """
 
     def __init__(self, cover: sp.csr_matrix, area: NDArray[np.float64], need: float,
                  must: NDArray[np.bool_], full: bool) -> None:
-        self.rows = cover.tocsr()  # (C, K)
+        self.rows: sp.csr_matrix | None = cover.tocsr()  # (C, K); PDHG's only
+        self.shape: tuple[int, int] = cover.shape
         if full:  # PDHG's products are scipy's, in float64; the volume algorithm's read
             # the pattern only (pattern_product), so its matrix keeps the merge's bool data
             self.rows.data = np.ones(self.rows.nnz, np.float64)
@@ -525,9 +553,10 @@ class _Lagrangian:
         self._free = np.flatnonzero(~must) if must.any() else None
         self._free_area = area if self._free is None else area[self._free]
         self._rest = need - float(area[must].sum())
-        n_cand, n_class = self.rows.shape
+        n_cand, n_class = self.shape
+        rows = self.rows
         if full:
-            graph = sp.bmat([[None, self.rows], [self.rows.T, None]], format="csr")
+            graph = sp.bmat([[None, rows], [rows.T, None]], format="csr")
             self.n_components, label = connected_components(graph, directed=False)
             self.cand_comp = label[:n_cand]
             self.class_comp = label[n_cand:]
@@ -537,14 +566,16 @@ class _Lagrangian:
             self.class_comp = np.zeros(n_class, np.int64)
         self.best = np.full(self.n_components, -np.inf)
         # the volume algorithm's products, over each row's runs of consecutive classes
-        self._runs = None if full else ClassRuns.of(self.rows)
+        self._runs = None if full else ClassRuns.of(rows)
         # the start (CFT): each class at its cheapest candidate's price per area
-        cand_area = pattern_product(self.rows, area)  # (C,)
+        cand_area = pattern_product(rows, area)  # (C,)
         price = np.zeros(n_cand)
         np.divide(1.0, cand_area, out=price, where=cand_area > 0)
         cheapest = np.full(n_class, np.inf)
-        _class_minimum(self.rows.indptr, self.rows.indices, price, cheapest)
+        _class_minimum(rows.indptr, rows.indices, price, cheapest)
         self.best_u = area * cheapest
+        if not full:
+            self.rows = None
 
     def solve(self, target: float, iterations: int) -> int:
         """Search multipliers aiming at ``target`` (a plan's stations); the iterations made.
@@ -557,15 +588,16 @@ class _Lagrangian:
         first), for at most ROUNDS rounds. Most classes are seen by supersets of another's
         candidates and never matter.
         """
-        n_class = self.rows.shape[1]
+        n_class = self.shape[1]
         if not self.full:
             return self._volume(target, iterations)
+        assert self.rows is not None
         size = class_sizes(self.rows)
         by_size = np.lexsort((np.arange(n_class), size))
         active = np.zeros(n_class, bool)
         active[by_size[:ROWS_PER_ROUND]] = True
         done = 0
-        self._primal = np.zeros(self.rows.shape[0])
+        self._primal = np.zeros(self.shape[0])
         self._dual = self.best_u.copy()
         for _ in range(ROUNDS):
             done += self._pdhg(np.flatnonzero(active), target, iterations)
@@ -587,6 +619,7 @@ class _Lagrangian:
         :data:`RESTART_PERIOD` iterations when the average is better. Every dual iterate
         ``u`` is a Lagrangian multiplier; the primal ``x`` picks the next rows.
         """
+        assert self.rows is not None
         by_class = self.rows[:, columns].T.tocsr()  # (K', C)
         by_cand = by_class.T.tocsr()  # (C, K')
         comp = self.class_comp[columns]
@@ -655,10 +688,18 @@ class _Lagrangian:
             self._free_area, self._rest, every_free, self.best_u.copy(), float(self.best[0]),
             target, iterations)
         # the bound: the best multipliers, summed again in float64
-        reduced = 1.0 - pattern_product(self.rows, self.best_u)
+        reduced = 1.0 - self.row_sums(self.best_u)
         self.best[0] = float(np.minimum(reduced, 0.0).sum()) + _dot(
             self.best_u, self._knapsack(self.best_u))
         return done
+
+    def row_sums(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(C,) each candidate's sum of ``u`` (K,) over its classes, class by class in
+        float64 (:func:`pattern_product`'s bits)."""
+        if self._runs is not None:
+            return self._runs.pair_sums(u)
+        assert self.rows is not None
+        return pattern_product(self.rows, u)
 
     def _knapsack(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
         """(K,) y in [0, 1] of least ``u . y`` with ``area . y >= need`` and ``y = 1`` on the
