@@ -57,12 +57,12 @@ LATER_STAGES = ("report", "writing")
 class PreloadAtSelection:
     """Passes progress on to ``progress``; once the selection has made its heuristic plans
     (its first progress past 0) or a later stage starts, starts importing the renderers'
-    modules in the background (:func:`planner.outputs.report.preload_renderers`). From
-    there on the plan runs on one thread (the lower bound, the survey, the tolerance), so
-    the imports take an idle core instead of the pictures' time after the plan: on
-    hall-full (66 k faces) some 1 CPU second of the 2.9 its outputs took. Not before the
-    heuristics: greedy and weighted greedy take both cores (when they were Python loops,
-    beside the imports they took 0.7 instead of 0.18 s on hall-full)."""
+    modules in the background (:func:`planner.outputs.report.preload_renderers`). The
+    lower bound that follows runs on one thread, so the imports take an idle core instead
+    of the pictures' time after the plan: on hall-full (66 k faces) some 1 CPU second of
+    the 2.9 its outputs took. Not before the heuristics: greedy and weighted greedy take
+    both cores (when they were Python loops, beside the imports they took 0.7 instead of
+    0.18 s on hall-full)."""
 
     def __init__(self, progress: ProgressLine) -> None:
         self.progress = progress

@@ -541,17 +541,19 @@ class _Lagrangian:
                  must: NDArray[np.bool_], full: bool) -> None:
         self.rows: sp.csr_matrix | None = cover.tocsr()  # (C, K); PDHG's only
         self.shape: tuple[int, int] = cover.shape
-        if full:  # PDHG's products are scipy's, in float64; the volume algorithm's read
-            # the pattern only (pattern_product), so its matrix keeps the merge's bool data
+        if full:  # PDHG's products are scipy's, in float64; a partial cover reads the
+            # pattern only (pattern_product, its runs), so its matrix keeps the merge's bool
+            # data
             self.rows.data = np.ones(self.rows.nnz, np.float64)
         self.area = area
         self.need = need
         self.must = must
         self.full = full
         # the knapsack's classes other than the must ones, and the area left for them
-        # (None: every class, read without gathers)
-        self._free = np.flatnonzero(~must) if must.any() else None
-        self._free_area = area if self._free is None else area[self._free]
+        # (every class when none is a must one: read without gathers, ``_free`` empty)
+        self._every_free = not must.any()
+        self._free = np.empty(0, np.int64) if self._every_free else np.flatnonzero(~must)
+        self._free_area = area if self._every_free else area[self._free]
         self._rest = need - float(area[must].sum())
         n_cand, n_class = self.shape
         rows = self.rows
@@ -676,17 +678,15 @@ class _Lagrangian:
         The search is one compiled call (:func:`_volume_search`) that never takes the
         interpreter's lock: a thread beside it (the command line's imports of the
         renderers) does not make it wait at every step, as a search of some twenty
-        compiled steps an iteration did (hall-full's bound: 0.6 s alone, 0.9 s beside the
-        imports, 17 s beside a busy Python thread).
+        compiled steps an iteration did (hall-full's bound: 0.56 s alone, 0.9 s beside the
+        imports, 18 s beside a busy Python thread: benchmarks/selection_beside_threads.py).
         """
         runs = self._runs
         assert runs is not None
-        every_free = self._free is None
-        free = np.empty(0, np.int64) if self._free is None else self._free
         self.best_u, self.best[0], done = _volume_search(
-            runs.run_ptr, runs.first, runs.end, self.area, self.must, free,
-            self._free_area, self._rest, every_free, self.best_u.copy(), float(self.best[0]),
-            target, iterations)
+            runs.run_ptr, runs.first, runs.end, self.area, self.must, self._free,
+            self._free_area, self._rest, self._every_free, self.best_u.copy(),
+            float(self.best[0]), target, iterations)
         # the bound: the best multipliers, summed again in float64
         reduced = 1.0 - self.row_sums(self.best_u)
         self.best[0] = float(np.minimum(reduced, 0.0).sum()) + _dot(
@@ -704,9 +704,8 @@ class _Lagrangian:
     def _knapsack(self, u: NDArray[np.float64]) -> NDArray[np.float64]:
         """(K,) y in [0, 1] of least ``u . y`` with ``area . y >= need`` and ``y = 1`` on the
         must classes: the others cheapest per area first, ties to the lowest index."""
-        return _knapsack_y(u, self.area, self.must, np.empty(0, np.int64)
-                           if self._free is None else self._free, self._free_area,
-                           self._rest, self._free is None)
+        return _knapsack_y(u, self.area, self.must, self._free, self._free_area, self._rest,
+                           self._every_free)
 
     def work(self) -> int:
         """What one iteration of the volume algorithm reads (:meth:`ClassRuns.work`)."""

@@ -335,6 +335,8 @@ def test_runs_of_classes_sum_what_their_pairs_sum(halls: dict[str, PlanResult]) 
     values = np.random.default_rng(6).random(cover.shape[1])
     assert np.allclose(runs.sums(values), pattern_product(cover, values), rtol=1e-9,
                        atol=1e-9)
+    # and the final bound's sums, class by class over the runs: the pairs' bits
+    assert np.array_equal(runs.pair_sums(values), pattern_product(cover, values))
     chosen = np.random.default_rng(7).random(cover.shape[0]) < 0.3
     assert np.array_equal(runs.counts(chosen),
                           chosen.astype(np.float64) @ cover.astype(np.float64))
