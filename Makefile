@@ -5,8 +5,10 @@ BIN    := $(VENV)/bin
 # MkDocs plugins print a banner about a future MkDocs 2 on every build; these silence it
 MKDOCS := NO_MKDOCS_2_WARNING=1 DISABLE_MKDOCS_2_WARNING=true $(BIN)/mkdocs
 STAMP  := $(VENV)/.installed
+# the planner's kernels compiled into numba's cache, again after a change to the planner
+KERNELS := $(VENV)/.kernels
 
-.PHONY: help install serve test docs lint typecheck bench openapi clean
+.PHONY: help install kernels serve test docs lint typecheck bench openapi clean
 
 help:  ## list the targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-10s %s\n", $$1, $$2}'
@@ -23,7 +25,14 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)  ## create .venv and install the project with its dev tools
 
-serve: $(STAMP)  ## start the API and its workers on the embedded default (SQLite, no Redis)
+$(KERNELS): $(STAMP) $(shell find planner -name '*.py')
+	# about a minute, once: the service's first plan then compiles nothing
+	$(BIN)/scanplan compile-kernels
+	touch $(KERNELS)
+
+kernels: $(KERNELS)  ## compile the planner's kernels now, not in the first plan
+
+serve: $(KERNELS)  ## start the API and its workers on the embedded default (SQLite, no Redis)
 	$(BIN)/scanplan serve
 
 test: $(STAMP)  ## run the whole test suite (lint, types, layering, documentation, tests)

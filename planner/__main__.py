@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, NoReturn, TextIO
 
 from planner.errors import PlannerError
+from planner.kernels import pin_numba_target
 from planner.parameters import PlanSpec
 from planner.version import __version__
 
@@ -238,6 +239,87 @@ def run_examples(args: argparse.Namespace) -> int:
     return 0
 
 
+# The plans ``scanplan compile-kernels`` makes, on the examples the package ships, so that
+# every kernel a plan calls is compiled once: an IFC building with its rooms and every
+# output, at the default goal and at 100 % (the full cover's bound), with ``optimal`` and
+# with a budget; the same building as a plain mesh (no classes: floors and doors found in
+# the mesh); a hall with given candidates and with grid ones. A kernel none of them calls
+# with the argument types a model gives it is compiled by the first plan that does.
+KERNEL_PLANS: tuple[tuple[str, dict[str, Any]], ...] = (
+    ("ifcopenhouse", {}),
+    ("ifcopenhouse", {"coverage_goal": 1.0}),
+    ("ifcopenhouse", {"method": "optimal"}),
+    ("ifcopenhouse", {"max_stations": 2}),
+    ("ifcopenhouse as a plain mesh", {}),
+    ("hall-small with its candidates", {}),
+    ("hall-small", {}),
+)
+
+
+def _kernel_model(name: str, scratch: Path) -> list[str]:
+    """The model argument (and ``--candidates``) of :data:`KERNEL_PLANS`' ``name``."""
+    from planner.examples import EXAMPLES, find
+
+    example, _, form = name.partition(" ")
+    files = EXAMPLES[example]
+    model = find(files.files[0])
+    if form == "as a plain mesh":  # its triangles only, as a BIM tool's mesh export gives
+        from planner.io.readers import read_scene
+
+        scene = read_scene(model)
+        plain = scratch / f"{model.stem}.obj"
+        with plain.open("w", encoding="utf-8") as out:
+            out.writelines(f"v {x!r} {y!r} {z!r}\n" for x, y, z in scene.vertices.tolist())
+            out.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in scene.faces.tolist())
+        return [str(plain)]
+    if form == "with its candidates" and files.candidates is not None:
+        return [str(model), "--candidates", str(find(files.candidates))]
+    return [str(model)]
+
+
+def run_compile_kernels(args: argparse.Namespace) -> int:
+    """Plans :data:`KERNEL_PLANS` in a scratch folder, which compiles the planner's
+    kernels into numba's cache, then says how many it compiled and where they went."""
+    import tempfile
+
+    started = time.perf_counter()
+    parser = build_parser()
+    with tempfile.TemporaryDirectory(prefix="scanplan-kernels-") as folder:
+        scratch = Path(folder)
+        for number, (name, params) in enumerate(KERNEL_PLANS):
+            params_path = scratch / f"params-{number}.json"
+            params_path.write_text(json.dumps(params), encoding="utf-8")
+            run_plan(parser.parse_args(
+                ["plan", *_kernel_model(name, scratch), "--params", str(params_path),
+                 "--out", str(scratch / f"plan-{number}"), "--quiet"]))
+    compiled, loaded = kernel_counts()
+    if not args.quiet:
+        where = os.environ.get("NUMBA_CACHE_DIR") or "__pycache__ beside the planner's modules"
+        target = os.environ.get("NUMBA_CPU_NAME") or "this CPU"
+        print(f"compiled {compiled} kernels for {target} into numba's cache ({where}), "
+              f"{loaded} were there already, in {time.perf_counter() - started:.1f} s; "
+              "plans start without compiling them")
+    return 0
+
+
+def kernel_counts() -> tuple[int, int]:
+    """How many of the planner's compiled kernels this process compiled and how many it
+    loaded from numba's cache (a kernel compiled for two argument types counts twice)."""
+    from numba.core.dispatcher import Dispatcher
+
+    compiled = loaded = 0
+    seen: set[int] = set()
+    for name, module in list(sys.modules.items()):
+        if not name.startswith("planner.") or module is None:
+            continue
+        for value in vars(module).values():
+            if isinstance(value, Dispatcher) and id(value) not in seen:
+                seen.add(id(value))
+                compiled += sum(value.stats.cache_misses.values())
+                loaded += sum(value.stats.cache_hits.values())
+    return compiled, loaded
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="scanplan", description="Plan terrestrial laser scanner stations on a 3D model."
@@ -270,12 +352,20 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("name", nargs="?", help="the example to fetch (none: list them)")
     e.add_argument("--to", default=".", help="the directory to copy it into (default: here)")
     e.set_defaults(handler=run_examples)
+    k = sub.add_parser("compile-kernels",
+                       help="compile the planner's kernels now (once after installing), so "
+                            "that the first plan does not")
+    k.add_argument("--quiet", action="store_true", help="print nothing on success")
+    k.set_defaults(handler=run_compile_kernels)
     for entry in entry_points(group="scanplan.commands"):
         entry.load()(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
+    # before anything imports numba: its kernels compiled for one instruction set on every
+    # machine that runs it, so one machine's cache serves another (planner.kernels)
+    pin_numba_target()
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -8,8 +8,13 @@ from pathlib import Path
 import pytest
 
 from planner.examples import DataMissingError
+from planner.kernels import pin_numba_target
 from tests.data_files import scenes_layout
 from tests.s3_server import S3Server
+
+# the kernels compiled in the tests' processes for the target ``scanplan`` compiles them
+# for, so the two share numba's cache instead of compiling every kernel twice
+pin_numba_target()
 
 
 @pytest.fixture(scope="session")

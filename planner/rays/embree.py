@@ -39,8 +39,16 @@ _QUAD_PLANE_SHARE = 1e-3
 _QUAD_MIN_SINE = 10 * _QUAD_PLANE_SHARE
 
 
-_EMPTY_INT32 = np.zeros(0, np.int32)
-_EMPTY_INT64 = np.zeros(0, np.int64)
+def _read_only(array: NDArray[Any]) -> NDArray[Any]:
+    array.flags.writeable = False
+    return array
+
+
+# the empty arguments of the compiled kernels, read-only as the scene's arrays they stand in
+# for are: numba compiles a kernel again for each read-only/writable mix of its arguments
+_EMPTY_INT32 = _read_only(np.zeros(0, np.int32))
+_EMPTY_INT64 = _read_only(np.zeros(0, np.int64))
+_EMPTY_BOOL = _read_only(np.zeros(0, np.bool_))
 
 
 def quad_partners(vertices32: NDArray[np.float32], faces32: NDArray[np.int32],
@@ -455,9 +463,12 @@ class EmbreeOcclusion:
                  ) -> NDArray[np.bool_]:
         """Closest-hit verdict of one cast: (P,) Embree primitive ids -> (P,) bool."""
         reached = np.empty(len(prim), bool)
+        # where every face occludes the kernel reads neither the BVH's faces nor
+        # ``occludes`` (a plain mesh's is a broadcast True, of another array type)
         _reach_kernel(prim, target_faces, _EMPTY_INT32 if self._source_face is None
                       else self._source_face, _EMPTY_INT64 if self._all_occlude
-                      else self._faces, self._occludes, reached)
+                      else self._faces, _EMPTY_BOOL if self._all_occlude
+                      else self._occludes, reached)
         return reached
 
     def _vertex_table(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
