@@ -23,14 +23,15 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m compileall -q planner service
 	touch $(STAMP)
 
-install: $(STAMP)  ## create .venv and install the project with its dev tools
+install: $(STAMP) $(KERNELS)  ## create .venv, install the project with its dev tools, compile the kernels
 
 $(KERNELS): $(STAMP) $(shell find planner -name '*.py')
-	# about a minute, once: the service's first plan then compiles nothing
+	# about a minute, once: the first plan then compiles nothing (`make test` needs no
+	# such step: its tests compile what they use, into the same cache)
 	$(BIN)/scanplan compile-kernels
 	touch $(KERNELS)
 
-kernels: $(KERNELS)  ## compile the planner's kernels now, not in the first plan
+kernels: $(KERNELS)  ## compile the planner's kernels (install and serve do, once and after a change)
 
 serve: $(KERNELS)  ## start the API and its workers on the embedded default (SQLite, no Redis)
 	$(BIN)/scanplan serve

@@ -245,25 +245,25 @@ def run_examples(args: argparse.Namespace) -> int:
 # with a budget; the same building as a plain mesh (no classes: floors and doors found in
 # the mesh); a hall with given candidates and with grid ones. A kernel none of them calls
 # with the argument types a model gives it is compiled by the first plan that does.
-KERNEL_PLANS: tuple[tuple[str, dict[str, Any]], ...] = (
-    ("ifcopenhouse", {}),
-    ("ifcopenhouse", {"coverage_goal": 1.0}),
-    ("ifcopenhouse", {"method": "optimal"}),
-    ("ifcopenhouse", {"max_stations": 2}),
-    ("ifcopenhouse as a plain mesh", {}),
-    ("hall-small with its candidates", {}),
-    ("hall-small", {}),
+# (example, form: "as shipped", "plain mesh" or "with candidates", plan parameters)
+KERNEL_PLANS: tuple[tuple[str, str, dict[str, Any]], ...] = (
+    ("ifcopenhouse", "as shipped", {}),
+    ("ifcopenhouse", "as shipped", {"coverage_goal": 1.0}),
+    ("ifcopenhouse", "as shipped", {"method": "optimal"}),
+    ("ifcopenhouse", "as shipped", {"max_stations": 2}),
+    ("ifcopenhouse", "plain mesh", {}),
+    ("hall-small", "with candidates", {}),
+    ("hall-small", "as shipped", {}),
 )
 
 
-def _kernel_model(name: str, scratch: Path) -> list[str]:
-    """The model argument (and ``--candidates``) of :data:`KERNEL_PLANS`' ``name``."""
+def _kernel_model(name: str, form: str, scratch: Path) -> list[str]:
+    """The model argument (and ``--candidates``) of one of :data:`KERNEL_PLANS`."""
     from planner.examples import EXAMPLES, find
 
-    example, _, form = name.partition(" ")
-    files = EXAMPLES[example]
-    model = find(files.files[0])
-    if form == "as a plain mesh":  # its triangles only, as a BIM tool's mesh export gives
+    example = EXAMPLES[name]
+    model = find(example.files[0])
+    if form == "plain mesh":  # its triangles only, as a BIM tool's mesh export gives
         from planner.io.readers import read_scene
 
         scene = read_scene(model)
@@ -272,8 +272,8 @@ def _kernel_model(name: str, scratch: Path) -> list[str]:
             out.writelines(f"v {x!r} {y!r} {z!r}\n" for x, y, z in scene.vertices.tolist())
             out.writelines(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in scene.faces.tolist())
         return [str(plain)]
-    if form == "with its candidates" and files.candidates is not None:
-        return [str(model), "--candidates", str(find(files.candidates))]
+    if form == "with candidates" and example.candidates is not None:
+        return [str(model), "--candidates", str(find(example.candidates))]
     return [str(model)]
 
 
@@ -283,14 +283,17 @@ def run_compile_kernels(args: argparse.Namespace) -> int:
     import tempfile
 
     started = time.perf_counter()
+    if not args.quiet:
+        print(f"compiling the planner's kernels: {len(KERNEL_PLANS)} plans of the examples "
+              "(about a minute on two cores)", flush=True)
     parser = build_parser()
     with tempfile.TemporaryDirectory(prefix="scanplan-kernels-") as folder:
         scratch = Path(folder)
-        for number, (name, params) in enumerate(KERNEL_PLANS):
+        for number, (name, form, params) in enumerate(KERNEL_PLANS):
             params_path = scratch / f"params-{number}.json"
             params_path.write_text(json.dumps(params), encoding="utf-8")
             run_plan(parser.parse_args(
-                ["plan", *_kernel_model(name, scratch), "--params", str(params_path),
+                ["plan", *_kernel_model(name, form, scratch), "--params", str(params_path),
                  "--out", str(scratch / f"plan-{number}"), "--quiet"]))
     compiled, loaded = kernel_counts()
     if not args.quiet:
