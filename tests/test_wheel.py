@@ -1,5 +1,6 @@
 """The package as a user installs it: a wheel built from the checkout, installed into a
-fresh virtual environment, run from a folder outside the checkout.
+fresh virtual environment, its kernels compiled (``scanplan compile-kernels``, as the README
+tells a pip user), run from a folder outside the checkout.
 
 The fresh environment gets the project environment's third-party packages through a
 ``.pth`` line (so the test needs no download of numpy and the rest), never the checkout:
@@ -12,6 +13,8 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
+import platform
 import subprocess
 import sys
 import sysconfig
@@ -20,21 +23,38 @@ from pathlib import Path
 
 import httpx
 
+from planner.kernels import X86_64_V3, host_cpu_flags, target_for
 from planner.version import __version__
 from tests.e2e.service_process import FAST, free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _run(command: list[str], cwd: Path, timeout: int = 300) -> str:
+def _run(command: list[str], cwd: Path, timeout: int = 300,
+         extra: dict[str, str] | None = None) -> str:
+    environ = {k: v for k, v in os.environ.items()
+               if k not in ("PYTHONPATH", "VIRTUAL_ENV") and not k.startswith("NUMBA_")}
     done = subprocess.run(command, cwd=cwd, capture_output=True, text=True, timeout=timeout,
-                          check=False, env={k: v for k, v in os.environ.items()
-                                            if k not in ("PYTHONPATH", "VIRTUAL_ENV")})
+                          check=False, env={**environ, **(extra or {})})
     assert done.returncode == 0, f"{command}: {done.stdout[-2000:]}{done.stderr[-4000:]}"
     return done.stdout
 
 
-def test_the_wheel_plans_and_serves_outside_the_checkout(tmp_path: Path) -> None:
+def _cache_keys(folder: Path) -> set[tuple[str, str]]:
+    """The (CPU name, features) of every kernel in numba's cache under ``folder``: the
+    second and third words of each index key's codegen tuple (numba/core/caching.py: an
+    index file holds numba's version, then the pickled source stamp and overloads)."""
+    keys = set()
+    for index in folder.rglob("*.nbi"):
+        with index.open("rb") as data:
+            pickle.load(data)  # numba's version
+            _, overloads = pickle.loads(data.read())
+        keys |= {tuple(key[1][1:]) for key in overloads}
+    return keys
+
+
+def test_the_wheel_plans_and_serves_outside_the_checkout(tmp_path: Path,
+                                                          scenes_dir: Path) -> None:
     dist, venv, work = tmp_path / "dist", tmp_path / "venv", tmp_path / "work"
     work.mkdir()
     _run([sys.executable, "-m", "build", "--wheel", "--outdir", str(dist), str(ROOT)],
@@ -53,6 +73,20 @@ def test_the_wheel_plans_and_serves_outside_the_checkout(tmp_path: Path) -> None
     assert all(Path(path).is_relative_to(venv) for path in where), where
     scanplan = str(venv / "bin" / "scanplan")
     assert _run([scanplan, "--version"], cwd=work).strip() == f"scanplan {__version__}"
+
+    # the kernels compiled once, into the installed package's own __pycache__ folders, for
+    # x86-64-v3 where the CPU runs it: the cache's keys name the level, not this machine
+    compiled = _run([scanplan, "compile-kernels"], cwd=work, timeout=900)
+    target = X86_64_V3 if target_for(platform.machine(), host_cpu_flags()) else "this CPU"
+    assert f"kernels for {target} into numba's cache (__pycache__" in compiled
+    if target == X86_64_V3:
+        assert _cache_keys(Path(where[0]).parent) == {(X86_64_V3, "")}
+    # then a model no example resembles (a plain mesh, split as needed) compiles nothing:
+    # numba logs each kernel it loads from its cache and each it compiles and saves there
+    log = _run([scanplan, "plan", str(scenes_dir / "AC20-FZK-Haus.obj"), "--out", "fzk",
+                "--quiet"], cwd=work, extra={"NUMBA_DEBUG_CACHE": "1"})
+    assert "[cache] data loaded from" in log
+    assert [line for line in log.splitlines() if "[cache] data saved" in line] == []
 
     # the command line: an example the package brings, planned with the command it prints
     printed = _run([scanplan, "examples", "hall-small", "--to", "models"], cwd=work)
