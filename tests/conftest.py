@@ -34,3 +34,13 @@ def s3_server() -> Iterator[S3Server]:
     server = S3Server()
     yield server
     server.stop()
+
+
+# Files run first: under pytest-xdist (``--dist loadfile``, as ``make test`` runs) a file goes
+# to one worker whole, in the order collected, and the wheel's test (about two minutes: it
+# installs the package and compiles its kernels) came last and ran alone at the end.
+FIRST_FILES = ("tests/test_wheel.py",)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    items.sort(key=lambda item: item.nodeid.split("::")[0] not in FIRST_FILES)  # stable
