@@ -40,7 +40,8 @@ _DERIVE_BLOCK_FACES = 1 << 17
 _REMESH_BLOCK_PIECES = 1 << 20
 
 
-def _frozen(array: NDArray[Any]) -> NDArray[Any]:
+def read_only(array: NDArray[Any]) -> NDArray[Any]:
+    """``array`` contiguous and read-only (a copy only where it is not contiguous)."""
     array = np.ascontiguousarray(array)
     array.flags.writeable = False
     return array
@@ -184,8 +185,8 @@ class Scene:
         normals, areas = face_values(self.vertices, self.faces, normals=not remeshed)
         if normals is None:
             normals = unit_normals(*self.file_mesh)
-        object.__setattr__(self, "file_normals", _frozen(normals))
-        object.__setattr__(self, "areas", _frozen(areas))
+        object.__setattr__(self, "file_normals", read_only(normals))
+        object.__setattr__(self, "areas", read_only(areas))
 
     @classmethod
     def with_face_values(cls, file_normals: FloatArray | None, areas: FloatArray | None,
@@ -223,7 +224,7 @@ class Scene:
             values = np.asarray(values, np.float64)
             if values.shape != shape:
                 raise ValueError(f"{name} of shape {values.shape}, not {shape}")
-            object.__setattr__(scene, name, _frozen(values))
+            object.__setattr__(scene, name, read_only(values))
         return scene
 
     def replaced(self, **changes: Any) -> Scene:
@@ -266,7 +267,7 @@ class Scene:
                 continue
             if name not in ("vertices", "file_vertices"):
                 value = np.asarray(value, np.int32)  # no copy when it is int32 already
-            object.__setattr__(self, name, _frozen(value))
+            object.__setattr__(self, name, read_only(value))
         if (self.file_vertices is None) != (self.file_faces is None):
             raise ValueError("file_vertices and file_faces come together or not at all")
         n_file_faces = len(self.faces if self.file_faces is None else self.file_faces)
@@ -427,7 +428,7 @@ class Scene:
         """(2, 3) float64, read-only: lowest and highest corner of the axis-aligned box
         (found once: the walk graph, the levels and the outputs each ask, 0.1 s a time over
         a 5 M-face scene's vertices)."""
-        return _frozen(np.stack(column_bounds(self.vertices)))
+        return read_only(np.stack(column_bounds(self.vertices)))
 
     def summary(self) -> dict[str, Any]:
         """Counts and bounds a user checks after an upload."""

@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from planner.rays.bruteforce import ray_triangle_distance
 from planner.rays.pinned import PinnedScene
 from planner.rays.protocols import FAR_LIMIT_FACTOR, ExactRays
-from planner.scene import Scene
+from planner.scene import Scene, read_only
 
 # probe rays for a ray float32 cannot decide run this far beside it, on four sides: 20x the
 # float32 rounding of a point 5 m away, far below the size of any face that matters
@@ -39,16 +39,11 @@ _QUAD_PLANE_SHARE = 1e-3
 _QUAD_MIN_SINE = 10 * _QUAD_PLANE_SHARE
 
 
-def _read_only(array: NDArray[Any]) -> NDArray[Any]:
-    array.flags.writeable = False
-    return array
-
-
 # the empty arguments of the compiled kernels, read-only as the scene's arrays they stand in
 # for are: numba compiles a kernel again for each read-only/writable mix of its arguments
-_EMPTY_INT32 = _read_only(np.zeros(0, np.int32))
-_EMPTY_INT64 = _read_only(np.zeros(0, np.int64))
-_EMPTY_BOOL = _read_only(np.zeros(0, np.bool_))
+_EMPTY_INT32 = read_only(np.zeros(0, np.int32))
+_EMPTY_INT64 = read_only(np.zeros(0, np.int64))
+_EMPTY_BOOL = read_only(np.zeros(0, np.bool_))
 
 
 def quad_partners(vertices32: NDArray[np.float32], faces32: NDArray[np.int32],
