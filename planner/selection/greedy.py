@@ -171,9 +171,11 @@ def greedy(table: CoverageTable, *, weighted: bool = False,
     greedy run side by side on two cores (one Python loop each, they had taken turns).
     """
     units, gains = gain_units(table, weighted=weighted)
+    # the areas of a station's newly covered faces, in face order: at most its row's faces
+    fresh = np.empty(int(np.diff(table.pair_ptr).max(initial=0)))
     stations, new_area, covered = _greedy_order(
         table.run_ptr, table.run_start, table.run_length, units, gains, table.face_area_m2,
-        np.asarray(fixed, np.int64))
+        np.asarray(fixed, np.int64), fresh)
     return Selection(
         method="weighted_greedy" if weighted else "greedy",
         stations=tuple(stations.tolist()),
@@ -188,7 +190,7 @@ def greedy(table: CoverageTable, *, weighted: bool = False,
 def _greedy_order(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
                   run_length: NDArray[np.int32], units: NDArray[np.float64],
                   gains: NDArray[np.float64], area: NDArray[np.float64],
-                  fixed: NDArray[np.int64]
+                  fixed: NDArray[np.int64], fresh: NDArray[np.float64]
                   ) -> tuple[NDArray[np.int64], NDArray[np.float64],
                              NDArray[np.float64]]:  # compiled
     """:func:`greedy`'s order over a :class:`CoverageTable`'s runs: the (S,) stations, the
@@ -197,7 +199,8 @@ def _greedy_order(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
 
     A heap of (-gain, candidate) holds each candidate's last gain, an upper bound of its
     gain now; the top's gain is summed again, and it is the next station once it still
-    ranks first (:class:`GainOrder`'s lazy ranking). ``fixed`` come first.
+    ranks first (:class:`GainOrder`'s lazy ranking). ``fixed`` come first. ``fresh``:
+    scratch as long as the longest row, for the areas of a station's newly covered faces.
     """
     n_faces = len(units)
     uncovered = np.ones(n_faces, np.bool_)
@@ -213,14 +216,6 @@ def _greedy_order(run_ptr: NDArray[np.int64], run_start: NDArray[np.int32],
     stations = np.empty(len(gains) + len(fixed), np.int64)
     new_area = np.empty(len(gains) + len(fixed))
     covered = np.empty(len(gains) + len(fixed))
-    # the areas of a station's newly covered faces, in face order (at most its row's faces)
-    longest = 0
-    for c in range(len(gains)):
-        faces = 0
-        for run in range(run_ptr[c], run_ptr[c + 1]):
-            faces += run_length[run]
-        longest = max(longest, faces)
-    fresh = np.empty(longest)
     total = 0.0
     n = 0
     while True:
