@@ -13,7 +13,8 @@ folder (``NUMBA_CACHE_DIR``; the user's own cache is not touched):
   wall time and peak printed too), then the plan; numba's log (``NUMBA_DEBUG_CACHE``)
   says how many kernels that plan still compiled.
 
-Prints wall seconds and the process's peak RSS (``wait4``'s rusage); figures, never a pass
+Prints wall seconds and the process's peak RSS (``wait4``'s rusage, as
+``benchmarks/vs_bruteforce.py`` times its runs); figures, never a pass
 or a fail. Wall times on a shared machine: compare runs taken together.
 """
 
@@ -21,11 +22,13 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.vs_bruteforce import timed
 
 ROOT = Path(__file__).resolve().parents[1]
 IFC_HOUSE = ROOT / "planner" / "example_data" / "IfcOpenHouse_IFC4.ifc"
@@ -36,17 +39,9 @@ def run(arguments: list[str], cache: Path) -> tuple[float, float, int]:
     environ = {name: value for name, value in os.environ.items()
                if not name.startswith("NUMBA_")}
     environ.update(NUMBA_CACHE_DIR=str(cache), NUMBA_DEBUG_CACHE="1")
-    started = time.perf_counter()
-    process = subprocess.Popen([sys.executable, "-m", "planner", *arguments], cwd=ROOT,
-                               env=environ, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-                               text=True)
-    assert process.stdout is not None
-    output = process.stdout.read()
-    _, status, usage = os.wait4(process.pid, 0)  # this process's own rusage
-    seconds = time.perf_counter() - started
-    if os.waitstatus_to_exitcode(status):
-        raise SystemExit(f"scanplan {' '.join(arguments)} failed")
-    return seconds, usage.ru_maxrss / 1024, output.count("[cache] data saved")
+    seconds, peak_mb, output = timed([sys.executable, "-m", "planner", *arguments],
+                                     env=environ, cwd=ROOT)
+    return seconds, peak_mb, output.count("[cache] data saved")
 
 
 def main() -> None:
