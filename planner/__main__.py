@@ -323,6 +323,70 @@ def kernel_counts() -> tuple[int, int]:
     return compiled, loaded
 
 
+def warm_up() -> tuple[int, int]:
+    """Imports every module of the planner (the renderers' libraries with them) and loads
+    every kernel numba's cache holds for this target, compiling none; returns how many
+    modules were imported and how many kernels loaded.
+
+    For a process that forks the processes that plan (the service's consumer): each fork
+    then starts with all of it in memory, shared with the others, instead of importing the
+    renderers and loading the kernels it calls one by one (numba loads a kernel from its
+    cache when a process first calls it, after it has set up its compiler's context once).
+    A module that needs an optional dependency not installed (Dask) is left out.
+
+    numba keeps no public list of what its cache holds, so each kernel's index is read
+    the way numba reads it on a kernel's first call (its cache's ``_load_index`` and
+    ``_index_key``, as numba 0.68 has them); where those are not there, the warm-up loads
+    no kernel and plans load them as they call them, as before.
+    """
+    import importlib
+    import pkgutil
+
+    import planner
+
+    imported = 0
+    for found in pkgutil.walk_packages(planner.__path__, "planner."):
+        if found.name == __name__ or found.name.endswith(".__main__"):
+            continue
+        try:
+            importlib.import_module(found.name)
+        except ImportError:  # an optional dependency (dask for planner.scaleout)
+            continue
+        imported += 1
+
+    from numba.core.dispatcher import Dispatcher
+
+    loaded = 0
+    seen: set[int] = set()
+    for name, module in list(sys.modules.items()):
+        if not name.startswith("planner.") or module is None:
+            continue
+        for value in vars(module).values():
+            if not isinstance(value, Dispatcher) or id(value) in seen:
+                continue
+            seen.add(id(value))
+            signatures = _cached_signatures(value)
+            if signatures is None:  # another numba's internals
+                return imported, loaded
+            for signature in signatures:
+                value.compile(signature)
+                loaded += 1
+    return imported, loaded
+
+
+def _cached_signatures(kernel: Any) -> list[Any] | None:
+    """The argument types numba's cache holds ``kernel`` (a numba ``Dispatcher``) compiled
+    for, on this target and of this source: what numba would load for them on a first call
+    rather than compile. None where numba's cache is not what :func:`warm_up` knows."""
+    try:
+        cache = kernel._cache
+        codegen = kernel.targetctx.codegen()
+        index = cache._cache_file._load_index()  # {} when the source changed since
+        return [key[0] for key in index if key == cache._index_key(key[0], codegen)]
+    except AttributeError:
+        return None
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="scanplan", description="Plan terrestrial laser scanner stations on a 3D model."

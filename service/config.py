@@ -91,6 +91,11 @@ class Settings(BaseSettings):
                     "scheduler that cannot be reached fails the job naming it")
     plan_threads: int | None = Field(
         default=None, ge=1, description="visibility threads per job (default: cores / workers)")
+    warm_up: bool = Field(
+        default=True,
+        description="load the planner's modules and its compiled kernels once in the "
+                    "consumer, before it forks the worker processes: each job then starts "
+                    "with them in memory, shared, instead of loading them itself")
     worker_health_interval_s: float = Field(
         default=2.0, gt=0, description="how often a dead worker process is replaced")
     log_level: str = Field(default="info", description="debug, info, warning or error")

@@ -6,6 +6,10 @@ of another model compiles nothing is checked on the installed wheel (tests/test_
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+from importlib import resources
 from pathlib import Path
 
 import pytest
@@ -58,3 +62,41 @@ def test_host_flags_are_read_from_cpuinfo(tmp_path: Path, flags: list[str]) -> N
                        f"flags\t\t: {' '.join(flags)}\n\nprocessor\t: 1\n")
     assert host_cpu_flags(cpuinfo) == frozenset(flags)
     assert host_cpu_flags(tmp_path / "absent") == frozenset()
+
+
+# a fresh process: warms up as the service's consumer does before it forks the processes
+# that plan, then plans and prints what the plan compiled and loaded
+_WARM_THEN_PLAN = """
+import json, sys
+from planner.kernels import pin_numba_target
+pin_numba_target()
+from planner.__main__ import kernel_counts, main, warm_up
+modules, loaded = warm_up()
+warm = kernel_counts()
+code = main(sys.argv[1:])
+print(json.dumps({"modules": modules, "loaded": loaded, "warm": warm,
+                  "after_plan": kernel_counts(), "code": code}))
+"""
+
+
+def test_after_the_warm_up_a_plan_loads_no_kernel(tmp_path: Path) -> None:
+    """The service's consumer warms up (``planner.__main__.warm_up``) before it forks the
+    worker processes, so that a job's process loads nothing itself: every kernel that
+    planning the hall calls is in memory before the plan starts, none compiled."""
+    hall = Path(str(resources.files("planner") / "example_data" / "hall-small"))
+    plan = ["plan", str(hall / "hall.obj"), "--candidates", str(hall / "candidates.csv"),
+            "--quiet"]
+    # numba's cache holds the hall's kernels after one plan (this one compiles what it lacks)
+    subprocess.run([sys.executable, "-m", "planner", *plan, "--out", str(tmp_path / "first")],
+                   check=True, timeout=600)
+    run = subprocess.run([sys.executable, "-c", _WARM_THEN_PLAN, *plan,
+                          "--out", str(tmp_path / "warm")],
+                         check=True, timeout=600, capture_output=True, text=True)
+    counts = json.loads(run.stdout.strip().splitlines()[-1])
+    assert counts["code"] == 0
+    assert counts["modules"] > 50  # every stage's modules, the renderers' too
+    compiled, loaded = counts["warm"]
+    assert compiled == 0 and loaded == counts["loaded"] > 0
+    assert counts["after_plan"] == counts["warm"]  # the plan compiled and loaded nothing
+    assert (tmp_path / "warm" / "plan.json").read_bytes() == (
+        tmp_path / "first" / "plan.json").read_bytes()
