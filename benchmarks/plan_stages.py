@@ -178,6 +178,12 @@ def load_params(value: str | None) -> dict[str, Any]:
 
 def run(model: Path, params: dict[str, Any], out: Path | None) -> dict[str, Any]:
     """Time every stage of planning ``model``; returns the figures and the plan's counts."""
+    try:  # the kernels of the target ``scanplan`` compiles for, from the cache it fills
+        from planner.kernels import pin_numba_target
+    except ImportError:  # a checkout from before the pin (matrix.py --source)
+        pass
+    else:
+        pin_numba_target()
     from planner.io.readers import read_scene
     from planner.outputs.report import OUTPUTS
     from planner.parameters import PlanSpec
