@@ -416,7 +416,11 @@ def _warm_up() -> None:
     from planner.__main__ import warm_up
 
     started = time.perf_counter()
-    modules, kernels = warm_up()
+    try:
+        modules, kernels = warm_up()
+    except Exception:  # only a head start: the jobs load what they need themselves
+        log.exception("warm-up failed; each job loads the planner's modules and kernels")
+        return
     gc.freeze()
     log.info("warmed up in %.1f s: %d planner modules, %d compiled kernels loaded",
              time.perf_counter() - started, modules, kernels)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import pytest
+
 from service.config import Settings
 from service.job_store import JobStore
 from service.worker import Reaper, build_context
@@ -76,3 +78,25 @@ def test_a_job_table_of_an_older_version_gains_the_attempt_log(tmp_path: Path) -
     assert jobs.finish(job.id, "t", "successful", message="done",
                        attempt={"attempt": 1, "outcome": "successful"})
     assert (jobs.get(job.id) or old).attempt_log == [{"attempt": 1, "outcome": "successful"}]
+
+
+def test_a_failed_warm_up_leaves_the_consumer_to_start_its_workers(
+        monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """The warm-up before huey forks is a head start only: if it fails (another numba, a
+    module that cannot be imported), the consumer logs it and goes on, and each job loads
+    what it needs itself."""
+    import gc
+
+    import planner.__main__
+    from service.worker import _warm_up
+
+    def broken() -> tuple[int, int]:
+        raise RuntimeError("numba's cache is not what the warm-up knows")
+
+    monkeypatch.setattr(planner.__main__, "warm_up", broken)
+    frozen = gc.get_freeze_count()
+    with caplog.at_level("ERROR", logger="scanplan.worker"):
+        _warm_up()  # returns: run_consumer goes on to fork the workers
+    assert "warm-up failed" in caplog.text
+    assert "numba's cache is not what the warm-up knows" in caplog.text
+    assert gc.get_freeze_count() == frozen  # nothing frozen for a warm-up that did not happen
