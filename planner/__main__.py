@@ -24,6 +24,14 @@ from planner.kernels import pin_numba_target
 from planner.parameters import PlanSpec
 from planner.version import __version__
 
+# True in the ``scanplan`` command's own process (:func:`run`), not when a program calls
+# :func:`main`: ``scanplan plan`` then freezes the objects its imports made out of the
+# garbage collector (:func:`gc.freeze`; some 110,000, every one of them kept to the end
+# anyway), so its collections during the plan do not go over them again (hall-full, two
+# sets of four runs: 5.03 -> 4.84 s and 5.07 -> 4.93 s). A program's own objects are left
+# to its collector.
+_COMMAND = False
+
 
 class ProgressLine:
     """``stage  42 %`` rewritten in place on a terminal; silent when not a terminal."""
@@ -446,14 +454,6 @@ def main(argv: list[str] | None = None) -> int:
         print("scanplan: interrupted", file=sys.stderr)
         return 130
     return code
-
-
-# True in the ``scanplan`` command's own process (:func:`run`), not when a program calls
-# :func:`main`: ``scanplan plan`` then freezes the objects its imports made out of the
-# garbage collector (:func:`gc.freeze`; some 110,000, every one of them kept to the end
-# anyway), so its collections during the plan do not go over them again (hall-full: 5.03
-# -> 4.84 s, four runs each). A program's own objects are left to its collector.
-_COMMAND = False
 
 
 def run() -> NoReturn:
