@@ -46,21 +46,13 @@ def pss_mib(pids: list[int]) -> float:
     return total_kib / 1024
 
 
-def wait_for_workers(service: Service, processes: int) -> None:
-    deadline = time.monotonic() + 120
-    while len(service.session_pids()) < processes:
-        if time.monotonic() > deadline:
-            raise SystemExit("the consumer did not start its workers in 120 s")
-        time.sleep(0.1)
-
-
 def run(warm_up: bool, jobs: int, workers: int) -> None:
     with tempfile.TemporaryDirectory(prefix="scanplan-jobs-") as folder:
         started = time.perf_counter()
         service = Service(Path(folder) / "data", workers=workers,
                           env={"SCANPLAN_WARM_UP": str(warm_up).lower()}).start()
         try:
-            wait_for_workers(service, 2 + workers)  # the API, the consumer, its workers
+            service.wait_for_workers(timeout_s=120)
             print(f"warm_up={warm_up}: workers up {time.perf_counter() - started:.1f} s "
                   f"after the start, the service idles in {pss_mib(service.session_pids()):.0f}"
                   " MiB (Pss)")

@@ -315,21 +315,28 @@ def run_compile_kernels(args: argparse.Namespace) -> int:
     return 0
 
 
-def kernel_counts() -> tuple[int, int]:
-    """How many of the planner's compiled kernels this process compiled and how many it
-    loaded from numba's cache (a kernel compiled for two argument types counts twice)."""
+def _loaded_kernels() -> list[Any]:
+    """Each compiled kernel (numba ``Dispatcher``) of the planner's modules imported in
+    this process, once."""
     from numba.core.dispatcher import Dispatcher
 
-    compiled = loaded = 0
-    seen: set[int] = set()
+    kernels: dict[int, Any] = {}
     for name, module in list(sys.modules.items()):
         if not name.startswith("planner.") or module is None:
             continue
         for value in vars(module).values():
-            if isinstance(value, Dispatcher) and id(value) not in seen:
-                seen.add(id(value))
-                compiled += sum(value.stats.cache_misses.values())
-                loaded += sum(value.stats.cache_hits.values())
+            if isinstance(value, Dispatcher):
+                kernels.setdefault(id(value), value)
+    return list(kernels.values())
+
+
+def kernel_counts() -> tuple[int, int]:
+    """How many of the planner's compiled kernels this process compiled and how many it
+    loaded from numba's cache (a kernel compiled for two argument types counts twice)."""
+    compiled = loaded = 0
+    for kernel in _loaded_kernels():
+        compiled += sum(kernel.stats.cache_misses.values())
+        loaded += sum(kernel.stats.cache_hits.values())
     return compiled, loaded
 
 
@@ -364,23 +371,14 @@ def warm_up() -> tuple[int, int]:
             continue
         imported += 1
 
-    from numba.core.dispatcher import Dispatcher
-
     loaded = 0
-    seen: set[int] = set()
-    for name, module in list(sys.modules.items()):
-        if not name.startswith("planner.") or module is None:
-            continue
-        for value in vars(module).values():
-            if not isinstance(value, Dispatcher) or id(value) in seen:
-                continue
-            seen.add(id(value))
-            signatures = _cached_signatures(value)
-            if signatures is None:  # another numba's internals
-                return imported, loaded
-            for signature in signatures:
-                value.compile(signature)
-                loaded += 1
+    for kernel in _loaded_kernels():
+        signatures = _cached_signatures(kernel)
+        if signatures is None:  # another numba's internals
+            return imported, loaded
+        for signature in signatures:
+            kernel.compile(signature)
+            loaded += 1
     return imported, loaded
 
 

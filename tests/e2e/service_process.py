@@ -76,6 +76,14 @@ class Service:
         """Every live process of the service's session (its own process group leader)."""
         return session_pids(self.sid) if self.sid else []
 
+    def wait_for_workers(self, timeout_s: float = 60.0) -> None:
+        """Until the API, the consumer and its ``workers`` processes all run: the consumer
+        forks its workers once it has warmed up, a second or more after ``/readyz``."""
+        deadline = time.monotonic() + timeout_s
+        while len(self.session_pids()) < 2 + self.workers:
+            assert time.monotonic() < deadline, "the consumer never started its workers"
+            time.sleep(0.1)
+
     def kill_leftovers(self) -> None:
         """Last-resort cleanup so a failing test never leaves workers behind."""
         for pid in self.session_pids():

@@ -69,11 +69,7 @@ def shared_service(tmp_path_factory: pytest.TempPathFactory) -> Any:
 def test_stopping_serve_stops_its_worker_processes(tmp_path: Path, stop_signal: int) -> None:
     service = Service(tmp_path / "data", workers=2).start()
     try:
-        # the API, the consumer and its two workers, which it forks once it has warmed up
-        deadline = time.monotonic() + 60
-        while len(service.session_pids()) < 4:
-            assert time.monotonic() < deadline, "the consumer never started its workers"
-            time.sleep(0.2)
+        service.wait_for_workers()
         assert service.process is not None
         service.process.send_signal(stop_signal)
         service.process.wait(30)
