@@ -43,7 +43,7 @@ def main() -> int:
         scene = read_scene(folder / "hall.obj", max_edge_m=None)
         candidates = read_candidates_csv(folder / "candidates.csv")
         result = plan(scene, PlanSpec(candidates=tuple(map(tuple, candidates.tolist())),
-                                      max_edge_m=None))
+                                      max_edge_m=None), keep_table=True)
         for goal in args.goals:
             started = time.perf_counter()
             outcome = choose_stations(result.table, method="optimal", goal=goal,

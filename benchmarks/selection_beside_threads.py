@@ -82,7 +82,8 @@ def main() -> int:
     args = parser.parse_args()
     scene = read_scene(args.scene_dir / "hall.obj", max_edge_m=None)
     candidates = read_candidates_csv(args.scene_dir / "candidates.csv")
-    result = plan(scene, PlanSpec(candidates=tuple(map(tuple, candidates.tolist()))))
+    result = plan(scene, PlanSpec(candidates=tuple(map(tuple, candidates.tolist()))),
+                  keep_table=True)
     table = result.table
     stations = len(result.chosen.stations)
     steps: list[tuple[str, Callable[[], str]]] = [

@@ -59,7 +59,7 @@ def _table(name: str) -> tuple[object, np.ndarray, dict[str, object]]:
     else:
         spec = PlanSpec()
         scene = read_scene(path, max_edge_m=spec.max_edge_m, split_faces="as_needed")
-    result = plan(scene, spec)
+    result = plan(scene, spec, keep_table=True)
     return result.table, result.scene.centroids, dict(result.selections)
 
 

@@ -44,7 +44,7 @@ def run(name: str, **params: object) -> tuple[PlanResult, float]:
     candidates = read_candidates_csv(folder / "candidates.csv").tolist()
     spec = PlanSpec.from_mapping({"candidates": candidates, "max_edge_m": None, **params})
     cpu = time.process_time()
-    result = plan(scene, spec)
+    result = plan(scene, spec, keep_table=True)
     return result, time.process_time() - cpu
 
 

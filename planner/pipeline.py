@@ -34,7 +34,7 @@ from planner.selection.optimal import OptimalResult
 from planner.survey.fieldwork import FieldClock, Survey, places_of, survey, with_settings
 from planner.survey.tolerance import Tolerance, plan_tolerance
 from planner.visibility.bundles import forget_bundles
-from planner.visibility.coverage import CoverageTable
+from planner.visibility.coverage import CoverageTable, StationRows
 from planner.visibility.qualify import Sight, coverage_table, station_densities
 from planner.walkgraph import walk_area
 
@@ -55,7 +55,7 @@ class PlanResult:
     scene: Scene
     spec: PlanSpec
     candidates: CandidateSet
-    table: CoverageTable
+    table: CoverageTable | StationRows  # the stations' rows unless plan(keep_table=True)
     limits: FaceLimits
     selections: dict[str, Selection]  # full orders, per method
     chosen: Selection  # the plan: the chosen method up to the goal
@@ -76,6 +76,7 @@ def plan(
     backend: Backend = "embree",
     threads: int | None = None,
     dask_scheduler: str | None = None,
+    keep_table: bool = False,
 ) -> PlanResult:
     """Plan the stations for ``scene`` under ``spec``.
 
@@ -89,14 +90,19 @@ def plan(
         the overlap rows run on its workers (:mod:`planner.scaleout`), the plan's bytes are
         the same; raises :class:`~planner.errors.SchedulerUnreachableError` when it cannot
         be reached
+    keep_table : keep the whole coverage table as ``table`` (every candidate's row, for
+        analyses of the table itself); by default the plan keeps only its stations' rows
+        and the table's totals (:class:`~planner.visibility.coverage.StationRows`), which
+        is all its outputs read, and lets the table go before the survey
     """
     with fanout_over(dask_scheduler) as fanout:
         return _plan(scene, spec, progress=progress, backend=backend, threads=threads,
-                     fanout=fanout)
+                     fanout=fanout, keep_table=keep_table)
 
 
 def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
-          backend: Backend, threads: int | None, fanout: DaskFanout | None) -> PlanResult:
+          backend: Backend, threads: int | None, fanout: DaskFanout | None,
+          keep_table: bool) -> PlanResult:
     stats = Stats()
     t0, cpu0 = time.perf_counter(), time.process_time()
     if scene.split_max_edge_m is not None and (spec.occluders != "file" or backend != "embree"):
@@ -141,6 +147,11 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
         tolerance, station_overlap = plan_tolerance(
             sight, table, chosen, stations_xyz, station_overlap, stats, threads=threads,
             fanout=fanout, overlap=overlap)
+    # what follows reads the stations' rows only: the table goes before the survey's peak
+    # (the 9.7 M-piece office's 180 MB), unless the caller keeps it
+    rows: CoverageTable | StationRows = table if keep_table \
+        else table.station_rows(chosen.stations)
+    del table
     # the threads' freed scratch (the overlap rows', the tolerance's: on the office 320 MB),
     # still in their arenas, before the survey makes the next peak
     release_freed_memory()
@@ -157,8 +168,8 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
     # least density margin over the faces it is credited with chooses its setting
     # (planner.scanners)
     faces = coverage_state(
-        table, chosen.stations,
-        station_densities(sight, table, chosen.stations, stations_xyz, stats, threads=threads),
+        rows, chosen.stations,
+        station_densities(sight, rows, chosen.stations, stations_xyz, stats, threads=threads),
         None if spec.scanner is None else sight.limits.min_density_pts_m2)
     margins = faces.pop("density_margin", None)
     if margins is not None:
@@ -166,7 +177,7 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
     new_stage(progress, "report")
     stats.cpu_seconds["plan"] = time.process_time() - cpu0
     outcome = choice.outcome
-    return PlanResult(scene=sight.scene, spec=spec, candidates=candidates, table=table,
+    return PlanResult(scene=sight.scene, spec=spec, candidates=candidates, table=rows,
                       limits=sight.limits, selections=outcome.selections, chosen=chosen,
                       optimal=outcome.optimal, faces=faces, stats=stats,
                       optimal_curve=outcome.curve, selection_report=outcome.report,

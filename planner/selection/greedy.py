@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from planner.selection.sums import numpy_sum
-from planner.visibility.coverage import CoverageTable, QualifiedPairs
+from planner.visibility.coverage import CoverageTable, QualifiedPairs, StationRows
 
 GAIN_QUANTUM_M2 = 1e-9
 # covered >= goal * max achievable, with this much slack for summation order (m^2)
@@ -314,7 +314,8 @@ def replay(table: CoverageTable, stations: list[int] | tuple[int, ...],
 
 
 def coverage_state(
-    table: CoverageTable, stations: tuple[int, ...], densities: Iterable[QualifiedPairs],
+    table: CoverageTable | StationRows, stations: tuple[int, ...],
+    densities: Iterable[QualifiedPairs],
     min_density_pts_m2: NDArray[np.float64] | None = None,
 ) -> dict[str, NDArray[np.generic]]:
     """Per-face results of a plan.

@@ -287,6 +287,73 @@ class CoverageTable:
                        np.asarray(per_face, np.float64), sums)
         return sums
 
+    def station_rows(self, stations: Sequence[int]) -> StationRows:
+        """The rows of ``stations`` alone, with this table's totals (:class:`StationRows`)."""
+        runs = [slice(int(self.run_ptr[c]), int(self.run_ptr[c + 1])) for c in stations]
+        run_ptr = np.zeros(len(stations) + 1, np.int64)
+        np.cumsum([part.stop - part.start for part in runs], out=run_ptr[1:])
+        pair_ptr = np.zeros(len(stations) + 1, np.int64)
+        np.cumsum([int(self.pair_ptr[c + 1] - self.pair_ptr[c]) for c in stations],
+                  out=pair_ptr[1:])
+        rows = CoverageTable(
+            run_ptr=run_ptr,
+            run_start=np.concatenate([self.run_start[part] for part in runs] or [_NO_RUNS]),
+            run_length=np.concatenate([self.run_length[part] for part in runs] or [_NO_RUNS]),
+            pair_ptr=pair_ptr, face_area_m2=self.face_area_m2)
+        return StationRows(stations=tuple(int(c) for c in stations), rows=rows,
+                           n_candidates=self.n_candidates, n_pairs=self.n_pairs,
+                           candidates_per_face=self.candidates_per_face,
+                           max_achievable_area_m2=self.max_achievable_area_m2)
+
+
+@dataclass(frozen=True, eq=False)
+class StationRows:
+    """What a plan reads of its coverage table once its stations are chosen: their rows
+    and the whole table's totals (:meth:`CoverageTable.station_rows`).
+
+    The per-face results and the outputs read no other candidate's row, so a plan keeps
+    these instead of the table (the 9.7 M-piece office's table is 180 MB, held under the
+    survey's peak and the outputs'; its stations' rows about 2 MB).
+
+    Attributes
+    ----------
+    stations : (S,) the candidates whose rows are kept
+    rows : their rows, row ``i`` being ``stations[i]``'s
+    n_candidates, n_pairs : the whole table's
+    candidates_per_face : (F,) int32, the whole table's (k_f)
+    max_achievable_area_m2 : the whole table's
+    """
+
+    stations: tuple[int, ...]
+    rows: CoverageTable
+    n_candidates: int
+    n_pairs: int
+    candidates_per_face: NDArray[np.int32]
+    max_achievable_area_m2: float
+
+    @property
+    def n_faces(self) -> int:
+        return self.rows.n_faces
+
+    @property
+    def face_area_m2(self) -> NDArray[np.float64]:
+        return self.rows.face_area_m2
+
+    @property
+    def achievable(self) -> NDArray[np.bool_]:
+        """(F,) bool: qualified from at least one candidate."""
+        return self.candidates_per_face > 0
+
+    def faces_of(self, candidate: int) -> NDArray[np.int32]:
+        """Faces that station ``candidate`` qualifies for, ascending (a new array)."""
+        try:
+            row = self.stations.index(candidate)
+        except ValueError:
+            raise KeyError(f"candidate {candidate} is not a station of this plan: only the "
+                           "stations' rows are kept (plan(..., keep_table=True) keeps the "
+                           "whole coverage table)") from None
+        return self.rows.faces_of(row)
+
 
 @numba.njit(nogil=True, cache=True)
 def _csr_runs(indptr: NDArray[np.int64], indices: NDArray[np.int32],

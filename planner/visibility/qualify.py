@@ -33,7 +33,7 @@ from planner.rays import Backend, Occlusion, RayCaster, make_occlusion, make_ray
 from planner.scene import Scene, remesh
 from planner.threads import in_block_order
 from planner.visibility.bundles import bundle_culler
-from planner.visibility.coverage import CoverageTable, QualifiedPairs
+from planner.visibility.coverage import CoverageTable, QualifiedPairs, StationRows
 from planner.visibility.pairs import (
     TESTS_PER_BLOCK,
     PairFinder,
@@ -221,7 +221,7 @@ def robust_table(sight: Sight, table: CoverageTable, positions: np.ndarray, stat
     return robust
 
 
-def station_densities(sight: Sight, table: CoverageTable, stations: tuple[int, ...],
+def station_densities(sight: Sight, table: CoverageTable | StationRows, stations: tuple[int, ...],
                       stations_xyz: np.ndarray, stats: Stats, *,
                       threads: int | None = None) -> Iterator[QualifiedPairs]:
     """The chosen stations' qualified pairs with their LPDs, numbered by their place in
@@ -244,7 +244,7 @@ def station_densities(sight: Sight, table: CoverageTable, stations: tuple[int, .
     return densities
 
 
-def _table_densities(scene: Scene, limits: FaceLimits, table: CoverageTable,
+def _table_densities(scene: Scene, limits: FaceLimits, table: CoverageTable | StationRows,
                      stations: tuple[int, ...], stations_xyz: np.ndarray
                      ) -> Iterator[QualifiedPairs]:
     """The chosen stations' rows of the table with their LPDs, a station at a time and

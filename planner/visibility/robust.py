@@ -28,7 +28,7 @@ from planner.candidates.placement import Displaced
 from planner.limits import FaceLimits
 from planner.scene import Scene
 from planner.threads import in_block_order
-from planner.visibility.coverage import CoverageTable, QualifiedPairs
+from planner.visibility.coverage import CoverageTable, QualifiedPairs, StationRows
 
 # (M, 3) positions, the limits with only the faces to test as targets -> the qualified
 # pairs, numbered by position (0 .. M - 1), under the plan's coverage model
@@ -124,7 +124,7 @@ def disc_limits_hold(scene: Scene, limits: FaceLimits, position: NDArray[np.floa
     return np.asarray(ok)
 
 
-def within_table(blocks: Iterable[QualifiedPairs], table: CoverageTable,
+def within_table(blocks: Iterable[QualifiedPairs], table: CoverageTable | StationRows,
                  stations: tuple[int, ...]) -> Iterator[QualifiedPairs]:
     """The pairs of ``blocks`` (numbered by their place in ``stations``) that are in the
     table's rows of those stations: a robust table credits a station fewer faces than it

@@ -29,7 +29,7 @@ def _hall(**params: object) -> PlanResult:
     scene = read_scene(folder / "hall.obj", max_edge_m=None)
     candidates = read_candidates_csv(folder / "candidates.csv").tolist()
     return plan(scene, PlanSpec.from_mapping({"candidates": candidates, "max_edge_m": None,
-                                              **params}))
+                                              **params}), keep_table=True)
 
 
 @pytest.fixture(scope="module")

@@ -122,7 +122,7 @@ def hall_plan(scenes_dir: Path, name: str, **params: object) -> PlanResult:
     candidates = read_candidates_csv(folder / "candidates.csv").tolist()
     # exact rays: the heuristics' counts are the reference's (expected.json)
     return plan(scene, PlanSpec.from_mapping({"candidates": candidates, "max_edge_m": None,
-                                              "exact_rays": True, **params}))
+                                              "exact_rays": True, **params}), keep_table=True)
 
 
 def check_optimal(result: PlanResult, row: optimal.OptimalResult) -> None:

@@ -20,7 +20,9 @@ from planner.limits import FaceLimits
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
 from planner.rays import make_occlusion
+from planner.outputs.report import write_outputs
 from planner.scene import build_scene, remesh
+from planner.visibility.coverage import CoverageTable, StationRows
 from planner.visibility.pairs import PairFinder
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -86,6 +88,33 @@ def test_first_hit_on_file_faces_names_a_piece_of_the_face_hit() -> None:
     assert scene.centroids[cabinet_top, 2] == pytest.approx(2.2)
 
 
+def test_a_plan_keeps_its_stations_rows_and_writes_the_files_of_the_whole_table(
+        scenes_dir: Path, tmp_path: Path) -> None:
+    """A plan lets its coverage table go before the survey and keeps its stations' rows
+    (StationRows): every file it writes is the one a plan that kept the table writes, and
+    it answers for its stations as the table does."""
+    scene = read_scene(scenes_dir / "IfcOpenHouse_IFC4.ifc", split_faces="as_needed")
+    whole = plan(scene, PlanSpec(), keep_table=True)
+    lean = plan(scene, PlanSpec())
+    assert isinstance(whole.table, CoverageTable) and isinstance(lean.table, StationRows)
+    assert lean.chosen.stations == whole.chosen.stations
+    assert lean.table.n_pairs == whole.table.n_pairs
+    assert lean.table.n_candidates == whole.table.n_candidates
+    assert lean.table.max_achievable_area_m2 == whole.table.max_achievable_area_m2
+    np.testing.assert_array_equal(lean.table.achievable, whole.table.achievable)
+    for station in lean.chosen.stations:
+        np.testing.assert_array_equal(lean.table.faces_of(station), whole.table.faces_of(station))
+    other = next(c for c in range(whole.table.n_candidates) if c not in lean.chosen.stations)
+    with pytest.raises(KeyError, match="keep_table=True"):
+        lean.table.faces_of(other)
+    written = write_outputs(whole, tmp_path / "whole")
+    assert written, "the plan wrote no file"
+    lean_written = write_outputs(lean, tmp_path / "lean")
+    assert [p.name for p in lean_written] == [p.name for p in written]
+    for path in written:
+        assert (tmp_path / "lean" / path.name).read_bytes() == path.read_bytes(), path.name
+
+
 def test_file_faces_keep_the_hall_results(scenes_dir: Path) -> None:
     """hall-small remeshed at 0.1 m: the same stations either way, the same areas to 1e-4.
 
@@ -98,8 +127,8 @@ def test_file_faces_keep_the_hall_results(scenes_dir: Path) -> None:
     assert scene.file_faces is not None and scene.n_faces > len(scene.file_faces)
     positions = read_candidates_csv(hall / "candidates.csv")[::4]
     spec = PlanSpec(candidates=tuple(map(tuple, positions.tolist())), max_edge_m=0.1)
-    pieces = plan(scene, dataclasses.replace(spec, occluders="remeshed"))
-    files = plan(scene, dataclasses.replace(spec, occluders="file"))
+    pieces = plan(scene, dataclasses.replace(spec, occluders="remeshed"), keep_table=True)
+    files = plan(scene, dataclasses.replace(spec, occluders="file"), keep_table=True)
     assert files.chosen.stations == pieces.chosen.stations
     assert files.table.max_achievable_area_m2 == pytest.approx(
         pieces.table.max_achievable_area_m2, rel=1e-4)

@@ -89,12 +89,12 @@ def test_embree_equals_brute_force_pair_for_pair(boxes, candidates) -> None:
     scene = boxes_scene(boxes)
     spec = spec_for(candidates)
     try:
-        fast = plan(scene, spec)
+        fast = plan(scene, spec, keep_table=True)
     except NothingVisibleError:  # both backends must agree on that too
         with np.testing.assert_raises(NothingVisibleError):
             plan(scene, spec, backend="bruteforce")
         return
-    slow = plan(scene, spec, backend="bruteforce")
+    slow = plan(scene, spec, backend="bruteforce", keep_table=True)
     a, b = fast.table.by_candidate.tocoo(), slow.table.by_candidate.tocoo()
     pairs_a = set(zip(a.row.tolist(), a.col.tolist(), strict=True))
     pairs_b = set(zip(b.row.tolist(), b.col.tolist(), strict=True))
@@ -113,12 +113,12 @@ def test_an_added_occluder_never_adds_coverage(boxes, extra, candidates) -> None
     after = boxes_scene([*boxes, extra])
     spec = spec_for(candidates, group_requirements={})
     try:
-        table_before = plan(before, spec).table
+        table_before = plan(before, spec, keep_table=True).table
     except NothingVisibleError:
         return
     n_old = before.n_faces  # the old faces come first in the new scene, in the same order
     try:
-        table_after = plan(after, spec).table
+        table_after = plan(after, spec, keep_table=True).table
     except NothingVisibleError:
         return  # nothing visible any more: coverage only went down
     old_after = table_after.by_candidate[:, :n_old] != 0
