@@ -17,10 +17,10 @@ from planner import scene as scene_module
 from planner.candidates.grid import read_candidates_csv
 from planner.io.readers import read_scene
 from planner.limits import FaceLimits
+from planner.outputs.report import write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
 from planner.rays import make_occlusion
-from planner.outputs.report import write_outputs
 from planner.scene import build_scene, remesh
 from planner.visibility.coverage import CoverageTable, StationRows
 from planner.visibility.pairs import PairFinder
