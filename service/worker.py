@@ -447,4 +447,9 @@ def run_consumer(settings: Settings, *, with_reaper: bool) -> None:
         initial_delay=0.05, max_delay=0.5, backoff=1.5,
     )
     log.info("consuming jobs with %d worker processes", max(1, settings.workers))
+    # huey sets its signal handlers only after it has forked its workers (Consumer.start):
+    # a SIGTERM in between (serve killed as the workers start, which the consumer hears
+    # through PR_SET_PDEATHSIG) ended the consumer and left its workers running. Set
+    # first, they record the signal, and the consumer's first loop stops the workers.
+    consumer._set_signal_handlers()
     consumer.run()

@@ -100,3 +100,67 @@ def test_a_failed_warm_up_leaves_the_consumer_to_start_its_workers(
     assert "warm-up failed" in caplog.text
     assert "numba's cache is not what the warm-up knows" in caplog.text
     assert gc.get_freeze_count() == frozen  # nothing frozen for a warm-up that did not happen
+
+
+def _consumer_signalled_as_its_workers_start(data_dir: Path, pid_file: Path) -> None:
+    """The consumer of a fresh service, sent SIGTERM by itself right after huey has forked
+    its last worker and before huey's own start sets its signal handlers: the moment a
+    ``scanplan serve`` killed as its workers start reaches the consumer (PDEATHSIG)."""
+    import os
+    import signal
+
+    from huey.consumer import ProcessEnvironment
+
+    from service.worker import run_consumer
+
+    create_process = ProcessEnvironment.create_process
+
+    def create(self: ProcessEnvironment, runnable: object, name: str) -> object:
+        process = create_process(self, runnable, name)
+        start = process.start
+
+        def started() -> None:
+            start()
+            with pid_file.open("a") as handle:
+                handle.write(f"{process.pid}\n")
+            if name == "Worker-2":
+                os.kill(os.getpid(), signal.SIGTERM)
+
+        process.start = started
+        return process
+
+    ProcessEnvironment.create_process = create
+    run_consumer(Settings(data_dir=data_dir, workers=2, warm_up=False), with_reaper=False)
+
+
+def test_a_consumer_stopped_as_its_workers_start_stops_them(tmp_path: Path) -> None:
+    """No worker outlives its consumer, even when the consumer is told to stop while huey
+    is still starting them."""
+    import multiprocessing
+    import os
+
+    pid_file = tmp_path / "pids"
+    consumer = multiprocessing.get_context("fork").Process(
+        target=_consumer_signalled_as_its_workers_start, args=(tmp_path / "data", pid_file))
+    consumer.start()
+    consumer.join(30)
+    assert consumer.exitcode is not None, "the consumer did not stop"
+    started = [int(line) for line in pid_file.read_text().split()]
+    assert len(started) == 3  # the scheduler and the two workers
+    deadline = time.monotonic() + 20
+    alive = started
+    while alive and time.monotonic() < deadline:
+        time.sleep(0.2)
+        alive = [pid for pid in started if _running(pid)]
+    for pid in alive:
+        os.kill(pid, 9)  # not left behind by a failing test
+    assert alive == [], "worker processes outlived their consumer"
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, dead and not yet reaped, does not)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
