@@ -40,7 +40,8 @@ from planner.walkgraph import walk_area
 
 __all__ = ["PlanResult", "ProgressCallback", "Stats", "plan"]
 
-# from this many faces on, the survey and the outputs keep their arrays out of the heap
+# from this many faces on, the selection does not hold the pieces' bundles and the survey
+# and the outputs keep their arrays out of the heap
 # (planner.memory.bound_heap), where the plan's peak is: a fresh page costs a fault at first
 # touch (over a whole 3.7 M-face plan some 10 % more CPU time, so not in the visibility),
 # but freed scratch no longer piles up under the survey's peak (the 9.7 M-face office:
@@ -121,6 +122,11 @@ def _plan(scene: Scene, spec: PlanSpec, *, progress: ProgressCallback | None,
     new_stage(progress, "visibility")
     table = coverage_table(sight, candidates.positions, stats, progress=progress,
                            threads=threads, fanout=fanout)
+    if sight.scene.n_faces >= BOUNDED_HEAP_FACES:
+        # the pieces' bundles (75 MB on the 9.7 M-piece office) are not held under the
+        # selection's peak: the overlap rows make them again (there 0.7 - 1.2 s; on a
+        # smaller model the time counts more than the memory: interior-1m's took 0.4 s)
+        forget_bundles(sight.scene)
     new_stage(progress, "selection")
     overlap = sight  # the pieces the registration overlap is measured on
     if whole is not None:  # coarser pieces of the same faces (made after the visibility,

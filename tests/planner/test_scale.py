@@ -8,11 +8,13 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 import trimesh
 
+from planner import pipeline
 from planner import scene as scene_module
 from planner.candidates.grid import read_candidates_csv
 from planner.io.readers import read_scene
@@ -22,6 +24,7 @@ from planner.parameters import PlanSpec
 from planner.pipeline import plan
 from planner.rays import make_occlusion
 from planner.scene import build_scene, remesh
+from planner.visibility import bundles
 from planner.visibility.coverage import CoverageTable, StationRows
 from planner.visibility.pairs import PairFinder
 
@@ -113,6 +116,31 @@ def test_a_plan_keeps_its_stations_rows_and_writes_the_files_of_the_whole_table(
     assert [p.name for p in lean_written] == [p.name for p in written]
     for path in written:
         assert (tmp_path / "lean" / path.name).read_bytes() == path.read_bytes(), path.name
+
+
+def test_bundles_let_go_for_the_selection_give_the_same_files(
+        scenes_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """On a large model the plan lets the pieces' bundles go before the selection and the
+    overlap rows make them again: the files are those of a plan that kept them."""
+    scene = read_scene(scenes_dir / "IfcOpenHouse_IFC4.ifc", split_faces="as_needed")
+    kept = write_outputs(plan(scene, PlanSpec()), tmp_path / "kept")
+    held_in_selection: list[bool] = []
+    choose = pipeline.choose
+
+    def watched(sight: Any, *args: Any, **kwargs: Any) -> Any:
+        held_in_selection.append(sight.scene in bundles._CACHE)
+        return choose(sight, *args, **kwargs)
+
+    monkeypatch.setattr(pipeline, "choose", watched)
+    monkeypatch.setattr(pipeline, "BOUNDED_HEAP_FACES", 0)  # this house counts as large
+    scene = read_scene(scenes_dir / "IfcOpenHouse_IFC4.ifc", split_faces="as_needed")
+    result = plan(scene, PlanSpec())
+    made_again = write_outputs(result, tmp_path / "again")
+    assert held_in_selection == [False]
+    assert bundles.bundles_of(result.scene) is not None, "the house has no bundles to let go"
+    assert [p.name for p in made_again] == [p.name for p in kept]
+    for path in kept:
+        assert (tmp_path / "again" / path.name).read_bytes() == path.read_bytes(), path.name
 
 
 def test_file_faces_keep_the_hall_results(scenes_dir: Path) -> None:
