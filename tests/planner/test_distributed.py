@@ -18,12 +18,12 @@ distributed = pytest.importorskip("distributed")
 from planner.candidates.grid import read_candidates_csv  # noqa: E402
 from planner.errors import SchedulerUnreachableError  # noqa: E402
 from planner.io.readers import read_scene  # noqa: E402
-from planner.outputs.report import write_outputs  # noqa: E402
 from planner.parameters import PlanSpec  # noqa: E402
 from planner.pipeline import PlanResult, plan  # noqa: E402
 from planner.scaleout import DaskFanout  # noqa: E402
 from planner.scaleout.cluster import RESULTS_BUFFERED_PER_THREAD  # noqa: E402
 from planner.scene import Scene  # noqa: E402
+from tests.planner.plan_files import assert_same_files, files_of  # noqa: E402
 
 # a house at a coarser grid and split than the defaults: every stage runs, in seconds
 HOUSE = {"grid_spacing_m": 1.0, "max_edge_m": 0.4}
@@ -42,16 +42,9 @@ def house(scenes_dir: Path) -> Scene:
                       split_faces="as_needed")
 
 
-def files_of(result: PlanResult, out: Path) -> dict[str, bytes]:
-    return {path.name: path.read_bytes() for path in write_outputs(result, out)}
-
-
-def assert_same_files(local: PlanResult, fanned: PlanResult, tmp_path: Path) -> None:
+def assert_same_plans(local: PlanResult, fanned: PlanResult, tmp_path: Path) -> None:
     assert fanned.table.n_pairs == local.table.n_pairs
-    ours, theirs = files_of(local, tmp_path / "local"), files_of(fanned, tmp_path / "dask")
-    assert sorted(ours) == sorted(theirs)
-    assert "plan.json" in ours and "faces.npz" in ours
-    assert [name for name in ours if ours[name] != theirs[name]] == []
+    assert_same_files(files_of(local, tmp_path / "local"), files_of(fanned, tmp_path / "dask"))
 
 
 @pytest.mark.parametrize("method, min_overlap_m2", [
@@ -64,7 +57,7 @@ def test_house_same_bytes(cluster: Any, house: Scene, tmp_path: Path, method: st
     spec = PlanSpec.from_mapping({**HOUSE, "method": method, "min_overlap_m2": min_overlap_m2})
     local = plan(house, spec)
     fanned = plan(house, spec, dask_scheduler=cluster.scheduler_address)
-    assert_same_files(local, fanned, tmp_path)
+    assert_same_plans(local, fanned, tmp_path)
 
 
 def test_hall_same_bytes(cluster: Any, scenes_dir: Path, tmp_path: Path) -> None:
@@ -77,7 +70,7 @@ def test_hall_same_bytes(cluster: Any, scenes_dir: Path, tmp_path: Path) -> None
                     placement_tolerance_m=0.0)
     local = plan(scene, spec)
     fanned = plan(scene, spec, dask_scheduler=cluster.scheduler_address)
-    assert_same_files(local, fanned, tmp_path)
+    assert_same_plans(local, fanned, tmp_path)
 
 
 def _wait_for_last(item: tuple[int, int, str]) -> int:
@@ -128,7 +121,7 @@ def test_worker_killed_mid_plan(cluster: Any, house: Scene, tmp_path: Path) -> N
 
     fanned = plan(house, spec, dask_scheduler=cluster.scheduler_address, progress=progress)
     assert killed
-    assert_same_files(local, fanned, tmp_path)
+    assert_same_plans(local, fanned, tmp_path)
 
 
 def test_unreachable_scheduler_is_named() -> None:
@@ -278,7 +271,7 @@ def test_house_in_parts_same_bytes(cluster: Any, house: Scene, tmp_path: Path,
     local = plan(house, spec)
     monkeypatch.setattr(scaleout, "TILE_FACES", 3_000)
     fanned = plan(house, spec, dask_scheduler=cluster.scheduler_address)
-    assert_same_files(local, fanned, tmp_path)
+    assert_same_plans(local, fanned, tmp_path)
 
 
 def test_tile_parts_hold_few_faces_and_give_the_tiles_pairs(house_tiles: HouseTiles) -> None:

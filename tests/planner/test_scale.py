@@ -19,7 +19,6 @@ from planner import scene as scene_module
 from planner.candidates.grid import read_candidates_csv
 from planner.io.readers import read_scene
 from planner.limits import FaceLimits
-from planner.outputs.report import write_outputs
 from planner.parameters import PlanSpec
 from planner.pipeline import plan
 from planner.rays import make_occlusion
@@ -27,6 +26,7 @@ from planner.scene import build_scene, remesh
 from planner.visibility import bundles
 from planner.visibility.coverage import CoverageTable, StationRows
 from planner.visibility.pairs import PairFinder
+from tests.planner.plan_files import assert_same_files, files_of
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -110,12 +110,7 @@ def test_a_plan_keeps_its_stations_rows_and_writes_the_files_of_the_whole_table(
     other = next(c for c in range(whole.table.n_candidates) if c not in lean.chosen.stations)
     with pytest.raises(KeyError, match="keep_table=True"):
         lean.table.faces_of(other)
-    written = write_outputs(whole, tmp_path / "whole")
-    assert written, "the plan wrote no file"
-    lean_written = write_outputs(lean, tmp_path / "lean")
-    assert [p.name for p in lean_written] == [p.name for p in written]
-    for path in written:
-        assert (tmp_path / "lean" / path.name).read_bytes() == path.read_bytes(), path.name
+    assert_same_files(files_of(whole, tmp_path / "whole"), files_of(lean, tmp_path / "lean"))
 
 
 def test_bundles_let_go_for_the_selection_give_the_same_files(
@@ -123,7 +118,7 @@ def test_bundles_let_go_for_the_selection_give_the_same_files(
     """On a large model the plan lets the pieces' bundles go before the selection and the
     overlap rows make them again: the files are those of a plan that kept them."""
     scene = read_scene(scenes_dir / "IfcOpenHouse_IFC4.ifc", split_faces="as_needed")
-    kept = write_outputs(plan(scene, PlanSpec()), tmp_path / "kept")
+    kept = files_of(plan(scene, PlanSpec()), tmp_path / "kept")
     held_in_selection: list[bool] = []
     choose = pipeline.choose
 
@@ -135,12 +130,10 @@ def test_bundles_let_go_for_the_selection_give_the_same_files(
     monkeypatch.setattr(pipeline, "BOUNDED_HEAP_FACES", 0)  # this house counts as large
     scene = read_scene(scenes_dir / "IfcOpenHouse_IFC4.ifc", split_faces="as_needed")
     result = plan(scene, PlanSpec())
-    made_again = write_outputs(result, tmp_path / "again")
+    made_again = files_of(result, tmp_path / "again")
     assert held_in_selection == [False]
     assert bundles.bundles_of(result.scene) is not None, "the house has no bundles to let go"
-    assert [p.name for p in made_again] == [p.name for p in kept]
-    for path in kept:
-        assert (tmp_path / "again" / path.name).read_bytes() == path.read_bytes(), path.name
+    assert_same_files(kept, made_again)
 
 
 def test_file_faces_keep_the_hall_results(scenes_dir: Path) -> None:
