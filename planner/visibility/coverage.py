@@ -344,14 +344,18 @@ class StationRows:
         """(F,) bool: qualified from at least one candidate."""
         return self.candidates_per_face > 0
 
+    @functools.cached_property
+    def _row_of(self) -> dict[int, int]:
+        """Each station's row in ``rows`` (the per-face results ask for every station's)."""
+        return {station: row for row, station in enumerate(self.stations)}
+
     def faces_of(self, candidate: int) -> NDArray[np.int32]:
         """Faces that station ``candidate`` qualifies for, ascending (a new array)."""
-        try:
-            row = self.stations.index(candidate)
-        except ValueError:
+        row = self._row_of.get(candidate)
+        if row is None:
             raise KeyError(f"candidate {candidate} is not a station of this plan: only the "
                            "stations' rows are kept (plan(..., keep_table=True) keeps the "
-                           "whole coverage table)") from None
+                           "whole coverage table)")
         return self.rows.faces_of(row)
 
 
