@@ -10,7 +10,7 @@ import sqlite3
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -119,6 +119,12 @@ def _live_processes() -> Iterator[tuple[int, int, int]]:
 def session_pids(sid: int) -> list[int]:
     """Live (non-zombie) processes whose session id is ``sid``."""
     return sorted(pid for pid, _, session in _live_processes() if session == sid)
+
+
+def live_pids(pids: Iterable[int]) -> list[int]:
+    """Those of ``pids`` that are live (non-zombie) processes."""
+    wanted = set(pids)
+    return sorted(pid for pid, _, _ in _live_processes() if pid in wanted)
 
 
 def child_pids(pid: int) -> list[int]:

@@ -10,6 +10,7 @@ import pytest
 from service.config import Settings
 from service.job_store import JobStore
 from service.worker import Reaper, build_context
+from tests.e2e.service_process import live_pids
 from tests.service.conftest import InlineQueue
 
 
@@ -151,16 +152,7 @@ def test_a_consumer_stopped_as_its_workers_start_stops_them(tmp_path: Path) -> N
     alive = started
     while alive and time.monotonic() < deadline:
         time.sleep(0.2)
-        alive = [pid for pid in started if _running(pid)]
+        alive = live_pids(started)
     for pid in alive:
         os.kill(pid, 9)  # not left behind by a failing test
     assert alive == [], "worker processes outlived their consumer"
-
-
-def _running(pid: int) -> bool:
-    """Whether process ``pid`` runs (a zombie, dead and not yet reaped, does not)."""
-    try:
-        with open(f"/proc/{pid}/stat") as stat:
-            return stat.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except FileNotFoundError:
-        return False
